@@ -1,0 +1,66 @@
+"""The recommended setup: train on the built-in `diffuse` scene in a few minutes on a 2-core CPU.
+
+  python train.py --config=configs/default.py --workdir=runs/default
+  python train.py --config=configs/default.py --config.num_samples=128 --workdir=runs/s128
+"""
+
+import ml_collections
+
+
+def get_config():
+  config = ml_collections.ConfigDict()
+  config.seed = 0  # PRNG seed for initialisation, ray batches and jitter
+  config.num_samples = 64  # NUM_SAMPLES: stratified (coarse) samples per ray
+  config.num_fine_samples = 0  # extra samples drawn from the coarse weights (0 = no hierarchy)
+  config.pos_encode_dims = 10  # POS_ENCODE_DIMS: frequency bands for positions
+  config.dir_encode_dims = 4  # frequency bands for viewing directions (view-dependent model)
+
+  config.data = data = ml_collections.ConfigDict()
+  data.path = ""  # dataset: .npz (tiny_nerf) or Blender directory; empty = built-in scene
+  data.scene = "diffuse"  # built-in scene name (see nerf_jax/scenes)
+  data.num_views = 100  # built-in scene: number of rendered views
+  data.image_size = 100  # built-in scene: height = width in pixels
+  data.holdout_from = -1  # views[holdout_from:] are test views; -1 = the reference's 80/20 split
+  data.pixel_center = 0.0  # 0 = rays through pixel corners (reference), 0.5 = pixel centres
+  data.background = "black"  # 'black', 'white', 'random' (training) or an RGB triple
+  data.half_res = False  # Blender data: load at half resolution
+  data.lindisp = False  # sample linearly in inverse depth instead of depth
+  data.near = 0.0  # near bound override (0 = the dataset's, 2 for tiny_nerf)
+  data.far = 0.0  # far bound override (0 = the dataset's, 6 for tiny_nerf)
+
+  config.model = model = ml_collections.ConfigDict()
+  model.depth = 8  # hidden layers
+  model.width = 64  # units per hidden layer (reference 64, paper 256)
+  model.skip_layers = (4,)  # re-inject the input after these layers (0-based)
+  model.view_dependent = False  # colour depends on the viewing direction (paper's 5D input)
+  model.view_width = 32  # width of the view-dependent colour layer
+  model.density_activation = "relu"  # 'relu' (reference), 'softplus' (shifted) or 'exp'
+  model.density_noise = 0.0  # std of noise added to raw density while training (paper: 1)
+  model.shared_fine = False  # one network for coarse and fine passes instead of two
+  model.dtype = "float32"  # matmul dtype: float32, bfloat16 or float16
+
+  config.train = train = ml_collections.ConfigDict()
+  train.max_steps = 3000  # step budget
+  train.max_seconds = 0.0  # wall-clock budget in seconds (0 = no limit)
+  train.batch_rays = 1024  # rays per step (random rays over all training images)
+  train.batching = "rays"  # 'rays' (random rays) or 'images' (whole images, as the reference)
+  train.images_per_step = 5  # whole images per step when batching == 'images'
+  train.lr = 2e-3  # initial Adam learning rate
+  train.lr_final = 1e-4  # learning rate at max_steps (exponential decay)
+  train.warmup_steps = 100  # linear warm-up from 0
+  train.grad_clip = 0.0  # clip gradients to this global norm (0 = off)
+  train.coarse_loss_weight = 1.0  # weight of the coarse pass loss when a fine pass exists
+  train.log_every = 100  # steps between progress lines and metrics.jsonl records
+  train.eval_every = 0  # steps between test-view evaluations (0 = only at the end)
+  train.eval_views = 2  # test views rendered for periodic evaluations (the final one uses all)
+  train.checkpoint_every = 1000  # steps between checkpoints
+  train.keep_checkpoints = 2  # checkpoints kept in the workdir
+
+  config.render = render = ml_collections.ConfigDict()
+  render.chunk = 4096  # rays per jitted render call
+  render.video_frames = 120  # frames in the 360° orbit video
+  render.fps = 30  # video frame rate
+  render.orbit_phi = -30.0  # orbit elevation in degrees
+  render.orbit_radius = 4.0  # orbit distance from the origin
+  render.after_training = True  # train.py renders test views and the video when done
+  return config

@@ -1,0 +1,74 @@
+"""Atomic checkpoints of a training state: `workdir/checkpoints/ckpt_<step>.msgpack`.
+
+A checkpoint is written to a temporary file, flushed to disk and renamed into place, so a run
+killed at any moment leaves either the previous complete checkpoint or the new complete one.
+A `model_signature` (the config fields that fix parameter shapes) is stored beside the state, so
+restoring into an incompatible config is refused with a message instead of failing deep in Flax.
+"""
+
+import json
+import os
+import re
+
+from flax import serialization
+
+_NAME = re.compile(r"^ckpt_(\d+)\.msgpack$")
+
+
+class CheckpointError(ValueError):
+  """A checkpoint that cannot be used with the current config."""
+
+
+def checkpoint_dir(workdir):
+  return os.path.join(workdir, "checkpoints")
+
+
+def list_steps(workdir):
+  """Steps of the complete checkpoints in `workdir`, ascending."""
+  folder = checkpoint_dir(workdir)
+  if not os.path.isdir(folder):
+    return []
+  return sorted(int(m.group(1)) for m in map(_NAME.match, os.listdir(folder)) if m)
+
+
+def latest_path(workdir):
+  """Path of the newest checkpoint, or None."""
+  steps = list_steps(workdir)
+  return os.path.join(checkpoint_dir(workdir), f"ckpt_{steps[-1]}.msgpack") if steps else None
+
+
+def _atomic_write(path, data):
+  tmp = f"{path}.tmp-{os.getpid()}"
+  with open(tmp, "wb") as f:
+    f.write(data)
+    f.flush()
+    os.fsync(f.fileno())
+  os.replace(tmp, path)  # atomic on POSIX: readers see the old file or the new one
+
+
+def save(workdir, step, state, signature, keep=2):
+  """Write `state` (a pytree) as the checkpoint of `step`; keep the newest `keep`. Returns path."""
+  folder = checkpoint_dir(workdir)
+  os.makedirs(folder, exist_ok=True)
+  payload = {"state": serialization.to_state_dict(state), "signature": json.dumps(signature)}
+  path = os.path.join(folder, f"ckpt_{step}.msgpack")
+  _atomic_write(path, serialization.msgpack_serialize(payload))
+  for old in list_steps(workdir)[:-keep]:
+    os.remove(os.path.join(folder, f"ckpt_{old}.msgpack"))
+  return path
+
+
+def restore(path, template, signature):
+  """Restore the state saved at `path` into the structure of `template`.
+
+  Raises CheckpointError if the checkpoint's model signature differs from `signature`.
+  """
+  with open(path, "rb") as f:
+    payload = serialization.msgpack_restore(f.read())
+  saved = json.loads(payload["signature"])
+  if saved != json.loads(json.dumps(signature)):
+    diffs = [f"{k}: checkpoint {saved.get(k)!r} vs config {v!r}"
+             for k, v in json.loads(json.dumps(signature)).items() if saved.get(k) != v]
+    raise CheckpointError(f"{path} was made with an incompatible config ({'; '.join(diffs)}); "
+                          "use a new --workdir or the original config")
+  return serialization.from_state_dict(template, payload["state"])

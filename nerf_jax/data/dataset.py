@@ -1,0 +1,65 @@
+"""A set of posed images, the common output of every loader and built-in scene."""
+
+import dataclasses
+from typing import Optional
+
+import numpy as np
+
+
+class DataError(ValueError):
+  """Bad or missing input data; the one-line message names the file or field at fault."""
+
+
+@dataclasses.dataclass
+class Dataset:
+  """Posed images of one scene (conventions of `nerf_jax.rays`).
+
+  images: float32 [N, H, W, 3] in [0, 1], composited on the background.
+  poses: float32 [N, 4, 4], camera-to-world.
+  intrinsics: (fx, fy, cx, cy) in pixels.
+  near, far: float, z-depth bounds of the scene.
+  depths: float32 [N, H, W] or None, ground-truth expected depth (built-in scenes only).
+  accs: float32 [N, H, W] or None, ground-truth opacity (built-in scenes only).
+  name: str, the scene or file it came from.
+  """
+  images: np.ndarray
+  poses: np.ndarray
+  intrinsics: tuple
+  near: float = 2.0
+  far: float = 6.0
+  depths: Optional[np.ndarray] = None
+  accs: Optional[np.ndarray] = None
+  name: str = ""
+
+  @property
+  def height(self):
+    return self.images.shape[1]
+
+  @property
+  def width(self):
+    return self.images.shape[2]
+
+  @property
+  def focal(self):
+    return self.intrinsics[0]
+
+  def __len__(self):
+    return len(self.images)
+
+  def subset(self, indices):
+    """The views `indices` (int array, slice or list), as a new Dataset."""
+    take = lambda a: None if a is None else a[indices]
+    return dataclasses.replace(self, images=self.images[indices], poses=self.poses[indices],
+                               depths=take(self.depths), accs=take(self.accs))
+
+  def split(self, holdout_from=-1):
+    """(train, test): views [:holdout_from] and [holdout_from:].
+
+    holdout_from: int in [1, N - 1], or -1 for the reference's split (train = first 80%).
+    """
+    num = len(self)
+    cut = int(0.8 * num) if holdout_from == -1 else holdout_from
+    if not 1 <= cut <= num - 1:
+      raise DataError(f"{self.name}: holdout_from={holdout_from} leaves an empty split of "
+                      f"{num} views (use -1 or 1..{num - 1})")
+    return self.subset(slice(0, cut)), self.subset(slice(cut, num))

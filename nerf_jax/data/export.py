@@ -1,0 +1,104 @@
+"""Write a Dataset as a tiny_nerf .npz or a NeRF-synthetic (Blender) folder.
+
+  python -m nerf_jax.data.export --scene=fog --format=blender --out=/tmp/fog [--alpha]
+
+PNG alpha: by default every pixel is opaque (alpha = 255) and holds the composited image, so that
+`load_blender` returns the same images (to 8-bit quantisation, 1/255) with any `background`.
+With `background` given (and ground-truth `accs`), alpha = opacity and the colour is the
+unpremultiplied emission, as in the original NeRF data: loading with that background gives the
+images back to within 1/255, and another background re-composites the scene.
+"""
+
+import argparse
+import json
+import math
+import os
+import sys
+
+import imageio.v3 as iio
+import numpy as np
+
+from nerf_jax import scenes
+from nerf_jax.data.dataset import DataError
+
+
+def _pinhole_focal(dataset):
+  """The single focal length; DataError if the intrinsics are not a centred pinhole."""
+  fx, fy, cx, cy = dataset.intrinsics
+  if fx != fy or cx != dataset.width * 0.5 or cy != dataset.height * 0.5:
+    raise DataError(f"{dataset.name}: intrinsics {dataset.intrinsics} are not a centred pinhole "
+                    "camera; the format cannot store them")
+  return float(fx)
+
+
+def export_npz(dataset, path):
+  """tiny_nerf arrays (images, poses, focal) plus near, far and any ground-truth depths, accs."""
+  extra = {k: getattr(dataset, k) for k in ("depths", "accs") if getattr(dataset, k) is not None}
+  np.savez(path, images=dataset.images, poses=dataset.poses, focal=_pinhole_focal(dataset),
+           near=dataset.near, far=dataset.far, **extra)
+
+
+def _rgba8(images, accs, background):
+  """uint8 [N, H, W, 4] PNG pixels from float32 images [N, H, W, 3] (see the module docstring)."""
+  if background is None or accs is None:
+    alpha = np.ones_like(images[..., :1])
+    colour = images
+  else:
+    alpha = np.round(accs[..., None] * 255.0) / 255.0  # unpremultiply by the stored alpha
+    emitted = images - (1.0 - alpha) * np.asarray(background, np.float32)
+    colour = np.where(alpha > 0.0, emitted / np.maximum(alpha, 1e-12), 0.0)
+  rgba = np.concatenate([np.clip(colour, 0.0, 1.0), alpha], -1)
+  return np.round(rgba * 255.0).astype(np.uint8)
+
+
+def export_blender(dataset, dirpath, split_at=None, background=None):
+  """transforms_{train,val,test}.json and PNGs; train = views[:split_at], test = val = the rest.
+
+  split_at: int or None (= the 80/20 split of `Dataset.split(-1)`).
+  background: RGB triple or None; see the module docstring.
+  """
+  angle = 2.0 * math.atan(0.5 * dataset.width / _pinhole_focal(dataset))
+  parts = dict(zip(("train", "test"), dataset.split(-1 if split_at is None else split_at)))
+  for split, part in parts.items():
+    os.makedirs(os.path.join(dirpath, split), exist_ok=True)
+    frames = []
+    for k, rgba in enumerate(_rgba8(part.images, part.accs, background)):
+      iio.imwrite(os.path.join(dirpath, split, f"r_{k}.png"), rgba)
+      frames.append({"file_path": f"./{split}/r_{k}",
+                     "transform_matrix": part.poses[k].astype(np.float64).tolist()})
+    meta = {"camera_angle_x": angle, "near": dataset.near, "far": dataset.far, "frames": frames}
+    for name in (split, "val") if split == "test" else (split,):
+      with open(os.path.join(dirpath, f"transforms_{name}.json"), "w") as f:
+        json.dump(meta, f, indent=1)
+
+
+def main(argv=None):
+  parser = argparse.ArgumentParser(description="Export a built-in scene.")
+  parser.add_argument("--scene", required=True, help=f"one of {', '.join(scenes.SCENES)}")
+  parser.add_argument("--format", required=True, choices=("npz", "blender"))
+  parser.add_argument("--out", required=True, help=".npz file or Blender folder to write")
+  parser.add_argument("--num_views", type=int, default=100)
+  parser.add_argument("--image_size", type=int, default=100)
+  parser.add_argument("--pixel_center", type=float, default=0.0)
+  parser.add_argument("--seed", type=int, default=0)
+  parser.add_argument("--alpha", action="store_true", help="Blender: alpha = opacity")
+  args = parser.parse_args(argv)
+  try:
+    scene = scenes.get_scene(args.scene)
+    dataset = scenes.make_dataset(
+        args.scene, args.num_views, args.image_size, args.image_size,
+        scenes.TINY_NERF_FOCAL * args.image_size / 100, pixel_center=args.pixel_center,
+        seed=args.seed)
+    if args.format == "npz":
+      export_npz(dataset, args.out)
+    else:
+      export_blender(dataset, args.out, background=scene.background if args.alpha else None)
+  except (ValueError, OSError) as e:  # DataError is a ValueError
+    print(f"error: {e}", file=sys.stderr)
+    return 1
+  print(f"wrote {len(dataset)} views of {args.scene} to {args.out}")
+  return 0
+
+
+if __name__ == "__main__":
+  sys.exit(main())

@@ -1,0 +1,154 @@
+"""Cameras and rays.
+
+Conventions (those of the tiny_nerf data and the Keras reference):
+  * camera-to-world matrices `c2w: float32 [3, 4] or [4, 4]`; the camera looks down its -z axis,
+    +x is right and +y is up in the image;
+  * pixel (i, j) = (column, row) looks along `c2w[:3, :3] @ [(i + p - cx)/fx, -(j + p - cy)/fy, -1]`
+    where p is the pixel-centre offset (0 = pixel corners as in the reference, 0.5 = pixel centres
+    as in Blender or Mitsuba);
+  * ray directions are NOT normalised: their camera-space z component is -1, so the distance `t`
+    along a ray is the depth along the optical axis (z-depth). near/far bounds are z-planes.
+"""
+
+import math
+
+import flax.struct
+import jax.numpy as jnp
+import numpy as np
+
+
+@flax.struct.dataclass
+class Rays:
+  """A batch of rays (a pytree; every field shares the leading shape `...`).
+
+  origins: float32 [..., 3], camera centre of each ray.
+  directions: float32 [..., 3], un-normalised direction (camera-space z = -1), so t is z-depth.
+  """
+  origins: jnp.ndarray
+  directions: jnp.ndarray
+
+  @property
+  def viewdirs(self):
+    """float32 [..., 3], unit viewing directions."""
+    return safe_normalize(self.directions)
+
+  def reshape(self, *shape):
+    return Rays(self.origins.reshape(*shape, 3), self.directions.reshape(*shape, 3))
+
+
+def safe_normalize(v, eps=1e-20):
+  """Unit vectors with a finite value and gradient at v = 0.
+
+  v: float32 [..., 3]. Returns float32 [..., 3]; the zero vector maps to zero.
+  A plain v / |v| divides by zero at the origin, and the gradient of sqrt(0) is inf; clamping the
+  squared norm *before* the sqrt keeps both the value and the gradient finite.
+  """
+  sq_norm = jnp.sum(v * v, axis=-1, keepdims=True)
+  return v * jnp.reciprocal(jnp.sqrt(jnp.maximum(sq_norm, eps)))
+
+
+def pixel_directions(height, width, fx, fy, cx, cy, pixel_center=0.0):
+  """Camera-space directions of every pixel.
+
+  height, width: int, image size. fx, fy: float focal lengths in pixels. cx, cy: float principal
+  point in pixels. pixel_center: float offset inside a pixel (0 corners, 0.5 centres).
+  Returns float32 [height, width, 3] with z = -1.
+  """
+  i, j = jnp.meshgrid(jnp.arange(width, dtype=jnp.float32),
+                      jnp.arange(height, dtype=jnp.float32), indexing="xy")
+  x = (i + pixel_center - cx) / fx
+  y = -(j + pixel_center - cy) / fy
+  return jnp.stack([x, y, -jnp.ones_like(x)], axis=-1)
+
+
+def camera_rays(dirs_cam, c2w):
+  """World-space rays from camera-space directions.
+
+  dirs_cam: float32 [..., 3]. c2w: float32 [3, 4] or [4, 4]. Returns (origins, directions), each
+  float32 [..., 3].
+  """
+  c2w = jnp.asarray(c2w, jnp.float32)
+  directions = jnp.einsum("ij,...j->...i", c2w[:3, :3], dirs_cam)
+  origins = jnp.broadcast_to(c2w[:3, 3], directions.shape)
+  return origins, directions
+
+
+def get_rays(height, width, focal, c2w, pixel_center=0.0):
+  """Rays through every pixel of a pinhole camera with a centred principal point.
+
+  height, width: int. focal: float, focal length in pixels. c2w: float32 [3, 4] or [4, 4].
+  pixel_center: float, 0 (reference, default) or 0.5.
+  Returns (origins, directions): each float32 [height, width, 3].
+  """
+  dirs = pixel_directions(height, width, focal, focal, width * 0.5, height * 0.5, pixel_center)
+  return camera_rays(dirs, c2w)
+
+
+def get_rays_intrinsics(height, width, intrinsics, c2w, pixel_center=0.0):
+  """Like `get_rays` with general intrinsics `(fx, fy, cx, cy)` in pixels."""
+  fx, fy, cx, cy = intrinsics
+  return camera_rays(pixel_directions(height, width, fx, fy, cx, cy, pixel_center), c2w)
+
+
+def project(points, height, width, focal, c2w, pixel_center=0.0):
+  """Inverse of `get_rays`: the continuous pixel coordinates (i, j) of world points.
+
+  points: float [..., 3]. Returns float [..., 2] (column i, row j) such that the ray of pixel
+  (i, j) passes through the point.
+  """
+  c2w = np.asarray(c2w, np.float64)
+  rot, origin = c2w[:3, :3], c2w[:3, 3]
+  cam = (np.asarray(points, np.float64) - origin) @ rot  # world -> camera: R^T (p - o)
+  x, y = cam[..., 0] / -cam[..., 2], cam[..., 1] / -cam[..., 2]
+  return np.stack([x * focal + width * 0.5 - pixel_center,
+                   -y * focal + height * 0.5 - pixel_center], axis=-1)
+
+
+def pose_spherical(theta, phi, radius):
+  """Camera-to-world matrix on a sphere, looking at the origin (the reference's orbit).
+
+  theta: float, azimuth in degrees. phi: float, elevation in degrees (negative = above the
+  horizon, looking down). radius: float, distance to the origin. Returns float32 [4, 4].
+  """
+  th, ph = math.radians(theta), math.radians(phi)
+  translate = np.eye(4)
+  translate[2, 3] = radius
+  rot_phi = np.array([[1, 0, 0, 0],
+                      [0, math.cos(ph), -math.sin(ph), 0],
+                      [0, math.sin(ph), math.cos(ph), 0],
+                      [0, 0, 0, 1]])
+  rot_theta = np.array([[math.cos(th), 0, -math.sin(th), 0],
+                        [0, 1, 0, 0],
+                        [math.sin(th), 0, math.cos(th), 0],
+                        [0, 0, 0, 1]])
+  swap = np.array([[-1, 0, 0, 0], [0, 0, 1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])  # y-up -> z-up
+  return (swap @ rot_theta @ rot_phi @ translate).astype(np.float32)
+
+
+def orbit_poses(num_frames=120, phi=-30.0, radius=4.0):
+  """A 360° orbit of `num_frames` poses: float32 [num_frames, 4, 4]."""
+  thetas = np.linspace(0.0, 360.0, num_frames, endpoint=False)
+  return np.stack([pose_spherical(th, phi, radius) for th in thetas])
+
+
+def spiral_poses(center_pose, radii, focus_depth, num_frames=120, rotations=2):
+  """A spiral path for forward-facing scenes, looking at a point `focus_depth` ahead.
+
+  center_pose: float [3, 4] or [4, 4], the average camera. radii: float [3], spiral extent along
+  the camera's x, y, z. Returns float32 [num_frames, 4, 4].
+  """
+  c2w = np.asarray(center_pose, np.float64)[:3, :4]
+  focus = c2w[:, 3] - focus_depth * c2w[:, 2]  # the camera looks down -z
+  up = c2w[:, 1]
+  poses = []
+  for angle in np.linspace(0.0, 2 * np.pi * rotations, num_frames, endpoint=False):
+    offset = np.array([math.cos(angle), -math.sin(angle), -math.sin(0.5 * angle)]) * radii
+    centre = c2w[:, 3] + c2w[:, :3] @ offset
+    back = centre - focus
+    back /= np.linalg.norm(back)
+    right = np.cross(up, back)
+    right /= np.linalg.norm(right)
+    pose = np.eye(4)
+    pose[:3, :4] = np.stack([right, np.cross(back, right), back, centre], axis=1)
+    poses.append(pose)
+  return np.stack(poses).astype(np.float32)

@@ -1,0 +1,142 @@
+"""Rendering trained models: test-view evaluation, 360° videos, views from a pose file.
+
+Depth images are z-depth (distance along the camera's optical axis, see rays.py); the float
+arrays are saved as `.npy` in scene units, and the PNGs map [near, far] to a colour map.
+"""
+
+import json
+import os
+
+import imageio.v2 as imageio
+import numpy as np
+
+from nerf_jax import metrics, renderer
+from nerf_jax.rays import get_rays_intrinsics, orbit_poses
+
+# Control points of a perceptually ordered colour map (dark blue -> teal -> yellow), for depth.
+_CMAP = np.array([[0.05, 0.03, 0.25], [0.23, 0.30, 0.55], [0.13, 0.57, 0.55],
+                  [0.37, 0.79, 0.38], [0.99, 0.91, 0.14]])
+
+
+def colorize(depth, near, far):
+  """Colour-mapped depth: uint8 [..., 3] from depth float32 [...] (near = dark, far = bright)."""
+  x = np.clip((np.asarray(depth) - near) / max(far - near, 1e-9), 0.0, 1.0)
+  pos = np.linspace(0.0, 1.0, len(_CMAP))
+  rgb = np.stack([np.interp(x, pos, _CMAP[:, c]) for c in range(3)], axis=-1)
+  return to_uint8(rgb)
+
+
+def to_uint8(image):
+  """uint8 image from a float image in [0, 1]."""
+  return (np.clip(np.asarray(image), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def background_colour(config):
+  """The compositing background as float32 [3] (black for 'random', which is drawn per ray)."""
+  bg = config.data.background
+  named = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0), "random": (0.0, 0.0, 0.0)}
+  if isinstance(bg, str):
+    if bg not in named:
+      raise ValueError(f"config.data.background={bg!r}: use 'black', 'white', 'random' "
+                          "or an RGB triple")
+    return np.array(named[bg], np.float32)
+  return np.asarray(bg, np.float32).reshape(3)
+
+
+def render_pose(render_chunk, params, pose, height, width, intrinsics, config, background):
+  """Render one camera: numpy dict rgb [H, W, 3], depth [H, W], acc [H, W]."""
+  origins, directions = get_rays_intrinsics(height, width, intrinsics, pose,
+                                            config.data.pixel_center)
+  return renderer.render_image(render_chunk, params, origins, directions, config.render.chunk,
+                               background)
+
+
+def make_evaluator(model, config, near, far, test_ds):
+  """fn(params, max_views=None, out_dir=None) -> {'psnr', 'ssim', 'per_view'} on the test views.
+
+  With `out_dir`, writes per view a PNG of [prediction | depth | ground truth] and depth `.npy`.
+  """
+  render_chunk = renderer.make_chunk_renderer(model, config, near, far)
+  background = background_colour(config)
+
+  def evaluate(params, max_views=None, out_dir=None):
+    count = len(test_ds) if max_views is None else min(max_views, len(test_ds))
+    per_view = []
+    for i in range(count):
+      out = render_pose(render_chunk, params, test_ds.poses[i], test_ds.height, test_ds.width,
+                        test_ds.intrinsics, config, background)
+      truth = test_ds.images[i]
+      view = {"view": i, "psnr": float(metrics.psnr(out["rgb"], truth)),
+              "ssim": float(metrics.ssim(out["rgb"], truth))}
+      per_view.append(view)
+      if out_dir:
+        _write_eval_view(out_dir, i, out, truth, near, far)
+    result = {"psnr": float(np.mean([v["psnr"] for v in per_view])),
+              "ssim": float(np.mean([v["ssim"] for v in per_view])), "per_view": per_view}
+    if out_dir:
+      with open(os.path.join(out_dir, "metrics.json"), "w") as f:
+        json.dump(result, f, indent=2)
+    return result
+
+  return evaluate
+
+
+def _write_eval_view(out_dir, index, out, truth, near, far):
+  os.makedirs(out_dir, exist_ok=True)
+  panel = np.concatenate([to_uint8(out["rgb"]), colorize(out["depth"], near, far),
+                          to_uint8(truth)], axis=1)
+  imageio.imwrite(os.path.join(out_dir, f"view_{index:03d}.png"), panel)
+  np.save(os.path.join(out_dir, f"depth_{index:03d}.npy"), out["depth"].astype(np.float32))
+
+
+def render_frames(model, params, config, near, far, poses, height, width, intrinsics):
+  """Render a list of poses: yields numpy dicts rgb [H, W, 3], depth [H, W], acc [H, W]."""
+  render_chunk = renderer.make_chunk_renderer(model, config, near, far)
+  background = background_colour(config)
+  for pose in poses:
+    yield render_pose(render_chunk, params, pose, height, width, intrinsics, config, background)
+
+
+def render_video(model, params, config, near, far, dataset, out_dir):
+  """A 360° orbit (the reference's pose_spherical path) as rgb.mp4 and depth.mp4 in `out_dir`."""
+  os.makedirs(out_dir, exist_ok=True)
+  poses = orbit_poses(config.render.video_frames, config.render.orbit_phi,
+                      config.render.orbit_radius)
+  rgb_frames, depth_frames = [], []
+  for out in render_frames(model, params, config, near, far, poses, dataset.height,
+                           dataset.width, dataset.intrinsics):
+    rgb_frames.append(to_uint8(out["rgb"]))
+    depth_frames.append(colorize(out["depth"], near, far))
+  paths = {}
+  for name, frames in (("rgb", rgb_frames), ("depth", depth_frames)):
+    paths[name] = os.path.join(out_dir, f"{name}.mp4")
+    imageio.mimwrite(paths[name], frames, fps=config.render.fps, macro_block_size=1)
+  return paths
+
+
+def load_poses(path):
+  """Camera poses float32 [N, 4, 4] from a .npy ([N,3,4] or [N,4,4]) or a Blender-style .json."""
+  if path.endswith(".json"):
+    with open(path) as f:
+      poses = np.array([frame["transform_matrix"] for frame in json.load(f)["frames"]])
+  else:
+    poses = np.load(path)
+  poses = np.asarray(poses, np.float32)
+  if poses.ndim != 3 or poses.shape[1:] not in ((3, 4), (4, 4)):
+    raise ValueError(f"{path}: poses must have shape [N, 3, 4] or [N, 4, 4], got {poses.shape}")
+  if poses.shape[1] == 3:
+    bottom = np.broadcast_to(np.array([0, 0, 0, 1], np.float32), (len(poses), 1, 4))
+    poses = np.concatenate([poses, bottom], axis=1)
+  return poses
+
+
+def render_views(model, params, config, near, far, dataset, poses, out_dir):
+  """Render `poses` to `out_dir/view_XXX.png` (+ depth PNG and .npy). Returns the count."""
+  os.makedirs(out_dir, exist_ok=True)
+  frames = render_frames(model, params, config, near, far, poses, dataset.height, dataset.width,
+                         dataset.intrinsics)
+  for i, out in enumerate(frames):
+    imageio.imwrite(os.path.join(out_dir, f"view_{i:03d}.png"), to_uint8(out["rgb"]))
+    imageio.imwrite(os.path.join(out_dir, f"depth_{i:03d}.png"), colorize(out["depth"], near, far))
+    np.save(os.path.join(out_dir, f"depth_{i:03d}.npy"), out["depth"].astype(np.float32))
+  return len(poses)

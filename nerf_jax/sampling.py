@@ -1,0 +1,128 @@
+"""Sampling distances along rays.
+
+A ray's samples are described by sorted interval edges `t: float32 [..., S + 1]`: sample i covers
+[t_i, t_{i+1}] and is evaluated at its midpoint. t is the ray parameter (z-depth, see rays.py)
+and is always float32, whatever precision the network runs in.
+"""
+
+import jax
+import jax.numpy as jnp
+
+# Smallest near bound used by linear-in-disparity sampling: 1/near must stay finite.
+_MIN_NEAR_LINDISP = 1e-3
+
+
+def midpoints(t):
+  """Sample positions: float32 [..., S] midpoints of the intervals of `t: [..., S + 1]`."""
+  return 0.5 * (t[..., 1:] + t[..., :-1])
+
+
+def stratified(near, far, num_samples, batch_shape, key=None, lindisp=False):
+  """Stratified interval edges between near and far.
+
+  near, far: float or float32 broadcastable to batch_shape, 0 <= near <= far. num_samples: int S.
+  batch_shape: tuple, leading shape of the rays. key: PRNG key, or None for evenly spaced edges.
+  lindisp: space the edges evenly in 1/t (inverse depth) instead of t.
+  Returns t: float32 [*batch_shape, S + 1], sorted, t_0 = near and t_S = far exactly. With a key,
+  every interior edge is drawn uniformly between the midpoints of its neighbouring strata, so each
+  sample's midpoint lies in its own stratum and the intervals still tile [near, far].
+  near == far gives S zero-width intervals (composited as an empty ray). With lindisp, near is
+  clamped to 1e-3 inside the formula (1/0 = inf), so for near = 0 the first interval is
+  [0, ~1e-3·S/(S-1)]; all edges are clipped to [near, far].
+  """
+  near = jnp.broadcast_to(jnp.asarray(near, jnp.float32), batch_shape)[..., None]
+  far = jnp.broadcast_to(jnp.asarray(far, jnp.float32), batch_shape)[..., None]
+  s = jnp.linspace(0.0, 1.0, num_samples + 1, dtype=jnp.float32)
+  s = jnp.broadcast_to(s, (*batch_shape, num_samples + 1))
+  if key is not None:
+    mids = 0.5 * (s[..., 1:] + s[..., :-1])
+    lower = jnp.concatenate([s[..., :1], mids], axis=-1)
+    upper = jnp.concatenate([mids, s[..., -1:]], axis=-1)
+    u = jax.random.uniform(key, s.shape, jnp.float32)
+    s = lower + (upper - lower) * u
+    # lower + (upper - lower)·u can round one ulp past upper; cummax keeps the edges sorted.
+    s = jax.lax.cummax(s, axis=s.ndim - 1)
+  # Both maps below are compositions of monotone roundings of s, so the edges stay sorted even
+  # when near and far are a few ulps apart (near·(1 - s) + far·s is not monotone then).
+  if lindisp:
+    inv_near = 1.0 / jnp.maximum(near, _MIN_NEAR_LINDISP)
+    inv_far = 1.0 / jnp.maximum(far, _MIN_NEAR_LINDISP)
+    t = 1.0 / (inv_near + (inv_far - inv_near) * s)
+  else:
+    t = near + (far - near) * s
+  # Clipping (monotone) undoes the near clamp above and rounding past far; then pin the ends.
+  t = jnp.clip(t, near, far)
+  return t.at[..., 0].set(near[..., 0]).at[..., -1].set(far[..., 0])
+
+
+def sample_pdf(t, weights, num_samples, key=None, padding=0.01):
+  """Draw new distances by inverse-CDF sampling of a piecewise-constant density.
+
+  t: float32 [..., S + 1] interval edges. weights: float32 [..., S] non-negative weight of each
+  interval. num_samples: int N. key: PRNG key, or None for the deterministic quantiles
+  (u = (k + 0.5)/N). padding: float, added to every weight before normalising.
+  Returns float32 [..., N] sorted distances inside [t_0, t_S], with gradients stopped.
+
+  Safety: `padding` keeps the density strictly positive, so all-zero weights give uniform samples
+  and the CDF never has a zero total (with padding = 0 and no mass at all the density falls back
+  to uniform in t); zero-width bins get no mass, so no sample falls inside them and no division by
+  their width occurs; the CDF is a cumulative sum made monotone with cummax and pinned to exactly 0
+  and 1 at its ends (the last bin is never skipped by rounding); each sample is clipped to its bin.
+  """
+  t = jax.lax.stop_gradient(t)
+  weights = jax.lax.stop_gradient(weights)
+  widths = jnp.maximum(t[..., 1:] - t[..., :-1], 0.0)
+  # Zero-width bins hold no mass (padding included).
+  weights = jnp.where(widths > 0, jnp.maximum(weights, 0.0) + padding, 0.0)
+  total = jnp.sum(weights, axis=-1, keepdims=True)
+  # No mass at all (padding = 0 and zero weights): uniform in t instead of piling onto the last bin.
+  weights = jnp.where(total > 0, weights, widths)
+  total = jnp.sum(weights, axis=-1, keepdims=True)
+  # total = 0 only if every bin has zero width; then all samples are t_0 = t_S whatever the pdf.
+  pdf = weights / jnp.where(total > 0, total, 1.0)
+  cdf = jnp.minimum(1.0, jnp.cumsum(pdf[..., :-1], axis=-1))
+  # A cumulative sum need not be exactly monotone when evaluated as a parallel scan.
+  cdf = jax.lax.cummax(cdf, axis=cdf.ndim - 1)
+  zeros = jnp.zeros_like(cdf[..., :1])
+  ones = jnp.ones_like(cdf[..., :1])
+  cdf = jnp.concatenate([zeros, cdf, ones], axis=-1)  # [..., S + 1], exactly 0 and 1 at the ends
+  batch_shape = t.shape[:-1]
+  if key is None:
+    u = (jnp.arange(num_samples, dtype=jnp.float32) + 0.5) / num_samples
+    u = jnp.broadcast_to(u, (*batch_shape, num_samples))
+  else:
+    u = jax.random.uniform(key, (*batch_shape, num_samples), jnp.float32)
+  samples = _invert_cdf(u, t, cdf)
+  return jnp.sort(samples, axis=-1)
+
+
+def _invert_cdf(u, t, cdf):
+  """Piecewise-linear inverse of a CDF given at the edges t.
+
+  u: float32 [..., N] in [0, 1). t, cdf: float32 [..., S + 1], both non-decreasing.
+  Returns float32 [..., N] inside [t_0, t_S].
+  """
+  num_edges = t.shape[-1]
+  flat_u = u.reshape(-1, u.shape[-1])
+  flat_t = t.reshape(-1, num_edges)
+  flat_cdf = cdf.reshape(-1, num_edges)
+  # Bin index k with cdf[k] <= u < cdf[k+1]; 'right' skips empty (flat) bins.
+  idx = jax.vmap(lambda c, v: jnp.searchsorted(c, v, side="right"))(flat_cdf, flat_u)
+  idx = jnp.clip(idx, 1, num_edges - 1)
+  take = lambda a, i: jnp.take_along_axis(a, i, axis=-1)
+  cdf0, cdf1 = take(flat_cdf, idx - 1), take(flat_cdf, idx)
+  t0, t1 = take(flat_t, idx - 1), take(flat_t, idx)
+  width = cdf1 - cdf0
+  # A bin reached by searchsorted has width > 0, but guard the division for u == 1 exactly.
+  frac = jnp.where(width > 0, (flat_u - cdf0) / jnp.where(width > 0, width, 1.0), 0.0)
+  # The clip keeps the sample in its bin when t0 + frac·(t1 - t0) rounds past t1.
+  samples = jnp.clip(t0 + jnp.clip(frac, 0.0, 1.0) * (t1 - t0), t0, t1)
+  return samples.reshape(u.shape)
+
+
+def merge_edges(t, extra):
+  """Union of interval edges t: float32 [..., S + 1] and new edges extra: float32 [..., N].
+
+  Returns float32 [..., S + N + 1], sorted. Both inputs lie in [t_0, t_S] so the ends are kept.
+  """
+  return jnp.sort(jnp.concatenate([t, extra], axis=-1), axis=-1)

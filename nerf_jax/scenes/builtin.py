@@ -1,0 +1,90 @@
+"""The built-in scenes and their posed ground-truth datasets.
+
+Every scene fits in a ball of radius ~1.2 around the origin (z up), so that cameras at radius 4
+with near = 2, far = 6 and tiny_nerf's 40° field of view see it whole.
+"""
+
+import jax
+import numpy as np
+
+from nerf_jax import rays as rays_lib
+from nerf_jax.data.dataset import Dataset
+from nerf_jax.scenes import simulator
+from nerf_jax.scenes.geometry import Box, Cylinder, Sphere
+from nerf_jax.scenes.scene import Effects, Light, Material, Medium, Object, Scene
+
+TINY_NERF_FOCAL = 138.88887889922103  # focal of tiny_nerf's 100 x 100 images, in pixels
+
+RED, GREEN, BLUE = (0.9, 0.2, 0.15), (0.2, 0.75, 0.3), (0.2, 0.35, 0.9)
+YELLOW, PURPLE, GREY = (0.9, 0.75, 0.2), (0.65, 0.3, 0.8), (0.65, 0.65, 0.6)
+
+
+def _objects(specular=0.0, pedestal=True):
+  """Spheres and boxes of several colours, optionally standing on a grey disc (top at z = -0.5).
+
+  specular: float, Blinn-Phong strength of the spheres (half of it on the boxes and the disc).
+  """
+  gloss = lambda albedo, s, n: Material(albedo, specular * s, n)
+  objects = [
+      Object(Sphere((0.0, 0.0, 0.0), 0.5), gloss(RED, 1.0, 40.0)),
+      Object(Sphere((0.62, -0.45, -0.22), 0.28), gloss(GREEN, 1.0, 20.0)),
+      Object(Sphere((-0.5, 0.55, -0.3), 0.2), gloss(BLUE, 1.0, 60.0)),
+      Object(Box((-0.5, -0.45, -0.25), (0.4, 0.4, 0.5)), gloss(YELLOW, 0.5, 20.0)),
+      Object(Box((0.45, 0.5, -0.1), (0.25, 0.25, 0.8)), gloss(PURPLE, 0.5, 20.0)),
+  ]
+  if pedestal:
+    objects.append(Object(Cylinder((0.0, 0.0, -0.55), 1.0, 0.1), gloss(GREY, 0.5, 10.0)))
+  return tuple(objects)
+
+
+def _fog_scene():
+  objects = (
+      Object(Sphere((0.5, 0.3, -0.1), 0.35), Material(YELLOW)),  # straddles the fog's edge
+      Object(Box((0.0, 0.0, -0.2), (0.3, 0.3, 0.6)), Material(RED)),  # inside the fog
+      Object(Box((-0.65, -0.55, -0.3), (0.35, 0.35, 0.4)), Material(GREEN)),  # outside
+      Object(Cylinder((0.0, 0.0, -0.55), 1.0, 0.1), Material(GREY)),
+  )
+  fog = Medium(Sphere((0.0, 0.0, 0.0), 0.75), density=1.2, color=(0.35, 0.6, 1.0))
+  return Scene("fog", objects, Effects(participating_medium=True, shadows=True), medium=fog)
+
+
+SCENES = {
+    "diffuse": Scene("diffuse", _objects(pedestal=False), Effects()),
+    "glossy": Scene("glossy", _objects(specular=0.6), Effects(view_dependent=True, shadows=True)),
+    "fog": _fog_scene(),
+    "white": Scene("white", _objects(), Effects(background=True, shadows=True),
+                   light=Light(), background=(1.0, 1.0, 1.0)),
+}
+
+
+def get_scene(name):
+  """The built-in `Scene` called `name`; ValueError listing the valid names otherwise."""
+  if name not in SCENES:
+    raise ValueError(f"unknown scene {name!r} (valid: {', '.join(sorted(SCENES))})")
+  return SCENES[name]
+
+
+def random_poses(num_views, radius=4.0, seed=0):
+  """tiny_nerf-like cameras: float32 [num_views, 4, 4] from `pose_spherical(theta, phi, radius)`,
+  theta ~ U[0, 360) then phi ~ U[-80, -10] (upper hemisphere), drawn with default_rng(seed)."""
+  rng = np.random.default_rng(seed)
+  thetas = rng.uniform(0.0, 360.0, num_views)
+  phis = rng.uniform(-80.0, -10.0, num_views)
+  return np.stack([rays_lib.pose_spherical(t, p, radius) for t, p in zip(thetas, phis)])
+
+
+def make_dataset(name, num_views=100, height=100, width=100, focal=TINY_NERF_FOCAL, radius=4.0,
+                 pixel_center=0.0, seed=0, near=2.0, far=6.0):
+  """Ground-truth `Dataset` of a built-in scene (with `depths` and `accs`)."""
+  scene = get_scene(name)
+  poses = random_poses(num_views, radius, seed)
+  get_rays = lambda pose: rays_lib.get_rays(height, width, focal, pose, pixel_center)
+  origins, directions = jax.vmap(get_rays)(poses)
+  out = simulator.render_rays(scene, np.reshape(origins, (-1, 3)),
+                              np.reshape(directions, (-1, 3)), near, far)
+  shape = (num_views, height, width)
+  return Dataset(
+      images=out["rgb"].reshape(*shape, 3).astype(np.float32), poses=poses,
+      intrinsics=(float(focal), float(focal), width * 0.5, height * 0.5), near=near, far=far,
+      depths=out["depth"].reshape(shape).astype(np.float32),
+      accs=out["acc"].reshape(shape).astype(np.float32), name=name)

@@ -1,0 +1,80 @@
+"""Scene descriptions: opaque objects, lighting, an optional fog, and the declared effects.
+
+A scene is plain, frozen data; `nerf_jax.scenes.simulator` renders it. The `effects` declaration
+is checked against the content (`Scene.__post_init__`) and decides what the simulator computes:
+an effect that is not declared is never evaluated.
+"""
+
+import dataclasses
+from typing import Optional, Union
+
+from nerf_jax.scenes.geometry import Box, Cylinder, Sphere
+
+Shape = Union[Sphere, Box, Cylinder]
+
+
+@dataclasses.dataclass(frozen=True)
+class Material:
+  albedo: tuple  # diffuse RGB reflectance in [0, 1]
+  specular: float = 0.0  # Blinn-Phong strength; > 0 makes the object view dependent
+  shininess: float = 32.0  # Blinn-Phong exponent
+
+
+@dataclasses.dataclass(frozen=True)
+class Object:
+  """An opaque solid."""
+  shape: Shape
+  material: Material
+
+
+@dataclasses.dataclass(frozen=True)
+class Light:
+  direction: tuple = (0.4, -0.3, 0.85)  # towards the light (normalised by the simulator)
+  color: tuple = (0.8, 0.8, 0.8)  # RGB radiance of the directional light
+  ambient: tuple = (0.2, 0.2, 0.2)  # RGB ambient term, added to every lit or shadowed point
+
+
+@dataclasses.dataclass(frozen=True)
+class Medium:
+  """A homogeneous emission-absorption fog filling `shape` (behind opaque objects it is hidden).
+
+  It does not scatter light, receive shadows or cast them.
+  """
+  shape: Shape
+  density: float  # extinction coefficient sigma > 0, per world unit of length
+  color: tuple  # emitted RGB in [0, 1]: an infinitely thick fog looks this colour
+
+
+@dataclasses.dataclass(frozen=True)
+class Effects:
+  """Which phenomena a scene contains (and the simulator computes)."""
+  view_dependent: bool = False  # Blinn-Phong highlights
+  participating_medium: bool = False  # a fog with 0 < opacity < 1
+  background: bool = False  # a non-black background
+  shadows: bool = False  # opaque objects shadow the directional light
+
+  def names(self):
+    """The declared effects: frozenset of field names."""
+    return frozenset(f.name for f in dataclasses.fields(self) if getattr(self, f.name))
+
+
+@dataclasses.dataclass(frozen=True)
+class Scene:
+  name: str
+  objects: tuple  # of Object
+  effects: Effects
+  light: Light = Light()
+  background: tuple = (0.0, 0.0, 0.0)  # RGB seen by rays that hit nothing
+  medium: Optional[Medium] = None
+
+  def __post_init__(self):
+    content = {
+        "view_dependent": any(o.material.specular > 0 for o in self.objects),
+        "participating_medium": self.medium is not None,
+        "background": any(c != 0 for c in self.background),
+    }
+    for effect, present in content.items():
+      if present != getattr(self.effects, effect):
+        raise ValueError(f"scene {self.name!r}: effect {effect!r} is "
+                         f"{'declared' if not present else 'not declared'} but the content "
+                         f"{'lacks' if not present else 'has'} it")

@@ -1,0 +1,276 @@
+"""Training: optimizer, the jitted train step, and `train_and_evaluate`.
+
+Training data live on the device as flat per-pixel arrays (see `TrainData`); every step draws its
+own batch inside the jitted step from a key folded with the step number, so there is no host
+work or host-device transfer per step and a resumed run draws exactly the batches it would have.
+"""
+
+import json
+import os
+import signal
+import time
+
+import flax.struct
+import jax
+import jax.numpy as jnp
+import ml_collections
+import numpy as np
+import optax
+
+from nerf_jax import checkpoints, metrics, render_lib, renderer
+from nerf_jax.data import loaders
+from nerf_jax.model import make_model
+from nerf_jax.rays import Rays, get_rays_intrinsics
+
+
+class TrainingError(RuntimeError):
+  """Training cannot go on (non-finite loss, bad config); the message says why and what to do."""
+
+
+@flax.struct.dataclass
+class TrainState:
+  step: jnp.ndarray  # int32 [], steps taken
+  params: dict  # {'coarse': ..., ['fine': ...]}
+  opt_state: optax.OptState
+  bad_step: jnp.ndarray  # int32 [], first step whose loss or gradient was non-finite, -1 if none
+
+
+@flax.struct.dataclass
+class TrainData:
+  """Training pixels, one row per image: origins, directions, rgb float32 [N, P, 3], P = H·W."""
+  origins: jnp.ndarray
+  directions: jnp.ndarray
+  rgb: jnp.ndarray
+
+
+def make_train_data(dataset, pixel_center):
+  """TrainData of every pixel of a `Dataset`."""
+  rays = [get_rays_intrinsics(dataset.height, dataset.width, dataset.intrinsics, pose,
+                              pixel_center) for pose in dataset.poses]
+  flat = lambda a: jnp.asarray(a, jnp.float32).reshape(len(dataset), -1, 3)
+  return TrainData(origins=flat(np.stack([np.asarray(o) for o, _ in rays])),
+                   directions=flat(np.stack([np.asarray(d) for _, d in rays])),
+                   rgb=flat(dataset.images))
+
+
+def make_schedule(train_config):
+  """Linear warm-up to `lr`, then exponential decay reaching `lr_final` at `max_steps`."""
+  tc = train_config
+  decay_steps = max(tc.max_steps - tc.warmup_steps, 1)
+  decay = optax.exponential_decay(tc.lr, decay_steps, tc.lr_final / tc.lr)
+  if tc.warmup_steps <= 0:
+    return decay
+  warmup = optax.linear_schedule(0.0, tc.lr, tc.warmup_steps)
+  return optax.join_schedules([warmup, decay], [tc.warmup_steps])
+
+
+def make_optimizer(train_config):
+  """Adam on the schedule, with optional global-norm gradient clipping."""
+  adam = optax.adam(make_schedule(train_config))
+  if train_config.grad_clip > 0:
+    return optax.chain(optax.clip_by_global_norm(train_config.grad_clip), adam)
+  return adam
+
+
+def draw_batch(data, config, key):
+  """Rays and target colours of one step: Rays [B], rgb float32 [B, 3]."""
+  num_images, num_pixels = data.rgb.shape[:2]
+  if config.train.batching == "images":
+    images = jax.random.choice(key, num_images, (config.train.images_per_step,), replace=False)
+    take = lambda a: a[images].reshape(-1, 3)
+  else:
+    idx = jax.random.randint(key, (config.train.batch_rays,), 0, num_images * num_pixels)
+    take = lambda a: a.reshape(-1, 3)[idx]
+  return Rays(take(data.origins), take(data.directions)), take(data.rgb)
+
+
+def make_train_step(model, tx, config, near, far):
+  """The jitted train step: (state, data, key) -> (state, stats). `state` is donated."""
+  background = jnp.asarray(render_lib.background_colour(config))
+
+  def loss_fn(params, rays, target, key):
+    outputs = renderer.render_rays(model, params, rays, config, near, far, key, background)
+    mses = {name: jnp.mean((out["rgb"] - target) ** 2) for name, out in outputs.items()}
+    loss = mses["coarse"] if "fine" not in mses else (
+        mses["fine"] + config.train.coarse_loss_weight * mses["coarse"])
+    best = mses.get("fine", mses["coarse"])
+    return loss, {"loss": loss, "psnr": metrics.mse_to_psnr(best)}
+
+  def step(state, data, key):
+    key = jax.random.fold_in(key, state.step)
+    batch_key, render_key = jax.random.split(key)
+    rays, target = draw_batch(data, config, batch_key)
+    grads, stats = jax.grad(loss_fn, has_aux=True)(state.params, rays, target, render_key)
+    finite = jnp.isfinite(stats["loss"]) & jnp.all(jnp.array(
+        [jnp.all(jnp.isfinite(g)) for g in jax.tree_util.tree_leaves(grads)]))
+    updates, opt_state = tx.update(grads, state.opt_state, state.params)
+    params = optax.apply_updates(state.params, updates)
+    # A non-finite step is not applied (the state stays the last good one) and is reported.
+    keep = lambda new, old: jax.tree_util.tree_map(lambda n, o: jnp.where(finite, n, o), new, old)
+    bad_step = jnp.where((state.bad_step < 0) & ~finite, state.step, state.bad_step)
+    new_state = TrainState(step=state.step + 1, params=keep(params, state.params),
+                           opt_state=keep(opt_state, state.opt_state), bad_step=bad_step)
+    return new_state, stats
+
+  return jax.jit(step, donate_argnums=0)
+
+
+def model_signature(config):
+  """Config fields that fix the parameter shapes; a checkpoint only restores under the same."""
+  m = config.model
+  return {"pos_encode_dims": config.pos_encode_dims, "dir_encode_dims": config.dir_encode_dims,
+          "depth": m.depth, "width": m.width, "skip_layers": list(m.skip_layers),
+          "view_dependent": m.view_dependent, "view_width": m.view_width,
+          "networks": list(renderer.network_names(config))}
+
+
+def init_state(model, tx, config):
+  params = renderer.init_params(model, config, jax.random.PRNGKey(config.seed))
+  return TrainState(step=jnp.array(0, jnp.int32), params=params, opt_state=tx.init(params),
+                    bad_step=jnp.array(-1, jnp.int32))
+
+
+def bounds(config, dataset):
+  """(near, far): the config's overrides where set, else the dataset's."""
+  return (config.data.near or dataset.near, config.data.far or dataset.far)
+
+
+class _StopRequest:
+  """Turns SIGINT/SIGTERM into a flag the loop checks, so the run saves before it exits."""
+
+  def __init__(self):
+    self.signum = None
+
+  def __enter__(self):
+    self._old = {s: signal.signal(s, self._handle) for s in (signal.SIGINT, signal.SIGTERM)}
+    return self
+
+  def _handle(self, signum, frame):
+    self.signum = signum
+
+  def __exit__(self, *exc):
+    for s, handler in self._old.items():
+      signal.signal(s, handler)
+
+
+def _format_eta(seconds):
+  seconds = int(max(seconds, 0))
+  return f"{seconds // 60}:{seconds % 60:02d}"
+
+
+def _log(workdir, record):
+  with open(os.path.join(workdir, "metrics.jsonl"), "a") as f:
+    f.write(json.dumps(record) + "\n")
+
+
+def train_and_evaluate(config, workdir):
+  """Train on `config.data`, checkpoint into `workdir`, evaluate the test views at the end.
+
+  Resumes from the newest checkpoint in `workdir`. Returns the final metrics dict (also written to
+  `workdir/metrics.json`).
+  """
+  os.makedirs(workdir, exist_ok=True)
+  train_ds, test_ds = loaders.load_dataset(config.data)
+  near, far = bounds(config, train_ds)
+  model = make_model(config.model)
+  tx = make_optimizer(config.train)
+  state = init_state(model, tx, config)
+  signature = model_signature(config)
+  ckpt = checkpoints.latest_path(workdir)
+  if ckpt:
+    state = checkpoints.restore(ckpt, state, signature)
+    print(f"resuming from {ckpt} at step {int(state.step)}", flush=True)
+  with open(os.path.join(workdir, "config.json"), "w") as f:
+    f.write(config.to_json(indent=2))
+
+  data = make_train_data(train_ds, config.data.pixel_center)
+  train_step = make_train_step(model, tx, config, near, far)
+  eval_fn = render_lib.make_evaluator(model, config, near, far, test_ds)
+  key = jax.random.PRNGKey(config.seed + 1)
+  tc = config.train
+  rays_per_step = (tc.images_per_step * train_ds.height * train_ds.width
+                   if tc.batching == "images" else tc.batch_rays)
+  start_step = int(state.step)
+  elapsed = _previous_seconds(workdir, start_step)
+  t_start = time.perf_counter() - elapsed
+  last_log, last_log_step = time.perf_counter(), start_step
+  step = start_step
+  with _StopRequest() as stop:
+    while step < tc.max_steps:
+      state, stats = train_step(state, data, key)
+      step += 1
+      budget_over = tc.max_seconds > 0 and time.perf_counter() - t_start >= tc.max_seconds
+      log_now = step % tc.log_every == 0 or step == tc.max_steps or budget_over or stop.signum
+      if log_now:
+        stats = jax.device_get(stats)
+        _check_finite(state, workdir)
+        now = time.perf_counter()
+        rays_s = (step - last_log_step) * rays_per_step / max(now - last_log, 1e-9)
+        last_log, last_log_step = now, step
+        wall = now - t_start
+        record = {"step": step, "wall_seconds": round(wall, 3), "loss": float(stats["loss"]),
+                  "train_psnr": float(stats["psnr"]), "rays_per_second": round(rays_s)}
+        if tc.eval_every and step % tc.eval_every == 0:
+          record["eval_psnr"] = float(eval_fn(state.params, max_views=tc.eval_views)["psnr"])
+        _log(workdir, record)
+        eta = (tc.max_steps - step) * wall / max(step - start_step, 1)
+        if tc.max_seconds > 0:
+          eta = min(eta, tc.max_seconds - wall)
+        print(f"step {step}/{tc.max_steps} loss {record['loss']:.5f} "
+              f"psnr {record['train_psnr']:.2f} {rays_s:,.0f} rays/s "
+              f"elapsed {_format_eta(wall)} eta {_format_eta(eta)}", flush=True)
+      if step % tc.checkpoint_every == 0 or step == tc.max_steps or budget_over or stop.signum:
+        _save(workdir, state, signature, tc.keep_checkpoints, time.perf_counter() - t_start)
+      if stop.signum:
+        raise KeyboardInterrupt(f"stopped by signal {stop.signum} at step {step}; "
+                                f"checkpoint saved in {checkpoints.checkpoint_dir(workdir)}")
+      if budget_over:
+        break
+  train_seconds = time.perf_counter() - t_start
+  _check_finite(state, workdir)
+  result = eval_fn(state.params, out_dir=os.path.join(workdir, "eval")
+                   if config.render.after_training else None)
+  result.update(train_seconds=round(train_seconds, 3), steps=step)
+  with open(os.path.join(workdir, "metrics.json"), "w") as f:
+    json.dump(result, f, indent=2)
+  print(f"test PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.4f} over "
+        f"{len(result['per_view'])} views after {step} steps ({train_seconds:.0f} s)", flush=True)
+  if config.render.after_training:
+    render_lib.render_video(model, state.params, config, near, far,
+                            train_ds, os.path.join(workdir, "video"))
+  return result
+
+
+def _save(workdir, state, signature, keep, elapsed):
+  step = int(state.step)
+  checkpoints.save(workdir, step, state, signature, keep)
+  with open(os.path.join(workdir, "progress.json"), "w") as f:
+    json.dump({"step": step, "wall_seconds": elapsed}, f)
+
+
+def _previous_seconds(workdir, step):
+  """Wall seconds already spent by the run that wrote the checkpoint at `step` (0 if unknown)."""
+  path = os.path.join(workdir, "progress.json")
+  if step == 0 or not os.path.exists(path):
+    return 0.0
+  with open(path) as f:
+    progress = json.load(f)
+  return float(progress["wall_seconds"]) if progress.get("step") == step else 0.0
+
+
+def _check_finite(state, workdir):
+  bad = int(state.bad_step)
+  if bad >= 0:
+    last = checkpoints.latest_path(workdir) or "none yet"
+    raise TrainingError(f"non-finite loss or gradient at step {bad + 1}; the update was not "
+                        f"applied; last good checkpoint: {last}. Try a lower config.train.lr "
+                        "or set config.train.grad_clip.")
+
+
+def load_config_json(workdir):
+  """The ConfigDict a run saved in `workdir/config.json`."""
+  path = os.path.join(workdir, "config.json")
+  if not os.path.exists(path):
+    raise TrainingError(f"{path} not found: is {workdir} a training workdir?")
+  with open(path) as f:
+    return ml_collections.ConfigDict(json.load(f))

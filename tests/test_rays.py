@@ -1,0 +1,151 @@
+"""Tests of nerf_jax.rays against closed forms and brute-force loops."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from nerf_jax import rays
+
+
+def _c2w(rows):
+  """A [rows, 4] camera-to-world matrix with a generic rotation and translation."""
+  pose = rays.pose_spherical(37.0, -23.0, 3.5)
+  return pose[:rows]
+
+
+@pytest.mark.parametrize("pixel_center", [0.0, 0.5])
+@pytest.mark.parametrize("rows", [3, 4])
+def test_project_lands_on_the_pixel_whose_ray_hits_the_point(pixel_center, rows):
+  height, width, focal = 6, 8, 7.0
+  c2w = _c2w(rows)
+  origins, directions = rays.get_rays(height, width, focal, c2w, pixel_center)
+  # Points that project onto integer pixels: march each pixel's ray to a known depth.
+  rng = np.random.default_rng(0)
+  for _ in range(10):
+    i, j = rng.integers(width), rng.integers(height)
+    point = np.asarray(origins[j, i] + 2.7 * directions[j, i], np.float64)
+    ij = rays.project(point, height, width, focal, c2w, pixel_center)
+    np.testing.assert_allclose(ij, [i, j], atol=1e-4)
+  # And the converse: project arbitrary points, take the ray of that (integer) pixel.
+  for _ in range(10):
+    i, j = rng.integers(width), rng.integers(height)
+    point = np.asarray(origins[j, i] + rng.uniform(1, 5) * directions[j, i], np.float64)
+    ci, cj = np.round(rays.project(point, height, width, focal, c2w, pixel_center)).astype(int)
+    o, d = np.asarray(origins[cj, ci], np.float64), np.asarray(directions[cj, ci], np.float64)
+    # Distance from the point to the ray's line.
+    dist = np.linalg.norm(np.cross(point - o, d)) / np.linalg.norm(d)
+    assert dist < 1e-4
+
+
+@pytest.mark.parametrize("pixel_center", [0.0, 0.5])
+@pytest.mark.parametrize("rows", [3, 4])
+def test_get_rays_matches_closed_formula(pixel_center, rows):
+  height, width, focal = 3, 5, 4.5
+  c2w = _c2w(rows)
+  origins, directions = rays.get_rays(height, width, focal, c2w, pixel_center)
+  assert origins.shape == directions.shape == (height, width, 3)
+  assert directions.dtype == jnp.float32
+  rot = np.asarray(c2w[:3, :3], np.float64)
+  for j in range(height):
+    for i in range(width):
+      cam = np.array([(i + pixel_center - width / 2) / focal,
+                      -(j + pixel_center - height / 2) / focal, -1.0])
+      np.testing.assert_allclose(directions[j, i], rot @ cam, atol=1e-6)
+      np.testing.assert_allclose(origins[j, i], c2w[:3, 3], atol=0)
+
+
+def test_get_rays_intrinsics_general_camera():
+  height, width = 4, 6
+  fx, fy, cx, cy = 5.0, 3.0, 1.25, 2.75  # fx != fy, principal point off centre
+  c2w = _c2w(4)
+  _, directions = rays.get_rays_intrinsics(height, width, (fx, fy, cx, cy), c2w, 0.5)
+  rot = np.asarray(c2w[:3, :3], np.float64)
+  for j in range(height):
+    for i in range(width):
+      cam = np.array([(i + 0.5 - cx) / fx, -(j + 0.5 - cy) / fy, -1.0])
+      np.testing.assert_allclose(directions[j, i], rot @ cam, atol=1e-6)
+  # Centred intrinsics agree with get_rays.
+  _, d_ref = rays.get_rays(height, width, 5.0, c2w)
+  _, d_int = rays.get_rays_intrinsics(height, width, (5.0, 5.0, width / 2, height / 2), c2w)
+  np.testing.assert_allclose(d_int, d_ref, atol=0)
+
+
+def test_camera_space_z_is_minus_one():
+  """t is z-depth: every direction has camera-space z = -1."""
+  c2w = _c2w(4)
+  _, directions = rays.get_rays(5, 7, 6.0, c2w)
+  cam = np.asarray(directions, np.float64) @ np.asarray(c2w[:3, :3], np.float64)  # R^T d
+  np.testing.assert_allclose(cam[..., 2], -1.0, atol=1e-6)
+
+
+@pytest.mark.parametrize("theta", [0.0, 90.0, 211.0])
+@pytest.mark.parametrize("phi", [-30.0, 0.0, -75.0])
+def test_pose_spherical_conventions(theta, phi):
+  radius = 4.0
+  pose = np.asarray(rays.pose_spherical(theta, phi, radius), np.float64)
+  assert pose.shape == (4, 4)
+  np.testing.assert_allclose(pose[3], [0, 0, 0, 1], atol=0)
+  rot, centre = pose[:3, :3], pose[:3, 3]
+  np.testing.assert_allclose(rot.T @ rot, np.eye(3), atol=1e-6)
+  np.testing.assert_allclose(np.linalg.det(rot), 1.0, atol=1e-6)
+  np.testing.assert_allclose(np.linalg.norm(centre), radius, rtol=1e-6)
+  # The camera's -z axis points at the origin.
+  np.testing.assert_allclose(-rot[:, 2], -centre / radius, atol=1e-6)
+  # Elevation: z = -radius·sin(phi), so phi = -30 puts the camera above the xy-plane.
+  np.testing.assert_allclose(centre[2], -radius * math.sin(math.radians(phi)), atol=1e-5)
+
+
+def test_pose_spherical_reference_values():
+  """theta = 0, phi = -30: the Keras reference's first orbit pose, worked out by hand."""
+  pose = np.asarray(rays.pose_spherical(0.0, -30.0, 4.0), np.float64)
+  s, c = 0.5, math.sqrt(3) / 2
+  np.testing.assert_allclose(pose[:3, 3], [0.0, 4 * c, 4 * s], atol=1e-6)
+  # Image x (right) is world -x, image up tilts toward -y: camera looks down at 30 degrees.
+  np.testing.assert_allclose(pose[:3, 0], [-1, 0, 0], atol=1e-6)
+  np.testing.assert_allclose(pose[:3, 1], [0, -s, c], atol=1e-6)
+
+
+def test_orbit_poses_circle_the_origin():
+  poses = rays.orbit_poses(num_frames=8, phi=-30.0, radius=4.0)
+  assert poses.shape == (8, 4, 4) and poses.dtype == np.float32
+  np.testing.assert_allclose(poses[:, 2, 3], 2.0, atol=1e-5)  # constant height radius·sin(30°)
+  angles = np.arctan2(poses[:, 1, 3], poses[:, 0, 3])
+  steps = np.mod(np.diff(angles), 2 * np.pi)
+  np.testing.assert_allclose(np.minimum(steps, 2 * np.pi - steps), 2 * np.pi / 8, atol=1e-5)
+
+
+def test_spiral_poses_look_at_focus():
+  centre = np.eye(4)
+  focus_depth = 5.0
+  poses = rays.spiral_poses(centre, np.array([0.3, 0.2, 0.1]), focus_depth, num_frames=6)
+  focus = np.array([0.0, 0.0, -focus_depth])
+  for pose in poses.astype(np.float64):
+    rot = pose[:3, :3]
+    np.testing.assert_allclose(rot.T @ rot, np.eye(3), atol=1e-6)
+    to_focus = focus - pose[:3, 3]
+    np.testing.assert_allclose(-rot[:, 2], to_focus / np.linalg.norm(to_focus), atol=1e-6)
+
+
+def test_safe_normalize_value_and_gradient():
+  v = jnp.array([[3.0, 0.0, 4.0], [0.0, -2.0, 0.0], [1e-8, 0.0, 0.0]], jnp.float32)
+  np.testing.assert_allclose(rays.safe_normalize(v),
+                             [[0.6, 0.0, 0.8], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0]], rtol=1e-6)
+  zero = jnp.zeros(3, jnp.float32)
+  np.testing.assert_array_equal(rays.safe_normalize(zero), zero)
+  jac = jax.jacobian(rays.safe_normalize)(zero)
+  assert np.all(np.isfinite(jac))
+  grad = jax.grad(lambda x: jnp.sum(rays.safe_normalize(x) * jnp.array([1.0, 2.0, 3.0])))(v)
+  assert np.all(np.isfinite(grad))
+
+
+def test_rays_pytree_reshape_and_viewdirs():
+  origins, directions = rays.get_rays(2, 3, 2.0, _c2w(4))
+  r = rays.Rays(origins=origins, directions=directions)
+  flat = r.reshape(-1)
+  assert flat.origins.shape == flat.directions.shape == (6, 3)
+  np.testing.assert_allclose(jnp.linalg.norm(flat.viewdirs, axis=-1), 1.0, rtol=1e-6)
+  doubled = jax.tree_util.tree_map(lambda x: 2 * x, r)
+  np.testing.assert_allclose(doubled.directions, 2 * directions)

@@ -1,0 +1,200 @@
+"""Tests of the built-in scenes and their ground-truth simulator."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from nerf_jax import rays as rays_lib
+from nerf_jax import scenes
+from nerf_jax.scenes import simulator
+from nerf_jax.scenes.geometry import Box, Cylinder, Sphere
+
+LOOK_DOWN = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4.0], [0, 0, 0, 1]])  # at z = 4
+
+
+def _one_sphere(**kw):
+  obj = scenes.Object(Sphere((0.0, 0.0, 0.0), 0.5), scenes.Material((0.5, 0.5, 0.5)))
+  return scenes.Scene("one", (obj,), scenes.Effects(**kw),
+                      background=(1.0, 1.0, 1.0) if kw.get("background") else (0.0, 0.0, 0.0))
+
+
+def test_head_on_sphere_has_analytic_depth():
+  out = scenes.render_view(_one_sphere(), LOOK_DOWN, 3, 3, focal=10.0, pixel_center=0.5)
+  assert out["depth"][1, 1] == pytest.approx(4.0 - 0.5, abs=1e-6)
+  assert out["acc"][1, 1] == 1.0
+
+
+def test_depth_is_z_depth_of_the_hit_point():
+  out = scenes.render_view(_one_sphere(), LOOK_DOWN, 9, 9, focal=20.0)
+  o, d = (np.asarray(a, np.float64) for a in rays_lib.get_rays(9, 9, 20.0, LOOK_DOWN))
+  hit = out["acc"] == 1.0
+  assert 0 < hit.sum() < 81
+  points = o[hit] + out["depth"][hit, None] * d[hit]
+  np.testing.assert_allclose(np.linalg.norm(points, axis=-1), 0.5, atol=1e-5)
+  np.testing.assert_allclose(out["depth"][hit], 4.0 - points[:, 2], atol=1e-5)  # camera at z=4
+
+
+def test_empty_ray_is_background_with_far_depth():
+  out = simulator.render_rays(_one_sphere(background=True), [[0.0, 0.0, 4.0]], [[0.0, 0.0, 1.0]])
+  assert out["acc"][0] == 0.0 and out["depth"][0] == 6.0
+  np.testing.assert_array_equal(out["rgb"][0], 1.0)
+
+
+def test_only_surfaces_between_near_and_far_count():
+  o, d = [[0.0, 0.0, 4.0]], [[0.0, 0.0, -1.0]]  # the sphere spans t in [3.5, 4.5]
+  assert simulator.render_rays(_one_sphere(), o, d, near=2.0, far=3.0)["acc"][0] == 0.0
+  inside = simulator.render_rays(_one_sphere(), o, d, near=4.0, far=6.0)  # starts in the solid
+  assert inside["acc"][0] == 1.0 and inside["depth"][0] == 4.0
+
+
+@pytest.mark.parametrize("shape", [Sphere((0.1, -0.2, 0.3), 0.6),
+                                   Box((0.1, -0.2, 0.3), (0.8, 0.5, 1.1)),
+                                   Cylinder((0.1, -0.2, 0.3), 0.5, 0.9)])
+def test_intersection_interval_matches_point_membership(shape):
+  rng = np.random.default_rng(0)
+  origins = rng.normal(size=(2000, 3)) * 3.0
+  directions = rng.uniform(-1, 1, size=(2000, 3)) * 0.2 - origins * 0.3  # many towards the shape
+  t_in, t_out, normal = shape.intersect(origins, directions)
+  t = np.linspace(-10.0, 10.0, 4001)
+  points = origins[:, None] + t[None, :, None] * directions[:, None]
+  c = np.asarray(shape.center)
+  if isinstance(shape, Sphere):
+    inside = np.linalg.norm(points - c, axis=-1) <= shape.radius
+  elif isinstance(shape, Box):
+    inside = np.all(np.abs(points - c) <= 0.5 * np.asarray(shape.size), axis=-1)
+  else:
+    inside = ((np.linalg.norm((points - c)[..., :2], axis=-1) <= shape.radius)
+              & (np.abs((points - c)[..., 2]) <= 0.5 * shape.height))
+  expected = (t >= t_in[:, None]) & (t <= t_out[:, None])
+  assert 100 < inside.any(1).sum() < 1900
+  assert np.mean(inside != expected) < 1e-3  # only grid points within rounding of the boundary
+  hit = t_in <= t_out
+  np.testing.assert_allclose(np.linalg.norm(normal[hit], axis=-1), 1.0, atol=1e-9)
+  entry = origins[hit] + t_in[hit, None] * directions[hit]
+  assert np.all(np.sum(normal[hit] * directions[hit], -1) <= 1e-9)  # rays enter, not exit
+  assert np.all(np.isfinite(entry))
+
+
+def _rays_to(point, view_dirs, dist=3.0):
+  """Rays from `point + dist * v` towards `point` (direction length arbitrary: 2)."""
+  v = np.asarray(view_dirs, np.float64)
+  v /= np.linalg.norm(v, axis=-1, keepdims=True)
+  return point + dist * v, -2.0 * v
+
+
+def _top_of_red_sphere(scene_name):
+  scene = scenes.get_scene(scene_name)
+  light = np.asarray(scene.light.direction) / np.linalg.norm(scene.light.direction)
+  mirror = np.array([-light[0], -light[1], light[2]])  # reflection of the light about +z
+  origins, dirs = _rays_to(np.array([0.0, 0.0, 0.5]), [mirror, [0.5, 0.6, 0.7]])
+  out = simulator.render_rays(scene, origins, dirs, near=0.1, far=10.0)
+  np.testing.assert_allclose(out["depth"], 1.5, atol=1e-9)  # 3 / |d| = 1.5: both hit the point
+  return out["rgb"]
+
+
+def test_diffuse_point_looks_the_same_from_two_directions():
+  rgb = _top_of_red_sphere("diffuse")
+  np.testing.assert_allclose(rgb[0], rgb[1], atol=1e-12)
+
+
+def test_glossy_point_looks_different_from_two_directions():
+  rgb = _top_of_red_sphere("glossy")
+  assert np.all(rgb[0] - rgb[1] > 0.15)  # the mirror direction sees the highlight
+
+
+def _spy(monkeypatch, name):
+  calls = []
+  original = getattr(simulator, name)
+  monkeypatch.setattr(simulator, name, lambda *a, **k: calls.append(1) or original(*a, **k))
+  return calls
+
+
+@pytest.mark.parametrize("function,computed_for", [("specular", {"glossy"}),
+                                                   ("trace_medium", {"fog"}),
+                                                   ("_shadow", {"glossy", "fog", "white"})])
+def test_only_declared_effects_are_computed(monkeypatch, function, computed_for):
+  pose = rays_lib.pose_spherical(30.0, -40.0, 4.0)
+  for name in scenes.SCENES:
+    calls = _spy(monkeypatch, function)
+    scenes.render_view(scenes.get_scene(name), pose, 20, 20, 27.8)
+    assert bool(calls) == (name in computed_for), (function, name)
+
+
+def test_effect_declaration_is_checked():
+  with pytest.raises(ValueError, match="view_dependent"):
+    dataclasses.replace(scenes.get_scene("glossy"), effects=scenes.Effects(shadows=True))
+  with pytest.raises(ValueError, match="participating_medium"):
+    dataclasses.replace(scenes.get_scene("diffuse"),
+                        effects=scenes.Effects(participating_medium=True))
+  assert scenes.get_scene("fog").effects.names() == {"participating_medium", "shadows"}
+
+
+def _fog_reference(scene, origins, directions, near, far, steps=20000):
+  """Midpoint-rule quadrature of the emission-absorption integral, one ray at a time; the
+  opaque surface comes from the same scene rendered without its medium."""
+  solid = dataclasses.replace(scene, medium=None, effects=dataclasses.replace(
+      scene.effects, participating_medium=False))
+  surf = simulator.render_rays(solid, origins, directions, near, far)
+  fog, out = scene.medium, {"rgb": [], "acc": [], "depth": []}
+  for o, d, s_acc, s_depth, s_rgb in zip(origins, directions, surf["acc"], surf["depth"],
+                                         surf["rgb"]):
+    end = s_depth if s_acc > 0 else far
+    dt = (end - near) / steps
+    t = near + (np.arange(steps) + 0.5) * dt
+    inside = np.linalg.norm(o + t[:, None] * d - fog.shape.center, axis=-1) <= fog.shape.radius
+    alpha = 1.0 - np.exp(-fog.density * np.linalg.norm(d) * inside * dt)
+    trans = np.cumprod(np.concatenate([[1.0], 1.0 - alpha]))
+    w = trans[:-1] * alpha
+    w_surf = trans[-1] * s_acc
+    acc = w.sum() + w_surf
+    out["acc"].append(acc)
+    out["rgb"].append(w.sum() * np.asarray(fog.color) + w_surf * s_rgb)  # background is black
+    out["depth"].append((np.sum(w * t) + w_surf * s_depth) / acc if acc > 0 else far)
+  return {k: np.array(v) for k, v in out.items()}
+
+
+def test_fog_matches_brute_force_quadrature():
+  scene = scenes.get_scene("fog")
+  o, d = rays_lib.get_rays(12, 12, 16.7, rays_lib.pose_spherical(20.0, -30.0, 4.0))
+  o, d = np.asarray(o, np.float64).reshape(-1, 3), np.asarray(d, np.float64).reshape(-1, 3)
+  exact = simulator.render_rays(scene, o, d, 2.0, 6.0)
+  ref = _fog_reference(scene, o, d, 2.0, 6.0)
+  partial = (exact["acc"] > 0.05) & (exact["acc"] < 0.95)
+  assert partial.sum() >= 5 and (exact["acc"] == 1.0).sum() >= 5  # fog alone and surfaces
+  for key in ("acc", "rgb", "depth"):
+    np.testing.assert_allclose(exact[key], ref[key], atol=1e-3, err_msg=key)
+
+
+def test_white_scene_empty_pixels_are_exactly_white():
+  ds = scenes.make_dataset("white", num_views=2, height=32, width=32, focal=44.4)
+  empty = ds.accs == 0.0
+  assert 0 < empty.sum() < empty.size
+  np.testing.assert_array_equal(ds.images[empty], 1.0)
+  np.testing.assert_array_equal(ds.depths[empty], 6.0)
+
+
+def test_make_dataset_matches_render_view_and_is_deterministic():
+  ds = scenes.make_dataset("glossy", num_views=3, height=24, width=20, focal=30.0,
+                           pixel_center=0.5, seed=3)
+  again = scenes.make_dataset("glossy", num_views=3, height=24, width=20, focal=30.0,
+                              pixel_center=0.5, seed=3)
+  np.testing.assert_array_equal(ds.images, again.images)
+  view = scenes.render_view(scenes.get_scene("glossy"), ds.poses[2], 24, 20, 30.0, 0.5)
+  np.testing.assert_allclose(view["rgb"], ds.images[2], atol=1e-4)
+  np.testing.assert_allclose(view["depth"], ds.depths[2], atol=1e-4)
+  assert ds.images.shape == (3, 24, 20, 3) and ds.images.dtype == np.float32
+  centres = ds.poses[:, :3, 3]
+  np.testing.assert_allclose(np.linalg.norm(centres, axis=-1), 4.0, rtol=1e-6)
+  assert np.all(centres[:, 2] > 0)  # upper hemisphere
+
+
+def test_whole_scene_is_in_view():
+  ds = scenes.make_dataset("white", num_views=10, height=50, width=50, focal=69.44)
+  border = np.concatenate([ds.accs[:, 0], ds.accs[:, -1], ds.accs[:, :, 0], ds.accs[:, :, -1]])
+  assert border.max() == 0.0
+
+
+def test_unknown_scene_lists_valid_names():
+  with pytest.raises(ValueError, match="diffuse, fog, glossy, white"):
+    scenes.get_scene("lego")
