@@ -53,10 +53,10 @@ def test_only_surfaces_between_near_and_far_count():
                                    Cylinder((0.1, -0.2, 0.3), 0.5, 0.9)])
 def test_intersection_interval_matches_point_membership(shape):
   rng = np.random.default_rng(0)
-  origins = rng.normal(size=(2000, 3)) * 3.0
-  directions = rng.uniform(-1, 1, size=(2000, 3)) * 0.2 - origins * 0.3  # many towards the shape
+  origins = rng.normal(size=(1000, 3)) * 3.0
+  directions = rng.uniform(-1, 1, size=(1000, 3)) * 0.2 - origins * 0.3  # many towards the shape
   t_in, t_out, normal = shape.intersect(origins, directions)
-  t = np.linspace(-10.0, 10.0, 4001)
+  t = np.linspace(-10.0, 10.0, 2001)
   points = origins[:, None] + t[None, :, None] * directions[:, None]
   c = np.asarray(shape.center)
   if isinstance(shape, Sphere):
@@ -67,7 +67,7 @@ def test_intersection_interval_matches_point_membership(shape):
     inside = ((np.linalg.norm((points - c)[..., :2], axis=-1) <= shape.radius)
               & (np.abs((points - c)[..., 2]) <= 0.5 * shape.height))
   expected = (t >= t_in[:, None]) & (t <= t_out[:, None])
-  assert 100 < inside.any(1).sum() < 1900
+  assert 50 < inside.any(1).sum() < 950
   assert np.mean(inside != expected) < 1e-3  # only grid points within rounding of the boundary
   hit = t_in <= t_out
   np.testing.assert_allclose(np.linalg.norm(normal[hit], axis=-1), 1.0, atol=1e-9)

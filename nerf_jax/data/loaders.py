@@ -189,6 +189,7 @@ def load_dataset(config):
   """
   path = config.get("path", "") or ""
   holdout_from = config.get("holdout_from", -1)
+  background = parse_background(config.get("background", "black"))
   if not path:
     name, size = config.get("scene", "diffuse"), config.get("image_size", 100)
     if name not in scenes.SCENES:
@@ -197,7 +198,6 @@ def load_dataset(config):
         name, num_views=config.get("num_views", 100), height=size, width=size,
         focal=scenes.TINY_NERF_FOCAL * size / 100, pixel_center=config.get("pixel_center", 0.0))
     return dataset.split(holdout_from)
-  background = parse_background(config.get("background", "black"))
   if not os.path.exists(path):
     raise DataError(f"{path}: no such file or directory")
   if os.path.isfile(path) and path.endswith(".npz"):

@@ -11,9 +11,13 @@ from nerf_jax import rays as rays_lib
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.scenes import simulator
 from nerf_jax.scenes.geometry import Box, Cylinder, Sphere
-from nerf_jax.scenes.scene import Effects, Light, Material, Medium, Object, Scene
+from nerf_jax.scenes.scene import Effects, Material, Medium, Object, Scene
 
 TINY_NERF_FOCAL = 138.88887889922103  # focal of tiny_nerf's 100 x 100 images, in pixels
+
+# `get_rays` of every pose [N, 4, 4] at once (jit compiles in half the time of eager vmap).
+_batched_rays = jax.jit(jax.vmap(rays_lib.get_rays, in_axes=(None, None, None, 0, None)),
+                        static_argnums=(0, 1))
 
 RED, GREEN, BLUE = (0.9, 0.2, 0.15), (0.2, 0.75, 0.3), (0.2, 0.35, 0.9)
 YELLOW, PURPLE, GREY = (0.9, 0.75, 0.2), (0.65, 0.3, 0.8), (0.65, 0.65, 0.6)
@@ -53,7 +57,7 @@ SCENES = {
     "glossy": Scene("glossy", _objects(specular=0.6), Effects(view_dependent=True, shadows=True)),
     "fog": _fog_scene(),
     "white": Scene("white", _objects(), Effects(background=True, shadows=True),
-                   light=Light(), background=(1.0, 1.0, 1.0)),
+                   background=(1.0, 1.0, 1.0)),
 }
 
 
@@ -78,8 +82,7 @@ def make_dataset(name, num_views=100, height=100, width=100, focal=TINY_NERF_FOC
   """Ground-truth `Dataset` of a built-in scene (with `depths` and `accs`)."""
   scene = get_scene(name)
   poses = random_poses(num_views, radius, seed)
-  get_rays = lambda pose: rays_lib.get_rays(height, width, focal, pose, pixel_center)
-  origins, directions = jax.vmap(get_rays)(poses)
+  origins, directions = _batched_rays(height, width, focal, poses, pixel_center)
   out = simulator.render_rays(scene, np.reshape(origins, (-1, 3)),
                               np.reshape(directions, (-1, 3)), near, far)
   shape = (num_views, height, width)

@@ -52,8 +52,9 @@ def trace_medium(medium, origins, directions, near, t_stop):
   a = np.where(length > 0.0, a, 0.0)  # a is +-inf on a miss; inf * 0 would be nan
   s = medium.density * np.linalg.norm(directions, axis=-1)
   acc = -np.expm1(-s * length)  # 1 - E without cancellation for thin fog
-  depth_sum = a * acc + acc / s - length * (1.0 - acc)
-  return acc, acc[:, None] * np.asarray(medium.color), depth_sum, 1.0 - acc
+  trans = np.exp(-s * length)  # E, not 1 - acc: that cancels for thick fog
+  depth_sum = a * acc + acc / s - length * trans
+  return acc, acc[:, None] * np.asarray(medium.color), depth_sum, trans
 
 
 def first_hit(objects, origins, directions, near, far):
@@ -108,6 +109,7 @@ def render_rays(scene, origins, directions, near=2.0, far=6.0, chunk=1 << 16):
 
 
 def _render_chunk(scene, origins, directions, near, far):
+  """`render_rays` on float64 [R, 3] rays: the first opaque hit, then the fog in front of it."""
   t_hit, index, normal = first_hit(scene.objects, origins, directions, near, far)
   hit = np.isfinite(t_hit)
   colour = np.zeros_like(origins)

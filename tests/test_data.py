@@ -1,0 +1,189 @@
+"""Tests of the Dataset, the loaders and the exporters."""
+
+import json
+import os
+
+import imageio.v3 as iio
+import ml_collections
+import numpy as np
+import pytest
+
+from nerf_jax import scenes
+from nerf_jax.data import DataError, export, load_blender, load_dataset, load_npz
+
+Q = 1.0 / 255 + 1e-6  # 8-bit quantisation
+
+
+@pytest.fixture(scope="module")
+def fog():
+  return scenes.make_dataset("fog", num_views=6, height=16, width=16, focal=22.2)
+
+
+def _config(**kw):
+  return ml_collections.ConfigDict({"path": "", "scene": "diffuse", "holdout_from": -1,
+                                    "num_views": 10, "image_size": 20, "pixel_center": 0.0,
+                                    "background": "black", "half_res": False, **kw})
+
+
+def _error(match, fn, *args, **kw):
+  with pytest.raises(DataError) as info:
+    fn(*args, **kw)
+  message = str(info.value)
+  assert "\n" not in message
+  for part in match:
+    assert part in message, (part, message)
+
+
+def test_npz_round_trip(fog, tmp_path):
+  path = str(tmp_path / "fog.npz")
+  export.export_npz(fog, path)
+  back = load_npz(path)
+  for key in ("images", "poses", "depths", "accs"):
+    np.testing.assert_array_equal(getattr(back, key), getattr(fog, key))
+  assert back.intrinsics == fog.intrinsics and (back.near, back.far) == (2.0, 6.0)
+
+
+def test_blender_round_trip(fog, tmp_path):
+  export.export_blender(fog, str(tmp_path), split_at=4)
+  train, test = (load_blender(str(tmp_path), "white", split=s) for s in ("train", "test"))
+  assert (len(train), len(test)) == (4, 2)
+  np.testing.assert_allclose(train.images, fog.images[:4], atol=Q)  # opaque: any background
+  np.testing.assert_allclose(test.images, fog.images[4:], atol=Q)
+  np.testing.assert_array_equal(test.poses, fog.poses[4:])
+  np.testing.assert_allclose(train.intrinsics, fog.intrinsics, rtol=1e-6)
+  assert len(load_blender(str(tmp_path), split="val")) == 2
+
+
+def test_blender_alpha_export_recomposites(fog, tmp_path):
+  export.export_blender(fog, str(tmp_path), background=(0.0, 0.0, 0.0))
+  train, _ = fog.split(-1)
+  np.testing.assert_allclose(load_blender(str(tmp_path)).images, train.images, atol=Q)
+  on_white = load_blender(str(tmp_path), background="white").images
+  np.testing.assert_allclose(on_white, train.images + (1 - train.accs[..., None]), atol=2 * Q)
+
+
+def test_load_dataset_builtin():
+  train, test = load_dataset(_config())
+  assert (len(train), len(test)) == (8, 2) and train.images.shape == (8, 20, 20, 3)
+  assert train.focal == pytest.approx(scenes.TINY_NERF_FOCAL / 5)
+  assert train.accs is not None and train.depths.shape == (8, 20, 20)
+
+
+def test_load_dataset_npz_and_blender(fog, tmp_path):
+  export.export_npz(fog, str(tmp_path / "fog.npz"))
+  train, test = load_dataset(_config(path=str(tmp_path / "fog.npz"), holdout_from=4))
+  np.testing.assert_array_equal(test.images, fog.images[4:])
+  np.testing.assert_array_equal(train.poses, fog.poses[:4])
+  export.export_blender(fog, str(tmp_path / "blender"), split_at=5)
+  train, test = load_dataset(_config(path=str(tmp_path / "blender"), half_res=True))
+  assert (len(train), len(test)) == (5, 1) and train.images.shape == (5, 8, 8, 3)
+  assert train.focal == pytest.approx(fog.focal / 2)
+
+
+def test_missing_config_fields_use_defaults():
+  train, test = load_dataset(ml_collections.ConfigDict({"num_views": 5, "image_size": 8}))
+  assert (len(train), len(test)) == (4, 1)
+
+
+def test_split_semantics(fog):
+  train, test = fog.split(-1)
+  assert (len(train), len(test)) == (4, 2)  # int(0.8 * 6)
+  train, test = fog.split(5)
+  np.testing.assert_array_equal(test.images, fog.images[5:])
+  np.testing.assert_array_equal(train.accs, fog.accs[:5])
+  for bad in (0, 6, -2):
+    _error([f"holdout_from={bad}"], fog.split, bad)
+
+
+def _npz(tmp_path, **arrays):
+  base = {"images": np.zeros((2, 4, 4, 3), np.float32), "poses": np.tile(np.eye(4), (2, 1, 1)),
+          "focal": np.float64(5.0)}
+  base.update(arrays)
+  path = str(tmp_path / "bad.npz")
+  np.savez(path, **{k: v for k, v in base.items() if v is not None})
+  return path
+
+
+def test_npz_errors(tmp_path):
+  _error(["nope.npz", "no such"], load_dataset, _config(path=str(tmp_path / "nope.npz")))
+  _error(["'focal'", "has: images, poses"], load_npz, _npz(tmp_path, focal=None))
+  _error(["'poses' has 3", "2 views"], load_npz, _npz(tmp_path, poses=np.zeros((3, 4, 4))))
+  nan = np.zeros((2, 4, 4, 3))
+  nan[0, 1, 1, 1] = np.nan
+  _error(["bad.npz", "'images'", "NaN"], load_npz, _npz(tmp_path, images=nan))
+  _error(["bad.npz", "'images'", "expected [0, 1]"], load_npz,
+         _npz(tmp_path, images=np.full_like(nan, 255.0)))
+  _error(["bad.npz", "'poses'", "(2, 3, 3)"], load_npz, _npz(tmp_path, poses=np.zeros((2, 3, 3))))
+  _error(["bad.npz", "'images'", "channels"], load_npz,
+         _npz(tmp_path, images=np.zeros((2, 4, 4, 2))))
+  (tmp_path / "notes.txt").write_text("hi")
+  _error(["unknown dataset format", "notes.txt"], load_dataset,
+         _config(path=str(tmp_path / "notes.txt")))
+  _error(["unknown dataset format"], load_dataset, _config(path=str(tmp_path)))
+  _error(["data.scene", "'lego'"], load_dataset, _config(scene="lego"))
+  _error(["background"], load_dataset, _config(path=_npz(tmp_path), background="pink"))
+
+
+def test_npz_uint8_rgba_composited_on_white(tmp_path):
+  rgba = np.zeros((2, 4, 4, 4), np.uint8)
+  rgba[:, :2, :, 0] = 255
+  rgba[:, :2, :, 3] = 255  # top half opaque red; bottom half transparent
+  ds = load_npz(_npz(tmp_path, images=rgba, poses=np.zeros((2, 3, 4))), background="white")
+  np.testing.assert_array_equal(ds.images[:, :2], np.broadcast_to([1.0, 0, 0], (2, 2, 4, 3)))
+  np.testing.assert_array_equal(ds.images[:, 2:], 1.0)
+  assert ds.poses.shape == (2, 4, 4) and np.all(ds.poses[:, 3] == [0, 0, 0, 1])
+
+
+def _blender(tmp_path, meta=None, image=None, text=None):
+  """A one-frame Blender folder; `meta` overrides keys of the JSON, `text` replaces it."""
+  iio.imwrite(tmp_path / "r_0.png", np.zeros((4, 4, 4), np.uint8) if image is None else image)
+  content = {"camera_angle_x": 0.69, "frames": [{"file_path": "./r_0",
+                                                 "transform_matrix": np.eye(4).tolist()}]}
+  content.update(meta or {})
+  content = {k: v for k, v in content.items() if v is not None}
+  (tmp_path / "transforms_train.json").write_text(text or json.dumps(content))
+  return str(tmp_path)
+
+
+def test_blender_errors(tmp_path):
+  meta = str(tmp_path / "transforms_train.json")
+  _error([meta, "line 2 column 1"], load_blender, _blender(tmp_path, text='{"frames":\n'))
+  _error([meta, "'camera_angle_x'"], load_blender, _blender(tmp_path, {"camera_angle_x": None}))
+  missing = {"frames": [{"file_path": "./r_9.png", "transform_matrix": np.eye(4).tolist()}]}
+  _error([meta, "frames[0].file_path", "r_9.png", "not found"], load_blender,
+         _blender(tmp_path, missing))
+  _error([meta, "frames[0]", "'transform_matrix'"], load_blender,
+         _blender(tmp_path, {"frames": [{"file_path": "r_0.png"}]}))
+  _error([meta, "frames[0].transform_matrix"], load_blender,
+         _blender(tmp_path, {"frames": [{"file_path": "r_0", "transform_matrix": [[1, 2]]}]}))
+  _error(["transforms_test.json", "no such"], load_blender, _blender(tmp_path), split="test")
+  iio.imwrite(tmp_path / "r_1.png", np.zeros((6, 6, 4), np.uint8))
+  two = {"frames": [{"file_path": f"./r_{k}", "transform_matrix": np.eye(4).tolist()}
+                    for k in range(2)]}
+  _error([meta, "different sizes"], load_blender, _blender(tmp_path, two))
+
+
+def test_blender_rgba_on_white_and_half_res(tmp_path):
+  image = np.zeros((4, 6, 4), np.uint8)
+  image[:2, :2] = [255, 0, 0, 255]  # opaque red block -> red after 2x2 averaging
+  image[2:, :2, 3] = 0  # transparent -> background
+  image[:, 2:4] = [255, 0, 0, 51]  # 20% red over white -> (1, 0.8, 0.8)
+  image[0, 4], image[1, 5] = [0, 0, 255, 255], [0, 0, 255, 255]  # half-covered blue block
+  path = _blender(tmp_path, image=image)
+  full = load_blender(path, background="white")
+  np.testing.assert_allclose(full.images[0, 0, 2], [1.0, 0.8, 0.8], atol=1e-6)
+  np.testing.assert_array_equal(full.images[0, 3, 0], 1.0)
+  half = load_blender(path, background="white", half_res=True)
+  assert half.images.shape == (1, 2, 3, 3) and half.focal == pytest.approx(full.focal / 2)
+  np.testing.assert_allclose(half.images[0, :, 0], [[1, 0, 0], [1, 1, 1]], atol=1e-6)
+  np.testing.assert_allclose(half.images[0, 0, 1], [1.0, 0.8, 0.8], atol=1e-6)
+  np.testing.assert_allclose(half.images[0, 0, 2], [0.5, 0.5, 1.0], atol=1e-6)  # no dark fringe
+
+
+def test_export_cli(tmp_path):
+  out = str(tmp_path / "w.npz")
+  assert export.main(["--scene=white", "--format=npz", f"--out={out}", "--num_views=3",
+                      "--image_size=8"]) == 0
+  assert load_npz(out).images.shape == (3, 8, 8, 3)
+  assert export.main(["--scene=lego", "--format=npz", f"--out={out}"]) == 1
+  assert not os.path.exists(tmp_path / "x")

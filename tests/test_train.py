@@ -1,0 +1,147 @@
+"""End to end: training improves quality, checkpoints restore exactly, runs resume and stop safely."""
+
+import json
+import os
+import subprocess
+import sys
+
+import jax
+import numpy as np
+import pytest
+
+from configs import debug
+from nerf_jax import checkpoints, cli, render_lib, train_lib
+from nerf_jax.data import loaders
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _config(**train):
+  config = debug.get_config()
+  config.render.after_training = False
+  for k, v in train.items():
+    config.train[k] = v
+  return config
+
+
+def _params_equal(a, b):
+  leaves = zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b))
+  return all(np.array_equal(x, y) for x, y in leaves)
+
+
+def test_training_raises_test_psnr_well_above_untrained(tmp_path):
+  config = _config(max_steps=300, lr=5e-3, log_every=100, checkpoint_every=300)
+  config.data.holdout_from = 10
+  untrained = _config(max_steps=1)
+  untrained.train.lr = 1e-12  # one step that changes nothing measurable
+  before = train_lib.train_and_evaluate(untrained, str(tmp_path / "before"))
+  after = train_lib.train_and_evaluate(config, str(tmp_path / "after"))
+  assert after["psnr"] > before["psnr"] + 5.0, (before["psnr"], after["psnr"])
+  assert after["steps"] == 300 and len(after["per_view"]) == 2
+  saved = json.loads((tmp_path / "after" / "metrics.json").read_text())
+  assert saved["psnr"] == pytest.approx(after["psnr"])
+  assert {"psnr", "ssim", "per_view", "train_seconds", "steps"} <= set(saved)
+  lines = (tmp_path / "after" / "metrics.jsonl").read_text().splitlines()
+  assert [json.loads(l)["step"] for l in lines] == [100, 200, 300]
+
+
+def test_resume_continues_at_the_right_step_and_matches_an_uninterrupted_run(tmp_path):
+  full = train_lib.train_and_evaluate(_config(max_steps=20), str(tmp_path / "full"))
+  # A run killed after its step-10 checkpoint: the same config, only that checkpoint on disk.
+  split = str(tmp_path / "split")
+  train_lib.train_and_evaluate(_config(max_steps=20), split)
+  os.remove(os.path.join(checkpoints.checkpoint_dir(split), "ckpt_20.msgpack"))
+  assert checkpoints.list_steps(split) == [10]
+  resumed = train_lib.train_and_evaluate(_config(max_steps=20), split)
+  assert resumed["steps"] == 20
+  lines = [json.loads(l) for l in open(os.path.join(split, "metrics.jsonl"))]
+  assert [r["step"] for r in lines] == [10, 20, 20]  # the resumed run logged only step 20
+  _, _, p_full, *_ = cli.restore_for_render(str(tmp_path / "full"))
+  _, _, p_split, *_ = cli.restore_for_render(split)
+  assert _params_equal(p_full, p_split)  # bitwise: batches are drawn from fold_in(key, step)
+  assert resumed["psnr"] == full["psnr"]
+
+
+def test_checkpoint_restore_render_gives_the_same_image(tmp_path):
+  workdir = str(tmp_path / "run")
+  config = _config(max_steps=10)
+  train_lib.train_and_evaluate(config, workdir)
+  config2, model, params, _, test_ds, near, far = cli.restore_for_render(workdir)
+  evaluate = render_lib.make_evaluator(model, config2, near, far, test_ds)
+  again = evaluate(params)
+  stored = json.loads((tmp_path / "run" / "metrics.json").read_text())
+  assert again["per_view"] == stored["per_view"]
+
+
+def test_same_seed_same_parameters(tmp_path):
+  train_lib.train_and_evaluate(_config(max_steps=5), str(tmp_path / "a"))
+  train_lib.train_and_evaluate(_config(max_steps=5), str(tmp_path / "b"))
+  _, _, pa, *_ = cli.restore_for_render(str(tmp_path / "a"))
+  _, _, pb, *_ = cli.restore_for_render(str(tmp_path / "b"))
+  assert _params_equal(pa, pb)
+
+
+def test_non_finite_loss_stops_with_step_and_checkpoint_named(tmp_path):
+  config = _config(max_steps=20, log_every=5, checkpoint_every=5)
+  config.train.lr = 1e30  # parameters overflow within a few steps
+  config.train.lr_final = 1e30
+  with pytest.raises(train_lib.TrainingError, match=r"non-finite .* at step \d+.*checkpoint"):
+    train_lib.train_and_evaluate(config, str(tmp_path / "nan"))
+
+
+def test_incompatible_checkpoint_is_refused(tmp_path):
+  workdir = str(tmp_path / "run")
+  train_lib.train_and_evaluate(_config(max_steps=2), workdir)
+  wider = _config(max_steps=4)
+  wider.model.width = 48
+  with pytest.raises(checkpoints.CheckpointError, match="incompatible config.*width"):
+    train_lib.train_and_evaluate(wider, workdir)
+  assert checkpoints.list_steps(workdir) == [2]  # nothing overwritten
+
+
+def test_wall_clock_budget_stops_early(tmp_path):
+  result = train_lib.train_and_evaluate(_config(max_steps=100000, max_seconds=3.0),
+                                        str(tmp_path / "budget"))
+  assert 0 < result["steps"] < 100000
+  assert checkpoints.list_steps(str(tmp_path / "budget"))[-1] == result["steps"]
+
+
+def test_whole_image_batching_draws_whole_images():
+  config = _config()
+  config.train.batching = "images"
+  config.train.images_per_step = 2
+  train_ds, _ = loaders.load_dataset(config.data)
+  data = train_lib.make_train_data(train_ds, 0.0)
+  rays, rgb = train_lib.draw_batch(data, config, jax.random.PRNGKey(0))
+  pixels = train_ds.height * train_ds.width
+  assert rgb.shape == (2 * pixels, 3)
+  flat = np.asarray(data.rgb)
+  matches = [i for i in range(len(train_ds)) if np.array_equal(flat[i], rgb[:pixels])]
+  assert len(matches) == 1
+
+
+def _run(args, cwd):
+  env = dict(os.environ, PYTHONPATH=ROOT)
+  return subprocess.run([sys.executable, *args], cwd=cwd, env=env, capture_output=True,
+                        text=True, timeout=300)
+
+
+def test_train_and_render_entry_points(tmp_path):
+  workdir = str(tmp_path / "cli")
+  res = _run(["train.py", "--config=configs/debug.py", f"--workdir={workdir}",
+              "--config.train.max_steps=4"], ROOT)
+  assert res.returncode == 0, res.stderr[-2000:]
+  assert os.path.exists(os.path.join(workdir, "video", "rgb.mp4"))
+  assert os.path.exists(os.path.join(workdir, "eval", "view_000.png"))
+  res = _run(["render.py", f"--workdir={workdir}", "--mode=eval"], ROOT)
+  assert res.returncode == 0 and "test PSNR" in res.stdout, res.stderr[-2000:]
+
+
+def test_render_without_checkpoint_is_one_clear_line(tmp_path):
+  workdir = tmp_path / "empty"
+  workdir.mkdir()
+  (workdir / "config.json").write_text(debug.get_config().to_json())
+  res = _run(["render.py", f"--workdir={workdir}"], ROOT)
+  assert res.returncode == 1
+  lines = res.stderr.strip().splitlines()
+  assert len(lines) == 1 and "no checkpoint" in lines[0], res.stderr
