@@ -40,25 +40,25 @@ def get_config():
   model.dtype = "float32"  # matmul dtype: float32, bfloat16 or float16
 
   config.train = train = ml_collections.ConfigDict()
-  train.max_steps = 3000  # step budget
+  train.max_steps = 600  # step budget
   train.max_seconds = 0.0  # wall-clock budget in seconds (0 = no limit)
   train.batch_rays = 1024  # rays per step (random rays over all training images)
   train.batching = "rays"  # 'rays' (random rays) or 'images' (whole images, as the reference)
   train.images_per_step = 5  # whole images per step when batching == 'images'
   train.lr = 2e-3  # initial Adam learning rate
   train.lr_final = 1e-4  # learning rate at max_steps (exponential decay)
-  train.warmup_steps = 100  # linear warm-up from 0
+  train.warmup_steps = 50  # linear warm-up from 0
   train.grad_clip = 0.0  # clip gradients to this global norm (0 = off)
   train.coarse_loss_weight = 1.0  # weight of the coarse pass loss when a fine pass exists
   train.log_every = 100  # steps between progress lines and metrics.jsonl records
   train.eval_every = 0  # steps between test-view evaluations (0 = only at the end)
   train.eval_views = 2  # test views rendered for periodic evaluations (the final one uses all)
-  train.checkpoint_every = 1000  # steps between checkpoints
+  train.checkpoint_every = 200  # steps between checkpoints
   train.keep_checkpoints = 2  # checkpoints kept in the workdir
 
   config.render = render = ml_collections.ConfigDict()
   render.chunk = 4096  # rays per jitted render call
-  render.video_frames = 120  # frames in the 360° orbit video
+  render.video_frames = 60  # frames in the 360° orbit video
   render.fps = 30  # video frame rate
   render.orbit_phi = -30.0  # orbit elevation in degrees
   render.orbit_radius = 4.0  # orbit distance from the origin

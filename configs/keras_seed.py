@@ -30,4 +30,5 @@ def get_config():
   config.train.log_every = 16  # once per epoch
   config.train.checkpoint_every = 80  # every 5 epochs
   config.render.chunk = 8192  # bigger chunks: 50k rays per training step anyway
+  config.render.video_frames = 120  # the reference renders 120 orbit frames
   return config

@@ -8,7 +8,7 @@ import json
 import os
 import sys
 
-from absl import logging
+from absl import flags, logging
 
 from nerf_jax import checkpoints, render_lib, renderer, train_lib
 from nerf_jax.data import loaders
@@ -21,6 +21,8 @@ USER_ERRORS = (loaders.DataError, checkpoints.CheckpointError, train_lib.Trainin
 
 def run_main(fn):
   """Run fn(); turn user errors into one line on stderr and exit status 1."""
+  if not flags.FLAGS["verbosity"].present:
+    logging.set_verbosity(logging.WARNING)  # hide JAX's backend-probing INFO lines by default
   try:
     fn()
   except KeyboardInterrupt as e:

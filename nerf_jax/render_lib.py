@@ -6,6 +6,7 @@ arrays are saved as `.npy` in scene units, and the PNGs map [near, far] to a col
 
 import json
 import os
+import warnings
 
 import imageio.v2 as imageio
 import numpy as np
@@ -110,7 +111,9 @@ def render_video(model, params, config, near, far, dataset, out_dir):
   paths = {}
   for name, frames in (("rgb", rgb_frames), ("depth", depth_frames)):
     paths[name] = os.path.join(out_dir, f"{name}.mp4")
-    imageio.mimwrite(paths[name], frames, fps=config.render.fps, macro_block_size=1)
+    with warnings.catch_warnings():  # imageio-ffmpeg forks ffmpeg; JAX warns about any fork
+      warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
+      imageio.mimwrite(paths[name], frames, fps=config.render.fps, macro_block_size=1)
   return paths
 
 
