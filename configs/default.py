@@ -27,8 +27,13 @@ def get_config():
   data.lindisp = False  # sample linearly in inverse depth instead of depth
   data.near = 0.0  # near bound override (0 = the dataset's, 2 for tiny_nerf)
   data.far = 0.0  # far bound override (0 = the dataset's, 6 for tiny_nerf)
+  data.scene_bound = 0.0  # half-size of a box holding the scene; sample only inside it (0 = off)
 
   config.model = model = ml_collections.ConfigDict()
+  model.encoding = "posenc"  # 'posenc' (NeRF MLP) or 'grid' (dense feature grids, configs/fast.py)
+  model.grid_resolutions = (32, 64, 128)  # grid encoding: lattice points per side of each level
+  model.grid_features = 4  # grid encoding: features per lattice point
+  model.grid_bound = 1.5  # grid encoding: the grids cover [-bound, bound]^3
   model.depth = 8  # hidden layers
   model.width = 64  # units per hidden layer (reference 64, paper 256)
   model.skip_layers = (4,)  # re-inject the input after these layers (0-based)

@@ -11,7 +11,10 @@ Outputs:
 from typing import Sequence
 
 import flax.linen as nn
+import jax
 import jax.numpy as jnp
+
+from nerf_jax import grid
 
 
 class NerfMLP(nn.Module):
@@ -52,8 +55,49 @@ class NerfMLP(nn.Module):
     return nn.sigmoid(rgb), raw_sigma
 
 
+class GridNeRF(nn.Module):
+  """The fast field: multiresolution dense feature grids over the scene box + a tiny MLP.
+
+  Takes raw world positions `points: float32 [..., 3]` (no positional encoding: the grids are
+  the encoding) and optionally encoded directions. Density and a feature come from one hidden
+  layer over the concatenated grid features; colour from the feature (and direction).
+  Positions outside the box get raw density -1e5, which every density activation maps to 0
+  with a zero gradient (relu, softplus and exp all underflow to exactly 0 there).
+  """
+  resolutions: Sequence[int] = (32, 64, 128)
+  features: int = 4
+  bound: float = 1.5
+  hidden: int = 64
+  view_dependent: bool = False
+  view_width: int = 32
+  dtype: str = "float32"
+
+  def _dense(self, features, name):
+    return nn.Dense(features, dtype=jnp.dtype(self.dtype), param_dtype=jnp.float32, name=name)
+
+  @nn.compact
+  def __call__(self, points, dir_features=None):
+    init = lambda key, shape: 1e-2 * jax.random.normal(key, shape, jnp.float32)
+    grids = [self.param(f"grid_{r}", init, (r, r, r, self.features)) for r in self.resolutions]
+    unit = grid.to_unit_cube(points.astype(jnp.float32), self.bound)
+    h = grid.multires_features(grids, unit).astype(jnp.dtype(self.dtype))
+    h = nn.relu(self._dense(self.hidden, "hidden")(h))
+    raw_sigma = self._dense(1, "sigma")(h)[..., 0].astype(jnp.float32)
+    raw_sigma = jnp.where(grid.inside_box(unit), raw_sigma, -1e5)
+    if self.view_dependent:
+      h = jnp.concatenate([h, dir_features.astype(h.dtype)], axis=-1)
+      h = nn.relu(self._dense(self.view_width, "view")(h))
+    rgb = self._dense(3, "rgb")(h).astype(jnp.float32)
+    return nn.sigmoid(rgb), raw_sigma
+
+
 def make_model(model_config):
-  """The NerfMLP described by `config.model` (a ConfigDict)."""
+  """The field described by `config.model` (a ConfigDict): NerfMLP or GridNeRF."""
+  if model_config.get("encoding", "posenc") == "grid":
+    return GridNeRF(resolutions=tuple(model_config.grid_resolutions),
+                    features=model_config.grid_features, bound=model_config.grid_bound,
+                    hidden=model_config.width, view_dependent=model_config.view_dependent,
+                    view_width=model_config.view_width, dtype=model_config.dtype)
   return NerfMLP(depth=model_config.depth, width=model_config.width,
                  skip_layers=tuple(model_config.skip_layers),
                  view_dependent=model_config.view_dependent,

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax import activations, encoding, rendering, sampling
+from nerf_jax import activations, encoding, grid, rendering, sampling
 from nerf_jax.rays import Rays
 
 
@@ -24,11 +24,16 @@ def network_names(config):
 
 def init_params(model, config, key):
   """Parameters {'coarse': ..., ['fine': ...]} for `model` (a NerfMLP)."""
-  pos = jnp.zeros((1, encoding.encoded_width(3, config.pos_encode_dims)), jnp.float32)
+  pos_width = 3 if _uses_grid(config) else encoding.encoded_width(3, config.pos_encode_dims)
+  pos = jnp.zeros((1, pos_width), jnp.float32)
   dirs = jnp.zeros((1, encoding.encoded_width(3, config.dir_encode_dims)), jnp.float32)
   keys = jax.random.split(key, 2)
   return {name: model.init(k, pos, dirs)["params"]
           for name, k in zip(network_names(config), keys)}
+
+
+def _uses_grid(config):
+  return config.model.get("encoding", "posenc") == "grid"
 
 
 def query_field(model, params, points, viewdirs, config, key=None):
@@ -37,7 +42,10 @@ def query_field(model, params, points, viewdirs, config, key=None):
   points: float32 [..., S, 3]. viewdirs: float32 [..., 3] unit directions. key: PRNG key for the
   density noise (None = no noise). Returns rgb float32 [..., S, 3], sigma float32 [..., S].
   """
-  pos_features = encoding.positional_encoding(points, config.pos_encode_dims)
+  if _uses_grid(config):
+    pos_features = points  # the grids are the encoding
+  else:
+    pos_features = encoding.positional_encoding(points, config.pos_encode_dims)
   dir_features = None
   if config.model.view_dependent:
     dirs = jnp.broadcast_to(viewdirs[..., None, :], points.shape)
@@ -70,7 +78,11 @@ def render_rays(model, params, rays, config, near, far, key=None, background=Non
   """
   batch_shape = rays.origins.shape[:-1]
   keys = jax.random.split(key, 4) if key is not None else [None] * 4
-  t = sampling.stratified(near, far, config.num_samples, batch_shape, keys[0],
+  t_near, t_far = near, far
+  box = config.data.get("scene_bound", 0.0)
+  if box > 0:  # sample only the part of each ray inside the scene box
+    t_near, t_far = grid.ray_box_bounds(rays.origins, rays.directions, box, near, far)
+  t = sampling.stratified(t_near, t_far, config.num_samples, batch_shape, keys[0],
                           lindisp=config.data.lindisp)
   outputs = {"coarse": _shade(model, params["coarse"], rays, t, config, background, keys[1])}
   if config.num_fine_samples > 0:
@@ -78,6 +90,10 @@ def render_rays(model, params, rays, config, near, far, key=None, background=Non
     t_fine = sampling.merge_edges(t, extra)
     fine_params = params["coarse"] if config.model.shared_fine else params["fine"]
     outputs["fine"] = _shade(model, fine_params, rays, t_fine, config, background, keys[3])
+  if box > 0:
+    # An empty ray's depth is `far` on every code path (composite gives t_S, the box exit here).
+    for out in outputs.values():
+      out["depth"] = jnp.where(out["acc"] > rendering.EMPTY_ACC, out["depth"], far)
   return outputs
 
 
