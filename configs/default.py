@@ -25,6 +25,7 @@ def get_config():
   data.background = "black"  # 'black', 'white', 'random' (training) or an RGB triple
   data.half_res = False  # Blender data: load at half resolution
   data.lindisp = False  # sample linearly in inverse depth instead of depth
+  data.ndc = False  # forward-facing scenes: rays in normalized device coordinates, t in [0, 1]
   data.near = 0.0  # near bound override (0 = the dataset's, 2 for tiny_nerf)
   data.far = 0.0  # far bound override (0 = the dataset's, 6 for tiny_nerf)
   data.scene_bound = 0.0  # half-size of a box holding the scene; sample only inside it (0 = off)

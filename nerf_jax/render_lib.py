@@ -12,7 +12,7 @@ import imageio.v2 as imageio
 import numpy as np
 
 from nerf_jax import metrics, renderer
-from nerf_jax.rays import get_rays_intrinsics, orbit_poses
+from nerf_jax.rays import orbit_poses, spiral_poses
 
 # Control points of a perceptually ordered colour map (dark blue -> teal -> yellow), for depth.
 _CMAP = np.array([[0.05, 0.03, 0.25], [0.23, 0.30, 0.55], [0.13, 0.57, 0.55],
@@ -46,10 +46,9 @@ def background_colour(config):
 
 def render_pose(render_chunk, params, pose, height, width, intrinsics, config, background):
   """Render one camera: numpy dict rgb [H, W, 3], depth [H, W], acc [H, W]."""
-  origins, directions = get_rays_intrinsics(height, width, intrinsics, pose,
-                                            config.data.pixel_center)
+  origins, directions, viewdirs = renderer.camera_rays(height, width, intrinsics, pose, config)
   return renderer.render_image(render_chunk, params, origins, directions, config.render.chunk,
-                               background)
+                               background, viewdirs)
 
 
 def make_evaluator(model, config, near, far, test_ds):
@@ -98,11 +97,29 @@ def render_frames(model, params, config, near, far, poses, height, width, intrin
     yield render_pose(render_chunk, params, pose, height, width, intrinsics, config, background)
 
 
+def video_poses(config, dataset):
+  """The camera path of the video: float32 [F, 4, 4].
+
+  Forward-facing data (NDC): a spiral around the mean camera, focused at a depth between the
+  bounds (weighted towards near, in disparity, as LLFF does). Otherwise: a 360° orbit, the
+  reference's pose_spherical path.
+  """
+  frames = config.render.video_frames
+  if not config.data.get("ndc", False):
+    return orbit_poses(frames, config.render.orbit_phi, config.render.orbit_radius)
+  centre = np.eye(4, dtype=np.float32)
+  centre[:3, :] = dataset.poses[:, :3, :].mean(axis=0)
+  u, _, vt = np.linalg.svd(centre[:3, :3])
+  centre[:3, :3] = u @ vt  # the nearest rotation to the mean rotation
+  radii = np.percentile(np.abs(dataset.poses[:, :3, 3] - centre[:3, 3]), 90, axis=0)
+  focus = 1.0 / (0.25 / dataset.near + 0.75 / dataset.far)
+  return spiral_poses(centre, np.maximum(radii, 1e-3), focus, frames)
+
+
 def render_video(model, params, config, near, far, dataset, out_dir):
-  """A 360° orbit (the reference's pose_spherical path) as rgb.mp4 and depth.mp4 in `out_dir`."""
+  """The video path (see `video_poses`) as rgb.mp4 and depth.mp4 in `out_dir`."""
   os.makedirs(out_dir, exist_ok=True)
-  poses = orbit_poses(config.render.video_frames, config.render.orbit_phi,
-                      config.render.orbit_radius)
+  poses = video_poses(config, dataset)
   rgb_frames, depth_frames = [], []
   for out in render_frames(model, params, config, near, far, poses, dataset.height,
                            dataset.width, dataset.intrinsics):

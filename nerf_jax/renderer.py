@@ -11,8 +11,25 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax import activations, encoding, grid, rendering, sampling
-from nerf_jax.rays import Rays
+from nerf_jax import activations, encoding, grid, ndc, rendering, sampling
+from nerf_jax.rays import Rays, get_rays_intrinsics, safe_normalize
+
+
+def camera_rays(height, width, intrinsics, pose, config):
+  """The rays the field is queried along for one camera.
+
+  Returns (origins, directions, viewdirs), each float32 [height, width, 3]. viewdirs are the unit
+  world directions (what the view branch sees); with `config.data.ndc` origins and directions are
+  in normalized device coordinates (see ndc.py) and the ray parameter runs over [0, 1].
+  """
+  origins, directions = get_rays_intrinsics(height, width, intrinsics, pose,
+                                            config.data.pixel_center)
+  viewdirs = safe_normalize(directions)
+  if config.data.get("ndc", False):
+    fx, fy = intrinsics[0], intrinsics[1]
+    origins, directions = ndc.ndc_rays(origins, directions, fx, width, height, near=1.0,
+                                       focal_y=fy)
+  return origins, directions, viewdirs
 
 
 def network_names(config):
@@ -58,22 +75,25 @@ def query_field(model, params, points, viewdirs, config, key=None):
   return rgb, sigma
 
 
-def _shade(model, params, rays, t, config, background, key):
+def _shade(model, params, rays, viewdirs, t, config, background, key):
   """One pass over the intervals `t: float32 [..., S + 1]`."""
   positions = sampling.midpoints(t)
   points = rays.origins[..., None, :] + rays.directions[..., None, :] * positions[..., None]
-  rgb, sigma = query_field(model, params, points, rays.viewdirs, config, key)
+  rgb, sigma = query_field(model, params, points, viewdirs, config, key)
   out = rendering.composite(rgb, sigma, t, background)
   out["t"] = t
   return out
 
 
-def render_rays(model, params, rays, config, near, far, key=None, background=None):
+def render_rays(model, params, rays, config, near, far, key=None, background=None,
+                viewdirs=None):
   """Render a batch of rays with the coarse and (optionally) fine passes.
 
   params: {'coarse': ..., ['fine': ...]}. near, far: float bounds (z-depth). key: PRNG key for
   stratified jitter, resampling and density noise; None renders deterministically.
-  background: None or float32 broadcastable to [..., 3].
+  background: None or float32 broadcastable to [..., 3]. viewdirs: float32 [..., 3] unit
+  directions for the view branch (None = the normalised ray directions; pass the world
+  directions when the rays are in NDC).
   Returns {'coarse': pass_output, ['fine': pass_output]}.
   """
   batch_shape = rays.origins.shape[:-1]
@@ -84,12 +104,15 @@ def render_rays(model, params, rays, config, near, far, key=None, background=Non
     t_near, t_far = grid.ray_box_bounds(rays.origins, rays.directions, box, near, far)
   t = sampling.stratified(t_near, t_far, config.num_samples, batch_shape, keys[0],
                           lindisp=config.data.lindisp)
-  outputs = {"coarse": _shade(model, params["coarse"], rays, t, config, background, keys[1])}
+  viewdirs = rays.viewdirs if viewdirs is None else viewdirs
+  outputs = {"coarse": _shade(model, params["coarse"], rays, viewdirs, t, config, background,
+                              keys[1])}
   if config.num_fine_samples > 0:
     extra = sampling.sample_pdf(t, outputs["coarse"]["weights"], config.num_fine_samples, keys[2])
     t_fine = sampling.merge_edges(t, extra)
     fine_params = params["coarse"] if config.model.shared_fine else params["fine"]
-    outputs["fine"] = _shade(model, fine_params, rays, t_fine, config, background, keys[3])
+    outputs["fine"] = _shade(model, fine_params, rays, viewdirs, t_fine, config, background,
+                             keys[3])
   if box > 0:
     # An empty ray's depth is `far` on every code path (composite gives t_S, the box exit here).
     for out in outputs.values():
@@ -105,31 +128,37 @@ def final(outputs):
 def make_chunk_renderer(model, config, near, far):
   """A jitted deterministic renderer for one fixed-size chunk of rays.
 
-  Returns fn(params, origins, directions, background) -> dict of rgb [C, 3], depth [C], acc [C].
+  Returns fn(params, origins, directions, viewdirs, background) -> dict of rgb [C, 3],
+  depth [C], acc [C].
   """
   @jax.jit
-  def render_chunk(params, origins, directions, background):
+  def render_chunk(params, origins, directions, viewdirs, background):
     out = final(render_rays(model, params, Rays(origins, directions), config, near, far,
-                            key=None, background=background))
+                            key=None, background=background, viewdirs=viewdirs))
     return {k: out[k] for k in ("rgb", "depth", "acc")}
   return render_chunk
 
 
-def render_image(render_chunk, params, origins, directions, chunk, background=(0.0, 0.0, 0.0)):
+def render_image(render_chunk, params, origins, directions, chunk, background=(0.0, 0.0, 0.0),
+                 viewdirs=None):
   """Render any number of rays in fixed-size padded chunks (no recompiles, bounded memory).
 
-  render_chunk: from `make_chunk_renderer`. origins, directions: float32 [..., 3].
-  chunk: int, rays per call. background: RGB. Returns numpy dict rgb [..., 3], depth [...], acc [...].
+  render_chunk: from `make_chunk_renderer`. origins, directions: float32 [..., 3]. viewdirs:
+  float32 [..., 3] or None (= normalised directions). chunk: int, rays per call.
+  background: RGB. Returns numpy dict rgb [..., 3], depth [...], acc [...].
   """
   batch_shape = origins.shape[:-1]
-  origins = np.asarray(origins, np.float32).reshape(-1, 3)
-  directions = np.asarray(directions, np.float32).reshape(-1, 3)
-  num_rays = origins.shape[0]
+  if viewdirs is None:
+    viewdirs = safe_normalize(jnp.asarray(directions))
+  num_rays = int(np.prod(batch_shape))
   padded = -(-num_rays // chunk) * chunk
-  pad = ((0, padded - num_rays), (0, 0))
-  origins, directions = np.pad(origins, pad), np.pad(directions, pad, constant_values=1.0)
+  # Padding rays are copies of ray 0, so they are as well-behaved as a real ray.
+  flat = lambda a: np.asarray(a, np.float32).reshape(-1, 3)
+  pad = lambda a: np.concatenate([a, np.repeat(a[:1], padded - num_rays, axis=0)])
+  origins, directions, viewdirs = (pad(flat(a)) for a in (origins, directions, viewdirs))
   background = jnp.asarray(background, jnp.float32)
-  pieces = [render_chunk(params, origins[i:i + chunk], directions[i:i + chunk], background)
+  pieces = [render_chunk(params, origins[i:i + chunk], directions[i:i + chunk],
+                         viewdirs[i:i + chunk], background)
             for i in range(0, padded, chunk)]
   out = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs)[:num_rays], *pieces)
   return {k: v.reshape(*batch_shape, *v.shape[1:]) for k, v in out.items()}

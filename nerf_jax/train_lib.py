@@ -20,7 +20,7 @@ import optax
 from nerf_jax import checkpoints, metrics, render_lib, renderer
 from nerf_jax.data import loaders
 from nerf_jax.model import make_model
-from nerf_jax.rays import Rays, get_rays_intrinsics
+from nerf_jax.rays import Rays
 
 
 class TrainingError(RuntimeError):
@@ -37,20 +37,47 @@ class TrainState:
 
 @flax.struct.dataclass
 class TrainData:
-  """Training pixels, one row per image: origins, directions, rgb float32 [N, P, 3], P = H·W."""
+  """Training pixels, one row per image (P = H·W pixels each).
+
+  origins, directions, viewdirs: float32 [N, P, 3], the rays (see renderer.camera_rays).
+  rgb: float32 [N, P, 3], target colours composited on the configured background.
+  acc: float32 [N, P], ground-truth opacity (ones where unknown), for random backgrounds.
+  """
   origins: jnp.ndarray
   directions: jnp.ndarray
+  viewdirs: jnp.ndarray
   rgb: jnp.ndarray
+  acc: jnp.ndarray
 
 
-def make_train_data(dataset, pixel_center):
-  """TrainData of every pixel of a `Dataset`."""
-  rays = [get_rays_intrinsics(dataset.height, dataset.width, dataset.intrinsics, pose,
-                              pixel_center) for pose in dataset.poses]
-  flat = lambda a: jnp.asarray(a, jnp.float32).reshape(len(dataset), -1, 3)
-  return TrainData(origins=flat(np.stack([np.asarray(o) for o, _ in rays])),
-                   directions=flat(np.stack([np.asarray(d) for _, d in rays])),
-                   rgb=flat(dataset.images))
+def make_train_data(dataset, config):
+  """TrainData of every pixel of a `Dataset`, targets on `config.data.background`."""
+  rays = [renderer.camera_rays(dataset.height, dataset.width, dataset.intrinsics, pose, config)
+          for pose in dataset.poses]
+  flat = lambda a: jnp.asarray(np.asarray(a), jnp.float32).reshape(len(dataset), -1, 3)
+  stack = lambda i: flat(np.stack([np.asarray(r[i]) for r in rays]))
+  acc, rgb = _targets(dataset, config)
+  return TrainData(origins=stack(0), directions=stack(1), viewdirs=stack(2), rgb=flat(rgb),
+                   acc=jnp.asarray(acc, jnp.float32).reshape(len(dataset), -1))
+
+
+def _targets(dataset, config):
+  """(acc [N, H, W], rgb [N, H, W, 3]): the images re-composited on the configured background.
+
+  With known opacity, `images + (1 - acc)·(new - old)` swaps the background exactly; without it
+  the images are used as they are (and 'random' is refused: it needs the opacity).
+  """
+  accs = getattr(dataset, "accs", None)
+  wanted = config.data.background
+  if accs is None:
+    if isinstance(wanted, str) and wanted == "random":
+      raise TrainingError("config.data.background='random' needs per-pixel opacity (Blender "
+                          "RGBA or built-in scenes); this dataset has none")
+    return np.ones(dataset.images.shape[:-1], np.float32), dataset.images
+  old = np.asarray(getattr(dataset, "background", (0.0, 0.0, 0.0)), np.float32)
+  new = render_lib.background_colour(config)
+  rgb = dataset.images + (1.0 - accs)[..., None] * (new - old)
+  return accs, rgb.astype(np.float32)
 
 
 def make_schedule(train_config):
@@ -73,23 +100,32 @@ def make_optimizer(train_config):
 
 
 def draw_batch(data, config, key):
-  """Rays and target colours of one step: Rays [B], rgb float32 [B, 3]."""
+  """One step's pixels: a TrainData whose fields are flattened to [B, ...]."""
   num_images, num_pixels = data.rgb.shape[:2]
   if config.train.batching == "images":
     images = jax.random.choice(key, num_images, (config.train.images_per_step,), replace=False)
-    take = lambda a: a[images].reshape(-1, 3)
+    take = lambda a: a[images].reshape(-1, *a.shape[2:])
   else:
     idx = jax.random.randint(key, (config.train.batch_rays,), 0, num_images * num_pixels)
-    take = lambda a: a.reshape(-1, 3)[idx]
-  return Rays(take(data.origins), take(data.directions)), take(data.rgb)
+    take = lambda a: a.reshape(-1, *a.shape[2:])[idx]
+  return jax.tree_util.tree_map(take, data)
 
 
 def make_train_step(model, tx, config, near, far):
   """The jitted train step: (state, data, key) -> (state, stats). `state` is donated."""
-  background = jnp.asarray(render_lib.background_colour(config))
+  fixed_background = jnp.asarray(render_lib.background_colour(config))
+  random_background = isinstance(config.data.background, str) and config.data.background == "random"
 
-  def loss_fn(params, rays, target, key):
-    outputs = renderer.render_rays(model, params, rays, config, near, far, key, background)
+  def loss_fn(params, batch, key):
+    render_key, bg_key = jax.random.split(key)
+    background, target = fixed_background, batch.rgb
+    if random_background:
+      # A fresh background per ray: the field cannot bake the background into density.
+      background = jax.random.uniform(bg_key, batch.rgb.shape)
+      target = batch.rgb + (1.0 - batch.acc)[:, None] * (background - fixed_background)
+    rays = Rays(batch.origins, batch.directions)
+    outputs = renderer.render_rays(model, params, rays, config, near, far, render_key,
+                                   background, batch.viewdirs)
     mses = {name: jnp.mean((out["rgb"] - target) ** 2) for name, out in outputs.items()}
     loss = mses["coarse"] if "fine" not in mses else (
         mses["fine"] + config.train.coarse_loss_weight * mses["coarse"])
@@ -99,8 +135,8 @@ def make_train_step(model, tx, config, near, far):
   def step(state, data, key):
     key = jax.random.fold_in(key, state.step)
     batch_key, render_key = jax.random.split(key)
-    rays, target = draw_batch(data, config, batch_key)
-    grads, stats = jax.grad(loss_fn, has_aux=True)(state.params, rays, target, render_key)
+    batch = draw_batch(data, config, batch_key)
+    grads, stats = jax.grad(loss_fn, has_aux=True)(state.params, batch, render_key)
     finite = jnp.isfinite(stats["loss"]) & jnp.all(jnp.array(
         [jnp.all(jnp.isfinite(g)) for g in jax.tree_util.tree_leaves(grads)]))
     updates, opt_state = tx.update(grads, state.opt_state, state.params)
@@ -131,7 +167,9 @@ def init_state(model, tx, config):
 
 
 def bounds(config, dataset):
-  """(near, far): the config's overrides where set, else the dataset's."""
+  """(near, far): [0, 1] in NDC, else the config's overrides where set, else the dataset's."""
+  if config.data.get("ndc", False):
+    return 0.0, 1.0  # NDC rays run from the near plane (0) to infinity (1)
   return (config.data.near or dataset.near, config.data.far or dataset.far)
 
 
@@ -183,7 +221,7 @@ def train_and_evaluate(config, workdir):
   with open(os.path.join(workdir, "config.json"), "w") as f:
     f.write(config.to_json(indent=2))
 
-  data = make_train_data(train_ds, config.data.pixel_center)
+  data = make_train_data(train_ds, config)
   train_step = make_train_step(model, tx, config, near, far)
   eval_fn = render_lib.make_evaluator(model, config, near, far, test_ds)
   key = jax.random.PRNGKey(config.seed + 1)

@@ -111,8 +111,8 @@ def test_whole_image_batching_draws_whole_images():
   config.train.batching = "images"
   config.train.images_per_step = 2
   train_ds, _ = loaders.load_dataset(config.data)
-  data = train_lib.make_train_data(train_ds, 0.0)
-  rays, rgb = train_lib.draw_batch(data, config, jax.random.PRNGKey(0))
+  data = train_lib.make_train_data(train_ds, config)
+  rgb = train_lib.draw_batch(data, config, jax.random.PRNGKey(0)).rgb
   pixels = train_ds.height * train_ds.width
   assert rgb.shape == (2 * pixels, 3)
   flat = np.asarray(data.rgb)
@@ -145,3 +145,39 @@ def test_render_without_checkpoint_is_one_clear_line(tmp_path):
   assert res.returncode == 1
   lines = res.stderr.strip().splitlines()
   assert len(lines) == 1 and "no checkpoint" in lines[0], res.stderr
+
+
+def test_targets_are_recomposited_on_the_configured_background():
+  config = _config()
+  config.data.scene = "white"
+  train_ds, _ = loaders.load_dataset(config.data)
+  empty = train_ds.accs == 0
+  assert empty.any() and np.all(train_ds.images[empty] == 1.0)
+  config.data.background = "black"
+  acc, rgb = train_lib._targets(train_ds, config)
+  assert np.all(rgb[empty] == 0.0)
+  opaque = train_ds.accs == 1
+  np.testing.assert_allclose(rgb[opaque], train_ds.images[opaque], atol=1e-6)
+
+
+def test_random_background_trains_and_needs_opacity(tmp_path):
+  config = _config(max_steps=3)
+  config.data.background = "random"
+  result = train_lib.train_and_evaluate(config, str(tmp_path / "random"))
+  assert np.isfinite(result["psnr"])
+  train_ds, _ = loaders.load_dataset(config.data)
+  train_ds.accs = None
+  with pytest.raises(train_lib.TrainingError, match="opacity"):
+    train_lib.make_train_data(train_ds, config)
+
+
+def test_forward_facing_video_follows_a_spiral():
+  config = _config()
+  config.data.scene, config.data.ndc = "forward", True
+  train_ds, _ = loaders.load_dataset(config.data)
+  poses = render_lib.video_poses(config, train_ds)
+  assert poses.shape == (config.render.video_frames, 4, 4)
+  # Cameras stay near the capture plane and keep looking down -z, as the training cameras do.
+  assert np.all(poses[:, 2, 2] > 0.9)
+  spread = np.abs(poses[:, :3, 3] - train_ds.poses[:, :3, 3].mean(0)).max()
+  assert spread < 2 * np.abs(train_ds.poses[:, :3, 3]).max() + 1e-3
