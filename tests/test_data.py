@@ -41,6 +41,15 @@ def test_npz_round_trip(fog, tmp_path):
   for key in ("images", "poses", "depths", "accs"):
     np.testing.assert_array_equal(getattr(back, key), getattr(fog, key))
   assert back.intrinsics == fog.intrinsics and (back.near, back.far) == (2.0, 6.0)
+  assert back.background == (0.0, 0.0, 0.0)
+
+
+def test_npz_round_trip_keeps_the_background(tmp_path):
+  white = scenes.make_dataset("white", num_views=2, height=8, width=8, focal=11.1)
+  export.export_npz(white, str(tmp_path / "w.npz"))
+  back = load_npz(str(tmp_path / "w.npz"))
+  assert back.background == (1.0, 1.0, 1.0)
+  np.testing.assert_array_equal(back.accs, white.accs)
 
 
 def test_blender_round_trip(fog, tmp_path):
@@ -58,8 +67,21 @@ def test_blender_alpha_export_recomposites(fog, tmp_path):
   export.export_blender(fog, str(tmp_path), background=(0.0, 0.0, 0.0))
   train, _ = fog.split(-1)
   np.testing.assert_allclose(load_blender(str(tmp_path)).images, train.images, atol=Q)
-  on_white = load_blender(str(tmp_path), background="white").images
-  np.testing.assert_allclose(on_white, train.images + (1 - train.accs[..., None]), atol=2 * Q)
+  on_white = load_blender(str(tmp_path), background="white")
+  np.testing.assert_allclose(on_white.images, train.images + (1 - train.accs[..., None]),
+                             atol=2 * Q)
+  assert on_white.background == (1.0, 1.0, 1.0)
+  np.testing.assert_allclose(on_white.accs, train.accs, atol=Q / 2)  # the 8-bit alpha channel
+  on_black = load_blender(str(tmp_path))
+  assert on_black.background == (0.0, 0.0, 0.0)
+  recomposited = on_black.images + (1 - on_black.accs[..., None]) * (
+      np.float32(1.0) - np.asarray(on_black.background, np.float32))  # Dataset's documented rule
+  np.testing.assert_allclose(recomposited, on_white.images, atol=1e-6)
+
+
+def test_opaque_blender_export_has_unit_accs(fog, tmp_path):
+  export.export_blender(fog, str(tmp_path), split_at=4)
+  np.testing.assert_array_equal(load_blender(str(tmp_path)).accs, 1.0)
 
 
 def test_load_dataset_builtin():
@@ -132,6 +154,11 @@ def test_npz_uint8_rgba_composited_on_white(tmp_path):
   np.testing.assert_array_equal(ds.images[:, :2], np.broadcast_to([1.0, 0, 0], (2, 2, 4, 3)))
   np.testing.assert_array_equal(ds.images[:, 2:], 1.0)
   assert ds.poses.shape == (2, 4, 4) and np.all(ds.poses[:, 3] == [0, 0, 0, 1])
+  np.testing.assert_array_equal(ds.accs[:, :2], 1.0)
+  np.testing.assert_array_equal(ds.accs[:, 2:], 0.0)
+  assert ds.background == (1.0, 1.0, 1.0)
+  rgb = load_npz(_npz(tmp_path))
+  assert rgb.accs is None and rgb.background == (0.0, 0.0, 0.0)  # unknown
 
 
 def _blender(tmp_path, meta=None, image=None, text=None):
@@ -178,6 +205,8 @@ def test_blender_rgba_on_white_and_half_res(tmp_path):
   np.testing.assert_allclose(half.images[0, :, 0], [[1, 0, 0], [1, 1, 1]], atol=1e-6)
   np.testing.assert_allclose(half.images[0, 0, 1], [1.0, 0.8, 0.8], atol=1e-6)
   np.testing.assert_allclose(half.images[0, 0, 2], [0.5, 0.5, 1.0], atol=1e-6)  # no dark fringe
+  np.testing.assert_allclose(half.accs[0], [[1.0, 0.2, 0.5], [0.0, 0.2, 0.0]], atol=1e-6)
+  assert half.accs.dtype == np.float32 and half.background == (1.0, 1.0, 1.0)
 
 
 def test_export_cli(tmp_path):

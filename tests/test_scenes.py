@@ -112,7 +112,8 @@ def _spy(monkeypatch, name):
 
 @pytest.mark.parametrize("function,computed_for", [("specular", {"glossy"}),
                                                    ("trace_medium", {"fog"}),
-                                                   ("_shadow", {"glossy", "fog", "white"})])
+                                                   ("_shadow", {"glossy", "fog", "white",
+                                                                "forward"})])
 def test_only_declared_effects_are_computed(monkeypatch, function, computed_for):
   pose = rays_lib.pose_spherical(30.0, -40.0, 4.0)
   for name in scenes.SCENES:
@@ -196,5 +197,33 @@ def test_whole_scene_is_in_view():
 
 
 def test_unknown_scene_lists_valid_names():
-  with pytest.raises(ValueError, match="diffuse, fog, glossy, white"):
+  with pytest.raises(ValueError, match="diffuse, fog, forward, glossy, white"):
     scenes.get_scene("lego")
+
+
+def test_forward_scene_is_an_llff_like_capture():
+  ds = scenes.make_dataset("forward", num_views=6, height=24, width=24, focal=33.3, seed=1)
+  np.testing.assert_array_equal(ds.poses[:, :3, :3], np.broadcast_to(np.eye(3), (6, 3, 3)))
+  centres = ds.poses[:, :3, 3]
+  assert np.all(np.abs(centres[:, :2]) <= 0.3) and np.all(centres[:, 2] == 0.0)
+  assert np.ptp(centres[:, 0]) > 0.1 and np.ptp(centres[:, 1]) > 0.1  # parallax
+  np.testing.assert_array_equal(ds.accs, 1.0)  # every ray hits something, as in a real capture
+  assert (ds.near, ds.far) == (scenes.get_scene("forward").near, scenes.get_scene("forward").far)
+  assert 0.85 * ds.depths.min() <= ds.near <= ds.depths.min()  # ~0.9x the nearest depth
+  assert ds.depths.max() <= ds.far <= 1.15 * ds.depths.max()  # ~1.1x the wall's
+  assert ds.forward_facing and ds.background == (0.0, 0.0, 0.0)
+  hemisphere = scenes.make_dataset("white", num_views=1, height=4, width=4, focal=5.6)
+  assert (hemisphere.near, hemisphere.far, hemisphere.forward_facing) == (2.0, 6.0, False)
+  assert hemisphere.background == (1.0, 1.0, 1.0)
+
+
+def test_checkered_wall_alternates_albedo():
+  scene = scenes.get_scene("forward")
+  wall = scene.objects[0].material
+  xy = np.array([[1.6, 1.6], [2.1, 1.6], [1.9, 1.9]])  # squares (3, 3), (4, 3), (3, 3) of 0.5
+  origins = np.concatenate([xy, np.zeros((3, 1))], -1)
+  out = simulator.render_rays(scene, origins, np.tile([0.0, 0.0, -1.0], (3, 1)), 1.0, 6.0)
+  np.testing.assert_allclose(out["depth"], 5.0)
+  np.testing.assert_allclose(out["rgb"][2], out["rgb"][0], atol=1e-12)
+  np.testing.assert_allclose(out["rgb"][1] / out["rgb"][0],
+                             np.divide(wall.albedo2, wall.albedo), rtol=1e-9)  # same lighting

@@ -19,8 +19,14 @@ class Dataset:
   intrinsics: (fx, fy, cx, cy) in pixels.
   near, far: float, z-depth bounds of the scene.
   depths: float32 [N, H, W] or None, ground-truth expected depth (built-in scenes only).
-  accs: float32 [N, H, W] or None, ground-truth opacity (built-in scenes only).
+  accs: float32 [N, H, W] or None, opacity of each pixel over the background: ground truth for
+    built-in scenes, the alpha channel of RGBA files, None when unknown (RGB files, LLFF).
   name: str, the scene or file it came from.
+  background: (r, g, b), the colour `images` are composited on, so that
+    `images + (1 - accs) * (new - background)` re-composites them on `new`; (0, 0, 0) when
+    unknown.
+  forward_facing: bool, all cameras look roughly down world -z at content beyond z = -near
+    (LLFF captures, the 'forward' scene): the case for NDC rays (`nerf_jax.ndc`).
   """
   images: np.ndarray
   poses: np.ndarray
@@ -30,6 +36,8 @@ class Dataset:
   depths: Optional[np.ndarray] = None
   accs: Optional[np.ndarray] = None
   name: str = ""
+  background: tuple = (0.0, 0.0, 0.0)
+  forward_facing: bool = False
 
   @property
   def height(self):
@@ -42,6 +50,15 @@ class Dataset:
   @property
   def focal(self):
     return self.intrinsics[0]
+
+  def pinhole_focal(self):
+    """The single focal length; DataError unless the intrinsics are a centred pinhole (what the
+    tiny_nerf, Blender and LLFF formats can store)."""
+    fx, fy, cx, cy = self.intrinsics
+    if fx != fy or cx != self.width * 0.5 or cy != self.height * 0.5:
+      raise DataError(f"{self.name}: intrinsics {self.intrinsics} are not a centred pinhole "
+                      "camera; the format cannot store them")
+    return float(fx)
 
   def __len__(self):
     return len(self.images)
@@ -63,3 +80,12 @@ class Dataset:
       raise DataError(f"{self.name}: holdout_from={holdout_from} leaves an empty split of "
                       f"{num} views (use -1 or 1..{num - 1})")
     return self.subset(slice(0, cut)), self.subset(slice(cut, num))
+
+  def split_every(self, every=8):
+    """(train, test): test = views 0, every, 2 * every, ... (the LLFF convention), train = the
+    others."""
+    num = len(self)
+    if every < 2 or num < 2:
+      raise DataError(f"{self.name}: cannot hold out every {every}th of {num} views")
+    is_test = np.arange(num) % every == 0
+    return self.subset(np.flatnonzero(~is_test)), self.subset(np.flatnonzero(is_test))

@@ -1,6 +1,7 @@
-"""Write a Dataset as a tiny_nerf .npz or a NeRF-synthetic (Blender) folder.
+"""Write a Dataset as a tiny_nerf .npz, a NeRF-synthetic (Blender) folder or an LLFF folder.
 
   python -m nerf_jax.data.export --scene=fog --format=blender --out=/tmp/fog [--alpha]
+  python -m nerf_jax.data.export --scene=forward --format=llff --out=/tmp/forward
 
 PNG alpha: by default every pixel is opaque (alpha = 255) and holds the composited image, so that
 `load_blender` returns the same images (to 8-bit quantisation, 1/255) with any `background`.
@@ -19,23 +20,15 @@ import imageio.v3 as iio
 import numpy as np
 
 from nerf_jax import scenes
-from nerf_jax.data.dataset import DataError
-
-
-def _pinhole_focal(dataset):
-  """The single focal length; DataError if the intrinsics are not a centred pinhole."""
-  fx, fy, cx, cy = dataset.intrinsics
-  if fx != fy or cx != dataset.width * 0.5 or cy != dataset.height * 0.5:
-    raise DataError(f"{dataset.name}: intrinsics {dataset.intrinsics} are not a centred pinhole "
-                    "camera; the format cannot store them")
-  return float(fx)
+from nerf_jax.data.llff import export_llff
 
 
 def export_npz(dataset, path):
-  """tiny_nerf arrays (images, poses, focal) plus near, far and any ground-truth depths, accs."""
+  """tiny_nerf arrays (images, poses, focal) plus near, far, background and any ground-truth
+  depths, accs."""
   extra = {k: getattr(dataset, k) for k in ("depths", "accs") if getattr(dataset, k) is not None}
-  np.savez(path, images=dataset.images, poses=dataset.poses, focal=_pinhole_focal(dataset),
-           near=dataset.near, far=dataset.far, **extra)
+  np.savez(path, images=dataset.images, poses=dataset.poses, focal=dataset.pinhole_focal(),
+           near=dataset.near, far=dataset.far, background=np.asarray(dataset.background), **extra)
 
 
 def _rgba8(images, accs, background):
@@ -57,7 +50,7 @@ def export_blender(dataset, dirpath, split_at=None, background=None):
   split_at: int or None (= the 80/20 split of `Dataset.split(-1)`).
   background: RGB triple or None; see the module docstring.
   """
-  angle = 2.0 * math.atan(0.5 * dataset.width / _pinhole_focal(dataset))
+  angle = 2.0 * math.atan(0.5 * dataset.width / dataset.pinhole_focal())
   parts = dict(zip(("train", "test"), dataset.split(-1 if split_at is None else split_at)))
   for split, part in parts.items():
     os.makedirs(os.path.join(dirpath, split), exist_ok=True)
@@ -75,8 +68,8 @@ def export_blender(dataset, dirpath, split_at=None, background=None):
 def main(argv=None):
   parser = argparse.ArgumentParser(description="Export a built-in scene.")
   parser.add_argument("--scene", required=True, help=f"one of {', '.join(scenes.SCENES)}")
-  parser.add_argument("--format", required=True, choices=("npz", "blender"))
-  parser.add_argument("--out", required=True, help=".npz file or Blender folder to write")
+  parser.add_argument("--format", required=True, choices=("npz", "blender", "llff"))
+  parser.add_argument("--out", required=True, help=".npz file, or Blender or LLFF folder to write")
   parser.add_argument("--num_views", type=int, default=100)
   parser.add_argument("--image_size", type=int, default=100)
   parser.add_argument("--pixel_center", type=float, default=0.0)
@@ -84,15 +77,16 @@ def main(argv=None):
   parser.add_argument("--alpha", action="store_true", help="Blender: alpha = opacity")
   args = parser.parse_args(argv)
   try:
-    scene = scenes.get_scene(args.scene)
     dataset = scenes.make_dataset(
         args.scene, args.num_views, args.image_size, args.image_size,
         scenes.TINY_NERF_FOCAL * args.image_size / 100, pixel_center=args.pixel_center,
         seed=args.seed)
     if args.format == "npz":
       export_npz(dataset, args.out)
+    elif args.format == "llff":
+      export_llff(dataset, args.out)
     else:
-      export_blender(dataset, args.out, background=scene.background if args.alpha else None)
+      export_blender(dataset, args.out, background=dataset.background if args.alpha else None)
   except (ValueError, OSError) as e:  # DataError is a ValueError
     print(f"error: {e}", file=sys.stderr)
     return 1

@@ -1,7 +1,11 @@
 """The built-in scenes and their posed ground-truth datasets.
 
-Every scene fits in a ball of radius ~1.2 around the origin (z up), so that cameras at radius 4
-with near = 2, far = 6 and tiny_nerf's 40° field of view see it whole.
+Two camera rigs (`Scene.camera_rig`):
+  'hemisphere' — the 360° scenes fit in a ball of radius ~1.2 around the origin (z up), so that
+    cameras at radius 4 with near = 2, far = 6 and tiny_nerf's 40° field of view see them whole;
+  'forward' — an LLFF-like capture: cameras on the plane z = 0 within +-0.3 in x and y, all with
+    the identity rotation (looking down -z, y up), in front of objects and a back wall that fills
+    every view, so that world coordinates are already those NDC (`nerf_jax.ndc`) expects.
 """
 
 import jax
@@ -11,7 +15,7 @@ from nerf_jax import rays as rays_lib
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.scenes import simulator
 from nerf_jax.scenes.geometry import Box, Cylinder, Sphere
-from nerf_jax.scenes.scene import Effects, Material, Medium, Object, Scene
+from nerf_jax.scenes.scene import Effects, Light, Material, Medium, Object, Scene
 
 TINY_NERF_FOCAL = 138.88887889922103  # focal of tiny_nerf's 100 x 100 images, in pixels
 
@@ -52,12 +56,34 @@ def _fog_scene():
   return Scene("fog", objects, Effects(participating_medium=True, shadows=True), medium=fog)
 
 
+def _forward_scene():
+  """Lambertian objects 1.85 to 4.6 in front of the cameras and a checkered wall at depth 5.
+
+  The wall (16 x 16) fills the view of every camera up to a ~110° field of view, so every ray
+  hits something, as in a real capture. Bounds: 0.9x the nearest depth (the yellow disc's face
+  at 1.85) and 1.1x the farthest (the wall at 5).
+  """
+  wall = Material((0.85, 0.8, 0.7), checker=0.5, albedo2=(0.35, 0.5, 0.6))
+  objects = (
+      Object(Box((0.0, 0.0, -5.1), (16.0, 16.0, 0.2)), wall),
+      Object(Cylinder((-0.35, -0.4, -1.95), 0.22, 0.2), Material(YELLOW)),  # a disc facing us
+      Object(Box((0.5, -0.35, -2.4), (0.45, 0.45, 0.45)), Material(GREEN)),
+      Object(Sphere((-0.7, 0.35, -3.2), 0.45), Material(RED)),
+      Object(Sphere((0.75, 0.6, -4.0), 0.35), Material(BLUE)),
+      Object(Box((-1.2, -0.4, -4.4), (0.35, 1.2, 0.35)), Material(PURPLE)),
+  )
+  light = Light(direction=(0.35, 0.6, 0.7))  # from the upper right, behind the cameras
+  return Scene("forward", objects, Effects(shadows=True), light=light, camera_rig="forward",
+               near=0.9 * 1.85, far=1.1 * 5.0)
+
+
 SCENES = {
     "diffuse": Scene("diffuse", _objects(pedestal=False), Effects()),
     "glossy": Scene("glossy", _objects(specular=0.6), Effects(view_dependent=True, shadows=True)),
     "fog": _fog_scene(),
     "white": Scene("white", _objects(), Effects(background=True, shadows=True),
                    background=(1.0, 1.0, 1.0)),
+    "forward": _forward_scene(),
 }
 
 
@@ -77,11 +103,30 @@ def random_poses(num_views, radius=4.0, seed=0):
   return np.stack([rays_lib.pose_spherical(t, p, radius) for t, p in zip(thetas, phis)])
 
 
+def forward_poses(num_views, extent=0.3, seed=0):
+  """LLFF-like cameras: float32 [num_views, 4, 4], identity rotations (looking down -z) at
+  (x, y, 0) with x, y ~ U[-extent, extent], drawn with default_rng(seed)."""
+  rng = np.random.default_rng(seed)
+  poses = np.tile(np.eye(4, dtype=np.float32), (num_views, 1, 1))
+  poses[:, :2, 3] = rng.uniform(-extent, extent, (num_views, 2))
+  return poses
+
+
 def make_dataset(name, num_views=100, height=100, width=100, focal=TINY_NERF_FOCAL, radius=4.0,
-                 pixel_center=0.0, seed=0, near=2.0, far=6.0):
-  """Ground-truth `Dataset` of a built-in scene (with `depths` and `accs`)."""
+                 pixel_center=0.0, seed=0, near=None, far=None):
+  """Ground-truth `Dataset` of a built-in scene (with `depths` and `accs`).
+
+  The cameras follow the scene's rig: `random_poses(num_views, radius, seed)` or
+  `forward_poses(num_views, seed=seed)` (radius is ignored). near, far: float or None (= the
+  scene's bounds).
+  """
   scene = get_scene(name)
-  poses = random_poses(num_views, radius, seed)
+  near = scene.near if near is None else near
+  far = scene.far if far is None else far
+  if scene.camera_rig == "forward":
+    poses = forward_poses(num_views, seed=seed)
+  else:
+    poses = random_poses(num_views, radius, seed)
   origins, directions = _batched_rays(height, width, focal, poses, pixel_center)
   out = simulator.render_rays(scene, np.reshape(origins, (-1, 3)),
                               np.reshape(directions, (-1, 3)), near, far)
@@ -90,4 +135,6 @@ def make_dataset(name, num_views=100, height=100, width=100, focal=TINY_NERF_FOC
       images=out["rgb"].reshape(*shape, 3).astype(np.float32), poses=poses,
       intrinsics=(float(focal), float(focal), width * 0.5, height * 0.5), near=near, far=far,
       depths=out["depth"].reshape(shape).astype(np.float32),
-      accs=out["acc"].reshape(shape).astype(np.float32), name=name)
+      accs=out["acc"].reshape(shape).astype(np.float32), name=name,
+      background=tuple(float(c) for c in scene.background),
+      forward_facing=scene.camera_rig == "forward")

@@ -18,6 +18,8 @@ class Material:
   albedo: tuple  # diffuse RGB reflectance in [0, 1]
   specular: float = 0.0  # Blinn-Phong strength; > 0 makes the object view dependent
   shininess: float = 32.0  # Blinn-Phong exponent
+  checker: float = 0.0  # > 0: squares of this side in world x-y alternate albedo and albedo2
+  albedo2: tuple = (0.0, 0.0, 0.0)  # the second checker colour
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,8 +68,14 @@ class Scene:
   light: Light = Light()
   background: tuple = (0.0, 0.0, 0.0)  # RGB seen by rays that hit nothing
   medium: Optional[Medium] = None
+  camera_rig: str = "hemisphere"  # 'hemisphere' (orbit the origin) or 'forward' (LLFF-like)
+  near: float = 2.0  # z-depth bounds of everything the rig's cameras see
+  far: float = 6.0
 
   def __post_init__(self):
+    if self.camera_rig not in ("hemisphere", "forward"):
+      raise ValueError(f"scene {self.name!r}: camera_rig {self.camera_rig!r} is not "
+                       "'hemisphere' or 'forward'")
     content = {
         "view_dependent": any(o.material.specular > 0 for o in self.objects),
         "participating_medium": self.medium is not None,

@@ -86,13 +86,25 @@ def surface_rgb(scene, index, points, normals, viewdirs):
   (unit): float64 [R, 3]. Returns float64 [R, 3] in [0, 1]."""
   mats = [o.material for o in scene.objects]
   lit = _shadow(scene, points, normals) if scene.effects.shadows else np.ones(len(index))
-  albedo = np.array([m.albedo for m in mats], np.float64)[index]
+  albedo = _albedo(mats, index, points)
   rgb = diffuse(albedo, normals, scene.light, lit)
   if scene.effects.view_dependent:
     strength = np.array([m.specular for m in mats])[index]
     shininess = np.array([m.shininess for m in mats])[index]
     rgb = rgb + specular(strength, shininess, normals, viewdirs, scene.light, lit)
   return np.clip(rgb, 0.0, 1.0)
+
+
+def _albedo(materials, index, points):
+  """Diffuse reflectance of surface points: float64 [R, 3]. materials: list of Material;
+  index: int [R], each point's material; points: float64 [R, 3]."""
+  albedo = np.array([m.albedo for m in materials], np.float64)[index]
+  size = np.array([m.checker for m in materials], np.float64)[index]
+  if not np.any(size > 0):
+    return albedo
+  cells = np.floor(points[:, :2] / np.where(size > 0, size, 1.0)[:, None]).sum(-1)
+  second = (size > 0) & (np.mod(cells, 2.0) == 1.0)
+  return np.where(second[:, None], np.array([m.albedo2 for m in materials])[index], albedo)
 
 
 def render_rays(scene, origins, directions, near=2.0, far=6.0, chunk=1 << 16):

@@ -1,0 +1,85 @@
+"""Checked conversions of raw file contents into `Dataset` arrays.
+
+Every function raises `DataError` with a one-line message that starts with `where` (the file and
+field at fault) when its input is malformed.
+"""
+
+import imageio.v3 as iio
+import numpy as np
+
+from nerf_jax.data.dataset import DataError
+
+_BACKGROUNDS = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0),
+                "random": (0.0, 0.0, 0.0)}  # 'random': the trainer re-composites per step
+
+
+def parse_background(background):
+  """'black', 'white', 'random' or an RGB triple in [0, 1] -> float64 [3]."""
+  if isinstance(background, str):
+    if background not in _BACKGROUNDS:
+      raise DataError(f"background: unknown name {background!r} (valid: black, white, random, "
+                      "or an RGB triple)")
+    return np.array(_BACKGROUNDS[background])
+  rgb = np.asarray(background, np.float64)
+  if rgb.shape != (3,) or not np.all((rgb >= 0) & (rgb <= 1)):
+    raise DataError(f"background: expected an RGB triple in [0, 1], got {background!r}")
+  return rgb
+
+
+def composite(rgba, background):
+  """rgba: float [..., 3 or 4] straight (unpremultiplied) colour -> float32 [..., 3]."""
+  if rgba.shape[-1] == 3:
+    return rgba.astype(np.float32)
+  alpha = rgba[..., 3:]
+  return (rgba[..., :3] * alpha + background * (1.0 - alpha)).astype(np.float32)
+
+
+def unit_images(images, where):
+  """uint8/uint16 or float images -> float64 in [0, 1]; DataError if non-finite/out of range."""
+  images = np.asarray(images)
+  if images.shape[-1:] not in ((3,), (4,)):
+    raise DataError(f"{where}: shape {images.shape} has {images.shape[-1:]} channels; expected "
+                    "3 (RGB) or 4 (RGBA)")
+  if np.issubdtype(images.dtype, np.integer):
+    return images / float(np.iinfo(images.dtype).max)
+  if not np.all(np.isfinite(images)):
+    raise DataError(f"{where}: contains NaN or inf")
+  if images.min() < 0.0 or images.max() > 1.0:
+    raise DataError(f"{where}: values in [{images.min():g}, {images.max():g}]; expected [0, 1]")
+  return images.astype(np.float64)
+
+
+def floats(value, where):
+  """Anything array-like -> float64 array."""
+  try:
+    return np.asarray(value, np.float64)
+  except (TypeError, ValueError):
+    raise DataError(f"{where}: not numeric ({str(value)[:40]})") from None
+
+
+def poses(value, where):
+  """[N, 3, 4] or [N, 4, 4] camera-to-world -> float32 [N, 4, 4]."""
+  poses = floats(value, where)
+  if poses.ndim != 3 or poses.shape[1:] not in ((3, 4), (4, 4)):
+    raise DataError(f"{where}: shape {poses.shape}; expected [N, 4, 4] or [N, 3, 4]")
+  if not np.all(np.isfinite(poses)):
+    raise DataError(f"{where}: contains NaN or inf")
+  bottom = np.broadcast_to([0.0, 0.0, 0.0, 1.0], (len(poses), 1, 4))
+  return np.concatenate([poses[:, :3], bottom], 1).astype(np.float32)
+
+
+def scalar(value, where):
+  """One finite number -> float."""
+  value = floats(value, where)
+  if value.size != 1 or not np.isfinite(value).all():
+    raise DataError(f"{where}: expected one finite number, got shape {value.shape}")
+  return float(value.reshape(()))
+
+
+def read_image(path):
+  """An image file -> float64 [H, W, 3 or 4] in [0, 1]."""
+  try:
+    image = iio.imread(path)
+  except Exception as e:  # imageio raises many types for unreadable files
+    raise DataError(f"{path}: cannot read image ({e})") from None
+  return unit_images(image, path)
