@@ -21,7 +21,7 @@ Stability (see docs/numerics.md):
 import jax
 import jax.numpy as jnp
 
-# A ray whose weights sum to at most this counts as empty; its depth is then `far` (t_S).
+# A ray with opacity acc <= EMPTY_ACC counts as empty; its depth is then `far` (t_S).
 EMPTY_ACC = 1e-10
 
 # Densities are clamped here before multiplying by delta. An infinite density (an overflowing
@@ -84,7 +84,7 @@ def composite(rgb, sigma, t, background=None):
   Returns a dict:
     rgb: float32 [..., 3], composited colour over the background;
     depth: float32 [...] in [t_0, t_S], expected termination distance E[t | the ray ends in
-      [t_0, t_S]] (z-depth), and t_S (far) for a ray whose weights sum to at most EMPTY_ACC;
+      [t_0, t_S]] (z-depth), and t_S (far) for an empty ray (acc <= EMPTY_ACC);
     acc: float32 [...], opacity 1 - exp(-sum tau) in [0, 1];
     weights: float32 [..., S], >= 0; their sum equals acc up to float32 rounding (~1e-7·S).
   """
@@ -100,23 +100,24 @@ def composite(rgb, sigma, t, background=None):
     bg_weight = jnp.maximum(0.0, 1.0 - acc)
     colour = colour + bg_weight[..., None] * jnp.asarray(background, jnp.float32)
   mids = 0.5 * (t[..., 1:] + t[..., :-1])
-  depth = _safe_expected_depth(weights, mids, t[..., -1])
+  depth = _safe_expected_depth(weights, acc, mids, t[..., -1])
   # Rounding can put the weighted mean a hair outside the edges.
   depth = jnp.clip(depth, t[..., 0], t[..., -1])
   return {"rgb": colour, "depth": depth, "acc": acc, "weights": weights}
 
 
-def _safe_expected_depth(weights, mids, far):
-  """sum(w·t)/sum(w) with the 'double where' so value and gradient stay finite for sum(w) -> 0.
+def _safe_expected_depth(weights, acc, mids, far):
+  """sum(w·t)/sum(w) with the 'double where' so value and gradient stay finite for acc -> 0.
 
-  weights, mids: float32 [..., S]. far: float32 [...], the value for an empty ray.
-  Normalising by sum(w) (not acc) makes the depth a convex combination of the midpoints. The inner
-  where gives the division a safe denominator on the branch that is discarded; without it the
-  gradient of the discarded branch is 0·inf = NaN.
+  weights, mids: float32 [..., S]. acc: float32 [...], the opacity that decides emptiness (as in
+  renderer.py). far: float32 [...], the depth of an empty ray.
+  Normalising by sum(w) (not acc) makes the depth a convex combination of the midpoints; sum(w)
+  equals acc to float32 rounding (relative ~1e-7·S), so it is > 0 wherever acc > EMPTY_ACC. The
+  inner where gives the division a safe denominator on the branch that is discarded; without it
+  the gradient of the discarded branch is 0·inf = NaN.
   """
-  wsum = jnp.sum(weights, axis=-1)
-  nonempty = wsum > EMPTY_ACC
-  safe_wsum = jnp.where(nonempty, wsum, 1.0)
+  nonempty = acc > EMPTY_ACC
+  safe_wsum = jnp.where(nonempty, jnp.sum(weights, axis=-1), 1.0)
   return jnp.where(nonempty, jnp.sum(weights * mids, axis=-1) / safe_wsum, far)
 
 
