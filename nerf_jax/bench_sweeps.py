@@ -1,0 +1,174 @@
+"""The benchmark's sweeps, as data, and how a sweep entry becomes a full config.
+
+A sweep is a list of `Entry`s: a label, a dict of dotted config overrides and the config module
+they apply to (`configs/<base>.py`). `SCENES` says which scenes a sweep runs on by default.
+"""
+
+import ast
+import importlib
+import importlib.util
+import json
+import os
+from typing import NamedTuple
+
+import ml_collections
+
+from nerf_jax import scenes
+
+
+class Entry(NamedTuple):
+  label: str  # short name in tables and plots
+  overrides: dict = {}  # dotted config field -> value, e.g. {'model.width': 128}
+  base: str = "default"  # config module under configs/ the overrides apply to
+
+
+_NO_SKIP = {"model.skip_layers": ()}  # a 4-layer MLP has no layer 4 to skip after
+
+SWEEPS = {
+    "quick": [
+        Entry("default"),
+        Entry("samples=32", {"num_samples": 32}),
+        Entry("64x4", {"model.depth": 4, **_NO_SKIP}),
+    ],
+    "samples": [Entry(f"samples={n}", {"num_samples": n}) for n in (16, 32, 64, 128)],
+    "freqs": [Entry(f"freqs={n}", {"pos_encode_dims": n}) for n in (0, 4, 6, 10, 16)],
+    "width": [
+        Entry("64x4", {"model.width": 64, "model.depth": 4, **_NO_SKIP}),
+        Entry("64x8", {"model.width": 64, "model.depth": 8}),
+        Entry("128x8", {"model.width": 128, "model.depth": 8}),
+        Entry("256x8", {"model.width": 256, "model.depth": 8}),
+    ],
+    "configs": [Entry("default"), Entry("keras_seed", base="keras_seed"),
+                Entry("tiny_nerf", base="tiny_nerf"), Entry("fast", base="fast")],
+    "effects": [
+        Entry("baseline"),
+        Entry("+hierarchical", {"num_fine_samples": 64}),
+        Entry("+view_dependent", {"model.view_dependent": True}),
+        Entry("+white_bg", {"data.background": "white"}),
+    ],
+    "precision": [
+        Entry("f32 8x64", {"model.dtype": "float32"}),
+        Entry("bf16 8x64", {"model.dtype": "bfloat16"}),
+        Entry("f32 8x256", {"model.dtype": "float32", "model.width": 256}),
+        Entry("bf16 8x256", {"model.dtype": "bfloat16", "model.width": 256}),
+    ],
+}
+
+# Scenes a sweep runs on unless --scenes says otherwise; the effects need scenes that call for
+# them (glossy: view dependence, fog: a soft medium, white: the background) and one that doesn't.
+SCENES = {"effects": ("diffuse", "glossy", "fog", "white")}
+DEFAULT_SCENES = ("diffuse",)
+
+
+def sweep_names(spec):
+  """Sweep names from a comma list; 'all' = every sweep except 'quick'."""
+  names = [n.strip() for n in spec.split(",") if n.strip()]
+  if names == ["all"]:
+    return [n for n in SWEEPS if n != "quick"]
+  unknown = [n for n in names if n not in SWEEPS]
+  if unknown:
+    raise ValueError(f"unknown sweep(s) {', '.join(unknown)} (valid: all, {', '.join(SWEEPS)})")
+  return names
+
+
+def load_base(name):
+  """get_config() of `configs/<name>.py`, or of a config file given by its path."""
+  if name.endswith(".py"):
+    spec = importlib.util.spec_from_file_location(os.path.basename(name)[:-3], name)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+  else:
+    module = importlib.import_module(f"configs.{name}")
+  return module.get_config()
+
+
+def scene_overrides(scene, image_size=None):
+  """Data overrides for a built-in scene name or a dataset path."""
+  if scene in scenes.SCENES:
+    out = {"data.path": "", "data.scene": scene}
+    return out if image_size is None else {**out, "data.image_size": image_size}
+  if os.path.exists(scene):
+    return {"data.path": scene}
+  raise ValueError(f"scene {scene!r}: neither a built-in scene ({', '.join(scenes.SCENES)}) "
+                   "nor an existing dataset path")
+
+
+def scene_label(scene):
+  return scene if scene in scenes.SCENES else os.path.basename(scene.rstrip("/"))
+
+
+def parse_value(text):
+  """A --set value: a Python literal (1, 0.5, True, (4,), 'white') or else the bare string."""
+  try:
+    return ast.literal_eval(text)
+  except (ValueError, SyntaxError):
+    return text
+
+
+def make_config(entry, scene, extra=None, base=None, image_size=None):
+  """The ConfigDict of one run: base config, entry overrides, scene, then `extra` overrides.
+
+  base: replaces the entry's base when the entry uses 'default' (e.g. 'debug' for tests).
+  """
+  name = base if base and entry.base == "default" else entry.base
+  config = load_base(name)
+  flat = {**entry.overrides, **scene_overrides(scene, image_size), **(extra or {})}
+  config.lock()  # a misspelt field is an error, not a new field
+  try:
+    config.update_from_flattened_dict(flat)
+  except (KeyError, AttributeError, TypeError) as e:
+    raise ValueError(f"config {name}: cannot apply overrides {flat}: {e}") from None
+  return config
+
+
+def fit_schedule(train_config, num_steps):
+  """Stretch the config's schedule to `num_steps` steps: warm-up keeps its share of the run."""
+  share = train_config.warmup_steps / max(train_config.max_steps, 1)
+  train_config.warmup_steps = int(round(share * num_steps))
+  train_config.max_steps = int(num_steps)
+
+
+def as_config(config_json):
+  """A ConfigDict back from `config.to_json()`."""
+  return ml_collections.ConfigDict(json.loads(config_json))
+
+
+def plan(args):
+  """[(sweep, Entry, scene, ConfigDict)] of every run `args` (bench's command line) asks for."""
+  bad = [s for s in args.set if "=" not in s]
+  if bad:
+    raise ValueError(f"--set {bad[0]!r}: expected FIELD=VALUE, e.g. --set=model.width=128")
+  extra = {k: parse_value(v) for k, v in (s.split("=", 1) for s in args.set)}
+  if args.seed is not None:
+    extra["seed"] = args.seed
+  only = {s.strip() for s in args.only.split(",") if s.strip()}
+  runs = []
+  for sweep in sweep_names(args.sweep):
+    names = args.scenes.split(",") if args.scenes else SCENES.get(sweep, DEFAULT_SCENES)
+    for scene in names:
+      for entry in SWEEPS[sweep]:
+        if only and entry.label not in only:
+          continue
+        config = make_config(entry, scene, extra, args.base, args.image_size)
+        _set_budget(config, args)
+        runs.append((sweep, entry, scene, config))
+  if not runs:
+    raise ValueError(f"nothing to run: --only={args.only} matches no label of --sweep={args.sweep}")
+  return runs
+
+
+def _set_budget(config, args):
+  """Equal-steps mode (--steps) or equal wall-clock mode (--budget_seconds)."""
+  if args.steps:
+    fit_schedule(config.train, args.steps)
+    config.train.max_seconds = 0.0
+  else:
+    config.train.max_seconds = float(args.budget_seconds)  # the worker may fit max_steps
+
+
+def mode(args):
+  """The budget of every run: equal steps or equal wall clock (JSON-able)."""
+  if args.steps:
+    return {"kind": "steps", "steps": args.steps}
+  return {"kind": "budget", "budget_seconds": float(args.budget_seconds),
+          "schedule": "config" if args.keep_schedule else "fitted"}
