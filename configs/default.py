@@ -61,6 +61,8 @@ def get_config():
   train.eval_views = 2  # test views rendered for periodic evaluations (the final one uses all)
   train.checkpoint_every = 200  # steps between checkpoints
   train.keep_checkpoints = 2  # checkpoints kept in the workdir
+  train.data_parallel = True  # split each batch over all devices (no-op on one device)
+  train.tensorboard = True  # write TensorBoard events into <workdir>/tb
 
   config.render = render = ml_collections.ConfigDict()
   render.chunk = 4096  # rays per jitted render call

@@ -1,7 +1,9 @@
 """Rendering trained models: test-view evaluation, 360° videos, views from a pose file.
 
 Depth images are z-depth (distance along the camera's optical axis, see rays.py); the float
-arrays are saved as `.npy` in scene units, and the PNGs map [near, far] to a colour map.
+arrays are saved as `.npy` (float32, scene units; a ray that hits nothing has depth = far), and
+the PNGs map [near, far] to a colour map. With NDC rays (forward-facing data) depth is the NDC
+ray parameter in [0, 1] instead.
 """
 
 import json
@@ -11,7 +13,7 @@ import warnings
 import imageio.v2 as imageio
 import numpy as np
 
-from nerf_jax import metrics, renderer
+from nerf_jax import metrics, progress, renderer
 from nerf_jax.rays import orbit_poses, spiral_poses
 
 # Control points of a perceptually ordered colour map (dark blue -> teal -> yellow), for depth.
@@ -52,14 +54,17 @@ def render_pose(render_chunk, params, pose, height, width, intrinsics, config, b
 
 
 def make_evaluator(model, config, near, far, test_ds):
-  """fn(params, max_views=None, out_dir=None) -> {'psnr', 'ssim', 'per_view'} on the test views.
+  """fn(params, max_views=None, out_dir=None, on_view=None) -> {'psnr', 'ssim', 'per_view'}.
 
-  With `out_dir`, writes per view a PNG of [prediction | depth | ground truth] and depth `.npy`.
+  Evaluates the test views. With `out_dir`, writes per view a PNG of
+  [prediction | depth | ground truth] and depth `.npy`. on_view(index, out, truth) is called
+  for every view with the rendered numpy dict (rgb [H, W, 3], depth [H, W], acc [H, W]) and the
+  true image float32 [H, W, 3] (the trainer sends the first one to TensorBoard).
   """
   render_chunk = renderer.make_chunk_renderer(model, config, near, far)
   background = background_colour(config)
 
-  def evaluate(params, max_views=None, out_dir=None):
+  def evaluate(params, max_views=None, out_dir=None, on_view=None):
     count = len(test_ds) if max_views is None else min(max_views, len(test_ds))
     per_view = []
     for i in range(count):
@@ -69,6 +74,8 @@ def make_evaluator(model, config, near, far, test_ds):
       view = {"view": i, "psnr": float(metrics.psnr(out["rgb"], truth)),
               "ssim": float(metrics.ssim(out["rgb"], truth))}
       per_view.append(view)
+      if on_view is not None:
+        on_view(i, out, truth)
       if out_dir:
         _write_eval_view(out_dir, i, out, truth, near, far)
     result = {"psnr": float(np.mean([v["psnr"] for v in per_view])),
@@ -116,16 +123,30 @@ def video_poses(config, dataset):
   return spiral_poses(centre, np.maximum(radii, 1e-3), focus, frames)
 
 
-def render_video(model, params, config, near, far, dataset, out_dir):
-  """The video path (see `video_poses`) as rgb.mp4 and depth.mp4 in `out_dir`."""
+def render_video(model, params, config, near, far, dataset, out_dir, depth_npy=False,
+                 show_progress=True):
+  """The video path (see `video_poses`) as rgb.mp4 and depth.mp4 in `out_dir`.
+
+  depth_npy: also save the float depth of every frame as `depth_frames.npy`, float32 [F, H, W]
+  (z-depth in scene units, see the module docstring). Returns {'rgb', 'depth'[, 'depth_npy']}
+  paths.
+  """
   os.makedirs(out_dir, exist_ok=True)
   poses = video_poses(config, dataset)
-  rgb_frames, depth_frames = [], []
-  for out in render_frames(model, params, config, near, far, poses, dataset.height,
-                           dataset.width, dataset.intrinsics):
+  rgb_frames, depth_frames, depths = [], [], []
+  frames = render_frames(model, params, config, near, far, poses, dataset.height,
+                         dataset.width, dataset.intrinsics)
+  if show_progress:
+    frames = progress.track(frames, total=len(poses), desc="video")
+  for out in frames:
     rgb_frames.append(to_uint8(out["rgb"]))
     depth_frames.append(colorize(out["depth"], near, far))
+    if depth_npy:
+      depths.append(out["depth"].astype(np.float32))
   paths = {}
+  if depth_npy:
+    paths["depth_npy"] = os.path.join(out_dir, "depth_frames.npy")
+    np.save(paths["depth_npy"], np.stack(depths))
   for name, frames in (("rgb", rgb_frames), ("depth", depth_frames)):
     paths[name] = os.path.join(out_dir, f"{name}.mp4")
     with warnings.catch_warnings():  # imageio-ffmpeg forks ffmpeg; JAX warns about any fork

@@ -3,8 +3,12 @@
 Training data live on the device as flat per-pixel arrays (see `TrainData`); every step draws its
 own batch inside the jitted step from a key folded with the step number, so there is no host
 work or host-device transfer per step and a resumed run draws exactly the batches it would have.
+With several devices each batch is split over them (see parallel.py); the parameters are
+replicated and only process 0 writes files.
 """
 
+import collections
+import io
 import json
 import os
 import signal
@@ -17,7 +21,7 @@ import ml_collections
 import numpy as np
 import optax
 
-from nerf_jax import checkpoints, metrics, render_lib, renderer
+from nerf_jax import checkpoints, metrics, parallel, progress, render_lib, renderer, summary
 from nerf_jax.data import loaders
 from nerf_jax.model import make_model
 from nerf_jax.rays import Rays
@@ -111,8 +115,12 @@ def draw_batch(data, config, key):
   return jax.tree_util.tree_map(take, data)
 
 
-def make_train_step(model, tx, config, near, far):
-  """The jitted train step: (state, data, key) -> (state, stats). `state` is donated."""
+def make_train_step(model, tx, config, near, far, mesh=None):
+  """The jitted train step: (state, data, key) -> (state, stats). `state` is donated.
+
+  mesh: a `parallel.make_mesh` Mesh to split each batch over its devices (data and state
+  replicated on it), or None for one device.
+  """
   fixed_background = jnp.asarray(render_lib.background_colour(config))
   random_background = isinstance(config.data.background, str) and config.data.background == "random"
 
@@ -135,7 +143,7 @@ def make_train_step(model, tx, config, near, far):
   def step(state, data, key):
     key = jax.random.fold_in(key, state.step)
     batch_key, render_key = jax.random.split(key)
-    batch = draw_batch(data, config, batch_key)
+    batch = parallel.shard_batch(draw_batch(data, config, batch_key), mesh)
     grads, stats = jax.grad(loss_fn, has_aux=True)(state.params, batch, render_key)
     finite = jnp.isfinite(stats["loss"]) & jnp.all(jnp.array(
         [jnp.all(jnp.isfinite(g)) for g in jax.tree_util.tree_leaves(grads)]))
@@ -146,18 +154,43 @@ def make_train_step(model, tx, config, near, far):
     bad_step = jnp.where((state.bad_step < 0) & ~finite, state.step, state.bad_step)
     new_state = TrainState(step=state.step + 1, params=keep(params, state.params),
                            opt_state=keep(opt_state, state.opt_state), bad_step=bad_step)
-    return new_state, stats
+    return parallel.replicated_constraint(new_state, mesh), stats
 
   return jax.jit(step, donate_argnums=0)
+
+
+_STEPS = collections.OrderedDict()  # the few most recent train steps, see `_cached_train_step`
+
+
+def _cached_train_step(model, tx, config, near, far, mesh):
+  """`make_train_step`, reused for an equal config in the same process (tests, sweeps and
+  resumed runs then compile it once): the step depends on nothing else."""
+  key = (config.to_json(), float(near), float(far), mesh)
+  if key not in _STEPS:
+    _STEPS[key] = make_train_step(model, tx, config, near, far, mesh)
+    while len(_STEPS) > 4:
+      _STEPS.popitem(last=False)
+  _STEPS.move_to_end(key)
+  return _STEPS[key]
 
 
 def model_signature(config):
   """Config fields that fix the parameter shapes; a checkpoint only restores under the same."""
   m = config.model
-  return {"pos_encode_dims": config.pos_encode_dims, "dir_encode_dims": config.dir_encode_dims,
-          "depth": m.depth, "width": m.width, "skip_layers": list(m.skip_layers),
-          "view_dependent": m.view_dependent, "view_width": m.view_width,
-          "networks": list(renderer.network_names(config))}
+  signature = {"pos_encode_dims": config.pos_encode_dims,
+               "dir_encode_dims": config.dir_encode_dims, "depth": m.depth, "width": m.width,
+               "skip_layers": list(m.skip_layers), "view_dependent": m.view_dependent,
+               "view_width": m.view_width, "networks": list(renderer.network_names(config))}
+  if m.get("encoding", "posenc") != "posenc":  # only then, so older checkpoints stay valid
+    signature.update(encoding=m.encoding, grid_resolutions=list(m.grid_resolutions),
+                     grid_features=m.grid_features)
+  return signature
+
+
+def state_template(model, tx, config):
+  """The structure of `init_state` (shapes and dtypes, nothing computed): what a checkpoint
+  restores into, in a fraction of a second instead of initialising every parameter eagerly."""
+  return jax.eval_shape(lambda: init_state(model, tx, config))
 
 
 def init_state(model, tx, config):
@@ -191,48 +224,62 @@ class _StopRequest:
       signal.signal(s, handler)
 
 
-def _format_eta(seconds):
-  seconds = int(max(seconds, 0))
-  return f"{seconds // 60}:{seconds % 60:02d}"
-
-
 def _log(workdir, record):
   with open(os.path.join(workdir, "metrics.jsonl"), "a") as f:
     f.write(json.dumps(record) + "\n")
+
+
+def _rays_per_step(config, dataset):
+  tc = config.train
+  if tc.batching == "images":
+    return tc.images_per_step * dataset.height * dataset.width
+  return tc.batch_rays
 
 
 def train_and_evaluate(config, workdir):
   """Train on `config.data`, checkpoint into `workdir`, evaluate the test views at the end.
 
   Resumes from the newest checkpoint in `workdir`. Returns the final metrics dict (also written to
-  `workdir/metrics.json`).
+  `workdir/metrics.json`). Writes metrics.jsonl and TensorBoard events (workdir/tb) at log steps.
   """
+  main = parallel.is_main_process()
   os.makedirs(workdir, exist_ok=True)
   train_ds, test_ds = loaders.load_dataset(config.data)
   near, far = bounds(config, train_ds)
   model = make_model(config.model)
   tx = make_optimizer(config.train)
-  state = init_state(model, tx, config)
   signature = model_signature(config)
   ckpt = checkpoints.latest_path(workdir)
-  if ckpt:
-    state = checkpoints.restore(ckpt, state, signature)
-    print(f"resuming from {ckpt} at step {int(state.step)}", flush=True)
-  with open(os.path.join(workdir, "config.json"), "w") as f:
-    f.write(config.to_json(indent=2))
+  elapsed = 0.0
+  if not ckpt:
+    state = init_state(model, tx, config)
+  else:
+    state, meta = checkpoints.restore_with_meta(ckpt, state_template(model, tx, config),
+                                                signature)
+    elapsed = float(meta.get("wall_seconds", 0.0))
+    if main:
+      print(f"resuming from {ckpt} at step {int(state.step)}", flush=True)
+  if main:
+    checkpoints.atomic_write(os.path.join(workdir, "config.json"),
+                             config.to_json(indent=2).encode())
 
-  data = make_train_data(train_ds, config)
-  train_step = make_train_step(model, tx, config, near, far)
-  eval_fn = render_lib.make_evaluator(model, config, near, far, test_ds)
-  key = jax.random.PRNGKey(config.seed + 1)
   tc = config.train
-  rays_per_step = (tc.images_per_step * train_ds.height * train_ds.width
-                   if tc.batching == "images" else tc.batch_rays)
+  mesh = parallel.make_mesh(tc.get("data_parallel", True))
+  rays_per_step = _rays_per_step(config, train_ds)
+  parallel.check_batch(rays_per_step, mesh)
+  data = parallel.replicate(make_train_data(train_ds, config), mesh)
+  state = parallel.replicate(state, mesh)
+  train_step = _cached_train_step(model, tx, config, near, far, mesh)
+  evaluate = render_lib.make_evaluator(model, config, near, far, test_ds)
+  schedule = make_schedule(tc)
+  writer = summary.Writer(workdir, enabled=main and tc.get("tensorboard", True))
+  key = jax.random.PRNGKey(config.seed + 1)
   start_step = int(state.step)
-  elapsed = _previous_seconds(workdir, start_step)
   t_start = time.perf_counter() - elapsed
   last_log, last_log_step = time.perf_counter(), start_step
   step = start_step
+  bar = progress.Progress(tc.max_steps, "train", start=start_step,
+                          stream=None if main else io.StringIO())
   with _StopRequest() as stop:
     while step < tc.max_steps:
       state, stats = train_step(state, data, key)
@@ -249,51 +296,83 @@ def train_and_evaluate(config, workdir):
         record = {"step": step, "wall_seconds": round(wall, 3), "loss": float(stats["loss"]),
                   "train_psnr": float(stats["psnr"]), "rays_per_second": round(rays_s)}
         if tc.eval_every and step % tc.eval_every == 0:
-          record["eval_psnr"] = float(eval_fn(state.params, max_views=tc.eval_views)["psnr"])
-        _log(workdir, record)
+          images = {}
+          record["eval_psnr"] = float(evaluate(
+              _one_device(state.params, mesh), max_views=tc.eval_views,
+              on_view=_first_view_into(images, near, far))["psnr"])
+          writer.images(step, images)
+        if main:
+          _log(workdir, record)
+        writer.scalars(step, {"train/loss": record["loss"], "train/psnr": record["train_psnr"],
+                              "train/learning_rate": float(schedule(step - 1)),
+                              "train/rays_per_second": rays_s,
+                              **({"eval/psnr": record["eval_psnr"]}
+                                 if "eval_psnr" in record else {})})
         eta = (tc.max_steps - step) * wall / max(step - start_step, 1)
         if tc.max_seconds > 0:
           eta = min(eta, tc.max_seconds - wall)
-        print(f"step {step}/{tc.max_steps} loss {record['loss']:.5f} "
-              f"psnr {record['train_psnr']:.2f} {rays_s:,.0f} rays/s "
-              f"elapsed {_format_eta(wall)} eta {_format_eta(eta)}", flush=True)
+        bar.update(step, info=f"loss {record['loss']:.5f} psnr {record['train_psnr']:.2f}")
+        bar.write(f"step {step}/{tc.max_steps} loss {record['loss']:.5f} "
+                  f"psnr {record['train_psnr']:.2f} {rays_s:,.0f} rays/s "
+                  f"elapsed {progress.format_seconds(wall)} eta {progress.format_seconds(eta)}")
+      elif bar.due():
+        jax.block_until_ready(state.step)  # show steps done, not steps queued (a scalar sync)
+        bar.update(step)
       if step % tc.checkpoint_every == 0 or step == tc.max_steps or budget_over or stop.signum:
         _save(workdir, state, signature, tc.keep_checkpoints, time.perf_counter() - t_start)
       if stop.signum:
+        bar.close()
         raise KeyboardInterrupt(f"stopped by signal {stop.signum} at step {step}; "
                                 f"checkpoint saved in {checkpoints.checkpoint_dir(workdir)}")
       if budget_over:
         break
+  bar.close()
   train_seconds = time.perf_counter() - t_start
   _check_finite(state, workdir)
-  result = eval_fn(state.params, out_dir=os.path.join(workdir, "eval")
-                   if config.render.after_training else None)
+  params = _one_device(state.params, mesh)
+  images = {}
+  result = evaluate(params, out_dir=os.path.join(workdir, "eval")
+                    if config.render.after_training and main else None,
+                    on_view=_first_view_into(images, near, far))
+  writer.images(step, images)
+  writer.scalars(step, {"test/psnr": result["psnr"], "test/ssim": result["ssim"]})
+  writer.close()
   result.update(train_seconds=round(train_seconds, 3), steps=step)
-  with open(os.path.join(workdir, "metrics.json"), "w") as f:
-    json.dump(result, f, indent=2)
+  if not main:
+    return result
+  checkpoints.atomic_write(os.path.join(workdir, "metrics.json"),
+                           json.dumps(result, indent=2).encode())
   print(f"test PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.4f} over "
         f"{len(result['per_view'])} views after {step} steps ({train_seconds:.0f} s)", flush=True)
   if config.render.after_training:
-    render_lib.render_video(model, state.params, config, near, far,
+    render_lib.render_video(model, params, config, near, far,
                             train_ds, os.path.join(workdir, "video"))
   return result
 
 
+def _one_device(params, mesh):
+  """Parameters for rendering on one device (a replicated copy would render on every device)."""
+  if mesh is None:
+    return params
+  return jax.device_put(parallel.to_host(params), jax.local_devices()[0])
+
+
+def _first_view_into(images, near, far):
+  """An evaluator `on_view` callback putting the first view's TensorBoard images in `images`."""
+  def on_view(index, out, truth):
+    if index == 0:
+      images.update({"eval/rgb": render_lib.to_uint8(out["rgb"]),
+                     "eval/depth": render_lib.colorize(out["depth"], near, far),
+                     "eval/truth": render_lib.to_uint8(truth)})
+  return on_view
+
+
 def _save(workdir, state, signature, keep, elapsed):
-  step = int(state.step)
-  checkpoints.save(workdir, step, state, signature, keep)
-  with open(os.path.join(workdir, "progress.json"), "w") as f:
-    json.dump({"step": step, "wall_seconds": elapsed}, f)
-
-
-def _previous_seconds(workdir, step):
-  """Wall seconds already spent by the run that wrote the checkpoint at `step` (0 if unknown)."""
-  path = os.path.join(workdir, "progress.json")
-  if step == 0 or not os.path.exists(path):
-    return 0.0
-  with open(path) as f:
-    progress = json.load(f)
-  return float(progress["wall_seconds"]) if progress.get("step") == step else 0.0
+  """Checkpoint `state` (process 0 only), with the wall seconds spent so far in its meta."""
+  host_state = parallel.to_host(state)
+  if parallel.is_main_process():
+    checkpoints.save(workdir, int(host_state.step), host_state, signature, keep,
+                     meta={"wall_seconds": elapsed})
 
 
 def _check_finite(state, workdir):

@@ -1,0 +1,287 @@
+"""Bad input gets one clear line and exit status 1, through the entry points' own code paths.
+
+Most cases run in-process (`cli.run_main` around `cli.train` / `cli.render`, `cli.parse_flags`
+on a private FlagValues); a few run `train.py` / `python -m nerf_jax.*` in a subprocess.
+"""
+
+import copy
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+from absl import flags, logging
+from ml_collections import config_flags
+
+from configs import debug
+from nerf_jax import checkpoints, cli, train_lib
+from nerf_jax.data import DataError
+from nerf_jax.model import make_model
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _config(path="", **data):
+  config = debug.get_config()
+  config.render.after_training = False
+  config.train.max_steps = 2
+  config.data.path = path
+  for k, v in data.items():
+    config.data[k] = v
+  return config
+
+
+def _one_line_error(capsys, fn, *parts):
+  """Run fn under cli.run_main; assert exit 1 and a single 'error: ' line containing `parts`."""
+  capsys.readouterr()
+  with pytest.raises(SystemExit) as info:
+    cli.run_main(fn)
+  assert info.value.code == 1
+  lines = capsys.readouterr().err.strip().splitlines()
+  assert len(lines) == 1 and lines[0].startswith("error: "), lines
+  for part in parts:
+    assert part in lines[0], (part, lines[0])
+  return lines[0]
+
+
+def _train_fails(capsys, tmp_path, config, *parts):
+  return _one_line_error(capsys, lambda: cli.train(config, str(tmp_path / "run")), *parts)
+
+
+def _poses(num):
+  poses = np.tile(np.eye(4, dtype=np.float32), (num, 1, 1))
+  poses[:, 2, 3] = 4.0  # 4 units back along +z, looking down -z at the origin
+  return poses
+
+
+def _npz(tmp_path, name="data.npz", num=4, size=(6, 6), **arrays):
+  """A tiny .npz; `arrays` replace (or with None remove) images, poses, focal."""
+  rng = np.random.default_rng(0)
+  base = {"images": rng.uniform(size=(num, *size, 3)).astype(np.float32), "poses": _poses(num),
+          "focal": np.float32(8.0)}
+  base.update(arrays)
+  path = str(tmp_path / name)
+  np.savez(path, **{k: v for k, v in base.items() if v is not None})
+  return path
+
+
+# --- data ---------------------------------------------------------------------------------------
+
+def test_missing_path_and_unknown_format(capsys, tmp_path):
+  _train_fails(capsys, tmp_path, _config(str(tmp_path / "nope.npz")), "nope.npz", "no such")
+  (tmp_path / "notes.txt").write_text("hi")
+  _train_fails(capsys, tmp_path, _config(str(tmp_path / "notes.txt")), "notes.txt",
+               "unknown dataset format")
+
+
+@pytest.mark.parametrize("key", ["images", "poses", "focal"])
+def test_npz_missing_array(capsys, tmp_path, key):
+  path = _npz(tmp_path, **{key: None})
+  _train_fails(capsys, tmp_path, _config(path), "data.npz", f"missing array '{key}'")
+
+
+def test_npz_bad_contents(capsys, tmp_path):
+  cases = [
+      ({"poses": _poses(3)}, ["'poses' has 3", "4 views"]),
+      ({"poses": np.zeros((4, 3, 3))}, ["'poses'", "(4, 3, 3)", "[N, 4, 4] or [N, 3, 4]"]),
+      ({"images": np.zeros((4, 6, 6, 2))}, ["'images'", "channels", "3 (RGB) or 4 (RGBA)"]),
+      ({"images": np.full((4, 6, 6, 3), 255.0)}, ["'images'", "expected [0, 1]"]),
+      ({"images": np.full((4, 6, 6, 3), np.nan)}, ["'images'", "NaN"]),
+      ({"images": np.full((4, 6, 6, 3), np.inf)}, ["'images'", "NaN or inf"]),
+  ]
+  for i, (arrays, parts) in enumerate(cases):
+    path = _npz(tmp_path, f"bad{i}.npz", **arrays)
+    _train_fails(capsys, tmp_path, _config(path), f"bad{i}.npz", *parts)
+
+
+def _blender(tmp_path, meta=None, text=None):
+  iio.imwrite(tmp_path / "r_0.png", np.zeros((4, 4, 4), np.uint8))
+  content = {"camera_angle_x": 0.69, "frames": [{"file_path": "./r_0",
+                                                 "transform_matrix": np.eye(4).tolist()}]}
+  content.update(meta or {})
+  content = {k: v for k, v in content.items() if v is not None}
+  (tmp_path / "transforms_train.json").write_text(text or json.dumps(content))
+  return str(tmp_path)
+
+
+def test_blender_errors(capsys, tmp_path):
+  meta = str(tmp_path / "transforms_train.json")
+  _train_fails(capsys, tmp_path, _config(_blender(tmp_path, text='{"frames": [\n')),
+               meta, "malformed JSON", "line 2")
+  _train_fails(capsys, tmp_path, _config(_blender(tmp_path, {"camera_angle_x": None})),
+               meta, "'camera_angle_x'")
+  missing = {"frames": [{"file_path": "./r_9.png", "transform_matrix": np.eye(4).tolist()}]}
+  _train_fails(capsys, tmp_path, _config(_blender(tmp_path, missing)),
+               meta, "frames[0].file_path", "r_9.png", "not found")
+
+
+def test_llff_table_of_the_wrong_shape(capsys, tmp_path):
+  (tmp_path / "images").mkdir()
+  np.save(tmp_path / "poses_bounds.npy", np.zeros((3, 15)))
+  _train_fails(capsys, tmp_path, _config(str(tmp_path)), "poses_bounds.npy", "(3, 15)",
+               "[N, 17]")
+
+
+def test_holdout_out_of_range(capsys, tmp_path):
+  _train_fails(capsys, tmp_path, _config(holdout_from=12), "holdout_from=12", "empty")
+
+
+# --- checkpoints, workdirs and what a run writes --------------------------------------------------
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+  """A 2-step run, logging and evaluating every step, on an .npz of odd, non-square images with
+  [N, 3, 4] poses (shared by the tests below, which only read it): (workdir, config, result)."""
+  root = tmp_path_factory.mktemp("trained")
+  path = _npz(root, num=5, size=(7, 11), poses=_poses(5)[:, :3])
+  config = _config(path, holdout_from=4)
+  config.train.log_every = config.train.eval_every = 1
+  result = cli.train(config, str(root / "run"))
+  return root / "run", config, result
+
+
+def test_odd_non_square_images_and_3x4_poses_train(trained):
+  """Odd, non-square sizes and [N, 3, 4] poses are valid input, not errors."""
+  workdir, _, result = trained
+  assert np.isfinite(result["psnr"]) and result["steps"] == 2
+  assert json.loads((workdir / "metrics.json").read_text())["per_view"] == result["per_view"]
+
+
+def _events(workdir):
+  """{tag: [step, ...]} of the TensorBoard event files in workdir/tb (a TFRecord reader)."""
+  from tensorboardX.proto import event_pb2  # pylint: disable=import-outside-toplevel
+  tags = {}
+  for name in os.listdir(workdir / "tb"):
+    data = (workdir / "tb" / name).read_bytes()
+    pos = 0
+    while pos < len(data):
+      length = int.from_bytes(data[pos:pos + 8], "little")
+      event = event_pb2.Event.FromString(data[pos + 12:pos + 12 + length])
+      pos += 12 + length + 4  # length, its crc, the record, its crc
+      for value in event.summary.value:
+        tags.setdefault(value.tag, []).append(event.step)
+  return tags
+
+
+def test_run_writes_tensorboard_events_and_json_logs(trained):
+  workdir, config, _ = trained
+  tags = _events(workdir)
+  for tag in ("train/loss", "train/psnr", "train/learning_rate", "train/rays_per_second",
+              "eval/psnr"):
+    assert tags[tag] == [1, 2], (tag, tags)
+  for tag in ("eval/rgb", "eval/depth", "eval/truth"):
+    assert 2 in tags[tag], (tag, tags)
+  assert tags["test/psnr"] == [2]
+  records = [json.loads(l) for l in (workdir / "metrics.jsonl").read_text().splitlines()]
+  assert [r["step"] for r in records] == [1, 2] and "eval_psnr" in records[1]
+  # The wall time spent travels inside the checkpoint (no separate, non-atomic progress file).
+  template = train_lib.state_template(make_model(config.model),
+                                      train_lib.make_optimizer(config.train), config)
+  _, meta = checkpoints.restore_with_meta(checkpoints.latest_path(str(workdir)), template,
+                                          train_lib.model_signature(config))
+  assert meta["wall_seconds"] > 0 and not (workdir / "progress.json").exists()
+
+
+def test_incompatible_workdir_is_refused_and_left_alone(capsys, trained):
+  workdir, config, _ = trained
+  tmp_path = workdir.parent
+  before = {p: (workdir / p).read_bytes() for p in ("config.json", "checkpoints/ckpt_2.msgpack")}
+  wider = copy.deepcopy(config)
+  wider.model.width = 48
+  _train_fails(capsys, tmp_path, wider, "ckpt_2.msgpack", "incompatible config",
+               "width: checkpoint 32 vs config 48", "new --workdir")
+  clipped = copy.deepcopy(config)
+  clipped.train.grad_clip = 1.0  # another optimizer state structure
+  _train_fails(capsys, tmp_path, clipped, "ckpt_2.msgpack", "grad_clip", "new --workdir")
+  assert {p: (workdir / p).read_bytes() for p in before} == before  # nothing overwritten
+  assert checkpoints.list_steps(str(workdir)) == [2]
+
+
+def test_damaged_checkpoint_is_named(capsys, tmp_path, trained):
+  workdir = tmp_path / "run"
+  shutil.copytree(trained[0], workdir)
+  (workdir / "checkpoints" / "ckpt_2.msgpack").write_bytes(b"\x00garbage")
+  _train_fails(capsys, tmp_path, trained[1], "ckpt_2.msgpack", "unreadable checkpoint")
+
+
+def test_render_needs_a_workdir_with_a_checkpoint(capsys, tmp_path):
+  _one_line_error(capsys, lambda: cli.render(str(tmp_path / "none"), "eval"),
+                  "none", "no such directory")
+  _one_line_error(capsys, lambda: cli.render(str(tmp_path), "eval"),
+                  "config.json not found")
+  (tmp_path / "config.json").write_text(_config().to_json())
+  _one_line_error(capsys, lambda: cli.render(str(tmp_path), "eval"),
+                  "no checkpoint", "train first")
+
+
+# --- flags and config overrides -----------------------------------------------------------------
+
+def _parse(monkeypatch, capsys, *args):
+  """cli.parse_flags on a private FlagValues with a config flag; returns (flag values, error)."""
+  argv = ["train.py", *args]
+  monkeypatch.setattr(sys, "argv", argv)  # config_flags reads the overrides from sys.argv
+  values = flags.FlagValues()
+  config_flags.DEFINE_config_file("config", os.path.join(ROOT, "configs", "debug.py"), "",
+                                  flag_values=values, lock_config=True)
+  capsys.readouterr()
+  try:
+    cli.parse_flags(argv, values)
+  except SystemExit as e:
+    assert e.code == 1
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), lines
+    return values, lines[0]
+  return values, None
+
+
+def test_config_overrides(monkeypatch, capsys):
+  cfg = f"--config={os.path.join(ROOT, 'configs', 'debug.py')}"
+  values, error = _parse(monkeypatch, capsys, cfg, "--config.data.holdout_from=3")
+  assert error is None and values.config.data.holdout_from == 3
+  _, error = _parse(monkeypatch, capsys, cfg, "--config.data.bogus=1")
+  assert "--config.data.bogus" in error and "config.data has no field 'bogus'" in error
+  assert "holdout_from" in error  # lists the valid fields
+  _, error = _parse(monkeypatch, capsys, cfg, "--config.bogus.x=1")
+  assert "config has no field 'bogus'" in error
+  _, error = _parse(monkeypatch, capsys, cfg, "--config.train.max_steps=1.5")
+  assert "--config.train.max_steps=1.5" in error and "int" in error
+  _, error = _parse(monkeypatch, capsys, "--config=nope/missing.py")
+  assert "--config=nope/missing.py: no such config file" in error
+  _, error = _parse(monkeypatch, capsys, cfg, "stray")
+  assert "unexpected argument 'stray'" in error
+  _, error = _parse(monkeypatch, capsys, "--workdir=x")
+  assert "workdir" in error
+
+
+def _run(args, cwd=ROOT):
+  env = dict(os.environ, PYTHONPATH=ROOT)
+  return subprocess.run([sys.executable, *args], cwd=cwd, env=env, capture_output=True,
+                        text=True, timeout=300)
+
+
+def test_entry_points_print_one_line(tmp_path):
+  res = _run(["train.py", "--config=configs/debug.py", "--config.data.bogus=1",
+              f"--workdir={tmp_path}"])
+  assert res.returncode == 1 and res.stderr.strip().splitlines() == [
+      f"error: --config.data.bogus: config.data has no field 'bogus' (fields: "
+      f"{', '.join(sorted(debug.get_config().data.keys()))})"], res.stderr
+  res = _run(["-m", "nerf_jax.train", "--config=configs/debug.py",
+              f"--config.data.path={tmp_path}/missing.npz", f"--workdir={tmp_path}/w"])
+  assert res.returncode == 1, res.stderr
+  assert res.stderr.strip().splitlines() == [f"error: {tmp_path}/missing.npz: no such file "
+                                             "or directory"], res.stderr
+
+
+def test_verbosity_asks_for_the_traceback(monkeypatch, tmp_path):
+  monkeypatch.setattr(flags.FLAGS["verbosity"], "present", 1)
+  previous = logging.get_verbosity()
+  logging.set_verbosity(logging.DEBUG)
+  try:
+    with pytest.raises(DataError, match="no such file"):
+      cli.run_main(lambda: cli.train(_config(str(tmp_path / "x.npz")), str(tmp_path / "w")))
+  finally:
+    logging.set_verbosity(previous)

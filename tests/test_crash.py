@@ -1,0 +1,111 @@
+"""Crash-safe training: SIGKILL at a random moment, then SIGTERM, then resume = one clean run."""
+
+import json
+import os
+import random
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import jax
+import numpy as np
+import pytest
+
+from configs import debug
+from nerf_jax import checkpoints, cli, train_lib
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+STEPS, EVERY = 120, 10
+
+
+def _config():
+  config = debug.get_config()
+  config.train.max_steps = STEPS
+  config.train.checkpoint_every = EVERY
+  config.train.log_every = 50
+  config.train.keep_checkpoints = 3
+  config.render.after_training = False
+  return config
+
+
+def _start(workdir):
+  """train.py with the flags that make `_config()`, in the background."""
+  args = [sys.executable, "train.py", "--config=configs/debug.py", f"--workdir={workdir}",
+          f"--config.train.max_steps={STEPS}", f"--config.train.checkpoint_every={EVERY}",
+          "--config.train.log_every=50", "--config.train.keep_checkpoints=3",
+          "--config.render.after_training=False"]
+  return subprocess.Popen(args, cwd=ROOT, env=dict(os.environ, PYTHONPATH=ROOT),
+                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for_checkpoint_after(workdir, step, proc, timeout=240):
+  deadline = time.monotonic() + timeout
+  while time.monotonic() < deadline:
+    steps = checkpoints.list_steps(workdir)
+    if steps and steps[-1] > step:
+      return steps[-1]
+    assert proc.poll() is None, f"the run ended early: {proc.stderr.read()[-2000:]}"
+    time.sleep(0.002)
+  raise AssertionError("no checkpoint appeared")
+
+
+def _terminate_after_checkpoint(workdir, step):
+  """SIGTERM this process once `workdir` has a checkpoint after `step`, while the trainer's
+  handler is installed (never the default handler, which would end pytest)."""
+  deadline = time.monotonic() + 240
+  while time.monotonic() < deadline:
+    steps = checkpoints.list_steps(workdir)
+    if steps and steps[-1] > step and signal.getsignal(signal.SIGTERM) not in (
+        signal.SIG_DFL, None):
+      os.kill(os.getpid(), signal.SIGTERM)
+      return
+    time.sleep(0.002)
+
+
+def test_killed_then_stopped_then_resumed_run_matches_an_uninterrupted_one(tmp_path, capsys):
+  workdir = str(tmp_path / "crashy")
+  # 1. SIGKILL at a random moment after the first checkpoint: no chance to clean up.
+  proc = _start(workdir)
+  first = _wait_for_checkpoint_after(workdir, 0, proc)
+  start = time.monotonic()
+  second = _wait_for_checkpoint_after(workdir, first, proc)
+  per_step = (time.monotonic() - start) / (second - first)
+  delay = random.uniform(0.0, 0.5 * (STEPS - second) * per_step)  # within the first half left
+  time.sleep(delay)
+  proc.kill()
+  proc.communicate()
+  assert proc.returncode == -signal.SIGKILL, f"finished before the kill ({delay:.2f} s)"
+  killed_at = checkpoints.list_steps(workdir)[-1]
+  assert 0 < killed_at < STEPS
+
+  # 2. Resume (in this process); SIGTERM it once it has checkpointed again: it saves where it
+  #    stands and exits with status 130.
+  thread = threading.Thread(target=_terminate_after_checkpoint, args=(workdir, killed_at))
+  thread.start()
+  capsys.readouterr()
+  with pytest.raises(SystemExit) as info:
+    cli.run_main(lambda: train_lib.train_and_evaluate(_config(), workdir))
+  thread.join()
+  err = capsys.readouterr().err
+  assert info.value.code == 130, err
+  match = re.search(r"interrupted: stopped by signal 15 at step (\d+); checkpoint saved", err)
+  assert match, err
+  stopped_at = int(match.group(1))
+  assert killed_at < stopped_at < STEPS and checkpoints.list_steps(workdir)[-1] == stopped_at
+
+  # 3. Resume to the end and compare with an uninterrupted run of the same seed.
+  resumed = train_lib.train_and_evaluate(_config(), workdir)
+  clean = train_lib.train_and_evaluate(_config(), str(tmp_path / "clean"))
+  assert resumed["steps"] == clean["steps"] == STEPS
+  for key in ("psnr", "ssim", "per_view"):
+    assert resumed[key] == clean[key], key
+  saved = json.loads(open(os.path.join(workdir, "metrics.json")).read())
+  assert saved["per_view"] == clean["per_view"]
+  _, _, p_resumed, *_ = cli.restore_for_render(workdir)
+  _, _, p_clean, *_ = cli.restore_for_render(str(tmp_path / "clean"))
+  for a, b in zip(jax.tree_util.tree_leaves(p_resumed), jax.tree_util.tree_leaves(p_clean)):
+    np.testing.assert_array_equal(a, b)  # bitwise
+  assert len(checkpoints.list_steps(workdir)) <= 3  # keep_checkpoints

@@ -1,0 +1,78 @@
+"""The progress display: a redrawn bar on a terminal, sparse plain lines elsewhere, a fair ETA."""
+
+import io
+
+from nerf_jax import progress
+
+
+class Clock:
+  def __init__(self):
+    self.now = 0.0
+
+  def __call__(self):
+    return self.now
+
+
+class Tty(io.StringIO):
+  def isatty(self):
+    return True
+
+
+def test_plain_lines_only_every_interval_and_a_final_one():
+  clock, out = Clock(), io.StringIO()
+  bar = progress.Progress(100, "work", stream=out, interval=10.0, clock=clock)
+  for i in range(100):
+    clock.now += 1.0
+    bar.update()
+  bar.close()
+  lines = out.getvalue().splitlines()
+  assert len(lines) == 10  # at t = 10, 20, ..., 100 s; the last one is the final state
+  assert lines[-1].startswith("work 100/100 100%")
+  assert "\r" not in out.getvalue() and "[" not in lines[0]
+
+
+def test_written_lines_reset_the_heartbeat_and_close_does_not_repeat():
+  clock, out = Clock(), io.StringIO()
+  bar = progress.Progress(10, "train", stream=out, interval=5.0, clock=clock)
+  for step in range(1, 11):
+    clock.now += 1.0
+    bar.update(step)
+    if step % 4 == 0 or step == 10:
+      bar.write(f"step {step}")
+  bar.close()
+  lines = out.getvalue().splitlines()
+  # Heartbeats only when nothing was printed for 5 s; the last written line is the final state.
+  assert lines == ["step 4", "step 8", "step 10"], lines
+
+
+def test_eta_ignores_the_slow_first_item():
+  clock = Clock()
+  bar = progress.Progress(11, stream=io.StringIO(), clock=clock)
+  clock.now = 100.0  # the first item compiles for 100 s
+  bar.update()
+  assert bar.eta() is None
+  for _ in range(5):
+    clock.now += 1.0
+    bar.update()
+  assert bar.eta() == 5.0  # 5 items left at 1 s each
+  assert bar.line().endswith("1:45<0:05")
+
+
+def test_resumed_count_and_terminal_bar():
+  clock, out = Clock(), Tty()
+  bar = progress.Progress(200, "train", start=100, stream=out, clock=clock)
+  clock.now = 1.0
+  bar.update(150, info="loss 0.1")
+  bar.write("a line that stays")
+  bar.close()
+  text = out.getvalue()
+  assert "\r\033[Ktrain 150/200 [###############-----]  75% loss 0.1" in text
+  assert "a line that stays\n" in text and text.endswith("\n")
+
+
+def test_track_and_format_seconds():
+  out = io.StringIO()
+  assert list(progress.track(range(3), desc="x", stream=out)) == [0, 1, 2]
+  assert out.getvalue().splitlines()[-1].startswith("x 3/3 100%")
+  assert progress.format_seconds(59.9) == "0:59"
+  assert progress.format_seconds(3725) == "1:02:05"
