@@ -24,6 +24,9 @@ def get_config():
   data.pixel_center = 0.0  # 0 = rays through pixel corners (reference), 0.5 = pixel centres
   data.background = "black"  # 'black', 'white', 'random' (training) or an RGB triple
   data.half_res = False  # Blender data: load at half resolution
+  data.factor = 1  # LLFF data: downsample images by this integer factor
+  data.bd_factor = 0.75  # LLFF data: scale so the nearest bound is 1/bd_factor (0 = keep units)
+  data.recenter = True  # LLFF data: move the mean camera pose to the origin
   data.lindisp = False  # sample linearly in inverse depth instead of depth
   data.ndc = False  # forward-facing scenes: rays in normalized device coordinates, t in [0, 1]
   data.near = 0.0  # near bound override (0 = the dataset's, 2 for tiny_nerf)

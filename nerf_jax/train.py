@@ -24,7 +24,8 @@ def main():
 
   def run(argv):
     del argv
-    cli.run_main(lambda: cli.train(config.value, workdir.value, flags.FLAGS["config"].value))
+    config_path = config_flags.get_config_filename(flags.FLAGS["config"])
+    cli.run_main(lambda: cli.train(config.value, workdir.value, config_path))
 
   app.run(run, argv=sys.argv, flags_parser=cli.parse_flags)
 

@@ -137,6 +137,16 @@ def test_train_and_render_entry_points(tmp_path):
   assert res.returncode == 0 and "test PSNR" in res.stdout, res.stderr[-2000:]
 
 
+def test_train_without_flags_uses_default_config_and_workdir(tmp_path):
+  """`python train.py` as the README runs it: no --config, no --workdir (overrides keep it tiny)."""
+  res = _run([os.path.join(ROOT, "train.py"), "--config.train.max_steps=2",
+              "--config.data.image_size=16", "--config.data.num_views=5",
+              "--config.render.after_training=False"], str(tmp_path))
+  assert res.returncode == 0, res.stderr[-2000:]
+  metrics = json.loads((tmp_path / "runs" / "default_diffuse" / "metrics.json").read_text())
+  assert metrics["steps"] == 2
+
+
 def test_render_without_checkpoint_is_one_clear_line(tmp_path):
   workdir = tmp_path / "empty"
   workdir.mkdir()
