@@ -92,14 +92,51 @@ def plot_pareto(records, cost_key, cost_label, path):
   fig.savefig(path, dpi=110)
 
 
+def samples_per_step(record):
+  """Rays per step × samples per ray (coarse + fine) of a record."""
+  config = record["config"]
+  return record["rays_per_step"] * (config["num_samples"] + config["num_fine_samples"])
+
+
+def plot_scaling(records, path):
+  """Median step ms and samples/s against samples per step (log-log), one panel per scene."""
+  groups = _by_scene(records)
+  fig, axes = _figure(len(groups))
+  for ax, (scene, runs) in zip(axes, groups.items()):
+    runs = sorted(runs, key=samples_per_step)
+    work = [samples_per_step(r) for r in runs]
+    ax.loglog(work, [r["step_ms"] for r in runs], marker="o", label="step ms (median)")
+    ideal = runs[-1]["step_ms"] / work[-1]  # linear through the largest run
+    ax.loglog(work, [ideal * w for w in work], linestyle=":", color="gray", label="linear")
+    rate = ax.twinx()
+    rate.semilogx(work, [w / r["step_ms"] / 1e3 for w, r in zip(work, runs)], color="tab:red",
+                  marker="s", label="samples/s (M)")
+    rate.set_ylabel("million samples per second", color="tab:red")
+    for r, x, y in zip(runs, work, [r["step_ms"] for r in runs]):
+      ax.annotate(r["label"], (x, y), textcoords="offset points", xytext=(4, -10), fontsize=6)
+    ax.set_title(f"{scene}: step time against work per step")
+    ax.set_xlabel("samples per step (rays × samples per ray)")
+    ax.set_ylabel("train step ms")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7, loc="upper left")
+  fig.savefig(path, dpi=110)
+
+
 def write_plots(records, out_dir):
-  """The three PNGs of `records` (runs that did not fail) in `out_dir`; returns their paths."""
+  """The PNGs of `records` (runs that did not fail) in `out_dir`; returns their paths.
+
+  Always the three of PLOTS; also scaling.png when the scaling sweep ran.
+  """
   if not records:
     return []
   paths = [os.path.join(out_dir, name) for name in PLOTS]
   plot_psnr_vs_time(records, paths[0])
   plot_pareto(records, "render_ms", "render ms per 100×100 frame", paths[1])
   plot_pareto(records, "train_seconds", "train seconds (compilation included)", paths[2])
+  scaling = [r for r in records if r["sweep"] == "scaling"]
+  if len(scaling) >= 2:
+    paths.append(os.path.join(out_dir, "scaling.png"))
+    plot_scaling(scaling, paths[-1])
   return paths
 
 

@@ -52,6 +52,10 @@ SWEEPS = {
         Entry("f32 8x256", {"model.dtype": "float32", "model.width": 256}),
         Entry("bf16 8x256", {"model.dtype": "bfloat16", "model.width": 256}),
     ],
+    # Step time against the work per step (rays x samples); run with --steps (equal steps).
+    "scaling": [Entry(f"rays={n}", {"train.batch_rays": n}) for n in (128, 512, 2048, 8192, 32768)]
+    + [Entry(f"rays=2048 samples={s}", {"train.batch_rays": 2048, "num_samples": s})
+       for s in (16, 256)],
 }
 
 # Scenes a sweep runs on unless --scenes says otherwise; the effects need scenes that call for

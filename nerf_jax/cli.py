@@ -193,16 +193,19 @@ def restore_for_render(workdir):
 
 
 def render(workdir, mode, poses_path="", out_dir="", depth_npy=False, resolution=128,
-           threshold=50.0, bound=0.0):
+           threshold=50.0, bound=0.0, scale=1.0):
   """Render `mode` ('eval', 'video', 'views' or 'mesh') from the newest checkpoint of `workdir`.
 
   depth_npy: video mode also writes float depth_frames.npy. resolution, threshold, bound: mesh
-  mode (see mesh.extract).
+  mode (see mesh.extract). scale: video and views modes render `scale` times the training
+  images' pixels per side.
   """
   if not os.path.isdir(workdir):
     raise FileNotFoundError(f"--workdir={workdir}: no such directory")
   config, model, params, train_ds, test_ds, near, far = restore_for_render(workdir)
   out_dir = out_dir or os.path.join(workdir, mode)
+  if scale <= 0:
+    raise ValueError(f"--scale={scale}: must be positive")
   if mode == "mesh":
     surface = mesh.extract(model, params, config, resolution, threshold, bound)
     os.makedirs(out_dir, exist_ok=True)
@@ -217,7 +220,7 @@ def render(workdir, mode, poses_path="", out_dir="", depth_npy=False, resolution
           f"over {len(result['per_view'])} views -> {out_dir}")
   elif mode == "video":
     paths = render_lib.render_video(model, params, config, near, far, train_ds, out_dir,
-                                    depth_npy=depth_npy)
+                                    depth_npy=depth_npy, scale=scale)
     print(f"wrote {', '.join(paths.values())}")
   else:
     if not poses_path:
@@ -225,5 +228,5 @@ def render(workdir, mode, poses_path="", out_dir="", depth_npy=False, resolution
     if not os.path.exists(poses_path):
       raise FileNotFoundError(f"{poses_path}: no such poses file")
     count = render_lib.render_views(model, params, config, near, far, train_ds,
-                                    render_lib.load_poses(poses_path), out_dir)
+                                    render_lib.load_poses(poses_path), out_dir, scale)
     print(f"wrote {count} views to {out_dir}")

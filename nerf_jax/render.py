@@ -24,12 +24,14 @@ def main():
                                  "(1 / scene unit).")
   bound = flags.DEFINE_float("bound", 0.0, "mesh mode: half-size of the box [-b, b]^3 "
                              "(0 = config.data.scene_bound, else the grid's, else 1.5).")
+  scale = flags.DEFINE_float("scale", 1.0, "video and views modes: pixels per side relative to "
+                             "the training images (2 = twice as wide and tall, same view).")
 
   def run(argv):
     del argv
     cli.run_main(lambda: cli.render(workdir.value, mode.value, poses.value, out.value,
                                     depth_npy.value, resolution.value, threshold.value,
-                                    bound.value))
+                                    bound.value, scale.value))
 
   app.run(run, flags_parser=cli.parse_flags)
 

@@ -96,6 +96,17 @@ def _write_eval_view(out_dir, index, out, truth, near, far):
   np.save(os.path.join(out_dir, f"depth_{index:03d}.npy"), out["depth"].astype(np.float32))
 
 
+def scaled_camera(dataset, scale=1.0):
+  """(height, width, intrinsics) of the dataset's camera with `scale` times as many pixels per side.
+
+  The field of view stays the same: focal lengths and principal point scale with the image.
+  """
+  height, width = max(1, round(dataset.height * scale)), max(1, round(dataset.width * scale))
+  sx, sy = width / dataset.width, height / dataset.height
+  fx, fy, cx, cy = dataset.intrinsics
+  return height, width, (fx * sx, fy * sy, cx * sx, cy * sy)
+
+
 def render_frames(model, params, config, near, far, poses, height, width, intrinsics):
   """Render a list of poses: yields numpy dicts rgb [H, W, 3], depth [H, W], acc [H, W]."""
   render_chunk = renderer.make_chunk_renderer(model, config, near, far)
@@ -124,18 +135,18 @@ def video_poses(config, dataset):
 
 
 def render_video(model, params, config, near, far, dataset, out_dir, depth_npy=False,
-                 show_progress=True):
+                 show_progress=True, scale=1.0):
   """The video path (see `video_poses`) as rgb.mp4 and depth.mp4 in `out_dir`.
 
   depth_npy: also save the float depth of every frame as `depth_frames.npy`, float32 [F, H, W]
-  (z-depth in scene units, see the module docstring). Returns {'rgb', 'depth'[, 'depth_npy']}
-  paths.
+  (z-depth in scene units, see the module docstring). scale: frames have `scale` times the
+  dataset's pixels per side (see `scaled_camera`). Returns {'rgb', 'depth'[, 'depth_npy']} paths.
   """
   os.makedirs(out_dir, exist_ok=True)
   poses = video_poses(config, dataset)
   rgb_frames, depth_frames, depths = [], [], []
-  frames = render_frames(model, params, config, near, far, poses, dataset.height,
-                         dataset.width, dataset.intrinsics)
+  frames = render_frames(model, params, config, near, far, poses,
+                         *scaled_camera(dataset, scale))
   if show_progress:
     frames = progress.track(frames, total=len(poses), desc="video")
   for out in frames:
@@ -171,11 +182,14 @@ def load_poses(path):
   return poses
 
 
-def render_views(model, params, config, near, far, dataset, poses, out_dir):
-  """Render `poses` to `out_dir/view_XXX.png` (+ depth PNG and .npy). Returns the count."""
+def render_views(model, params, config, near, far, dataset, poses, out_dir, scale=1.0):
+  """Render `poses` to `out_dir/view_XXX.png` (+ depth PNG and .npy). Returns the count.
+
+  scale: images have `scale` times the dataset's pixels per side (see `scaled_camera`).
+  """
   os.makedirs(out_dir, exist_ok=True)
-  frames = render_frames(model, params, config, near, far, poses, dataset.height, dataset.width,
-                         dataset.intrinsics)
+  frames = render_frames(model, params, config, near, far, poses,
+                         *scaled_camera(dataset, scale))
   for i, out in enumerate(frames):
     imageio.imwrite(os.path.join(out_dir, f"view_{i:03d}.png"), to_uint8(out["rgb"]))
     imageio.imwrite(os.path.join(out_dir, f"depth_{i:03d}.png"), colorize(out["depth"], near, far))

@@ -147,3 +147,14 @@ def test_sweeps_build_valid_configs():
     bench_sweeps.scene_overrides("no/such/dataset.npz")
   with pytest.raises(ValueError, match="unknown sweep"):
     bench_sweeps.sweep_names("samples,nope")
+
+
+def test_scaling_plot_from_synthetic_records(tmp_path):
+  records = [{"scene": "diffuse", "sweep": "scaling", "label": f"rays={n}", "rays_per_step": n,
+              "config": {"num_samples": 64, "num_fine_samples": 0}, "step_ms": 0.01 * n}
+             for n in (128, 1024, 8192)]
+  assert bench_plots.samples_per_step(records[1]) == 1024 * 64
+  bench_plots.plot_scaling(records, tmp_path / "scaling.png")
+  image = imageio.imread(tmp_path / "scaling.png")
+  assert image.ndim == 3 and image.shape[0] > 100 and image.shape[1] > 100
+  assert "scaling" in bench_sweeps.SWEEPS and bench_sweeps.sweep_names("scaling") == ["scaling"]

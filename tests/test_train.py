@@ -5,6 +5,7 @@ import os
 import subprocess
 import sys
 
+import imageio.v2 as imageio
 import jax
 import numpy as np
 import pytest
@@ -191,3 +192,21 @@ def test_forward_facing_video_follows_a_spiral():
   assert np.all(poses[:, 2, 2] > 0.9)
   spread = np.abs(poses[:, :3, 3] - train_ds.poses[:, :3, 3].mean(0)).max()
   assert spread < 2 * np.abs(train_ds.poses[:, :3, 3]).max() + 1e-3
+
+
+def test_views_render_at_a_scaled_resolution_with_the_same_field_of_view(tmp_path):
+  config = _config(max_steps=2)
+  workdir = str(tmp_path / "run")
+  train_lib.train_and_evaluate(config, workdir)
+  train_ds, _ = loaders.load_dataset(config.data)
+  height, width, (fx, fy, cx, cy) = render_lib.scaled_camera(train_ds, 2.0)
+  assert (height, width) == (2 * train_ds.height, 2 * train_ds.width)
+  assert (fx / width, cx / width) == pytest.approx((train_ds.intrinsics[0] / train_ds.width,
+                                                   train_ds.intrinsics[2] / train_ds.width))
+  poses = tmp_path / "poses.npy"
+  np.save(poses, train_ds.poses[:2])
+  cli.render(workdir, "views", str(poses), str(tmp_path / "views"), scale=2.0)
+  image = imageio.imread(tmp_path / "views" / "view_001.png")
+  assert image.shape[:2] == (height, width)
+  with pytest.raises(ValueError, match="--scale"):
+    cli.render(workdir, "views", str(poses), scale=0.0)
