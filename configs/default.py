@@ -48,6 +48,13 @@ def get_config():
   model.shared_fine = False  # one network for coarse and fine passes instead of two
   model.dtype = "float32"  # matmul dtype: float32, bfloat16 or float16
 
+  config.occupancy = occ = ml_collections.ConfigDict()
+  occ.enabled = False  # sample only in occupied cells of a grid over data.scene_bound's box
+  occ.resolution = 32  # occupancy cells per side of the box
+  occ.candidates = 256  # candidate intervals per ray; the occupied ones share num_samples samples
+  occ.update_every = 16  # train steps between recomputing the grid from the density field
+  occ.threshold = 1.0  # density (per scene unit) from which a cell counts as occupied
+
   config.train = train = ml_collections.ConfigDict()
   train.max_steps = 600  # step budget
   train.max_seconds = 0.0  # wall-clock budget in seconds (0 = no limit)

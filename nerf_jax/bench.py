@@ -336,7 +336,8 @@ def run_config(config, options):
       "peak_fraction": flops / step_seconds / 1e9 / peak,
       "render_ms": 1e3 * float(np.median(render_times)),
       "render_ms_samples": [1e3 * t for t in render_times],
-      "params": int(sum(x.size for x in jax.tree_util.tree_leaves(state.params))),
+      "params": int(sum(x.size for name, net in state.params.items() if name != "occupancy"
+                        for x in jax.tree_util.tree_leaves(net))),  # trained weights only
       "peak_rss_mb": peak_rss_mb(), "device_peak_mb": device_peak_mb(),
       "eval_seconds": eval_seconds, "diverged_at_step": bad + 1 if bad >= 0 else None,
       "schedule_steps": tc.max_steps, "config": json.loads(config.to_json()), **setup}

@@ -52,6 +52,13 @@ SWEEPS = {
         Entry("f32 8x256", {"model.dtype": "float32", "model.width": 256}),
         Entry("bf16 8x256", {"model.dtype": "bfloat16", "model.width": 256}),
     ],
+    # Empty-space skipping on the fast grid model: the same samples placed only where it is full.
+    "occupancy": [
+        Entry("fast", base="fast"),
+        Entry("fast+occupancy", {"occupancy.enabled": True}, base="fast"),
+        Entry("fast+occupancy samples=32", {"occupancy.enabled": True, "num_samples": 32},
+              base="fast"),
+    ],
     # Step time against the work per step (rays x samples); run with --steps (equal steps).
     "scaling": [Entry(f"rays={n}", {"train.batch_rays": n}) for n in (128, 512, 2048, 8192, 32768)]
     + [Entry(f"rays=2048 samples={s}", {"train.batch_rays": 2048, "num_samples": s})
@@ -60,7 +67,7 @@ SWEEPS = {
 
 # Scenes a sweep runs on unless --scenes says otherwise; the effects need scenes that call for
 # them (glossy: view dependence, fog: a soft medium, white: the background) and one that doesn't.
-SCENES = {"effects": ("diffuse", "glossy", "fog", "white")}
+SCENES = {"effects": ("diffuse", "glossy", "fog", "white"), "occupancy": ("diffuse", "glossy")}
 DEFAULT_SCENES = ("diffuse",)
 
 

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax import activations, encoding, grid, ndc, rendering, sampling
+from nerf_jax import activations, encoding, grid, ndc, occupancy, rendering, sampling
 from nerf_jax.rays import Rays, get_rays_intrinsics, safe_normalize
 
 
@@ -40,13 +40,50 @@ def network_names(config):
 
 
 def init_params(model, config, key):
-  """Parameters {'coarse': ..., ['fine': ...]} for `model` (a NerfMLP)."""
+  """Parameters {'coarse': ..., ['fine': ...], ['occupancy': float32 [R, R, R]]} for `model`.
+
+  The occupancy grid starts at zeros, which counts as occupied everywhere (see occupancy.py).
+  """
+  check_occupancy_config(config)
   pos_width = 3 if _uses_grid(config) else encoding.encoded_width(3, config.pos_encode_dims)
   pos = jnp.zeros((1, pos_width), jnp.float32)
   dirs = jnp.zeros((1, encoding.encoded_width(3, config.dir_encode_dims)), jnp.float32)
   keys = jax.random.split(key, 2)
-  return {name: model.init(k, pos, dirs)["params"]
-          for name, k in zip(network_names(config), keys)}
+  params = {name: model.init(k, pos, dirs)["params"]
+            for name, k in zip(network_names(config), keys)}
+  if uses_occupancy(config):
+    res = config.occupancy.resolution
+    params["occupancy"] = jnp.zeros((res, res, res), jnp.float32)
+  return params
+
+
+def uses_occupancy(config):
+  """Whether `config` samples through an occupancy grid (older configs have no such field)."""
+  occ = config.get("occupancy", None)
+  return bool(occ is not None and occ.enabled)
+
+
+def check_occupancy_config(config):
+  """ValueError naming the field when `config.occupancy.enabled` cannot work with the rest."""
+  if not uses_occupancy(config):
+    return
+  if config.data.get("scene_bound", 0.0) <= 0:
+    raise ValueError("config.occupancy.enabled needs config.data.scene_bound > 0 (the grid "
+                     "covers that box)")
+  if config.num_fine_samples > 0:
+    raise ValueError("config.occupancy.enabled and config.num_fine_samples > 0 cannot be "
+                     "combined: the occupancy grid already places the samples; set one of them")
+  if config.data.get("ndc", False):
+    raise ValueError("config.occupancy.enabled does not work with config.data.ndc")
+
+
+def occupancy_grid(model, params, config):
+  """The occupancy grid of the coarse network's density: float32 [R, R, R] (see occupancy.py)."""
+  def density(points):  # [P, 3] -> [P]; density does not depend on the viewing direction
+    _, sigma = query_field(model, params["coarse"], points[:, None, :], jnp.zeros_like(points),
+                           config)
+    return sigma[:, 0]
+  return occupancy.density_grid(density, config.occupancy.resolution, config.data.scene_bound)
 
 
 def _uses_grid(config):
@@ -85,11 +122,32 @@ def _shade(model, params, rays, viewdirs, t, config, background, key):
   return out
 
 
+def _shade_occupied(model, params, rays, viewdirs, t_min, t_max, config, background, keys):
+  """One pass over the occupied intervals of [t_min, t_max] (float32 [...]); see occupancy.py."""
+  oc = config.occupancy
+  mask = occupancy.occupied_mask(jax.lax.stop_gradient(params["occupancy"]), oc.threshold)
+  starts, ends, valid = occupancy.sample_occupied(
+      mask, rays.origins, rays.directions, t_min, t_max, config.data.scene_bound, oc.candidates,
+      config.num_samples)
+  u = 0.5 if keys[0] is None else jax.random.uniform(keys[0], starts.shape, jnp.float32)
+  positions = starts + (ends - starts) * u
+  points = rays.origins[..., None, :] + rays.directions[..., None, :] * positions[..., None]
+  rgb, sigma = query_field(model, params["coarse"], points, viewdirs, config, keys[1])
+  sigma = jnp.where(valid, sigma, 0.0)  # unused slots: zero-width and empty
+  t = occupancy.interleave_gaps(starts, ends, t_max)
+  out = rendering.composite(occupancy.with_gaps(rgb, axis=-2), occupancy.with_gaps(sigma), t,
+                            background)
+  out["t"] = t
+  return out
+
+
 def render_rays(model, params, rays, config, near, far, key=None, background=None,
                 viewdirs=None):
   """Render a batch of rays with the coarse and (optionally) fine passes.
 
-  params: {'coarse': ..., ['fine': ...]}. near, far: float bounds (z-depth). key: PRNG key for
+  params: {'coarse': ..., ['fine': ...], ['occupancy': ...]} (see `init_params`; with
+  `config.occupancy.enabled` the samples go where the grid is occupied, see occupancy.py).
+  near, far: float bounds (z-depth). key: PRNG key for
   stratified jitter, resampling and density noise; None renders deterministically.
   background: None or float32 broadcastable to [..., 3]. viewdirs: float32 [..., 3] unit
   directions for the view branch (None = the normalised ray directions; pass the world
@@ -102,11 +160,15 @@ def render_rays(model, params, rays, config, near, far, key=None, background=Non
   box = config.data.get("scene_bound", 0.0)
   if box > 0:  # sample only the part of each ray inside the scene box
     t_near, t_far = grid.ray_box_bounds(rays.origins, rays.directions, box, near, far)
-  t = sampling.stratified(t_near, t_far, config.num_samples, batch_shape, keys[0],
-                          lindisp=config.data.lindisp)
   viewdirs = rays.viewdirs if viewdirs is None else viewdirs
-  outputs = {"coarse": _shade(model, params["coarse"], rays, viewdirs, t, config, background,
-                              keys[1])}
+  if uses_occupancy(config):
+    outputs = {"coarse": _shade_occupied(model, params, rays, viewdirs, t_near, t_far, config,
+                                         background, keys[:2])}
+  else:
+    t = sampling.stratified(t_near, t_far, config.num_samples, batch_shape, keys[0],
+                            lindisp=config.data.lindisp)
+    outputs = {"coarse": _shade(model, params["coarse"], rays, viewdirs, t, config, background,
+                                keys[1])}
   if config.num_fine_samples > 0:
     extra = sampling.sample_pdf(t, outputs["coarse"]["weights"], config.num_fine_samples, keys[2])
     t_fine = sampling.merge_edges(t, extra)

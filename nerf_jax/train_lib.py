@@ -140,15 +140,26 @@ def make_train_step(model, tx, config, near, far, mesh=None):
     best = mses.get("fine", mses["coarse"])
     return loss, {"loss": loss, "psnr": metrics.mse_to_psnr(best)}
 
+  def refresh_occupancy(params, step):
+    """Recompute the occupancy grid from the density field every `update_every` steps."""
+    if not renderer.uses_occupancy(config):
+      return params
+    every = config.occupancy.update_every
+    grid = jax.lax.cond(step % every == 0, lambda p: renderer.occupancy_grid(model, p, config),
+                        lambda p: p["occupancy"], params)
+    return {**params, "occupancy": grid}
+
   def step(state, data, key):
     key = jax.random.fold_in(key, state.step)
     batch_key, render_key = jax.random.split(key)
     batch = parallel.shard_batch(draw_batch(data, config, batch_key), mesh)
-    grads, stats = jax.grad(loss_fn, has_aux=True)(state.params, batch, render_key)
+    params = refresh_occupancy(state.params, state.step)
+    grads, stats = jax.grad(loss_fn, has_aux=True)(params, batch, render_key)
     finite = jnp.isfinite(stats["loss"]) & jnp.all(jnp.array(
         [jnp.all(jnp.isfinite(g)) for g in jax.tree_util.tree_leaves(grads)]))
-    updates, opt_state = tx.update(grads, state.opt_state, state.params)
-    params = optax.apply_updates(state.params, updates)
+    # The occupancy grid gets a zero gradient, so Adam leaves it as refreshed above.
+    updates, opt_state = tx.update(grads, state.opt_state, params)
+    params = optax.apply_updates(params, updates)
     # A non-finite step is not applied (the state stays the last good one) and is reported.
     keep = lambda new, old: jax.tree_util.tree_map(lambda n, o: jnp.where(finite, n, o), new, old)
     bad_step = jnp.where((state.bad_step < 0) & ~finite, state.step, state.bad_step)
@@ -184,6 +195,8 @@ def model_signature(config):
   if m.get("encoding", "posenc") != "posenc":  # only then, so older checkpoints stay valid
     signature.update(encoding=m.encoding, grid_resolutions=list(m.grid_resolutions),
                      grid_features=m.grid_features)
+  if renderer.uses_occupancy(config):
+    signature.update(occupancy_resolution=config.occupancy.resolution)
   return signature
 
 

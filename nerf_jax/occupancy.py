@@ -1,0 +1,119 @@
+"""Empty-space skipping: an occupancy grid over the scene box, and sampling only where it is full.
+
+The grid (`config.occupancy`) is float32 [R, R, R]: the largest density σ found in each cell of the
+box [-bound, bound]^3, max-pooled over the neighbouring cells so structure thinner than a cell is
+not lost. Training recomputes it from the density field every `update_every` steps and keeps it in
+the parameters as params['occupancy'] (it gets no gradient, so Adam never moves it, and it is
+checkpointed and restored with them, so a resumed run uses exactly the grid it would have).
+
+Sampling with static shapes: each ray's segment inside the box is cut into M candidate intervals
+of width Δ = segment / M; the occupied candidates, in order, are dealt into K = num_samples
+slots. With n <= K occupied candidates, slot k is candidate k exactly (fine spacing where there is
+something, nothing spent elsewhere; unused slots are zero-width at the segment's end). With n > K
+(early in training every cell is occupied), slot k groups candidates of rank [k·n/K, (k+1)·n/K)
+and spans them from the first's start to the last's end, so an all-occupied ray gets plain
+stratified sampling. Between slots lie gaps of empty space, composited as intervals of zero
+density, so `rendering.composite` and its numerics are used unchanged.
+
+A cell is occupied when its σ >= min(threshold, mean σ of the grid) (Instant-NGP's rule): an
+untrained, uniformly faint field counts as occupied everywhere instead of empty everywhere.
+"""
+
+import jax
+import jax.numpy as jnp
+
+# Offsets of the points probed in each cell, in cells from its centre: the 8 corners of the inner
+# half-cell, so a feature smaller than a cell between two cells' probes is still likely seen.
+_PROBES = jnp.array([[x, y, z] for x in (-0.25, 0.25) for y in (-0.25, 0.25)
+                     for z in (-0.25, 0.25)], jnp.float32)
+
+
+def cell_centres(resolution, bound):
+  """float32 [R, R, R, 3]: the centres of the R^3 cells of the box [-bound, bound]^3."""
+  c = (jnp.arange(resolution, dtype=jnp.float32) + 0.5) / resolution * 2.0 * bound - bound
+  return jnp.stack(jnp.meshgrid(c, c, c, indexing="ij"), axis=-1)
+
+
+def density_grid(density_fn, resolution, bound):
+  """The occupancy grid of a density field: float32 [R, R, R].
+
+  density_fn: points float32 [P, 3] -> σ float32 [P]. Probed at 8 points per cell, one x-slab of
+  cells at a time (bounded memory), then max-pooled over each cell's 3×3×3 neighbourhood.
+  """
+  cell = 2.0 * bound / resolution
+  centres = cell_centres(resolution, bound)  # [R, R, R, 3]
+
+  def slab(points):  # [R, R, 3] -> [R, R]
+    probes = points[:, :, None, :] + cell * _PROBES
+    return density_fn(probes.reshape(-1, 3)).reshape(resolution, resolution, -1).max(-1)
+
+  sigma = jax.lax.map(slab, centres)
+  return jax.lax.reduce_window(sigma, -jnp.inf, jax.lax.max, (3, 3, 3), (1, 1, 1), "SAME")
+
+
+def occupied_mask(grid, threshold):
+  """bool [R, R, R]: cells whose density reaches min(threshold, mean density)."""
+  # The mean of a uniform grid can round a few ulps above its value: compare with some slack.
+  return grid >= jnp.minimum(threshold, jnp.mean(grid)) * (1.0 - 1e-5)
+
+
+def lookup(mask, points, bound):
+  """bool [...]: the cell of `mask` [R, R, R] holding each point float32 [..., 3] (clamped)."""
+  res = mask.shape[0]
+  idx = jnp.clip(jnp.floor((points + bound) / (2.0 * bound) * res), 0, res - 1).astype(jnp.int32)
+  return mask[idx[..., 0], idx[..., 1], idx[..., 2]]
+
+
+def _occupied_indices(occupied, size):
+  """int32 [..., size]: positions of the True entries of bool [..., M] in order, then M."""
+  m = occupied.shape[-1]
+  flat = occupied.reshape(-1, m)
+  idx = jax.vmap(lambda row: jnp.nonzero(row, size=size, fill_value=m)[0])(flat)
+  return idx.reshape(*occupied.shape[:-1], size).astype(jnp.int32)
+
+
+def sample_occupied(mask, origins, directions, t_min, t_max, bound, num_candidates, num_samples):
+  """Intervals of each ray inside occupied cells (see the module docstring).
+
+  mask: bool [R, R, R] from `occupied_mask`. origins, directions: float32 [..., 3].
+  t_min, t_max: float32 [...], the segment inside the box (`grid.ray_box_bounds`).
+  num_candidates: int M. num_samples: int K.
+  Returns (starts, ends, valid): float32 [..., K], float32 [..., K], bool [..., K]; intervals
+  are sorted and disjoint, inside [t_min, t_max]; invalid slots are [t_max, t_max].
+  """
+  s = jnp.linspace(0.0, 1.0, num_candidates + 1, dtype=jnp.float32)
+  edges = t_min[..., None] + (t_max - t_min)[..., None] * s  # [..., M + 1], monotone in s
+  mids = 0.5 * (edges[..., 1:] + edges[..., :-1])
+  points = origins[..., None, :] + directions[..., None, :] * mids[..., None]
+  occupied = lookup(mask, points, bound) & (t_max > t_min)[..., None]
+  order = _occupied_indices(occupied, num_candidates)  # [..., M]: candidate of each rank
+  n = jnp.sum(occupied, axis=-1, dtype=jnp.int32)[..., None]  # [..., 1]
+  slots = jnp.arange(num_samples, dtype=jnp.int32)
+  # Integer group bounds: slot k holds ranks [first_k, next_k) of max(n, K) ranks.
+  per = jnp.maximum(n, num_samples)
+  first = slots * per // num_samples
+  last = (slots + 1) * per // num_samples - 1
+  valid = first < n
+  last = jnp.minimum(last, n - 1)
+  take = lambda a, rank: jnp.take_along_axis(
+      a, jnp.take_along_axis(order, jnp.clip(rank, 0, num_candidates - 1), axis=-1), axis=-1)
+  far = t_max[..., None]
+  starts = jnp.where(valid, take(edges[..., :-1], first), far)
+  ends = jnp.where(valid, take(edges[..., 1:], last), far)
+  return starts, ends, valid
+
+
+def interleave_gaps(starts, ends, t_max):
+  """Edges float32 [..., 2K + 1] of slots and the gaps between them: s_0, e_0, s_1, e_1, …, t_max.
+
+  Interval 2k is slot k and interval 2k + 1 the (empty) gap after it.
+  """
+  pairs = jnp.stack([starts, ends], axis=-1).reshape(*starts.shape[:-1], -1)
+  return jnp.concatenate([pairs, t_max[..., None]], axis=-1)
+
+
+def with_gaps(values, axis=-1):
+  """Each slot's value followed by a zero (its gap) along `axis`: [..., K, ...] -> [..., 2K, ...]."""
+  axis = axis % values.ndim
+  pairs = jnp.stack([values, jnp.zeros_like(values)], axis=axis + 1)
+  return pairs.reshape(*values.shape[:axis], -1, *values.shape[axis + 1:])

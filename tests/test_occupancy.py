@@ -1,0 +1,186 @@
+"""Occupancy grid: cell lookup, the grid of a known density field, sampling only occupied space,
+rendering that matches dense sampling, and training with it (resumable, bitwise)."""
+
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from configs import debug
+from nerf_jax import checkpoints, cli, grid, occupancy, renderer, train_lib
+from nerf_jax.rays import Rays
+
+BOUND = 1.5
+
+
+def _rays(num, seed=0):
+  """Rays from a sphere of radius 4 towards random points near the origin."""
+  rng = np.random.default_rng(seed)
+  origins = rng.normal(size=(num, 3))
+  origins = 4.0 * origins / np.linalg.norm(origins, axis=-1, keepdims=True)
+  targets = rng.uniform(-0.8, 0.8, size=(num, 3))
+  directions = targets - origins
+  directions /= np.linalg.norm(directions, axis=-1, keepdims=True)
+  return jnp.asarray(origins, jnp.float32), jnp.asarray(directions, jnp.float32)
+
+
+def _sphere_sigma(points, radius=0.5, density=50.0):
+  return jnp.where(jnp.sum(points ** 2, axis=-1) < radius ** 2, density, 0.0)
+
+
+def test_lookup_finds_the_cell_of_each_point():
+  mask = np.zeros((4, 4, 4), bool)
+  mask[1, 2, 3] = True
+  cell = 2 * BOUND / 4
+  inside = np.array([-BOUND + 1.5 * cell, -BOUND + 2.5 * cell, -BOUND + 3.5 * cell])
+  points = jnp.asarray([inside, inside + [cell, 0, 0], inside + [0, 0, 0.49 * cell],
+                        [9.0, 9.0, 9.0]], jnp.float32)
+  got = occupancy.lookup(jnp.asarray(mask), points, BOUND)
+  assert got.tolist() == [True, False, True, False]  # far outside clamps to cell [3, 3, 3]
+
+
+def test_density_grid_of_a_sphere_covers_it_and_little_else():
+  res = 16
+  grid_values = occupancy.density_grid(_sphere_sigma, res, BOUND)
+  mask = np.asarray(occupancy.occupied_mask(grid_values, threshold=1.0))
+  centres = np.asarray(occupancy.cell_centres(res, BOUND))
+  dist = np.linalg.norm(centres, axis=-1)
+  cell = 2 * BOUND / res
+  assert mask[dist < 0.5 - cell].all()  # every cell inside the sphere
+  assert not mask[dist > 0.5 + 2.5 * cell].any()  # dilation reaches one cell beyond the probes
+  assert 0 < mask.mean() < 0.2
+
+
+def test_an_untrained_uniform_field_counts_as_occupied_everywhere():
+  mask = occupancy.occupied_mask(jnp.full((8, 8, 8), 0.3), threshold=1.0)
+  assert bool(mask.all())
+
+
+def test_all_occupied_gives_stratified_intervals_tiling_the_segment():
+  origins, directions = _rays(32)
+  t_min, t_max = grid.ray_box_bounds(origins, directions, BOUND, 2.0, 6.0)
+  k = 16
+  starts, ends, valid = occupancy.sample_occupied(jnp.ones((8, 8, 8), bool), origins, directions,
+                                                  t_min, t_max, BOUND, 128, k)
+  assert bool(valid.all())
+  np.testing.assert_allclose(starts[:, 0], t_min, rtol=1e-6)
+  np.testing.assert_allclose(ends[:, -1], t_max, rtol=1e-6)
+  np.testing.assert_allclose(ends[:, :-1], starts[:, 1:], rtol=1e-6)
+  widths = np.broadcast_to(((t_max - t_min) / k)[:, None], starts.shape)
+  np.testing.assert_allclose(ends - starts, widths, rtol=1e-4, atol=1e-6)
+
+
+def test_sparse_grid_samples_exactly_the_occupied_candidates():
+  res, m, k = 8, 64, 32
+  mask = np.zeros((res, res, res), bool)
+  mask[3:5, 3:5, 3:5] = True  # the central cube [-0.375, 0.375]^3
+  origins, directions = _rays(64, seed=1)
+  t_min, t_max = grid.ray_box_bounds(origins, directions, BOUND, 2.0, 6.0)
+  starts, ends, valid = occupancy.sample_occupied(jnp.asarray(mask), origins, directions, t_min,
+                                                  t_max, BOUND, m, k)
+  starts, ends, valid = map(np.asarray, (starts, ends, valid))
+  cell = 2 * BOUND / res
+  for r in range(len(origins)):  # brute force: walk the candidates of each ray
+    o, d = np.asarray(origins[r]), np.asarray(directions[r])
+    edges = np.linspace(float(t_min[r]), float(t_max[r]), m + 1)
+    mids = 0.5 * (edges[1:] + edges[:-1])
+    cells = np.clip(np.floor((o + d * mids[:, None] + BOUND) / cell), 0, res - 1).astype(int)
+    hits = [i for i in range(m) if mask[tuple(cells[i])]]
+    assert len(hits) <= k
+    assert valid[r].sum() == len(hits)
+    np.testing.assert_allclose(starts[r, :len(hits)], edges[hits], rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(ends[r, :len(hits)], edges[np.array(hits, int) + 1], rtol=1e-5,
+                               atol=1e-5)
+    assert np.all(starts[r, len(hits):] == np.float32(t_max[r]))
+    assert np.all(ends[r, len(hits):] == np.float32(t_max[r]))
+  assert valid.any(axis=-1).sum() > 10 and not valid.any(axis=-1).all()  # hits and misses
+  t = np.asarray(occupancy.interleave_gaps(starts, ends, t_max))
+  assert np.all(np.diff(t, axis=-1) >= 0)  # slots and gaps: sorted, disjoint
+
+
+class _AnalyticField:
+  """Stands in for the Flax model: a dense sphere with position-dependent colour."""
+
+  def apply(self, variables, points, dir_features):
+    del variables, dir_features
+    rgb = jax.nn.sigmoid(3.0 * points)
+    return rgb, _sphere_sigma(points)
+
+
+def _analytic_config(num_samples, use_occupancy):
+  config = debug.get_config()
+  config.model.encoding = "grid"  # positions go to the field as they are
+  config.data.scene_bound = BOUND
+  config.num_samples = num_samples
+  config.occupancy.enabled = use_occupancy
+  config.occupancy.resolution = 24
+  config.occupancy.candidates = 512
+  return config
+
+
+def test_rendering_through_the_grid_matches_dense_sampling():
+  model = _AnalyticField()
+  occ_config = _analytic_config(64, True)
+  params = {"coarse": {}}
+  params["occupancy"] = renderer.occupancy_grid(model, params, occ_config)
+  rays = Rays(*_rays(200, seed=2))
+  fast = renderer.final(renderer.render_rays(model, params, rays, occ_config, 2.0, 6.0))
+  dense = renderer.final(renderer.render_rays(model, {"coarse": {}}, rays,
+                                              _analytic_config(4096, False), 2.0, 6.0))
+  assert float(jnp.mean(dense["acc"] > 0.5)) > 0.2  # the rays do hit the sphere
+  np.testing.assert_allclose(fast["acc"], dense["acc"], atol=0.02)
+  np.testing.assert_allclose(fast["rgb"], dense["rgb"], atol=0.02)
+  hit = np.asarray(dense["acc"]) > 0.99
+  np.testing.assert_allclose(np.asarray(fast["depth"])[hit], np.asarray(dense["depth"])[hit],
+                             atol=0.02)
+  # Jittered (training) samples stay finite with gradients through the colour and density.
+  key = jax.random.PRNGKey(0)
+  loss = lambda o: jnp.sum(renderer.final(renderer.render_rays(
+      model, params, Rays(o, rays.directions), occ_config, 2.0, 6.0, key=key))["rgb"])
+  assert bool(jnp.all(jnp.isfinite(jax.grad(loss)(rays.origins))))
+
+
+def _train_config(max_steps):
+  config = debug.get_config()
+  config.model.encoding = "grid"
+  config.model.grid_resolutions = (8, 16)
+  config.model.grid_features = 2
+  config.model.density_activation = "softplus"
+  config.data.scene_bound = BOUND
+  config.model.grid_bound = BOUND
+  config.occupancy.enabled = True
+  config.occupancy.resolution = 12
+  config.occupancy.candidates = 64
+  config.occupancy.update_every = 5
+  config.train.lr = 1e-2
+  config.train.max_steps = max_steps
+  config.render.after_training = False
+  return config
+
+
+def test_training_with_the_grid_resumes_bitwise_and_refreshes_the_grid(tmp_path):
+  full = train_lib.train_and_evaluate(_train_config(20), str(tmp_path / "full"))
+  split = str(tmp_path / "split")
+  train_lib.train_and_evaluate(_train_config(20), split)  # then "killed" after step 10:
+  os.remove(os.path.join(checkpoints.checkpoint_dir(split), "ckpt_20.msgpack"))
+  resumed = train_lib.train_and_evaluate(_train_config(20), split)
+  assert resumed["steps"] == 20 and np.isfinite(full["psnr"])
+  _, model, p_full, *_ = cli.restore_for_render(str(tmp_path / "full"))
+  _, _, p_split, *_ = cli.restore_for_render(split)
+  for a, b in zip(jax.tree_util.tree_leaves(p_full), jax.tree_util.tree_leaves(p_split)):
+    assert np.array_equal(a, b)
+  assert p_full["occupancy"].shape == (12, 12, 12) and float(jnp.max(p_full["occupancy"])) > 0
+  assert checkpoints.list_steps(split)[-1] == 20
+
+
+def test_occupancy_config_errors_name_the_field():
+  config = _train_config(1)
+  config.data.scene_bound = 0.0
+  with pytest.raises(ValueError, match="scene_bound"):
+    renderer.check_occupancy_config(config)
+  config = _train_config(1)
+  config.num_fine_samples = 8
+  with pytest.raises(ValueError, match="num_fine_samples"):
+    renderer.check_occupancy_config(config)
