@@ -249,6 +249,7 @@ class Viewer:
     self.config, self.test_ds = config, test_ds
     self.render_chunk = renderer.make_chunk_renderer(model, config, near, far)
     self.background = render_lib.background_colour(config)
+    self.truths = render_lib.images_on_background(test_ds, config)[1]
 
   def render(self, params, pose, height, width, intrinsics):
     """numpy rgb float32 [height, width, 3] (and depth, acc) of one camera."""
@@ -261,9 +262,9 @@ class Viewer:
     psnrs, ssims = [], []
     for i in range(len(ds) if views is None else min(views, len(ds))):
       rgb = self.render(params, ds.poses[i], ds.height, ds.width, ds.intrinsics)["rgb"]
-      psnrs.append(float(metrics.psnr(rgb, ds.images[i])))
+      psnrs.append(float(metrics.psnr(rgb, self.truths[i])))
       if ssim:
-        ssims.append(float(metrics.ssim(rgb, ds.images[i])))
+        ssims.append(float(metrics.ssim(rgb, self.truths[i])))
     return float(np.mean(psnrs)), (float(np.mean(ssims)) if ssim else None)
 
   def frame_seconds(self, params, repeats):

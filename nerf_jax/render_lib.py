@@ -46,6 +46,21 @@ def background_colour(config):
   return np.asarray(bg, np.float32).reshape(3)
 
 
+def images_on_background(dataset, config):
+  """(acc float32 [N, H, W], rgb float32 [N, H, W, 3]): the dataset's images re-composited on
+  the configured background (`background_colour`), what the model is trained and scored against.
+
+  With known opacity, `images + (1 - acc)·(new - old)` swaps the background exactly; without it
+  the images are used as they are (acc = ones).
+  """
+  accs = getattr(dataset, "accs", None)
+  if accs is None:
+    return np.ones(dataset.images.shape[:-1], np.float32), dataset.images
+  old = np.asarray(getattr(dataset, "background", (0.0, 0.0, 0.0)), np.float32)
+  rgb = dataset.images + (1.0 - accs)[..., None] * (background_colour(config) - old)
+  return accs, rgb.astype(np.float32)
+
+
 def render_pose(render_chunk, params, pose, height, width, intrinsics, config, background):
   """Render one camera: numpy dict rgb [H, W, 3], depth [H, W], acc [H, W]."""
   origins, directions, viewdirs = renderer.camera_rays(height, width, intrinsics, pose, config)
@@ -59,10 +74,12 @@ def make_evaluator(model, config, near, far, test_ds):
   Evaluates the test views. With `out_dir`, writes per view a PNG of
   [prediction | depth | ground truth] and depth `.npy`. on_view(index, out, truth) is called
   for every view with the rendered numpy dict (rgb [H, W, 3], depth [H, W], acc [H, W]) and the
-  true image float32 [H, W, 3] (the trainer sends the first one to TensorBoard).
+  true image float32 [H, W, 3] on the configured background (see `images_on_background`; the
+  trainer sends the first one to TensorBoard).
   """
   render_chunk = renderer.make_chunk_renderer(model, config, near, far)
   background = background_colour(config)
+  truths = images_on_background(test_ds, config)[1]
 
   def evaluate(params, max_views=None, out_dir=None, on_view=None):
     count = len(test_ds) if max_views is None else min(max_views, len(test_ds))
@@ -70,7 +87,7 @@ def make_evaluator(model, config, near, far, test_ds):
     for i in range(count):
       out = render_pose(render_chunk, params, test_ds.poses[i], test_ds.height, test_ds.width,
                         test_ds.intrinsics, config, background)
-      truth = test_ds.images[i]
+      truth = truths[i]
       view = {"view": i, "psnr": float(metrics.psnr(out["rgb"], truth)),
               "ssim": float(metrics.ssim(out["rgb"], truth))}
       per_view.append(view)

@@ -66,22 +66,13 @@ def make_train_data(dataset, config):
 
 
 def _targets(dataset, config):
-  """(acc [N, H, W], rgb [N, H, W, 3]): the images re-composited on the configured background.
-
-  With known opacity, `images + (1 - acc)·(new - old)` swaps the background exactly; without it
-  the images are used as they are (and 'random' is refused: it needs the opacity).
-  """
-  accs = getattr(dataset, "accs", None)
+  """(acc [N, H, W], rgb [N, H, W, 3]): targets on the configured background (see
+  render_lib.images_on_background); 'random' is refused without per-pixel opacity."""
   wanted = config.data.background
-  if accs is None:
-    if isinstance(wanted, str) and wanted == "random":
-      raise TrainingError("config.data.background='random' needs per-pixel opacity (Blender "
-                          "RGBA or built-in scenes); this dataset has none")
-    return np.ones(dataset.images.shape[:-1], np.float32), dataset.images
-  old = np.asarray(getattr(dataset, "background", (0.0, 0.0, 0.0)), np.float32)
-  new = render_lib.background_colour(config)
-  rgb = dataset.images + (1.0 - accs)[..., None] * (new - old)
-  return accs, rgb.astype(np.float32)
+  if getattr(dataset, "accs", None) is None and isinstance(wanted, str) and wanted == "random":
+    raise TrainingError("config.data.background='random' needs per-pixel opacity (Blender "
+                        "RGBA or built-in scenes); this dataset has none")
+  return render_lib.images_on_background(dataset, config)
 
 
 def make_schedule(train_config):

@@ -158,3 +158,14 @@ def test_scaling_plot_from_synthetic_records(tmp_path):
   image = imageio.imread(tmp_path / "scaling.png")
   assert image.ndim == 3 and image.shape[0] > 100 and image.shape[1] > 100
   assert "scaling" in bench_sweeps.SWEEPS and bench_sweeps.sweep_names("scaling") == ["scaling"]
+
+
+def test_profile_times_every_stage_of_the_step():
+  from nerf_jax import bench_profile
+  config = bench_sweeps.load_base("debug")
+  config.train.batch_rays = 32
+  rows = bench_profile.profile(config, repeats=1)
+  stages = [r[0] for r in rows]
+  assert stages[0] == "train step (all)" and "field fwd+bwd" in stages
+  assert all(ms > 0 for _, ms, _ in rows if not math.isnan(ms))
+  assert "GFLOP/s" in rows[-1][2]

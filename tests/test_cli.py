@@ -21,6 +21,7 @@ from configs import debug
 from nerf_jax import checkpoints, cli, train_lib
 from nerf_jax.data import DataError
 from nerf_jax.model import make_model
+from tests.helpers import blender_folder as _blender
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -96,16 +97,6 @@ def test_npz_bad_contents(capsys, tmp_path):
   for i, (arrays, parts) in enumerate(cases):
     path = _npz(tmp_path, f"bad{i}.npz", **arrays)
     _train_fails(capsys, tmp_path, _config(path), f"bad{i}.npz", *parts)
-
-
-def _blender(tmp_path, meta=None, text=None):
-  iio.imwrite(tmp_path / "r_0.png", np.zeros((4, 4, 4), np.uint8))
-  content = {"camera_angle_x": 0.69, "frames": [{"file_path": "./r_0",
-                                                 "transform_matrix": np.eye(4).tolist()}]}
-  content.update(meta or {})
-  content = {k: v for k, v in content.items() if v is not None}
-  (tmp_path / "transforms_train.json").write_text(text or json.dumps(content))
-  return str(tmp_path)
 
 
 def test_blender_errors(capsys, tmp_path):

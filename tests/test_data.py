@@ -10,6 +10,7 @@ import pytest
 
 from nerf_jax import scenes
 from nerf_jax.data import DataError, export, load_blender, load_dataset, load_npz
+from tests.helpers import assert_data_error as _error, blender_folder as _blender
 
 Q = 1.0 / 255 + 1e-6  # 8-bit quantisation
 
@@ -23,15 +24,6 @@ def _config(**kw):
   return ml_collections.ConfigDict({"path": "", "scene": "diffuse", "holdout_from": -1,
                                     "num_views": 10, "image_size": 20, "pixel_center": 0.0,
                                     "background": "black", "half_res": False, **kw})
-
-
-def _error(match, fn, *args, **kw):
-  with pytest.raises(DataError) as info:
-    fn(*args, **kw)
-  message = str(info.value)
-  assert "\n" not in message
-  for part in match:
-    assert part in message, (part, message)
 
 
 def test_npz_round_trip(fog, tmp_path):
@@ -159,17 +151,6 @@ def test_npz_uint8_rgba_composited_on_white(tmp_path):
   assert ds.background == (1.0, 1.0, 1.0)
   rgb = load_npz(_npz(tmp_path))
   assert rgb.accs is None and rgb.background == (0.0, 0.0, 0.0)  # unknown
-
-
-def _blender(tmp_path, meta=None, image=None, text=None):
-  """A one-frame Blender folder; `meta` overrides keys of the JSON, `text` replaces it."""
-  iio.imwrite(tmp_path / "r_0.png", np.zeros((4, 4, 4), np.uint8) if image is None else image)
-  content = {"camera_angle_x": 0.69, "frames": [{"file_path": "./r_0",
-                                                 "transform_matrix": np.eye(4).tolist()}]}
-  content.update(meta or {})
-  content = {k: v for k, v in content.items() if v is not None}
-  (tmp_path / "transforms_train.json").write_text(text or json.dumps(content))
-  return str(tmp_path)
 
 
 def test_blender_errors(tmp_path):

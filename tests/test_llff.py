@@ -10,6 +10,7 @@ import pytest
 from nerf_jax import rays as rays_lib
 from nerf_jax import scenes
 from nerf_jax.data import DataError, Dataset, export, export_llff, load_dataset, load_llff
+from tests.helpers import assert_data_error as _error
 
 Q = 1.0 / 255 + 1e-6  # 8-bit quantisation
 
@@ -38,15 +39,6 @@ def _tiny(poses, near=2.0, far=8.0):
   rng = np.random.default_rng(0)
   images = rng.uniform(size=(len(poses), 4, 6, 3)).astype(np.float32)
   return Dataset(images, np.asarray(poses, np.float32), (5.0, 5.0, 3.0, 2.0), near, far, name="t")
-
-
-def _error(match, fn, *args, **kw):
-  with pytest.raises(DataError) as info:
-    fn(*args, **kw)
-  message = str(info.value)
-  assert "\n" not in message
-  for part in match:
-    assert part in message, (part, message)
 
 
 def test_round_trip_of_the_forward_scene(forward, tmp_path):

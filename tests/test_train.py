@@ -210,3 +210,20 @@ def test_views_render_at_a_scaled_resolution_with_the_same_field_of_view(tmp_pat
   assert image.shape[:2] == (height, width)
   with pytest.raises(ValueError, match="--scale"):
     cli.render(workdir, "views", str(poses), scale=0.0)
+
+
+def test_evaluation_scores_against_truth_on_the_configured_background():
+  """A black-background scene trained on white is scored against its images on white."""
+  config = _config()
+  config.data.background = "white"
+  train_ds, test_ds = loaders.load_dataset(config.data)
+  model = cli.make_model(config.model)
+  params = train_lib.init_state(model, train_lib.make_optimizer(config.train), config).params
+  near, far = train_lib.bounds(config, train_ds)
+  seen = []
+  render_lib.make_evaluator(model, config, near, far, test_ds)(
+      params, max_views=1, on_view=lambda i, out, truth: seen.append(truth))
+  empty = test_ds.accs[0] == 0
+  assert empty.any() and np.all(seen[0][empty] == 1.0)
+  np.testing.assert_allclose(seen[0][~empty], render_lib.images_on_background(
+      test_ds, config)[1][0][~empty])
