@@ -323,6 +323,7 @@ def train_and_evaluate(config, workdir):
         jax.block_until_ready(state.step)  # show steps done, not steps queued (a scalar sync)
         bar.update(step)
       if step % tc.checkpoint_every == 0 or step == tc.max_steps or budget_over or stop.signum:
+        _check_finite(state, workdir)  # never checkpoint a state that has seen a bad step
         _save(workdir, state, signature, tc.keep_checkpoints, time.perf_counter() - t_start)
       if stop.signum:
         bar.close()
@@ -346,6 +347,8 @@ def train_and_evaluate(config, workdir):
     return result
   checkpoints.atomic_write(os.path.join(workdir, "metrics.json"),
                            json.dumps(result, indent=2).encode())
+  _log(workdir, {"step": step, "wall_seconds": round(train_seconds, 3),
+                 "eval_psnr": result["psnr"], "eval_ssim": result["ssim"], "final": True})
   print(f"test PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.4f} over "
         f"{len(result['per_view'])} views after {step} steps ({train_seconds:.0f} s)", flush=True)
   if config.render.after_training:

@@ -13,6 +13,7 @@ import pytest
 from configs import debug
 from nerf_jax import checkpoints, cli, render_lib, train_lib
 from nerf_jax.data import loaders
+from nerf_jax.model import make_model
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -43,7 +44,9 @@ def test_training_raises_test_psnr_well_above_untrained(tmp_path):
   assert saved["psnr"] == pytest.approx(after["psnr"])
   assert {"psnr", "ssim", "per_view", "train_seconds", "steps"} <= set(saved)
   lines = (tmp_path / "after" / "metrics.jsonl").read_text().splitlines()
-  assert [json.loads(l)["step"] for l in lines] == [100, 200, 300]
+  records = [json.loads(l) for l in lines]
+  assert [r["step"] for r in records] == [100, 200, 300, 300]  # 3 log steps + the final eval
+  assert records[-1]["eval_psnr"] == pytest.approx(after["psnr"]) and records[-1]["final"]
 
 
 def test_resume_continues_at_the_right_step_and_matches_an_uninterrupted_run(tmp_path):
@@ -88,6 +91,25 @@ def test_non_finite_loss_stops_with_step_and_checkpoint_named(tmp_path):
   config.train.lr_final = 1e30
   with pytest.raises(train_lib.TrainingError, match=r"non-finite .* at step \d+.*checkpoint"):
     train_lib.train_and_evaluate(config, str(tmp_path / "nan"))
+
+
+def test_no_checkpoint_is_written_after_a_non_finite_step(tmp_path):
+  # Checkpoints (every 3) fall between log steps (every 7): the check must not wait for a log.
+  config = _config(max_steps=20, log_every=7, checkpoint_every=3)
+  config.train.lr = 1e30
+  config.train.lr_final = 1e30
+  workdir = str(tmp_path / "nan")
+  with pytest.raises(train_lib.TrainingError, match="non-finite") as info:
+    train_lib.train_and_evaluate(config, workdir)
+  model = make_model(config.model)
+  template = train_lib.state_template(model, train_lib.make_optimizer(config.train), config)
+  for step in checkpoints.list_steps(workdir):
+    path = os.path.join(checkpoints.checkpoint_dir(workdir), f"ckpt_{step}.msgpack")
+    state = checkpoints.restore(path, template, train_lib.model_signature(config))
+    assert int(state.bad_step) < 0, step
+    assert all(np.isfinite(x).all() for x in jax.tree_util.tree_leaves(state.params))
+  named = checkpoints.latest_path(workdir) or "none yet"
+  assert named in str(info.value)
 
 
 def test_incompatible_checkpoint_is_refused(tmp_path):
