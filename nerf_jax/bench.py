@@ -33,8 +33,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax import (bench_plots, bench_sweeps, metrics, render_lib, renderer, scenes,
-                      train_lib)
+from nerf_jax import (bench_plots, bench_sweeps, metrics, progress, render_lib, renderer,
+                      scenes, train_lib)
 from nerf_jax.data import loaders
 from nerf_jax.model import make_model
 
@@ -397,8 +397,9 @@ def run_sweep(args, argv):
   run = run_config if args.in_process else run_isolated
   open(os.path.join(args.out, "results.jsonl"), "w").close()
   records = []
+  bar = progress.Progress(len(runs), "sweep")  # ETA from the runs done so far
   for i, (sweep, entry, scene, config) in enumerate(runs):
-    print(f"[{i + 1}/{len(runs)}] {sweep}/{entry.label} on {scene}", flush=True)
+    bar.write(f"[{i + 1}/{len(runs)}] {sweep}/{entry.label} on {scene}")
     record = run(config, options)
     record.update(sweep=sweep, label=entry.label, base=entry.base, overrides=entry.overrides,
                   scene=bench_sweeps.scene_label(scene), mode=bench_sweeps.mode(args),
@@ -407,7 +408,9 @@ def run_sweep(args, argv):
     with open(os.path.join(args.out, "results.jsonl"), "a") as f:
       f.write(json.dumps(record) + "\n")
     bench_plots.write_report(records, args.out)
-    print(_summary(record), flush=True)
+    bar.write(_summary(record))
+    bar.update(i + 1, force=True)
+  bar.close()
   return records
 
 

@@ -71,6 +71,19 @@ def test_a_run_in_a_subprocess_reports_its_failure_in_its_record():
   assert record["error"].startswith("DataError") and "/no/such/scene.npz" in record["error"]
 
 
+def test_a_sweep_shows_progress_and_goes_on_past_failed_runs(tmp_path, capsys):
+  bad = tmp_path / "bad.npz"
+  bad.write_bytes(b"not an npz")
+  argv = ["--quick", "--only=default,samples=32", "--base=debug", f"--scenes={bad}",
+          "--steps=1", "--matmul_repeats=1", f"--out={tmp_path / 'out'}"]
+  assert bench.main(argv) == 0
+  records = [json.loads(l) for l in (tmp_path / "out" / "results.jsonl").read_text().splitlines()]
+  assert [r["label"] for r in records] == ["default", "samples=32"]
+  assert all("bad.npz" in r["error"] for r in records)
+  shown = capsys.readouterr().out
+  assert "sweep 2/2" in shown and shown.index("[2/2]") < shown.index("sweep 2/2")
+
+
 def test_psnr_at_times_takes_the_latest_probe_at_or_before_each_time():
   log = [{"seconds": 20.0, "step": 40, "psnr": 21.0}, {"seconds": 0.0, "step": 0, "psnr": 9.0},
          {"seconds": 14.2, "step": 30, "psnr": 18.5}, {"seconds": 31.0, "step": 70, "psnr": 24.0}]
