@@ -61,6 +61,7 @@ def get_config():
   train.batch_rays = 1024  # rays per step (random rays over all training images)
   train.batching = "rays"  # 'rays' (random rays) or 'images' (whole images, as the reference)
   train.images_per_step = 5  # whole images per step when batching == 'images'
+  train.image_order = "random"  # 'images' batching: 'random' draws per step, 'epochs' shuffles
   train.lr = 2e-3  # initial Adam learning rate
   train.lr_final = 1e-4  # learning rate at max_steps (exponential decay)
   train.warmup_steps = 50  # linear warm-up from 0

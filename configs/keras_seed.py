@@ -2,7 +2,8 @@
 
 NUM_SAMPLES=32, POS_ENCODE_DIMS=16, an 8×64 ReLU MLP with the input re-injected after layer 4,
 position-only colour, 5 whole images per step, Adam at its default learning rate (1e-3, constant),
-20 epochs over the training images, the 80/20 split, near 2 / far 6, rays through pixel corners.
+20 epochs over the training images (each a shuffle of them, remainder dropped), the 80/20 split,
+near 2 / far 6, rays through pixel corners.
 
   python train.py --config=configs/keras_seed.py --workdir=runs/keras_seed
 """
@@ -15,6 +16,8 @@ def get_config():
   config.num_samples = 32  # NUM_SAMPLES
   config.pos_encode_dims = 16  # POS_ENCODE_DIMS
   config.data.holdout_from = -1  # 80/20 split
+  config.data.near = 2.0  # near plane, whatever the dataset says
+  config.data.far = 6.0  # far plane
   config.model.depth = 8  # 8 Dense layers
   config.model.width = 64  # of 64 units
   config.model.skip_layers = (4,)  # input concatenated after the 5th layer (i % 4 == 0, i > 0)
@@ -22,6 +25,7 @@ def get_config():
   config.model.density_activation = "relu"  # sigma = relu(raw)
   config.train.batching = "images"  # whole images per step
   config.train.images_per_step = 5  # BATCH_SIZE = 5
+  config.train.image_order = "epochs"  # each epoch visits every training image once
   config.train.lr = 1e-3  # keras.optimizers.Adam() default
   config.train.lr_final = 1e-3  # constant learning rate
   config.train.warmup_steps = 0  # no warm-up

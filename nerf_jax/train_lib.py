@@ -94,11 +94,25 @@ def make_optimizer(train_config):
   return adam
 
 
-def draw_batch(data, config, key):
-  """One step's pixels: a TrainData whose fields are flattened to [B, ...]."""
+def draw_batch(data, config, key, step=0, run_key=None):
+  """One step's pixels: a TrainData whose fields are flattened to [B, ...].
+
+  key: this step's PRNG key. step: int32 [], the step number. run_key: the run's PRNG key, used
+  by train.image_order='epochs' (whole-image batching), where every epoch visits each training
+  image once in an order drawn from fold_in(run_key, epoch), dropping the remainder (as the
+  Keras reference's batch(drop_remainder=True) epochs do).
+  """
   num_images, num_pixels = data.rgb.shape[:2]
   if config.train.batching == "images":
-    images = jax.random.choice(key, num_images, (config.train.images_per_step,), replace=False)
+    per_step = config.train.images_per_step
+    if config.train.get("image_order", "random") == "epochs":
+      run_key = key if run_key is None else run_key
+      steps_per_epoch = max(num_images // per_step, 1)
+      order = jax.random.permutation(jax.random.fold_in(run_key, step // steps_per_epoch),
+                                     num_images)
+      images = jax.lax.dynamic_slice(order, ((step % steps_per_epoch) * per_step,), (per_step,))
+    else:
+      images = jax.random.choice(key, num_images, (per_step,), replace=False)
     take = lambda a: a[images].reshape(-1, *a.shape[2:])
   else:
     idx = jax.random.randint(key, (config.train.batch_rays,), 0, num_images * num_pixels)
@@ -140,10 +154,10 @@ def make_train_step(model, tx, config, near, far, mesh=None):
                         lambda p: p["occupancy"], params)
     return {**params, "occupancy": grid}
 
-  def step(state, data, key):
-    key = jax.random.fold_in(key, state.step)
+  def step(state, data, run_key):
+    key = jax.random.fold_in(run_key, state.step)
     batch_key, render_key = jax.random.split(key)
-    batch = parallel.shard_batch(draw_batch(data, config, batch_key), mesh)
+    batch = parallel.shard_batch(draw_batch(data, config, batch_key, state.step, run_key), mesh)
     params = refresh_occupancy(state.params, state.step)
     grads, stats = jax.grad(loss_fn, has_aux=True)(params, batch, render_key)
     finite = jnp.isfinite(stats["loss"]) & jnp.all(jnp.array(

@@ -7,6 +7,7 @@ import sys
 
 import imageio.v2 as imageio
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -127,6 +128,25 @@ def test_wall_clock_budget_stops_early(tmp_path):
                                         str(tmp_path / "budget"))
   assert 0 < result["steps"] < 100000
   assert checkpoints.list_steps(str(tmp_path / "budget"))[-1] == result["steps"]
+
+
+def test_epoch_image_order_visits_every_image_once_per_epoch():
+  config = _config()
+  config.train.batching = "images"
+  config.train.images_per_step = 3
+  config.train.image_order = "epochs"
+  num_images = 10  # debug config: views 0-9 train; 3 steps of 3 per epoch, one image dropped
+  ids = jnp.broadcast_to(jnp.arange(num_images, dtype=jnp.float32)[:, None, None], (10, 2, 3))
+  data = train_lib.TrainData(ids, ids, ids, ids, ids[..., 0])  # every pixel holds its image id
+  run_key = jax.random.PRNGKey(7)
+  draw = jax.jit(lambda step: train_lib.draw_batch(data, config, None, step, run_key).rgb)
+  epochs = []
+  for epoch in range(3):
+    ids = [np.asarray(draw(epoch * 3 + s))[::2, 0].astype(int) for s in range(3)]
+    seen = np.concatenate(ids)
+    assert len(set(seen.tolist())) == 9 and set(seen.tolist()) <= set(range(num_images))
+    epochs.append(seen.tolist())
+  assert epochs[0] != epochs[1]  # a new shuffle each epoch
 
 
 def test_whole_image_batching_draws_whole_images():
