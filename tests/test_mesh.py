@@ -1,4 +1,5 @@
-"""Mesh export recovers a known surface: a sphere, from a density function and from a field."""
+"""Mesh export recovers a known surface: a sphere, from a density function and from a field, and
+the objects of the built-in `diffuse` scene."""
 
 import os
 import subprocess
@@ -9,8 +10,9 @@ import numpy as np
 import pytest
 
 from configs import debug
-from nerf_jax import checkpoints, mesh, train_lib
+from nerf_jax import checkpoints, mesh, scenes, train_lib
 from nerf_jax.model import make_model
+from nerf_jax.scenes.geometry import Box, Cylinder, Sphere
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -34,6 +36,47 @@ def test_sphere_radius_within_a_voxel(resolution):
   assert np.all(np.sum(normals * outward, -1) > 0.9)
   a, b, c = (vertices[faces[:, k]] for k in range(3))
   assert np.all(np.sum(np.cross(b - a, c - a) * ((a + b + c) / 3 - centre), -1) > 0)
+
+
+def _inside(shape, points):
+  """bool [P]: points float [P, 3] inside a convex scene primitive (a ray from them leaves it)."""
+  directions = np.broadcast_to(np.array([0.3, 0.5, 0.81]), points.shape)
+  t_in, t_out, _ = shape.intersect(points.astype(np.float64), directions)
+  return (t_in <= 0.0) & (t_out >= 0.0)
+
+
+def _signed_distance(shape, points):
+  """Exact signed distance float [P] to a Sphere, Box or Cylinder of the scene library."""
+  p = points - np.asarray(shape.center)
+  if isinstance(shape, Sphere):
+    return np.linalg.norm(p, axis=-1) - shape.radius
+  if isinstance(shape, Box):
+    q = np.abs(p) - 0.5 * np.asarray(shape.size)
+  else:
+    assert isinstance(shape, Cylinder)
+    q = np.stack([np.linalg.norm(p[:, :2], axis=-1) - shape.radius,
+                  np.abs(p[:, 2]) - 0.5 * shape.height], -1)
+  return np.linalg.norm(np.maximum(q, 0.0), axis=-1) + np.minimum(q.max(-1), 0.0)
+
+
+def test_built_in_scene_surfaces_within_a_voxel():
+  shapes = [o.shape for o in scenes.get_scene("diffuse").objects]
+  occupancy = lambda p: 100.0 * np.any([_inside(s, p) for s in shapes], axis=0)
+  bound, resolution = 1.2, 49
+  voxel = 2 * bound / (resolution - 1)
+  density = mesh.sample_grid(occupancy, bound, resolution, chunk=8192)
+  vertices, faces, _ = mesh.marching_cubes(density, 50.0, bound)
+  assert len(faces) > 1000
+  distances = np.abs(np.stack([_signed_distance(s, vertices) for s in shapes]))
+  # Every vertex is within a voxel of some object's surface...
+  assert distances.min(axis=0).max() < voxel
+  # ...and where only the red sphere (radius 0.5 at the origin) is near, it recovers its radius.
+  red = shapes[0]
+  assert isinstance(red, Sphere) and red.radius == 0.5
+  alone = np.delete(distances, 0, axis=0).min(axis=0) > 3 * voxel
+  assert alone.sum() > 100
+  radii = np.linalg.norm(vertices[alone] - np.asarray(red.center), axis=-1)
+  assert np.abs(radii - red.radius).max() < voxel
 
 
 def test_threshold_without_a_surface_is_refused():
