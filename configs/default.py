@@ -66,6 +66,7 @@ def get_config():
   train.lr_final = 1e-4  # learning rate at max_steps (exponential decay)
   train.warmup_steps = 50  # linear warm-up from 0
   train.grad_clip = 0.0  # clip gradients to this global norm (0 = off)
+  train.remat_chunk = 0  # rays per cache-sized, recomputed field chunk in a step (0 = off)
   train.coarse_loss_weight = 1.0  # weight of the coarse pass loss when a fine pass exists
   train.log_every = 100  # steps between progress lines and metrics.jsonl records
   train.eval_every = 0  # steps between test-view evaluations (0 = only at the end)

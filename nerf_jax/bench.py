@@ -398,6 +398,7 @@ def run_sweep(args, argv):
   open(os.path.join(args.out, "results.jsonl"), "w").close()
   records = []
   bar = progress.Progress(len(runs), "sweep")  # ETA from the runs done so far
+  bar.update(0)  # the rate counts from now: every run, the first too, is a full run
   for i, (sweep, entry, scene, config) in enumerate(runs):
     bar.write(f"[{i + 1}/{len(runs)}] {sweep}/{entry.label} on {scene}")
     record = run(config, options)

@@ -59,6 +59,10 @@ SWEEPS = {
         Entry("fast+occupancy samples=32", {"occupancy.enabled": True, "num_samples": 32},
               base="fast"),
     ],
+    # The field in cache-sized chunks of rays, recomputed in the backward pass (train.remat_chunk).
+    "remat": [Entry("default"), Entry("remat_chunk=128", {"train.remat_chunk": 128}),
+              Entry("256x8", {"model.width": 256}),
+              Entry("256x8 remat_chunk=32", {"model.width": 256, "train.remat_chunk": 32})],
     # Step time against the work per step (rays x samples); run with --steps (equal steps).
     "scaling": [Entry(f"rays={n}", {"train.batch_rays": n}) for n in (128, 512, 2048, 8192, 32768)]
     + [Entry(f"rays=2048 samples={s}", {"train.batch_rays": 2048, "num_samples": s})

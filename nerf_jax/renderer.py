@@ -112,11 +112,37 @@ def query_field(model, params, points, viewdirs, config, key=None):
   return rgb, sigma
 
 
+def query_field_in_chunks(model, params, points, viewdirs, config, key=None, chunk=0):
+  """`query_field` over chunks of `chunk` rays, each rematerialised in the backward pass.
+
+  points: float32 [R, S, 3], viewdirs: float32 [R, 3]. chunk: rays per chunk, dividing R (0, R
+  or a non-divisor = one call). A chunk's activations fit in the CPU's cache, and the backward
+  pass recomputes them instead of reading them back from memory: about a third more FLOPs for
+  less memory traffic. The density noise of chunk c is drawn from fold_in(key, c).
+  Returns rgb float32 [R, S, 3], sigma float32 [R, S], equal to `query_field`'s up to rounding.
+  """
+  num_rays = points.shape[0]
+  if not chunk or chunk >= num_rays or num_rays % chunk or points.ndim != 3:
+    return query_field(model, params, points, viewdirs, config, key)
+  count = num_rays // chunk
+  split = lambda a: a.reshape(count, chunk, *a.shape[1:])
+
+  @jax.checkpoint
+  def one_chunk(args):
+    pts, dirs, index = args
+    chunk_key = None if key is None else jax.random.fold_in(key, index)
+    return query_field(model, params, pts, dirs, config, chunk_key)
+
+  rgb, sigma = jax.lax.map(one_chunk, (split(points), split(viewdirs), jnp.arange(count)))
+  return rgb.reshape(*points.shape[:-1], 3), sigma.reshape(points.shape[:-1])
+
+
 def _shade(model, params, rays, viewdirs, t, config, background, key):
   """One pass over the intervals `t: float32 [..., S + 1]`."""
   positions = sampling.midpoints(t)
   points = rays.origins[..., None, :] + rays.directions[..., None, :] * positions[..., None]
-  rgb, sigma = query_field(model, params, points, viewdirs, config, key)
+  rgb, sigma = query_field_in_chunks(model, params, points, viewdirs, config, key,
+                                     config.train.get("remat_chunk", 0))
   out = rendering.composite(rgb, sigma, t, background)
   out["t"] = t
   return out

@@ -82,6 +82,7 @@ def test_a_sweep_shows_progress_and_goes_on_past_failed_runs(tmp_path, capsys):
   assert all("bad.npz" in r["error"] for r in records)
   shown = capsys.readouterr().out
   assert "sweep 2/2" in shown and shown.index("[2/2]") < shown.index("sweep 2/2")
+  assert "sweep 1/2  50%" in shown and "<?" not in shown.split("sweep 1/2")[1].split("\n")[0]
 
 
 def test_psnr_at_times_takes_the_latest_probe_at_or_before_each_time():

@@ -90,3 +90,27 @@ def test_density_noise_only_with_a_key():
                                key=jax.random.PRNGKey(0))
   np.testing.assert_array_equal(s0, s1)
   assert np.all(s2 >= 0) and np.max(np.abs(s2 - s0)) > 0
+
+
+@pytest.mark.parametrize("view_dependent", [False, True])
+def test_remat_chunks_match_one_call_in_values_and_gradients(view_dependent):
+  config, model, params = _setup(**{"model.view_dependent": view_dependent})
+  origins, directions = _rays(36)
+  rays = Rays(origins, directions)
+  key = jax.random.PRNGKey(3)
+
+  def loss(p, chunk):
+    config.train.remat_chunk = chunk
+    out = renderer.render_rays(model, p, rays, config, 2.0, 6.0, key=key)["coarse"]
+    return jnp.sum(out["rgb"] ** 2) + jnp.sum(out["depth"]), out["rgb"]
+
+  (plain, rgb_plain), g_plain = jax.value_and_grad(loss, has_aux=True)(params, 0)
+  (chunked, rgb_chunked), g_chunked = jax.value_and_grad(loss, has_aux=True)(params, 12)
+  np.testing.assert_allclose(rgb_chunked, rgb_plain, rtol=1e-5, atol=1e-6)
+  np.testing.assert_allclose(chunked, plain, rtol=1e-5)
+  for a, b in zip(jax.tree_util.tree_leaves(g_chunked), jax.tree_util.tree_leaves(g_plain)):
+    np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)
+  # A chunk size that does not divide the batch falls back to one call.
+  config.train.remat_chunk = 10
+  odd = renderer.render_rays(model, params, rays, config, 2.0, 6.0, key=key)["coarse"]["rgb"]
+  np.testing.assert_array_equal(odd, rgb_plain)
