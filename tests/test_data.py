@@ -44,6 +44,18 @@ def test_npz_round_trip_keeps_the_background(tmp_path):
   np.testing.assert_array_equal(back.accs, white.accs)
 
 
+def test_rgb_only_npz_is_the_reference_format(tmp_path):
+  white = scenes.make_dataset("white", num_views=2, height=8, width=8,
+                              focal=scenes.TINY_NERF_FOCAL * 8 / 100)  # as the CLI's 8 px
+  path = str(tmp_path / "w.npz")
+  assert export.main(["--scene=white", "--format=npz", "--num_views=2", "--image_size=8",
+                      "--rgb_only", f"--out={path}"]) == 0
+  assert sorted(np.load(path).keys()) == ["focal", "images", "poses"]
+  back = load_npz(path)
+  np.testing.assert_array_equal(back.images, white.images)
+  assert back.accs is None and (back.near, back.far) == (2.0, 6.0)
+
+
 def test_blender_round_trip(fog, tmp_path):
   export.export_blender(fog, str(tmp_path), split_at=4)
   train, test = (load_blender(str(tmp_path), "white", split=s) for s in ("train", "test"))

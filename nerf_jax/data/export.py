@@ -1,6 +1,7 @@
 """Write a Dataset as a tiny_nerf .npz, a NeRF-synthetic (Blender) folder or an LLFF folder.
 
   python -m nerf_jax.data.export --scene=fog --format=blender --out=/tmp/fog [--alpha]
+  python -m nerf_jax.data.export --scene=white --format=npz --out=/tmp/white.npz [--rgb_only]
   python -m nerf_jax.data.export --scene=forward --format=llff --out=/tmp/forward
 
 PNG alpha: by default every pixel is opaque (alpha = 255) and holds the composited image, so that
@@ -23,12 +24,16 @@ from nerf_jax import scenes
 from nerf_jax.data.llff import export_llff
 
 
-def export_npz(dataset, path):
+def export_npz(dataset, path, rgb_only=False):
   """tiny_nerf arrays (images, poses, focal) plus near, far, background and any ground-truth
-  depths, accs."""
-  extra = {k: getattr(dataset, k) for k in ("depths", "accs") if getattr(dataset, k) is not None}
-  np.savez(path, images=dataset.images, poses=dataset.poses, focal=dataset.pinhole_focal(),
-           near=dataset.near, far=dataset.far, background=np.asarray(dataset.background), **extra)
+  depths, accs; with rgb_only, just the three arrays of the reference's tiny_nerf_data.npz (a
+  loader then knows nothing of opacity or background, as with captured RGB images)."""
+  arrays = {"images": dataset.images, "poses": dataset.poses, "focal": dataset.pinhole_focal()}
+  if not rgb_only:
+    arrays.update(near=dataset.near, far=dataset.far, background=np.asarray(dataset.background),
+                  **{k: getattr(dataset, k) for k in ("depths", "accs")
+                     if getattr(dataset, k) is not None})
+  np.savez(path, **arrays)
 
 
 def _rgba8(images, accs, background):
@@ -75,6 +80,8 @@ def main(argv=None):
   parser.add_argument("--pixel_center", type=float, default=0.0)
   parser.add_argument("--seed", type=int, default=0)
   parser.add_argument("--alpha", action="store_true", help="Blender: alpha = opacity")
+  parser.add_argument("--rgb_only", action="store_true",
+                      help="npz: only images, poses, focal (no opacity, bounds or background)")
   args = parser.parse_args(argv)
   try:
     dataset = scenes.make_dataset(
@@ -82,7 +89,7 @@ def main(argv=None):
         scenes.TINY_NERF_FOCAL * args.image_size / 100, pixel_center=args.pixel_center,
         seed=args.seed)
     if args.format == "npz":
-      export_npz(dataset, args.out)
+      export_npz(dataset, args.out, rgb_only=args.rgb_only)
     elif args.format == "llff":
       export_llff(dataset, args.out)
     else:
