@@ -168,7 +168,8 @@ def test_run_writes_tensorboard_events_and_json_logs(trained):
     assert 2 in tags[tag], (tag, tags)
   assert tags["test/psnr"] == [2]
   records = [json.loads(l) for l in (workdir / "metrics.jsonl").read_text().splitlines()]
-  assert [r["step"] for r in records] == [1, 2] and "eval_psnr" in records[1]
+  assert [r["step"] for r in records] == [1, 2, 2] and "eval_psnr" in records[1]
+  assert records[2]["final"] and "eval_ssim" in records[2]
   # The wall time spent travels inside the checkpoint (no separate, non-atomic progress file).
   template = train_lib.state_template(make_model(config.model),
                                       train_lib.make_optimizer(config.train), config)

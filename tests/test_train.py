@@ -60,7 +60,9 @@ def test_resume_continues_at_the_right_step_and_matches_an_uninterrupted_run(tmp
   resumed = train_lib.train_and_evaluate(_config(max_steps=20), split)
   assert resumed["steps"] == 20
   lines = [json.loads(l) for l in open(os.path.join(split, "metrics.jsonl"))]
-  assert [r["step"] for r in lines] == [10, 20, 20]  # the resumed run logged only step 20
+  # Each run ends with its final-eval record; the resumed run logged only step 20 and its eval.
+  assert [(r["step"], "final" in r) for r in lines] == [(10, False), (20, False), (20, True),
+                                                        (20, False), (20, True)]
   _, _, p_full, *_ = cli.restore_for_render(str(tmp_path / "full"))
   _, _, p_split, *_ = cli.restore_for_render(split)
   assert _params_equal(p_full, p_split)  # bitwise: batches are drawn from fold_in(key, step)
