@@ -99,7 +99,7 @@ def draw_batch(data, config, key, step=0, run_key=None):
 
   key: this step's PRNG key. step: int32 [], the step number. run_key: the run's PRNG key, used
   by train.image_order='epochs' (whole-image batching), where every epoch visits each training
-  image once in an order drawn from fold_in(run_key, epoch), dropping the remainder (as the
+  image once in an order drawn from the epoch number, dropping the remainder (as the
   Keras reference's batch(drop_remainder=True) epochs do).
   """
   num_images, num_pixels = data.rgb.shape[:2]
@@ -108,7 +108,9 @@ def draw_batch(data, config, key, step=0, run_key=None):
     if config.train.get("image_order", "random") == "epochs":
       run_key = key if run_key is None else run_key
       steps_per_epoch = max(num_images // per_step, 1)
-      order = jax.random.permutation(jax.random.fold_in(run_key, step // steps_per_epoch),
+      # A stream of its own: fold_in(run_key, n) is already step n's key.
+      epochs_key = jax.random.split(run_key)[1]
+      order = jax.random.permutation(jax.random.fold_in(epochs_key, step // steps_per_epoch),
                                      num_images)
       images = jax.lax.dynamic_slice(order, ((step % steps_per_epoch) * per_step,), (per_step,))
     else:
