@@ -24,13 +24,13 @@ import time
 
 import numpy as np
 
-from nerf_jax import bench, cli, render_lib
+from nerf_jax import bench, cli, render_lib, renderer
 
 
 def _render_once(restored, size):
   """A blocking function rendering the first test view at `size` pixels on its longer side."""
   config, model, params, _, test_ds, near, far = restored
-  chunk = render_lib.renderer.make_chunk_renderer(model, config, near, far)
+  chunk = renderer.make_chunk_renderer(model, config, near, far)
   background = render_lib.background_colour(config)
   # The test camera rescaled so its longer side has `size` pixels (same field of view).
   height, width, intrinsics = render_lib.scaled_camera(test_ds, size / max(test_ds.height,

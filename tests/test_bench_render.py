@@ -8,7 +8,7 @@ import json
 import numpy as np
 
 from configs import debug
-from nerf_jax import bench_render, cli, render_lib, train_lib
+from nerf_jax import bench_render, cli, render_lib, renderer, train_lib
 
 
 def _trained_workdir(tmp_path):
@@ -38,7 +38,7 @@ def test_render_bench_writes_frame_video_and_big_frame_figures(tmp_path):
   config, model, params, _, test_ds, near, far = restored
   frame = bench_render._render_once(restored, test_ds.width)()
   evaluator_frame = render_lib.render_pose(
-      render_lib.renderer.make_chunk_renderer(model, config, near, far), params,
+      renderer.make_chunk_renderer(model, config, near, far), params,
       test_ds.poses[0], test_ds.height, test_ds.width, test_ds.intrinsics, config,
       render_lib.background_colour(config))
   np.testing.assert_allclose(frame["rgb"], evaluator_frame["rgb"], atol=1e-6)

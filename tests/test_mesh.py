@@ -38,13 +38,6 @@ def test_sphere_radius_within_a_voxel(resolution):
   assert np.all(np.sum(np.cross(b - a, c - a) * ((a + b + c) / 3 - centre), -1) > 0)
 
 
-def _inside(shape, points):
-  """bool [P]: points float [P, 3] inside a convex scene primitive (a ray from them leaves it)."""
-  directions = np.broadcast_to(np.array([0.3, 0.5, 0.81]), points.shape)
-  t_in, t_out, _ = shape.intersect(points.astype(np.float64), directions)
-  return (t_in <= 0.0) & (t_out >= 0.0)
-
-
 def _signed_distance(shape, points):
   """Exact signed distance float [P] to a Sphere, Box or Cylinder of the scene library."""
   p = points - np.asarray(shape.center)
@@ -61,7 +54,7 @@ def _signed_distance(shape, points):
 
 def test_built_in_scene_surfaces_within_a_voxel():
   shapes = [o.shape for o in scenes.get_scene("diffuse").objects]
-  occupancy = lambda p: 100.0 * np.any([_inside(s, p) for s in shapes], axis=0)
+  occupancy = lambda p: 100.0 * np.any([_signed_distance(s, p) <= 0 for s in shapes], axis=0)
   bound, resolution = 1.2, 49
   voxel = 2 * bound / (resolution - 1)
   density = mesh.sample_grid(occupancy, bound, resolution, chunk=8192)
