@@ -10,7 +10,7 @@ import ml_collections
 def get_config():
   config = ml_collections.ConfigDict()
   config.seed = 0  # PRNG seed for initialisation, ray batches and jitter
-  config.num_samples = 64  # NUM_SAMPLES: stratified (coarse) samples per ray
+  config.num_samples = 32  # NUM_SAMPLES: stratified (coarse) samples per ray
   config.num_fine_samples = 0  # extra samples drawn from the coarse weights (0 = no hierarchy)
   config.pos_encode_dims = 10  # POS_ENCODE_DIMS: frequency bands for positions
   config.dir_encode_dims = 4  # frequency bands for viewing directions (view-dependent model)
@@ -56,28 +56,33 @@ def get_config():
   occ.threshold = 1.0  # density (per scene unit) from which a cell counts as occupied
 
   config.train = train = ml_collections.ConfigDict()
-  train.max_steps = 600  # step budget
+  train.max_steps = 2500  # step budget
   train.max_seconds = 0.0  # wall-clock budget in seconds (0 = no limit)
-  train.batch_rays = 1024  # rays per step (random rays over all training images)
+  train.batch_rays = 512  # rays per step (random rays over all training images)
   train.batching = "rays"  # 'rays' (random rays) or 'images' (whole images, as the reference)
   train.images_per_step = 5  # whole images per step when batching == 'images'
   train.image_order = "random"  # 'images' batching: 'random' draws per step, 'epochs' shuffles
-  train.lr = 2e-3  # initial Adam learning rate
+  train.lr = 5e-3  # initial Adam learning rate
   train.lr_final = 1e-4  # learning rate at max_steps (exponential decay)
   train.warmup_steps = 50  # linear warm-up from 0
   train.grad_clip = 0.0  # clip gradients to this global norm (0 = off)
-  train.remat_chunk = 0  # rays per cache-sized, recomputed field chunk in a step (0 = off)
+  train.remat_chunk = 128  # rays per cache-sized, recomputed field chunk in a step (0 = off)
   train.coarse_loss_weight = 1.0  # weight of the coarse pass loss when a fine pass exists
   train.log_every = 100  # steps between progress lines and metrics.jsonl records
   train.eval_every = 0  # steps between test-view evaluations (0 = only at the end)
   train.eval_views = 2  # test views rendered for periodic evaluations (the final one uses all)
-  train.checkpoint_every = 200  # steps between checkpoints
+  train.checkpoint_every = 500  # steps between checkpoints
   train.keep_checkpoints = 2  # checkpoints kept in the workdir
   train.data_parallel = True  # split each batch over all devices (no-op on one device)
   train.tensorboard = True  # write TensorBoard events into <workdir>/tb
 
   config.render = render = ml_collections.ConfigDict()
   render.chunk = 4096  # rays per jitted render call
+  render.march = True  # skip empty space, stop at opaque surfaces (scene-box single-pass models)
+  render.march_grid = 48  # cells per side of the skip grid computed from the trained density
+  render.march_threshold = 0.1  # density (per scene unit) below which a cell is skipped
+  render.march_group = 16  # samples per ray offered in each marching round
+  render.min_transmittance = 1e-4  # a ray stops once less light than this gets through
   render.video_frames = 60  # frames in the 360° orbit video
   render.fps = 30  # video frame rate
   render.orbit_phi = -30.0  # orbit elevation in degrees

@@ -29,6 +29,7 @@ def get_config():
   config.train.lr = 1e-3  # keras.optimizers.Adam() default
   config.train.lr_final = 1e-3  # constant learning rate
   config.train.warmup_steps = 0  # no warm-up
+  config.train.remat_chunk = 0  # the reference's plain step
   # 20 epochs of floor(80 / 5) = 16 steps each over the 80 training views of a 100-view scene.
   config.train.max_steps = 20 * 16  # EPOCHS = 20
   config.train.log_every = 16  # once per epoch

@@ -247,13 +247,16 @@ class Viewer:
 
   def __init__(self, model, config, near, far, test_ds):
     self.config, self.test_ds = config, test_ds
-    self.render_chunk = renderer.make_chunk_renderer(model, config, near, far)
+    self.image_renderer = renderer.make_image_renderer(model, config, near, far)
+    self.bound = (None, None)  # (params, their draw function): the skip grid once per params
     self.background = render_lib.background_colour(config)
     self.truths = render_lib.images_on_background(test_ds, config)[1]
 
   def render(self, params, pose, height, width, intrinsics):
     """numpy rgb float32 [height, width, 3] (and depth, acc) of one camera."""
-    return render_lib.render_pose(self.render_chunk, params, pose, height, width, intrinsics,
+    if self.bound[0] is not params:
+      self.bound = (params, self.image_renderer(params))
+    return render_lib.render_pose(self.bound[1], pose, height, width, intrinsics,
                                   self.config, self.background)
 
   def metrics(self, params, views=None, ssim=True):

@@ -30,13 +30,13 @@ from nerf_jax import bench, cli, render_lib, renderer
 def _render_once(restored, size):
   """A blocking function rendering the first test view at `size` pixels on its longer side."""
   config, model, params, _, test_ds, near, far = restored
-  chunk = renderer.make_chunk_renderer(model, config, near, far)
+  draw = renderer.make_image_renderer(model, config, near, far)(params)
   background = render_lib.background_colour(config)
   # The test camera rescaled so its longer side has `size` pixels (same field of view).
   height, width, intrinsics = render_lib.scaled_camera(test_ds, size / max(test_ds.height,
                                                                            test_ds.width))
-  return lambda: render_lib.render_pose(chunk, params, test_ds.poses[0], height, width,
-                                        intrinsics, config, background)
+  return lambda: render_lib.render_pose(draw, test_ds.poses[0], height, width, intrinsics,
+                                        config, background)
 
 
 def big_frame_rss(workdir, size):

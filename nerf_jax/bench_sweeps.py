@@ -63,6 +63,27 @@ SWEEPS = {
     "remat": [Entry("default"), Entry("remat_chunk=128", {"train.remat_chunk": 128}),
               Entry("256x8", {"model.width": 256}),
               Entry("256x8 remat_chunk=32", {"model.width": 256, "train.remat_chunk": 32})],
+    # Candidates for the default MLP's early convergence (the 60 s point against keras_seed).
+    "default_tuning": [
+        Entry("default"),
+        Entry("remat", {"train.remat_chunk": 128}),
+        Entry("samples=32 remat", {"num_samples": 32, "train.remat_chunk": 128}),
+        Entry("samples=16 remat", {"num_samples": 16, "train.remat_chunk": 128}),
+        Entry("samples=32 remat rays=512", {"num_samples": 32, "train.remat_chunk": 128,
+                                            "train.batch_rays": 512}),
+        Entry("samples=32 remat lr=5e-3", {"num_samples": 32, "train.remat_chunk": 128,
+                                           "train.lr": 5e-3}),
+        Entry("samples=32 remat box", {"num_samples": 32, "train.remat_chunk": 128,
+                                       "data.scene_bound": 1.5}),
+        Entry("samples=32 remat rays=512 lr=5e-3", {"num_samples": 32, "train.remat_chunk": 128,
+                                                    "train.batch_rays": 512, "train.lr": 5e-3}),
+        Entry("samples=64 remat rays=512 lr=5e-3", {"train.remat_chunk": 128,
+                                                    "train.batch_rays": 512, "train.lr": 5e-3}),
+        Entry("samples=32 remat rays=256 lr=5e-3", {"num_samples": 32, "train.remat_chunk": 128,
+                                                    "train.batch_rays": 256, "train.lr": 5e-3}),
+        Entry("samples=48 remat rays=512 lr=5e-3", {"num_samples": 48, "train.remat_chunk": 128,
+                                                    "train.batch_rays": 512, "train.lr": 5e-3}),
+    ],
     # Step time against the work per step (rays x samples); run with --steps (equal steps).
     "scaling": [Entry(f"rays={n}", {"train.batch_rays": n}) for n in (128, 512, 2048, 8192, 32768)]
     + [Entry(f"rays=2048 samples={s}", {"train.batch_rays": 2048, "num_samples": s})

@@ -61,11 +61,11 @@ def images_on_background(dataset, config):
   return accs, rgb.astype(np.float32)
 
 
-def render_pose(render_chunk, params, pose, height, width, intrinsics, config, background):
-  """Render one camera: numpy dict rgb [H, W, 3], depth [H, W], acc [H, W]."""
+def render_pose(draw, pose, height, width, intrinsics, config, background):
+  """Render one camera with `draw` (see `renderer.make_image_renderer`): numpy dict
+  rgb [H, W, 3], depth [H, W], acc [H, W]."""
   origins, directions, viewdirs = renderer.camera_rays(height, width, intrinsics, pose, config)
-  return renderer.render_image(render_chunk, params, origins, directions, config.render.chunk,
-                               background, viewdirs)
+  return draw(origins, directions, viewdirs=viewdirs, background=background)
 
 
 def make_evaluator(model, config, near, far, test_ds):
@@ -77,15 +77,16 @@ def make_evaluator(model, config, near, far, test_ds):
   true image float32 [H, W, 3] on the configured background (see `images_on_background`; the
   trainer sends the first one to TensorBoard).
   """
-  render_chunk = renderer.make_chunk_renderer(model, config, near, far)
+  image_renderer = renderer.make_image_renderer(model, config, near, far)
   background = background_colour(config)
   truths = images_on_background(test_ds, config)[1]
 
   def evaluate(params, max_views=None, out_dir=None, on_view=None):
     count = len(test_ds) if max_views is None else min(max_views, len(test_ds))
     per_view = []
+    draw = image_renderer(params)
     for i in range(count):
-      out = render_pose(render_chunk, params, test_ds.poses[i], test_ds.height, test_ds.width,
+      out = render_pose(draw, test_ds.poses[i], test_ds.height, test_ds.width,
                         test_ds.intrinsics, config, background)
       truth = truths[i]
       view = {"view": i, "psnr": float(metrics.psnr(out["rgb"], truth)),
@@ -126,10 +127,10 @@ def scaled_camera(dataset, scale=1.0):
 
 def render_frames(model, params, config, near, far, poses, height, width, intrinsics):
   """Render a list of poses: yields numpy dicts rgb [H, W, 3], depth [H, W], acc [H, W]."""
-  render_chunk = renderer.make_chunk_renderer(model, config, near, far)
+  draw = renderer.make_image_renderer(model, config, near, far)(params)
   background = background_colour(config)
   for pose in poses:
-    yield render_pose(render_chunk, params, pose, height, width, intrinsics, config, background)
+    yield render_pose(draw, pose, height, width, intrinsics, config, background)
 
 
 def video_poses(config, dataset):

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax import activations, encoding, grid, ndc, occupancy, rendering, sampling
+from nerf_jax import activations, encoding, grid, marching, ndc, occupancy, rendering, sampling
 from nerf_jax.rays import Rays, get_rays_intrinsics, safe_normalize
 
 
@@ -250,3 +250,96 @@ def render_image(render_chunk, params, origins, directions, chunk, background=(0
             for i in range(0, padded, chunk)]
   out = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs)[:num_rays], *pieces)
   return {k: v.reshape(*batch_shape, *v.shape[1:]) for k, v in out.items()}
+
+
+def marches(config):
+  """Whether rendering `config`'s model skips empty space and stops at opaque surfaces.
+
+  `config.render.march` applies to single-pass models sampling a scene box (data.scene_bound >
+  0) with plain stratified samples; any other model renders on the plain path.
+  """
+  return bool(config.render.get("march", False) and config.data.get("scene_bound", 0.0) > 0
+              and config.num_fine_samples == 0 and not uses_occupancy(config)
+              and not config.data.get("ndc", False))
+
+
+def make_image_renderer(model, config, near, far):
+  """fn(params) -> draw(origins, directions, viewdirs, background) -> numpy dict rgb [..., 3],
+  depth [...], acc [...], rendering any number of rays in chunks of `config.render.chunk`.
+
+  origins, directions, viewdirs: float32 [..., 3] (viewdirs None = normalised directions).
+  The plain path (`make_chunk_renderer` + `render_image`) or, where `marches(config)`, the
+  marching one (marching.py: the same samples, the field queried only where they matter); the
+  skip grid of the marching path is computed once per call with new params.
+  """
+  if not marches(config):
+    render_chunk = make_chunk_renderer(model, config, near, far)
+    return lambda params: functools.partial(render_image, render_chunk, params,
+                                            chunk=config.render.chunk)
+  marcher = _Marcher(model, config, near, far)
+  return marcher.bind
+
+
+class _Marcher:
+  """The jitted pieces of marching.py for one model and config (compiled once, reused)."""
+
+  def __init__(self, model, config, near, far):
+    self.config, self.near, self.far = config, near, far
+    rc, box = config.render, config.data.scene_bound
+
+    def field(params, points, viewdirs):  # [B, 3], [B, 3] -> rgb [B, 3], sigma [B]
+      rgb, sigma = query_field(model, params["coarse"], points[:, None, :], viewdirs, config)
+      return rgb[:, 0], sigma[:, 0]
+
+    def density(params, points):  # [P, 3] -> [P]; density does not depend on the direction
+      return field(params, points, jnp.zeros_like(points))[1]
+
+    self.skip_grid = jax.jit(lambda params: marching.skip_grid(
+        functools.partial(density, params), rc.march_grid, box, rc.march_threshold))
+    self.query_round = marching.make_query_round(field)
+
+    @jax.jit
+    def plan(mask, origins, directions):
+      t_near, t_far = grid.ray_box_bounds(origins, directions, box, near, far)
+      t = sampling.stratified(t_near, t_far, config.num_samples, origins.shape[:-1], None,
+                              lindisp=config.data.lindisp)
+      points = origins[:, None, :] + directions[:, None, :] * sampling.midpoints(t)[..., None]
+      return (t, points, *marching.occupied_ranks(mask, points, box))
+
+    @jax.jit
+    def finish(sigma, rgb, t, background):
+      out = rendering.composite(rgb, sigma, t, background)
+      # As render_rays: an empty ray's depth is `far`.
+      depth = jnp.where(out["acc"] > rendering.EMPTY_ACC, out["depth"], far)
+      return {"rgb": out["rgb"], "depth": depth, "acc": out["acc"]}
+
+    self.plan, self.finish = plan, finish
+
+  def bind(self, params):
+    """The draw function of `make_image_renderer` for `params`."""
+    mask = self.skip_grid(params)
+    return functools.partial(self.draw, params, mask)
+
+  def draw(self, params, mask, origins, directions, viewdirs=None, background=(0.0, 0.0, 0.0)):
+    rc = self.config.render
+    batch_shape = np.shape(origins)[:-1]
+    if viewdirs is None:
+      viewdirs = safe_normalize(jnp.asarray(directions))
+    num_rays = int(np.prod(batch_shape))
+    chunk = rc.chunk
+    padded = -(-num_rays // chunk) * chunk
+    flat = lambda a: np.asarray(a, np.float32).reshape(-1, 3)
+    pad = lambda a: np.concatenate([a, np.repeat(a[:1], padded - num_rays, axis=0)])
+    origins, directions, viewdirs = (pad(flat(a)) for a in (origins, directions, viewdirs))
+    live = np.arange(padded) < num_rays  # padding rays query nothing
+    background = jnp.asarray(background, jnp.float32)
+    pieces = []
+    for i in range(0, padded, chunk):
+      part = slice(i, i + chunk)
+      t, points, occupied, rank = self.plan(mask, origins[part], directions[part])
+      sigma, rgb, _ = marching.march(self.query_round, params, t, points, viewdirs[part],
+                                     occupied, rank, live[part], rc.march_group,
+                                     rc.min_transmittance)
+      pieces.append(self.finish(sigma, rgb, t, background))
+    out = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs)[:num_rays], *pieces)
+    return {k: v.reshape(*batch_shape, *v.shape[1:]) for k, v in out.items()}

@@ -38,7 +38,6 @@ def test_render_bench_writes_frame_video_and_big_frame_figures(tmp_path):
   config, model, params, _, test_ds, near, far = restored
   frame = bench_render._render_once(restored, test_ds.width)()
   evaluator_frame = render_lib.render_pose(
-      renderer.make_chunk_renderer(model, config, near, far), params,
-      test_ds.poses[0], test_ds.height, test_ds.width, test_ds.intrinsics, config,
+      renderer.make_image_renderer(model, config, near, far)(params), test_ds.poses[0], test_ds.height, test_ds.width, test_ds.intrinsics, config,
       render_lib.background_colour(config))
   np.testing.assert_allclose(frame["rgb"], evaluator_frame["rgb"], atol=1e-6)

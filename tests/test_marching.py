@@ -1,0 +1,184 @@
+"""Marching (render-time empty-space skipping + early ray termination) against the plain path.
+
+Analytic fields check the pieces; a trained fast model checks the whole renderer: the marching
+image equals the plain one within the documented bounds while querying a fraction of the samples.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from configs import fast
+from nerf_jax import cli, marching, render_lib, renderer, rendering, sampling, train_lib
+
+NUM_RAYS, NUM_SAMPLES = 64, 32
+RADIUS = 0.5  # the analytic field: a ball of this radius at the origin
+
+
+def _ball_field(density):
+  """field_fn of a ball of constant density (colour = position-dependent), empty outside."""
+  def field(params, points, viewdirs):
+    del params, viewdirs
+    inside = jnp.sum(points ** 2, axis=-1) < RADIUS ** 2
+    rgb = jax.nn.sigmoid(points * 3.0)
+    return rgb, jnp.where(inside, density, 0.0)
+  return field
+
+
+def _rays():
+  """Parallel rays along -z through a 8×8 grid of x, y in [-0.7, 0.7] (some miss the ball)."""
+  xy = np.stack(np.meshgrid(np.linspace(-0.7, 0.7, 8), np.linspace(-0.7, 0.7, 8)), -1)
+  origins = np.concatenate([xy.reshape(-1, 2), np.full((NUM_RAYS, 1), 2.0)], -1)
+  directions = np.tile([0.0, 0.0, -1.0], (NUM_RAYS, 1))
+  t = sampling.stratified(1.0, 3.0, NUM_SAMPLES, (NUM_RAYS,))
+  points = origins[:, None, :] + directions[:, None, :] * sampling.midpoints(t)[..., None]
+  return (jnp.asarray(t), jnp.asarray(points, jnp.float32),
+          jnp.asarray(directions, jnp.float32))
+
+
+def _plain_and_marched(density, mask, min_transmittance, live=None, group=4):
+  field = _ball_field(density)
+  t, points, viewdirs = _rays()
+  rgb_all, sigma_all = field(None, points.reshape(-1, 3), None)
+  plain = rendering.composite(rgb_all.reshape(NUM_RAYS, NUM_SAMPLES, 3),
+                              sigma_all.reshape(NUM_RAYS, NUM_SAMPLES), t)
+  occupied, rank = marching.occupied_ranks(mask, points, 1.0)
+  live = np.ones(NUM_RAYS, bool) if live is None else live
+  sigma, rgb, queried = marching.march(marching.make_query_round(field), None, t, points,
+                                       viewdirs, occupied, rank, live, group, min_transmittance)
+  return plain, rendering.composite(rgb, sigma, t), queried, occupied
+
+
+def test_marching_everything_is_exactly_the_plain_composite():
+  # Every cell occupied, no termination: every sample is queried and nothing changes.
+  mask = jnp.ones((8, 8, 8), bool)
+  plain, marched, queried, _ = _plain_and_marched(5.0, mask, 0.0)
+  assert queried >= NUM_RAYS * NUM_SAMPLES
+  for k in ("rgb", "acc", "depth"):
+    np.testing.assert_allclose(marched[k], plain[k], rtol=1e-6, atol=1e-6)
+
+
+def test_early_termination_error_is_below_min_transmittance():
+  mask = jnp.ones((8, 8, 8), bool)
+  min_t, group = 1e-3, 4
+  plain, marched, queried, _ = _plain_and_marched(200.0, mask, min_t, group=group)
+  assert np.max(np.abs(marched["rgb"] - plain["rgb"])) <= min_t
+  assert np.max(np.abs(marched["acc"] - plain["acc"])) <= min_t
+  # One sample inside the ball (σ·δ = 200·2/32 = 12.5) leaves transmittance e^-12.5 < 1e-3, so a
+  # ray that hits the ball stops after the round holding its first sample inside; a ray that
+  # misses queries all of its samples.
+  _, points, _ = _rays()
+  inside = np.sum(np.asarray(points) ** 2, axis=-1) < RADIUS ** 2
+  first = np.argmax(inside, axis=-1)
+  expected = np.where(inside.any(-1), (first // group + 1) * group, NUM_SAMPLES)
+  assert inside.any(-1).sum() >= 8
+  assert queried == expected.sum()
+
+
+def test_skipped_cells_are_never_queried_and_exact_where_empty():
+  # A mask of the ball's cells (grid over [-1, 1]^3): outside samples are skipped, and they are
+  # empty, so the image is exactly the plain one.
+  field = _ball_field(5.0)
+  mask = marching.skip_grid(lambda p: field(None, p, None)[1], 16, 1.0, 1e-3)
+  plain, marched, queried, occupied = _plain_and_marched(5.0, mask, 0.0)
+  assert 0 < int(occupied.sum()) < 0.5 * occupied.size
+  assert queried < 0.5 * NUM_RAYS * NUM_SAMPLES
+  np.testing.assert_allclose(marched["rgb"], plain["rgb"], atol=1e-6)
+
+
+def test_an_empty_mask_or_dead_rays_query_nothing():
+  _, marched, queried, _ = _plain_and_marched(5.0, jnp.zeros((8, 8, 8), bool), 0.0)
+  assert queried == 0 and np.all(marched["acc"] == 0)
+  _, _, queried, _ = _plain_and_marched(5.0, jnp.ones((8, 8, 8), bool), 0.0,
+                                        live=np.zeros(NUM_RAYS, bool))
+  assert queried == 0
+
+
+def test_buffers_cover_every_selected_sample_once():
+  small, large = marching.SMALL_BUFFER, marching.LARGE_BUFFER
+  assert marching.buffers(0) == []
+  assert marching.buffers(1) == [(0, small)]
+  assert marching.buffers(small + 1) == [(0, 2 * small)]
+  assert marching.buffers(2 * large + 1) == [(0, large), (large, large), (2 * large, small)]
+
+
+def test_a_round_bigger_than_a_buffer_is_queried_in_several(monkeypatch):
+  monkeypatch.setattr(marching, "SMALL_BUFFER", 16)
+  monkeypatch.setattr(marching, "LARGE_BUFFER", 100)  # a round of 64 rays needs several
+  plain, marched, queried, _ = _plain_and_marched(5.0, jnp.ones((8, 8, 8), bool), 0.0)
+  assert queried == NUM_RAYS * NUM_SAMPLES
+  np.testing.assert_allclose(marched["rgb"], plain["rgb"], rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("change", [{"num_fine_samples": 8}, {"data.scene_bound": 0.0},
+                                    {"render.march": False}, {"occupancy.enabled": True}])
+def test_marching_only_where_it_applies(change):
+  config = fast.get_config()
+  assert renderer.marches(config)
+  for field, value in change.items():
+    section, _, name = field.rpartition(".")
+    (config[section] if section else config)[name] = value
+  assert not renderer.marches(config)
+
+
+@pytest.fixture(scope="module")
+def trained_fast(tmp_path_factory):
+  """A fast-config model trained briefly on a small diffuse scene: (config, model, params, test
+  dataset, near, far)."""
+  config = fast.get_config()
+  config.data.num_views = 24
+  config.data.image_size = 32
+  config.data.holdout_from = 20
+  config.model.grid_resolutions = (16, 32)
+  config.num_samples = 48
+  config.train.batch_rays = 1024
+  config.train.max_steps = 200
+  config.train.log_every = 100
+  config.train.checkpoint_every = 200
+  config.render.chunk = 512
+  config.render.after_training = False
+  workdir = str(tmp_path_factory.mktemp("fast") / "run")
+  result = train_lib.train_and_evaluate(config, workdir)
+  assert result["psnr"] > 20  # the model has learnt the scene: empty space is empty
+  config, model, params, _, test_ds, near, far = cli.restore_for_render(workdir)
+  return config, model, params, test_ds, near, far
+
+
+def test_marching_renders_the_plain_image_of_a_trained_model(trained_fast):
+  config, model, params, test_ds, near, far = trained_fast
+  assert renderer.marches(config)
+  background = render_lib.background_colour(config)
+  marched = renderer.make_image_renderer(model, config, near, far)(params)
+  plain_chunk = renderer.make_chunk_renderer(model, config, near, far)
+  for i in range(len(test_ds)):
+    origins, directions, viewdirs = renderer.camera_rays(
+        test_ds.height, test_ds.width, test_ds.intrinsics, test_ds.poses[i], config)
+    a = renderer.render_image(plain_chunk, params, origins, directions, config.render.chunk,
+                              background, viewdirs)
+    b = marched(origins, directions, viewdirs=viewdirs, background=background)
+    assert np.max(np.abs(a["rgb"] - b["rgb"])) < 2e-2
+    assert np.mean(np.abs(a["rgb"] - b["rgb"])) < 2e-3
+    # The documented bound on opacity: the skipped cells' density along the longest segment in
+    # the box (its diagonal), plus the light left behind a terminated ray.
+    rc = config.render
+    bound = 1.0 - np.exp(-rc.march_threshold * 2.0 * np.sqrt(3.0) * config.data.scene_bound)
+    assert np.max(np.abs(a["acc"] - b["acc"])) <= bound + rc.min_transmittance
+    solid = (a["acc"] > 0.9) & (b["acc"] > 0.9)
+    assert np.max(np.abs(a["depth"] - b["depth"])[solid]) < 0.05
+
+
+def test_marching_skips_most_samples_of_a_trained_model(trained_fast):
+  config, model, params, test_ds, near, far = trained_fast
+  marcher = renderer._Marcher(model, config, near, far)
+  mask = marcher.skip_grid(params)
+  origins, directions, viewdirs = renderer.camera_rays(
+      test_ds.height, test_ds.width, test_ds.intrinsics, test_ds.poses[0], config)
+  flat = lambda a: jnp.asarray(a, jnp.float32).reshape(-1, 3)
+  t, points, occupied, rank = marcher.plan(mask, flat(origins), flat(directions))
+  _, _, queried = marching.march(marcher.query_round, params, t, points, flat(viewdirs),
+                                 occupied, rank, np.ones(t.shape[0], bool),
+                                 config.render.march_group, config.render.min_transmittance)
+  print(float(jnp.mean(mask)), int(occupied.sum()) / occupied.size, queried / occupied.size)
+  assert 0.0 < float(jnp.mean(mask)) < 0.9
+  assert queried < 0.4 * occupied.size
