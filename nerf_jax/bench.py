@@ -441,7 +441,7 @@ def parse_args(argv):
                   "speed and memory. See docs/benchmark.md.")
   p.add_argument("--sweep", default="all",
                  help=f"comma list of sweeps ({', '.join(bench_sweeps.SWEEPS)}) or 'all' "
-                      "(every sweep but quick); default: all")
+                      "(every sweep but quick and default_tuning); default: all")
   p.add_argument("--quick", action="store_true",
                  help="the small sweep: --sweep=quick, 60 s per run on the diffuse scene")
   p.add_argument("--only", default="", help="comma list of configuration labels to keep")

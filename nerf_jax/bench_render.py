@@ -5,7 +5,8 @@
 
 Measured, for the newest checkpoint of --workdir, in one run:
   * frame ms: median of --repeats renders of the first test view's camera rescaled to
-    --frame_size pixels on its longer side, after one warm-up render that compiles;
+    --frame_size pixels on its longer side, after one warm-up render that compiles; for a
+    model that marches (config.render.march), the plain path's frame ms too, side by side;
   * video s: the whole --frames-frame video (render_lib.render_video: orbit or spiral, rgb and
     depth mp4 written), timed from the call to the written files, its own compilation included;
   * big-frame RSS: for each side in --sizes, a fresh subprocess restores the model and renders
@@ -27,9 +28,15 @@ import numpy as np
 from nerf_jax import bench, cli, render_lib, renderer
 
 
-def _render_once(restored, size):
-  """A blocking function rendering the first test view at `size` pixels on its longer side."""
+def _render_once(restored, size, march=None):
+  """A blocking function rendering the first test view at `size` pixels on its longer side.
+
+  march: None = the config's renderer; False = the plain path whatever the config says.
+  """
   config, model, params, _, test_ds, near, far = restored
+  if march is not None:
+    config = config.copy_and_resolve_references()
+    config.render.march = march
   draw = renderer.make_image_renderer(model, config, near, far)(params)
   background = render_lib.background_colour(config)
   # The test camera rescaled so its longer side has `size` pixels (same field of view).
@@ -56,6 +63,11 @@ def measure(workdir, frame_size=100, repeats=10, frames=120, sizes=(800,)):
   config, model, params, train_ds, _, near, far = restored
   render = _render_once(restored, frame_size)
   frame_ms = [1e3 * s for s in bench.sample_seconds(render, repeats)]
+  plain = {}
+  if renderer.marches(config):  # the plain path side by side, for the ratio
+    plain_ms = [1e3 * s for s in bench.sample_seconds(_render_once(restored, frame_size, False),
+                                                      repeats)]
+    plain = {"plain_frame_ms": plain_ms, "plain_frame_ms_median": float(np.median(plain_ms))}
   config.render.video_frames = frames
   with tempfile.TemporaryDirectory() as out_dir:
     start = time.perf_counter()
@@ -66,7 +78,7 @@ def measure(workdir, frame_size=100, repeats=10, frames=120, sizes=(800,)):
   return {"workdir": workdir, "encoding": config.model.encoding,
           "num_samples": config.num_samples, "num_fine_samples": config.num_fine_samples,
           "frame_size": frame_size, "frame_ms": frame_ms,
-          "frame_ms_median": float(np.median(frame_ms)), "video_frames": frames,
+          "frame_ms_median": float(np.median(frame_ms)), **plain, "video_frames": frames,
           "video_seconds": video_seconds, "big_frames": big, "machine": bench.machine_info()}
 
 
@@ -97,6 +109,9 @@ def main(argv=None):
     json.dump(record, f, indent=2)
   print(f"{args.frame_size}x{args.frame_size} frame: {record['frame_ms_median']:.1f} ms "
         f"(median of {args.repeats})")
+  if "plain_frame_ms_median" in record:
+    print(f"  plain path (no marching): {record['plain_frame_ms_median']:.1f} ms, "
+          f"{record['plain_frame_ms_median'] / record['frame_ms_median']:.1f}x slower")
   print(f"{record['video_frames']}-frame video: {record['video_seconds']:.1f} s "
         "(compilation and mp4 writing included)")
   for big in record["big_frames"]:

@@ -97,10 +97,10 @@ DEFAULT_SCENES = ("diffuse",)
 
 
 def sweep_names(spec):
-  """Sweep names from a comma list; 'all' = every sweep except 'quick'."""
+  """Sweep names from a comma list; 'all' = every sweep except 'quick' and 'default_tuning'."""
   names = [n.strip() for n in spec.split(",") if n.strip()]
   if names == ["all"]:
-    return [n for n in SWEEPS if n != "quick"]
+    return [n for n in SWEEPS if n not in ("quick", "default_tuning")]
   unknown = [n for n in names if n not in SWEEPS]
   if unknown:
     raise ValueError(f"unknown sweep(s) {', '.join(unknown)} (valid: all, {', '.join(SWEEPS)})")

@@ -235,19 +235,30 @@ def render_image(render_chunk, params, origins, directions, chunk, background=(0
   float32 [..., 3] or None (= normalised directions). chunk: int, rays per call.
   background: RGB. Returns numpy dict rgb [..., 3], depth [...], acc [...].
   """
-  batch_shape = origins.shape[:-1]
-  if viewdirs is None:
-    viewdirs = safe_normalize(jnp.asarray(directions))
-  num_rays = int(np.prod(batch_shape))
-  padded = -(-num_rays // chunk) * chunk
-  # Padding rays are copies of ray 0, so they are as well-behaved as a real ray.
-  flat = lambda a: np.asarray(a, np.float32).reshape(-1, 3)
-  pad = lambda a: np.concatenate([a, np.repeat(a[:1], padded - num_rays, axis=0)])
-  origins, directions, viewdirs = (pad(flat(a)) for a in (origins, directions, viewdirs))
+  batch_shape = np.shape(origins)[:-1]
+  num_rays, (origins, directions, viewdirs) = _padded_rays(chunk, origins, directions, viewdirs)
   background = jnp.asarray(background, jnp.float32)
   pieces = [render_chunk(params, origins[i:i + chunk], directions[i:i + chunk],
                          viewdirs[i:i + chunk], background)
-            for i in range(0, padded, chunk)]
+            for i in range(0, len(origins), chunk)]
+  return _joined(pieces, num_rays, batch_shape)
+
+
+def _padded_rays(chunk, origins, directions, viewdirs):
+  """(num_rays, [origins, directions, viewdirs]): float32 [..., 3] rays flattened to [P, 3],
+  P the next multiple of `chunk`; viewdirs None = normalised directions. Padding rays are copies
+  of ray 0, so they are as well-behaved as a real ray."""
+  if viewdirs is None:
+    viewdirs = safe_normalize(jnp.asarray(directions))
+  num_rays = int(np.prod(np.shape(origins)[:-1]))
+  padded = -(-num_rays // chunk) * chunk
+  flat = lambda a: np.asarray(a, np.float32).reshape(-1, 3)
+  pad = lambda a: np.concatenate([a, np.repeat(a[:1], padded - num_rays, axis=0)])
+  return num_rays, [pad(flat(a)) for a in (origins, directions, viewdirs)]
+
+
+def _joined(pieces, num_rays, batch_shape):
+  """Per-chunk output dicts -> one numpy dict with leading shape batch_shape (padding dropped)."""
   out = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs)[:num_rays], *pieces)
   return {k: v.reshape(*batch_shape, *v.shape[1:]) for k, v in out.items()}
 
@@ -274,7 +285,8 @@ def make_image_renderer(model, config, near, far):
   """
   if not marches(config):
     render_chunk = make_chunk_renderer(model, config, near, far)
-    return lambda params: functools.partial(render_image, render_chunk, params,
+    # Parameters go to the device once, not with every chunk (restored ones are numpy arrays).
+    return lambda params: functools.partial(render_image, render_chunk, jax.device_put(params),
                                             chunk=config.render.chunk)
   marcher = _Marcher(model, config, near, far)
   return marcher.bind
@@ -284,7 +296,7 @@ class _Marcher:
   """The jitted pieces of marching.py for one model and config (compiled once, reused)."""
 
   def __init__(self, model, config, near, far):
-    self.config, self.near, self.far = config, near, far
+    self.config = config
     rc, box = config.render, config.data.scene_bound
 
     def field(params, points, viewdirs):  # [B, 3], [B, 3] -> rgb [B, 3], sigma [B]
@@ -317,29 +329,22 @@ class _Marcher:
 
   def bind(self, params):
     """The draw function of `make_image_renderer` for `params`."""
+    params = jax.device_put(params)  # once, not with every query
     mask = self.skip_grid(params)
     return functools.partial(self.draw, params, mask)
 
   def draw(self, params, mask, origins, directions, viewdirs=None, background=(0.0, 0.0, 0.0)):
-    rc = self.config.render
+    rc, chunk = self.config.render, self.config.render.chunk
     batch_shape = np.shape(origins)[:-1]
-    if viewdirs is None:
-      viewdirs = safe_normalize(jnp.asarray(directions))
-    num_rays = int(np.prod(batch_shape))
-    chunk = rc.chunk
-    padded = -(-num_rays // chunk) * chunk
-    flat = lambda a: np.asarray(a, np.float32).reshape(-1, 3)
-    pad = lambda a: np.concatenate([a, np.repeat(a[:1], padded - num_rays, axis=0)])
-    origins, directions, viewdirs = (pad(flat(a)) for a in (origins, directions, viewdirs))
-    live = np.arange(padded) < num_rays  # padding rays query nothing
+    num_rays, (origins, directions, viewdirs) = _padded_rays(chunk, origins, directions, viewdirs)
+    live = np.arange(len(origins)) < num_rays  # padding rays query nothing
     background = jnp.asarray(background, jnp.float32)
     pieces = []
-    for i in range(0, padded, chunk):
+    for i in range(0, len(origins), chunk):
       part = slice(i, i + chunk)
       t, points, occupied, rank = self.plan(mask, origins[part], directions[part])
       sigma, rgb, _ = marching.march(self.query_round, params, t, points, viewdirs[part],
                                      occupied, rank, live[part], rc.march_group,
                                      rc.min_transmittance)
       pieces.append(self.finish(sigma, rgb, t, background))
-    out = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs)[:num_rays], *pieces)
-    return {k: v.reshape(*batch_shape, *v.shape[1:]) for k, v in out.items()}
+    return _joined(pieces, num_rays, batch_shape)

@@ -14,6 +14,7 @@ from nerf_jax import bench_render, cli, render_lib, renderer, train_lib
 def _trained_workdir(tmp_path):
   config = debug.get_config()
   config.train.max_steps = 2
+  config.data.scene_bound = 1.5  # a scene box: the model renders by marching
   config.render.after_training = False
   workdir = str(tmp_path / "run")
   train_lib.train_and_evaluate(config, workdir)
@@ -27,6 +28,7 @@ def test_render_bench_writes_frame_video_and_big_frame_figures(tmp_path):
                      "--sizes=40", f"--out={out}"])
   record = json.loads(out.read_text())
   assert len(record["frame_ms"]) == 2 and record["frame_ms_median"] > 0
+  assert len(record["plain_frame_ms"]) == 2  # the plain path, side by side
   assert record["video_frames"] == 2 and record["video_seconds"] > 0
   (big,) = record["big_frames"]
   assert big["size"] == 40 and big["finite"]

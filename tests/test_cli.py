@@ -5,6 +5,7 @@ on a private FlagValues); a few run `train.py` / `python -m nerf_jax.*` in a sub
 """
 
 import copy
+import importlib
 import json
 import os
 import shutil
@@ -17,7 +18,7 @@ import pytest
 from absl import flags, logging
 from ml_collections import config_flags
 
-from configs import debug
+from configs import debug, default
 from nerf_jax import checkpoints, cli, train_lib
 from nerf_jax.data import DataError
 from nerf_jax.model import make_model
@@ -277,3 +278,13 @@ def test_verbosity_asks_for_the_traceback(monkeypatch, tmp_path):
       cli.run_main(lambda: cli.train(_config(str(tmp_path / "x.npz")), str(tmp_path / "w")))
   finally:
     logging.set_verbosity(previous)
+
+
+@pytest.mark.parametrize("name", ["debug", "fast", "keras_seed", "mlp64", "tiny_nerf"])
+def test_every_config_sets_only_fields_the_default_has(name):
+  # ConfigDict accepts new attributes, so a misspelt field would silently do nothing.
+  flat = lambda c, p="": {k for key, v in c.items()
+                          for k in (flat(v, f"{p}{key}.") if hasattr(v, "items")
+                                    else [f"{p}{key}"])}
+  config = importlib.import_module(f"configs.{name}").get_config()
+  assert flat(config) == flat(default.get_config())
