@@ -179,6 +179,5 @@ def test_marching_skips_most_samples_of_a_trained_model(trained_fast):
   _, _, queried = marching.march(marcher.query_round, params, t, points, flat(viewdirs),
                                  occupied, rank, np.ones(t.shape[0], bool),
                                  config.render.march_group, config.render.min_transmittance)
-  print(float(jnp.mean(mask)), int(occupied.sum()) / occupied.size, queried / occupied.size)
-  assert 0.0 < float(jnp.mean(mask)) < 0.9
+  assert 0.0 < float(jnp.mean(mask)) < 0.5  # the trained toy field: about 12% non-empty
   assert queried < 0.4 * occupied.size
