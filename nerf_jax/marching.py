@@ -105,7 +105,11 @@ def make_query_round(field_fn):
 
 
 def optical_depth(sigma, t):
-  """float32 [C]: sum of σ·δ along each ray, clamped as `rendering.composite` clamps σ."""
+  """float32 [C]: sum of σ·δ along each ray, clamped as `rendering.composite` clamps σ.
+
+  A plain sum rather than `rendering.compute_weights`, whose cumsum made a frame of the fast
+  model 30% slower on XLA:CPU (measured side by side: 67–74 ms against 51–58 ms).
+  """
   delta = jnp.maximum(t[..., 1:] - t[..., :-1], 0.0)
   return jnp.sum(jnp.minimum(sigma, rendering.MAX_DENSITY) * delta, axis=-1)
 
