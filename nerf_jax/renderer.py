@@ -77,13 +77,19 @@ def check_occupancy_config(config):
     raise ValueError("config.occupancy.enabled does not work with config.data.ndc")
 
 
-def occupancy_grid(model, params, config):
-  """The occupancy grid of the coarse network's density: float32 [R, R, R] (see occupancy.py)."""
-  def density(points):  # [P, 3] -> [P]; density does not depend on the viewing direction
+def coarse_density(model, params, config):
+  """points float32 [P, 3] -> σ float32 [P] of the coarse network (direction-independent)."""
+  def density(points):
     _, sigma = query_field(model, params["coarse"], points[:, None, :], jnp.zeros_like(points),
                            config)
     return sigma[:, 0]
-  return occupancy.density_grid(density, config.occupancy.resolution, config.data.scene_bound)
+  return density
+
+
+def occupancy_grid(model, params, config):
+  """The occupancy grid of the coarse network's density: float32 [R, R, R] (see occupancy.py)."""
+  return occupancy.density_grid(coarse_density(model, params, config),
+                                config.occupancy.resolution, config.data.scene_bound)
 
 
 def _uses_grid(config):
@@ -202,10 +208,18 @@ def render_rays(model, params, rays, config, near, far, key=None, background=Non
     outputs["fine"] = _shade(model, fine_params, rays, viewdirs, t_fine, config, background,
                              keys[3])
   if box > 0:
-    # An empty ray's depth is `far` on every code path (composite gives t_S, the box exit here).
     for out in outputs.values():
-      out["depth"] = jnp.where(out["acc"] > rendering.EMPTY_ACC, out["depth"], far)
+      out["depth"] = empty_depth_is_far(out, far)
   return outputs
+
+
+def empty_depth_is_far(out, far):
+  """float32 [...]: out['depth'] with `far` for empty rays (acc <= EMPTY_ACC).
+
+  In a scene box composite gives an empty ray the box exit t_S; this makes it `far` on every
+  code path, as without a box.
+  """
+  return jnp.where(out["acc"] > rendering.EMPTY_ACC, out["depth"], far)
 
 
 def final(outputs):
@@ -303,11 +317,8 @@ class _Marcher:
       rgb, sigma = query_field(model, params["coarse"], points[:, None, :], viewdirs, config)
       return rgb[:, 0], sigma[:, 0]
 
-    def density(params, points):  # [P, 3] -> [P]; density does not depend on the direction
-      return field(params, points, jnp.zeros_like(points))[1]
-
     self.skip_grid = jax.jit(lambda params: marching.skip_grid(
-        functools.partial(density, params), rc.march_grid, box, rc.march_threshold))
+        coarse_density(model, params, config), rc.march_grid, box, rc.march_threshold))
     self.query_round = marching.make_query_round(field)
 
     @jax.jit
@@ -321,9 +332,7 @@ class _Marcher:
     @jax.jit
     def finish(sigma, rgb, t, background):
       out = rendering.composite(rgb, sigma, t, background)
-      # As render_rays: an empty ray's depth is `far`.
-      depth = jnp.where(out["acc"] > rendering.EMPTY_ACC, out["depth"], far)
-      return {"rgb": out["rgb"], "depth": depth, "acc": out["acc"]}
+      return {"rgb": out["rgb"], "depth": empty_depth_is_far(out, far), "acc": out["acc"]}
 
     self.plan, self.finish = plan, finish
 
