@@ -1,4 +1,4 @@
-"""Render a trained NeRF from its workdir's latest checkpoint (= `python -m nerf_jax.render`).
+"""Render a trained NeRF from its workdir's newest checkpoint (= `nerf-render`).
 
   python render.py --workdir=runs/a --mode=eval     # test views + metrics.json
   python render.py --workdir=runs/a --mode=video    # 360° orbit: rgb.mp4, depth.mp4
@@ -6,7 +6,7 @@
   python render.py --workdir=runs/a --mode=mesh --resolution=256 --threshold=50
 """
 
-from nerf_jax import render
+from nerf_jax import cli
 
 if __name__ == "__main__":
-  render.main()
+  cli.render_main()

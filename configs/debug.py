@@ -3,7 +3,7 @@
   python train.py --config=configs/debug.py --workdir=/tmp/debug
 """
 
-from configs import default
+from nerf_jax.configs import default
 
 
 def get_config():

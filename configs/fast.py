@@ -5,7 +5,7 @@ section for measured figures).
   python train.py --config=configs/fast.py --workdir=runs/fast
 """
 
-from configs import default
+from nerf_jax.configs import default
 
 
 def get_config():

@@ -8,7 +8,7 @@ near 2 / far 6, rays through pixel corners.
   python train.py --config=configs/keras_seed.py --workdir=runs/keras_seed
 """
 
-from configs import default
+from nerf_jax.configs import default
 
 
 def get_config():

@@ -4,7 +4,7 @@ base of the README's knob, effects, precision, remat and scaling sweeps.
   python -m nerf_jax.bench --sweep=samples,freqs,width --base=mlp64 --budget_seconds=60
 """
 
-from configs import default
+from nerf_jax.configs import default
 
 
 def get_config():

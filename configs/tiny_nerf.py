@@ -4,7 +4,7 @@ per step at learning rate 5e-4, position-only colour, no hierarchical sampling.
   python train.py --config=configs/tiny_nerf.py --workdir=runs/tiny_nerf
 """
 
-from configs import default
+from nerf_jax.configs import default
 
 
 def get_config():

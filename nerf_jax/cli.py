@@ -1,55 +1,31 @@
-"""What train.py and render.py do, importable and testable.
+"""The command lines: `nerf-train` (= python train.py) and `nerf-render` (= python render.py).
 
-Errors the user can fix (bad flags or config overrides, bad data, incompatible checkpoint,
-diverged training) are printed as one line and exit with status 1; `--verbosity=1` (absl) shows
-the full traceback.
+  nerf-train                                          # configs/default.py on the built-in scene
+  nerf-train --config=fast --workdir=runs/a           # a config by name, from any directory
+  nerf-train --config=configs/debug.py --config.num_samples=64
+  nerf-render --workdir=runs/a --mode=eval|video|views|mesh
+
+Errors the user can fix (bad flags, config files or overrides, bad data, incompatible
+checkpoint, diverged training) are printed as one line and exit with status 1; `--verbosity=1`
+(absl) shows the full traceback instead.
 """
 
 import os
 import sys
 
-from absl import flags, logging
-from ml_collections import config_dict
+from absl import app, flags, logging
+from ml_collections import config_flags
 
-from nerf_jax import checkpoints, mesh, parallel, render_lib, train_lib
-from nerf_jax.data import loaders
-from nerf_jax.model import make_model
+from nerf_jax import checkpoints, config_lib, experiment, outputs, parallel, train_lib
+from nerf_jax.data import DataError
 
 # Exceptions whose message is the whole story for the user.
-USER_ERRORS = (loaders.DataError, checkpoints.CheckpointError, train_lib.TrainingError,
-               FileNotFoundError, ValueError)
+USER_ERRORS = (DataError, checkpoints.CheckpointError, experiment.TrainingError,
+               config_lib.ConfigError, FileNotFoundError, ValueError)
 
 
 def _wants_traceback(argv):
   return any(a.lstrip("-").split("=")[0] in ("verbosity", "v") for a in argv[1:])
-
-
-def parse_flags(argv, flag_values=flags.FLAGS):
-  """`app.run`'s flags_parser: a bad flag, config file or override exits 1 with one line.
-
-  Returns the positional arguments; refuses any (every setting is a flag).
-  """
-  try:
-    rest = flag_values(argv)
-    for name in flag_values:  # config_flags defers a failed config load to the first use
-      value = flag_values[name].value
-      if type(value).__name__ == "_ErrorConfig":
-        if _wants_traceback(argv):
-          value.get("seed")  # raises the deferred error
-        _fail(_config_file_error(name, value._error, argv))  # pylint: disable=protected-access
-  except Exception as e:  # absl and config_flags raise many types; all are the user's input
-    flag_error_exit(e, argv)
-  if len(rest) > 1:
-    _fail(f"unexpected argument {rest[1]!r}: settings are flags, e.g. --config.data.path=...")
-  return rest
-
-
-def flag_error_exit(exc, argv):
-  """Exit 1 with one line for an exception raised while defining or parsing flags (re-raise it
-  if --verbosity is given). Call it from an `except` block."""
-  if _wants_traceback(argv):
-    raise exc
-  _fail(_flag_error(exc, argv))
 
 
 def _fail(message):
@@ -57,96 +33,56 @@ def _fail(message):
   sys.exit(1)
 
 
-def _config_file_error(name, exc, argv):
-  """One line for a config file that could not be loaded."""
-  prefix = (f"--{name}=", f"-{name}=")
-  spec = next((a.split("=", 1)[1] for a in argv if a.startswith(prefix)), "")
-  path = spec.split(":")[0]
-  if path and not os.path.exists(path):
-    return f"--{name}={spec}: no such config file"
-  lines = [l.strip() for l in str(exc).splitlines() if l.strip()] or [type(exc).__name__]
-  return f"--{name}={spec}: cannot load the config file ({type(exc).__name__}: {lines[-1]})"
+def _config_spec(argv):
+  """The value of --config in argv ('' if absent)."""
+  for i, arg in enumerate(argv[1:], 1):
+    if arg.startswith(("--config=", "-config=")):
+      return arg.split("=", 1)[1]
+    if arg in ("--config", "-config") and i + 1 < len(argv):
+      return argv[i + 1]
+  return ""
 
 
-def _flag_error(exc, argv):
-  """One line naming the flag and what is wrong with it."""
-  unknown = _unknown_field(exc)
-  if unknown:
-    return unknown
-  spec = next((a.split("=", 1)[1] for a in argv if a.startswith(("--config=", "-config="))), "")
-  if spec and _raised_in(exc, spec.split(":")[0]):
-    return _config_file_error("config", exc, argv)
-  lines = [l.strip() for l in str(exc).splitlines() if l.strip()]
-  if not lines:
-    return type(exc).__name__
-  # A config file that raised: absl quotes its traceback; its last line says what happened.
-  return lines[0] if len(lines) == 1 else f"{lines[0]} {lines[-1]}"
-
-
-def _raised_in(exc, path):
-  """Whether `exc` was raised by the code (or the syntax) of the file at `path`."""
-  path = os.path.abspath(path)
-  if isinstance(exc, SyntaxError) and exc.filename:
-    return os.path.abspath(exc.filename) == path
-  tb = exc.__traceback__
-  while tb is not None:
-    if os.path.abspath(tb.tb_frame.f_code.co_filename) == path:
-      return True
-    tb = tb.tb_next
-  return False
-
-
-def _unknown_field(exc):
-  """For an override of a field the config lacks: '--config.a.b: config.a has no field ...'."""
-  tb, field, config = exc.__traceback__, None, None
-  while tb is not None:  # config_flags' parser frame holds the override being parsed
-    frame = tb.tb_frame.f_locals
-    if isinstance(frame.get("field_path"), str) and isinstance(frame.get("config"),
-                                                              config_dict.ConfigDict):
-      field, config = frame["field_path"], frame["config"]
-    tb = tb.tb_next
-  if field is None:
-    return None
-  node, parts, known = config, field.split("."), ["config"]
-  for part in parts:
-    if not isinstance(node, config_dict.ConfigDict) or part not in node:
-      valid = f" (fields: {', '.join(sorted(node.keys()))})" if isinstance(
-          node, config_dict.ConfigDict) else ""
-      return f"--config.{field}: {'.'.join(known)} has no field {part!r}{valid}"
-    node, known = node[part], known + [part]
-  return None
-
-
-def find_config(path):
-  """`path` if it exists, else for 'configs/NAME.py' the copy installed with the package (so
-  the README's commands work from any directory after `pip install`)."""
-  if os.path.exists(path) or not path.startswith("configs" + os.sep):
-    return path
+def resolve_config_argv(argv):
+  """argv with --config pointing at a file, after checking the config loads and every
+  `--config.FIELD=` override names a field it has. Returns (argv, config spec as given);
+  exits 1 with one line otherwise (raises with --verbosity)."""
+  spec = _config_spec(argv) or "default"
   try:
-    import configs  # pylint: disable=import-outside-toplevel
-  except ImportError:
-    return path
-  installed = os.path.join(os.path.dirname(configs.__file__), path[len("configs") + 1:])
-  return installed if os.path.exists(installed) else path
+    path = config_lib.resolve(spec)
+    config = config_lib.load(spec)
+  except config_lib.ConfigError as e:
+    if _wants_traceback(argv):
+      raise
+    _fail(str(e))
+  for arg in argv[1:]:
+    if arg.startswith("--config."):
+      problem = config_lib.unknown_override(config, arg[len("--config."):].split("=", 1)[0])
+      if problem:
+        _fail(problem)
+  out = [arg for arg in argv if not arg.startswith(("--config=", "-config="))]
+  return [out[0], f"--config={path}", *out[1:]], spec
 
 
-def default_config_path():
-  return find_config(os.path.join("configs", "default.py"))
+def parse_flags(argv, flag_values=flags.FLAGS):
+  """`app.run`'s flags_parser: a bad flag or override exits 1 with one line.
 
-
-def resolve_config_args(argv):
-  """argv with `--config=configs/X.py[:args]` pointing at the installed copy when needed."""
-  out = []
-  for arg in argv:
-    if arg.startswith("--config="):
-      path, colon, rest = arg[len("--config="):].partition(":")
-      arg = f"--config={find_config(path)}{colon}{rest}"
-    out.append(arg)
-  return out
+  Returns the positional arguments; refuses any (every setting is a flag).
+  """
+  try:
+    rest = flag_values(argv)
+  except flags.Error as e:
+    if _wants_traceback(argv):
+      raise
+    lines = [l.strip() for l in str(e).splitlines() if l.strip()] or [type(e).__name__]
+    _fail(lines[0] if len(lines) == 1 else f"{lines[0]} {lines[-1]}")
+  if len(rest) > 1:
+    _fail(f"unexpected argument {rest[1]!r}: settings are flags, e.g. --config.data.path=...")
+  return rest
 
 
 def run_main(fn):
-  """Run fn(); turn user errors into one line on stderr and exit status 1."""
+  """Run fn() for its effects; turn user errors into one line on stderr and exit status 1."""
   if not flags.FLAGS["verbosity"].present:
     logging.set_verbosity(logging.WARNING)  # hide JAX's backend-probing INFO lines by default
   try:
@@ -161,72 +97,52 @@ def run_main(fn):
     sys.exit(1)
 
 
-def default_workdir(config, config_path):
-  name = os.path.splitext(os.path.basename(config_path or "default"))[0]
+def default_workdir(config, config_spec):
+  """runs/<config name>_<scene or data folder>."""
+  name = os.path.splitext(os.path.basename(config_spec.split(":")[0] or "default"))[0]
   data = os.path.basename(config.data.path.rstrip("/")) if config.data.path else config.data.scene
   return os.path.join("runs", f"{name}_{data}")
 
 
-def train(config, workdir, config_path=""):
+def train(config, workdir, config_spec=""):
+  """Train `config` into `workdir` (default: `default_workdir`); returns the final metrics."""
   parallel.initialize_distributed()
-  workdir = workdir or default_workdir(config, config_path)
+  workdir = workdir or default_workdir(config, config_spec)
   if parallel.is_main_process():
     print(f"workdir: {workdir}", flush=True)
   return train_lib.train_and_evaluate(config, workdir)
 
 
-def restore_for_render(workdir):
-  """(config, model, params, train_ds, test_ds, near, far) from a training workdir."""
-  config = train_lib.load_config_json(workdir)
-  path = checkpoints.latest_path(workdir)
-  if path is None:
-    raise train_lib.TrainingError(f"no checkpoint in {checkpoints.checkpoint_dir(workdir)}: "
-                                  "train first (python train.py --workdir=...)")
-  model = make_model(config.model)
-  tx = train_lib.make_optimizer(config.train)
-  state = checkpoints.restore(path, train_lib.state_template(model, tx, config),
-                              train_lib.model_signature(config))
-  train_ds, test_ds = loaders.load_dataset(config.data)
-  near, far = train_lib.bounds(config, train_ds)
-  print(f"restored {path} (step {int(state.step)})", flush=True)
-  return config, model, state.params, train_ds, test_ds, near, far
+def train_main(argv=None):
+  """`nerf-train` / train.py: the config flag with overrides, --workdir; train and render."""
+  argv, spec = resolve_config_argv(list(sys.argv if argv is None else argv))
+  config = config_flags.DEFINE_config_file("config", config_lib.resolve("default"),
+                                           "Training config: a path or a name under configs/.",
+                                           lock_config=True, sys_argv=argv)
+  workdir = flags.DEFINE_string("workdir", "", "Run directory (default: runs/<config>_<scene>).")
+  app.run(lambda _: run_main(lambda: train(config.value, workdir.value, spec)), argv=argv,
+          flags_parser=parse_flags)
 
 
-def render(workdir, mode, poses_path="", out_dir="", depth_npy=False, resolution=128,
-           threshold=50.0, bound=0.0, scale=1.0):
-  """Render `mode` ('eval', 'video', 'views' or 'mesh') from the newest checkpoint of `workdir`.
+def render_main(argv=None):
+  """`nerf-render` / render.py: render a trained workdir's newest checkpoint."""
+  workdir = flags.DEFINE_string("workdir", None, "Training run directory.", required=True)
+  mode = flags.DEFINE_enum("mode", "eval", list(outputs.MODES), "What to render.")
+  poses = flags.DEFINE_string("poses", "", "views mode: .npy [N,4,4] or transforms-style .json.")
+  out = flags.DEFINE_string("out", "", "Output directory (default: <workdir>/<mode>).")
+  depth_npy = flags.DEFINE_bool("depth_npy", False, "video mode: also save float32 depth of "
+                                "every frame as depth_frames.npy [F, H, W] (scene units).")
+  resolution = flags.DEFINE_integer("resolution", 128, "mesh mode: lattice points per side.")
+  threshold = flags.DEFINE_float("threshold", 50.0, "mesh mode: density of the surface "
+                                 "(1 / scene unit).")
+  bound = flags.DEFINE_float("bound", 0.0, "mesh mode: half-size of the box [-b, b]^3 "
+                             "(0 = config.data.scene_bound, else the grid's, else 1.5).")
+  scale = flags.DEFINE_float("scale", 1.0, "video and views modes: pixels per side relative to "
+                             "the training images (2 = twice as wide and tall, same view).")
 
-  depth_npy: video mode also writes float depth_frames.npy. resolution, threshold, bound: mesh
-  mode (see mesh.extract). scale: video and views modes render `scale` times the training
-  images' pixels per side.
-  """
-  if not os.path.isdir(workdir):
-    raise FileNotFoundError(f"--workdir={workdir}: no such directory")
-  config, model, params, train_ds, test_ds, near, far = restore_for_render(workdir)
-  out_dir = out_dir or os.path.join(workdir, mode)
-  if scale <= 0:
-    raise ValueError(f"--scale={scale}: must be positive")
-  if mode == "mesh":
-    surface = mesh.extract(model, params, config, resolution, threshold, bound)
-    os.makedirs(out_dir, exist_ok=True)
-    path = os.path.join(out_dir, "mesh.ply")
-    mesh.write_ply(path, surface["vertices"], surface["faces"], surface["colors"])
-    print(f"wrote {len(surface['vertices'])} vertices and {len(surface['faces'])} faces "
-          f"to {path}")
-    return path
-  if mode == "eval":
-    result = render_lib.make_evaluator(model, config, near, far, test_ds)(params, out_dir=out_dir)
-    print(f"test PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.4f} "
-          f"over {len(result['per_view'])} views -> {out_dir}")
-  elif mode == "video":
-    paths = render_lib.render_video(model, params, config, near, far, train_ds, out_dir,
-                                    depth_npy=depth_npy, scale=scale)
-    print(f"wrote {', '.join(paths.values())}")
-  else:
-    if not poses_path:
-      raise ValueError("--mode=views needs --poses=FILE (.npy [N,4,4] or .json with frames)")
-    if not os.path.exists(poses_path):
-      raise FileNotFoundError(f"{poses_path}: no such poses file")
-    count = render_lib.render_views(model, params, config, near, far, train_ds,
-                                    render_lib.load_poses(poses_path), out_dir, scale)
-    print(f"wrote {count} views to {out_dir}")
+  def run(_):
+    run_main(lambda: outputs.render(workdir.value, mode.value, poses.value, out.value,
+                                    depth_npy.value, resolution.value, threshold.value,
+                                    bound.value, scale.value))
+
+  app.run(run, argv=list(sys.argv if argv is None else argv), flags_parser=parse_flags)

@@ -46,22 +46,3 @@ def trilinear(grid, unit):
 def multires_features(grids, unit):
   """Concatenated trilinear features of several grids: float32 [..., sum of F]."""
   return jnp.concatenate([trilinear(g, unit) for g in grids], axis=-1)
-
-
-def ray_box_bounds(origins, directions, bound, near, far):
-  """Per-ray [t_min, t_max] of the part of [near, far] inside the box [-bound, bound]^3.
-
-  origins, directions: float32 [..., 3]. Returns (t_min, t_max), each float32 [...], with
-  t_min <= t_max; a ray that misses the box gets t_min = t_max (a zero-length segment, which
-  composites to nothing). Slab method; a zero direction component divides by a tiny signed
-  number instead of 0, so the slab bounds become ±huge (the ray is parallel to that slab).
-  """
-  safe = jnp.where(jnp.abs(directions) < 1e-12, jnp.where(directions < 0, -1e-12, 1e-12),
-                   directions)
-  t1 = (-bound - origins) / safe
-  t2 = (bound - origins) / safe
-  t_enter = jnp.max(jnp.minimum(t1, t2), axis=-1)
-  t_exit = jnp.min(jnp.maximum(t1, t2), axis=-1)
-  t_min = jnp.clip(t_enter, near, far)
-  t_max = jnp.clip(t_exit, near, far)
-  return t_min, jnp.maximum(t_min, t_max)

@@ -93,7 +93,7 @@ class GridNeRF(nn.Module):
 
 def make_model(model_config):
   """The field described by `config.model` (a ConfigDict): NerfMLP or GridNeRF."""
-  if model_config.get("encoding", "posenc") == "grid":
+  if model_config.encoding == "grid":
     return GridNeRF(resolutions=tuple(model_config.grid_resolutions),
                     features=model_config.grid_features, bound=model_config.grid_bound,
                     hidden=model_config.width, view_dependent=model_config.view_dependent,

@@ -13,7 +13,7 @@ something, nothing spent elsewhere; unused slots are zero-width at the segment's
 (early in training every cell is occupied), slot k groups candidates of rank [k·n/K, (k+1)·n/K)
 and spans them from the first's start to the last's end, so an all-occupied ray gets plain
 stratified sampling. Between slots lie gaps of empty space, composited as intervals of zero
-density, so `rendering.composite` and its numerics are used unchanged.
+density, so `compositing.composite` and its numerics are used unchanged.
 
 A cell is occupied when its σ >= min(threshold, mean σ of the grid) (Instant-NGP's rule): an
 untrained, uniformly faint field counts as occupied everywhere instead of empty everywhere.
@@ -21,6 +21,27 @@ untrained, uniformly faint field counts as occupied everywhere instead of empty 
 
 import jax
 import jax.numpy as jnp
+
+
+
+def enabled(config):
+  """Whether `config` samples through an occupancy grid while training."""
+  return bool(config.occupancy.enabled)
+
+
+def check_config(config):
+  """ValueError naming the field when `config.occupancy.enabled` cannot work with the rest."""
+  if not enabled(config):
+    return
+  if config.data.scene_bound <= 0:
+    raise ValueError("config.occupancy.enabled needs config.data.scene_bound > 0 (the grid "
+                     "covers that box)")
+  if config.num_fine_samples > 0:
+    raise ValueError("config.occupancy.enabled and config.num_fine_samples > 0 cannot be "
+                     "combined: the occupancy grid already places the samples; set one of them")
+  if config.data.ndc:
+    raise ValueError("config.occupancy.enabled does not work with config.data.ndc")
+
 
 # Offsets of the points probed in each cell, in cells from its centre: the 8 corners of the inner
 # half-cell, so a feature smaller than a cell between two cells' probes is still likely seen.
@@ -76,7 +97,7 @@ def sample_occupied(mask, origins, directions, t_min, t_max, bound, num_candidat
   """Intervals of each ray inside occupied cells (see the module docstring).
 
   mask: bool [R, R, R] from `occupied_mask`. origins, directions: float32 [..., 3].
-  t_min, t_max: float32 [...], the segment inside the box (`grid.ray_box_bounds`).
+  t_min, t_max: float32 [...], the segment inside the box (`rays.ray_box_bounds`).
   num_candidates: int M. num_samples: int K.
   Returns (starts, ends, valid): float32 [..., K], float32 [..., K], bool [..., K]; intervals
   are sorted and disjoint, inside [t_min, t_max]; invalid slots are [t_max, t_max].

@@ -13,27 +13,46 @@ Conventions (those of the tiny_nerf data and the Keras reference):
 import math
 
 import flax.struct
+import jax
 import jax.numpy as jnp
 import numpy as np
+
+from nerf_jax import ndc
 
 
 @flax.struct.dataclass
 class Rays:
-  """A batch of rays (a pytree; every field shares the leading shape `...`).
+  """A batch of rays: everything the renderer needs per ray (a pytree; leading shape `...`).
 
-  origins: float32 [..., 3], camera centre of each ray.
+  origins: float32 [..., 3], where each ray starts (world space, or NDC for forward scenes).
   directions: float32 [..., 3], un-normalised direction (camera-space z = -1), so t is z-depth.
+  viewdirs: float32 [..., 3], unit world viewing direction (what the view branch sees; in NDC
+    it is not the direction of the NDC ray).
+  near, far: float32 [...], the interval of t to sample.
   """
   origins: jnp.ndarray
   directions: jnp.ndarray
+  viewdirs: jnp.ndarray
+  near: jnp.ndarray
+  far: jnp.ndarray
+
+  @classmethod
+  def create(cls, origins, directions, near, far, viewdirs=None):
+    """Rays with `near`, `far` broadcast to the batch shape; viewdirs None = unit directions."""
+    origins, directions = jnp.asarray(origins, jnp.float32), jnp.asarray(directions, jnp.float32)
+    viewdirs = safe_normalize(directions) if viewdirs is None else jnp.asarray(viewdirs,
+                                                                               jnp.float32)
+    full = lambda v: jnp.broadcast_to(jnp.asarray(v, jnp.float32), origins.shape[:-1])
+    return cls(origins, directions, viewdirs, full(near), full(far))
 
   @property
-  def viewdirs(self):
-    """float32 [..., 3], unit viewing directions."""
-    return safe_normalize(self.directions)
+  def shape(self):
+    """The batch shape `...`."""
+    return self.origins.shape[:-1]
 
   def reshape(self, *shape):
-    return Rays(self.origins.reshape(*shape, 3), self.directions.reshape(*shape, 3))
+    """The same rays with batch shape `shape`."""
+    return jax.tree_util.tree_map(lambda a: a.reshape(*shape, *a.shape[len(self.shape):]), self)
 
 
 def safe_normalize(v, eps=1e-20):
@@ -61,7 +80,7 @@ def pixel_directions(height, width, fx, fy, cx, cy, pixel_center=0.0):
   return jnp.stack([x, y, -jnp.ones_like(x)], axis=-1)
 
 
-def camera_rays(dirs_cam, c2w):
+def to_world(dirs_cam, c2w):
   """World-space rays from camera-space directions.
 
   dirs_cam: float32 [..., 3]. c2w: float32 [3, 4] or [4, 4]. Returns (origins, directions), each
@@ -81,13 +100,50 @@ def get_rays(height, width, focal, c2w, pixel_center=0.0):
   Returns (origins, directions): each float32 [height, width, 3].
   """
   dirs = pixel_directions(height, width, focal, focal, width * 0.5, height * 0.5, pixel_center)
-  return camera_rays(dirs, c2w)
+  return to_world(dirs, c2w)
 
 
 def get_rays_intrinsics(height, width, intrinsics, c2w, pixel_center=0.0):
   """Like `get_rays` with general intrinsics `(fx, fy, cx, cy)` in pixels."""
   fx, fy, cx, cy = intrinsics
-  return camera_rays(pixel_directions(height, width, fx, fy, cx, cy, pixel_center), c2w)
+  return to_world(pixel_directions(height, width, fx, fy, cx, cy, pixel_center), c2w)
+
+
+def camera_rays(height, width, intrinsics, c2w, near, far, pixel_center=0.5, use_ndc=False):
+  """The `Rays` through every pixel of one camera, as the renderer queries the field.
+
+  intrinsics: (fx, fy, cx, cy) in pixels. c2w: float32 [3, 4] or [4, 4]. near, far: float.
+  use_ndc: map the rays to normalized device coordinates (forward-facing scenes, see ndc.py;
+  the reference camera's focal is this camera's, and near/far should then be 0 and 1).
+  Returns Rays with batch shape [height, width]; viewdirs are the unit world directions.
+  """
+  origins, directions = get_rays_intrinsics(height, width, intrinsics, c2w, pixel_center)
+  viewdirs = safe_normalize(directions)
+  if use_ndc:
+    fx, fy = intrinsics[0], intrinsics[1]
+    origins, directions = ndc.ndc_rays(origins, directions, fx, width, height, near=1.0,
+                                       focal_y=fy)
+  return Rays.create(origins, directions, near, far, viewdirs)
+
+
+def ray_box_bounds(origins, directions, bound, near, far):
+  """Per-ray [t_min, t_max] of the part of [near, far] inside the box [-bound, bound]^3.
+
+  origins, directions: float32 [..., 3]. near, far: float or float32 [...]. Returns (t_min,
+  t_max), each float32 [...], with t_min <= t_max; a ray that misses the box gets t_min = t_max
+  (a zero-length segment, which composites to nothing). Slab method; a zero direction component
+  divides by a tiny signed number instead of 0, so the slab bounds become ±huge (the ray is
+  parallel to that slab).
+  """
+  safe = jnp.where(jnp.abs(directions) < 1e-12, jnp.where(directions < 0, -1e-12, 1e-12),
+                   directions)
+  t1 = (-bound - origins) / safe
+  t2 = (bound - origins) / safe
+  t_enter = jnp.max(jnp.minimum(t1, t2), axis=-1)
+  t_exit = jnp.min(jnp.maximum(t1, t2), axis=-1)
+  t_min = jnp.clip(t_enter, near, far)
+  t_max = jnp.clip(t_exit, near, far)
+  return t_min, jnp.maximum(t_min, t_max)
 
 
 def project(points, height, width, focal, c2w, pixel_center=0.0):

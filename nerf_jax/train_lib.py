@@ -17,81 +17,45 @@ import time
 import flax.struct
 import jax
 import jax.numpy as jnp
-import ml_collections
 import numpy as np
 import optax
 
-from nerf_jax import checkpoints, metrics, parallel, progress, render_lib, renderer, summary
-from nerf_jax.data import loaders
-from nerf_jax.model import make_model
+from nerf_jax import (background, checkpoints, experiment, metrics, occupancy, outputs, parallel,
+                      progress, renderer, summary)
+from nerf_jax.experiment import TrainingError, TrainState  # noqa: F401  (re-exported)
 from nerf_jax.rays import Rays
-
-
-class TrainingError(RuntimeError):
-  """Training cannot go on (non-finite loss, bad config); the message says why and what to do."""
-
-
-@flax.struct.dataclass
-class TrainState:
-  step: jnp.ndarray  # int32 [], steps taken
-  params: dict  # {'coarse': ..., ['fine': ...]}
-  opt_state: optax.OptState
-  bad_step: jnp.ndarray  # int32 [], first step whose loss or gradient was non-finite, -1 if none
 
 
 @flax.struct.dataclass
 class TrainData:
   """Training pixels, one row per image (P = H·W pixels each).
 
-  origins, directions, viewdirs: float32 [N, P, 3], the rays (see renderer.camera_rays).
+  rays: Rays [N, P], every pixel's ray (see Experiment.rays).
   rgb: float32 [N, P, 3], target colours composited on the configured background.
   acc: float32 [N, P], ground-truth opacity (ones where unknown), for random backgrounds.
   """
-  origins: jnp.ndarray
-  directions: jnp.ndarray
-  viewdirs: jnp.ndarray
+  rays: Rays
   rgb: jnp.ndarray
   acc: jnp.ndarray
 
 
-def make_train_data(dataset, config):
-  """TrainData of every pixel of a `Dataset`, targets on `config.data.background`."""
-  rays = [renderer.camera_rays(dataset.height, dataset.width, dataset.intrinsics, pose, config)
-          for pose in dataset.poses]
-  flat = lambda a: jnp.asarray(np.asarray(a), jnp.float32).reshape(len(dataset), -1, 3)
-  stack = lambda i: flat(np.stack([np.asarray(r[i]) for r in rays]))
-  acc, rgb = _targets(dataset, config)
-  return TrainData(origins=stack(0), directions=stack(1), viewdirs=stack(2), rgb=flat(rgb),
-                   acc=jnp.asarray(acc, jnp.float32).reshape(len(dataset), -1))
+def make_train_data(exp):
+  """TrainData of every pixel of the training images, targets on `config.data.background`."""
+  ds = exp.train_ds
+  per_image = [exp.rays(pose).reshape(-1) for pose in ds.poses]
+  rays = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *per_image)
+  acc, rgb = _targets(exp)
+  return TrainData(rays=rays, rgb=jnp.asarray(rgb, jnp.float32).reshape(len(ds), -1, 3),
+                   acc=jnp.asarray(acc, jnp.float32).reshape(len(ds), -1))
 
 
-def _targets(dataset, config):
+def _targets(exp):
   """(acc [N, H, W], rgb [N, H, W, 3]): targets on the configured background (see
-  render_lib.images_on_background); 'random' is refused without per-pixel opacity."""
-  wanted = config.data.background
-  if getattr(dataset, "accs", None) is None and isinstance(wanted, str) and wanted == "random":
+  outputs.images_on_background); 'random' is refused without per-pixel opacity."""
+  if exp.train_ds.accs is None and background.is_random(exp.config.data.background):
     raise TrainingError("config.data.background='random' needs per-pixel opacity (Blender "
                         "RGBA or built-in scenes); this dataset has none")
-  return render_lib.images_on_background(dataset, config)
-
-
-def make_schedule(train_config):
-  """Linear warm-up to `lr`, then exponential decay reaching `lr_final` at `max_steps`."""
-  tc = train_config
-  decay_steps = max(tc.max_steps - tc.warmup_steps, 1)
-  decay = optax.exponential_decay(tc.lr, decay_steps, tc.lr_final / tc.lr)
-  if tc.warmup_steps <= 0:
-    return decay
-  warmup = optax.linear_schedule(0.0, tc.lr, tc.warmup_steps)
-  return optax.join_schedules([warmup, decay], [tc.warmup_steps])
-
-
-def make_optimizer(train_config):
-  """Adam on the schedule, with optional global-norm gradient clipping."""
-  adam = optax.adam(make_schedule(train_config))
-  if train_config.grad_clip > 0:
-    return optax.chain(optax.clip_by_global_norm(train_config.grad_clip), adam)
-  return adam
+  return outputs.images_on_background(exp.train_ds, exp.config)
 
 
 def draw_batch(data, config, key, step=0, run_key=None):
@@ -105,7 +69,7 @@ def draw_batch(data, config, key, step=0, run_key=None):
   num_images, num_pixels = data.rgb.shape[:2]
   if config.train.batching == "images":
     per_step = config.train.images_per_step
-    if config.train.get("image_order", "random") == "epochs":
+    if config.train.image_order == "epochs":
       run_key = key if run_key is None else run_key
       steps_per_epoch = max(num_images // per_step, 1)
       # A stream of its own: fold_in(run_key, n) is already step n's key.
@@ -122,26 +86,25 @@ def draw_batch(data, config, key, step=0, run_key=None):
   return jax.tree_util.tree_map(take, data)
 
 
-def make_train_step(model, tx, config, near, far, mesh=None):
+def make_train_step(exp, mesh=None):
   """The jitted train step: (state, data, key) -> (state, stats). `state` is donated.
 
   mesh: a `parallel.make_mesh` Mesh to split each batch over its devices (data and state
   replicated on it), or None for one device.
   """
-  fixed_background = jnp.asarray(render_lib.background_colour(config))
-  random_background = isinstance(config.data.background, str) and config.data.background == "random"
+  model, tx, config = exp.model, exp.tx, exp.config
+  fixed_background = jnp.asarray(background.parse(config.data.background))
+  random_background = background.is_random(config.data.background)
 
   def loss_fn(params, batch, key):
     render_key, bg_key = jax.random.split(key)
-    background, target = fixed_background, batch.rgb
+    bg, target = fixed_background, batch.rgb
     if random_background:
       # A fresh background per ray: the field cannot bake the background into density.
-      background = jax.random.uniform(bg_key, batch.rgb.shape)
-      target = batch.rgb + (1.0 - batch.acc)[:, None] * (background - fixed_background)
-    rays = Rays(batch.origins, batch.directions)
-    outputs = renderer.render_rays(model, params, rays, config, near, far, render_key,
-                                   background, batch.viewdirs)
-    mses = {name: jnp.mean((out["rgb"] - target) ** 2) for name, out in outputs.items()}
+      bg = jax.random.uniform(bg_key, batch.rgb.shape)
+      target = background.recomposite(batch.rgb, batch.acc, fixed_background, bg)
+    outs = renderer.render_rays(model, params, batch.rays, config, render_key, bg)
+    mses = {name: jnp.mean((out["rgb"] - target) ** 2) for name, out in outs.items()}
     loss = mses["coarse"] if "fine" not in mses else (
         mses["fine"] + config.train.coarse_loss_weight * mses["coarse"])
     best = mses.get("fine", mses["coarse"])
@@ -149,7 +112,7 @@ def make_train_step(model, tx, config, near, far, mesh=None):
 
   def refresh_occupancy(params, step):
     """Recompute the occupancy grid from the density field every `update_every` steps."""
-    if not renderer.uses_occupancy(config):
+    if not occupancy.enabled(config):
       return params
     every = config.occupancy.update_every
     grid = jax.lax.cond(step % every == 0, lambda p: renderer.occupancy_grid(model, p, config),
@@ -180,50 +143,16 @@ def make_train_step(model, tx, config, near, far, mesh=None):
 _STEPS = collections.OrderedDict()  # the few most recent train steps, see `_cached_train_step`
 
 
-def _cached_train_step(model, tx, config, near, far, mesh):
+def cached_train_step(exp, mesh=None):
   """`make_train_step`, reused for an equal config in the same process (tests, sweeps and
   resumed runs then compile it once): the step depends on nothing else."""
-  key = (config.to_json(), float(near), float(far), mesh)
+  key = (exp.config.to_json(), exp.near, exp.far, mesh)
   if key not in _STEPS:
-    _STEPS[key] = make_train_step(model, tx, config, near, far, mesh)
+    _STEPS[key] = make_train_step(exp, mesh)
     while len(_STEPS) > 4:
       _STEPS.popitem(last=False)
   _STEPS.move_to_end(key)
   return _STEPS[key]
-
-
-def model_signature(config):
-  """Config fields that fix the parameter shapes; a checkpoint only restores under the same."""
-  m = config.model
-  signature = {"pos_encode_dims": config.pos_encode_dims,
-               "dir_encode_dims": config.dir_encode_dims, "depth": m.depth, "width": m.width,
-               "skip_layers": list(m.skip_layers), "view_dependent": m.view_dependent,
-               "view_width": m.view_width, "networks": list(renderer.network_names(config))}
-  if m.get("encoding", "posenc") != "posenc":  # only then, so older checkpoints stay valid
-    signature.update(encoding=m.encoding, grid_resolutions=list(m.grid_resolutions),
-                     grid_features=m.grid_features)
-  if renderer.uses_occupancy(config):
-    signature.update(occupancy_resolution=config.occupancy.resolution)
-  return signature
-
-
-def state_template(model, tx, config):
-  """The structure of `init_state` (shapes and dtypes, nothing computed): what a checkpoint
-  restores into, in a fraction of a second instead of initialising every parameter eagerly."""
-  return jax.eval_shape(lambda: init_state(model, tx, config))
-
-
-def init_state(model, tx, config):
-  params = renderer.init_params(model, config, jax.random.PRNGKey(config.seed))
-  return TrainState(step=jnp.array(0, jnp.int32), params=params, opt_state=tx.init(params),
-                    bad_step=jnp.array(-1, jnp.int32))
-
-
-def bounds(config, dataset):
-  """(near, far): [0, 1] in NDC, else the config's overrides where set, else the dataset's."""
-  if config.data.get("ndc", False):
-    return 0.0, 1.0  # NDC rays run from the near plane (0) to infinity (1)
-  return (config.data.near or dataset.near, config.data.far or dataset.far)
 
 
 class _StopRequest:
@@ -249,7 +178,8 @@ def _log(workdir, record):
     f.write(json.dumps(record) + "\n")
 
 
-def _rays_per_step(config, dataset):
+def rays_per_step(config, dataset):
+  """Rays in one train step: a batch of random rays, or whole images."""
   tc = config.train
   if tc.batching == "images":
     return tc.images_per_step * dataset.height * dataset.width
@@ -264,18 +194,15 @@ def train_and_evaluate(config, workdir):
   """
   main = parallel.is_main_process()
   os.makedirs(workdir, exist_ok=True)
-  train_ds, test_ds = loaders.load_dataset(config.data)
-  near, far = bounds(config, train_ds)
-  model = make_model(config.model)
-  tx = make_optimizer(config.train)
-  signature = model_signature(config)
+  exp = experiment.setup(config)
+  near, far = exp.near, exp.far
+  signature = experiment.model_signature(config)
   ckpt = checkpoints.latest_path(workdir)
   elapsed = 0.0
   if not ckpt:
-    state = init_state(model, tx, config)
+    state = experiment.init_state(exp)
   else:
-    state, meta = checkpoints.restore_with_meta(ckpt, state_template(model, tx, config),
-                                                signature)
+    state, meta = checkpoints.restore_with_meta(ckpt, experiment.state_template(exp), signature)
     elapsed = float(meta.get("wall_seconds", 0.0))
     if main:
       print(f"resuming from {ckpt} at step {int(state.step)}", flush=True)
@@ -284,15 +211,15 @@ def train_and_evaluate(config, workdir):
                              config.to_json(indent=2).encode())
 
   tc = config.train
-  mesh = parallel.make_mesh(tc.get("data_parallel", True))
-  rays_per_step = _rays_per_step(config, train_ds)
-  parallel.check_batch(rays_per_step, mesh)
-  data = parallel.replicate(make_train_data(train_ds, config), mesh)
+  mesh = parallel.make_mesh(tc.data_parallel)
+  step_rays = rays_per_step(config, exp.train_ds)
+  parallel.check_batch(step_rays, mesh)
+  data = parallel.replicate(make_train_data(exp), mesh)
   state = parallel.replicate(state, mesh)
-  train_step = _cached_train_step(model, tx, config, near, far, mesh)
-  evaluate = render_lib.make_evaluator(model, config, near, far, test_ds)
-  schedule = make_schedule(tc)
-  writer = summary.Writer(workdir, enabled=main and tc.get("tensorboard", True))
+  train_step = cached_train_step(exp, mesh)
+  evaluate = outputs.make_evaluator(exp)
+  schedule = experiment.make_schedule(tc)
+  writer = summary.Writer(workdir, enabled=main and tc.tensorboard)
   key = jax.random.PRNGKey(config.seed + 1)
   start_step = int(state.step)
   t_start = time.perf_counter() - elapsed
@@ -310,7 +237,7 @@ def train_and_evaluate(config, workdir):
         stats = jax.device_get(stats)
         _check_finite(state, workdir)
         now = time.perf_counter()
-        rays_s = (step - last_log_step) * rays_per_step / max(now - last_log, 1e-9)
+        rays_s = (step - last_log_step) * step_rays / max(now - last_log, 1e-9)
         last_log, last_log_step = now, step
         wall = now - t_start
         record = {"step": step, "wall_seconds": round(wall, 3), "loss": float(stats["loss"]),
@@ -368,8 +295,7 @@ def train_and_evaluate(config, workdir):
   print(f"test PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.4f} over "
         f"{len(result['per_view'])} views after {step} steps ({train_seconds:.0f} s)", flush=True)
   if config.render.after_training:
-    render_lib.render_video(model, params, config, near, far,
-                            train_ds, os.path.join(workdir, "video"))
+    outputs.render_video(exp, params, os.path.join(workdir, "video"))
   return result
 
 
@@ -384,9 +310,9 @@ def _first_view_into(images, near, far):
   """An evaluator `on_view` callback putting the first view's TensorBoard images in `images`."""
   def on_view(index, out, truth):
     if index == 0:
-      images.update({"eval/rgb": render_lib.to_uint8(out["rgb"]),
-                     "eval/depth": render_lib.colorize(out["depth"], near, far),
-                     "eval/truth": render_lib.to_uint8(truth)})
+      images.update({"eval/rgb": outputs.to_uint8(out["rgb"]),
+                     "eval/depth": outputs.colorize(out["depth"], near, far),
+                     "eval/truth": outputs.to_uint8(truth)})
   return on_view
 
 
@@ -405,12 +331,3 @@ def _check_finite(state, workdir):
     raise TrainingError(f"non-finite loss or gradient at step {bad + 1}; the update was not "
                         f"applied; last good checkpoint: {last}. Try a lower config.train.lr "
                         "or set config.train.grad_clip.")
-
-
-def load_config_json(workdir):
-  """The ConfigDict a run saved in `workdir/config.json`."""
-  path = os.path.join(workdir, "config.json")
-  if not os.path.exists(path):
-    raise TrainingError(f"{path} not found: is {workdir} a training workdir?")
-  with open(path) as f:
-    return ml_collections.ConfigDict(json.load(f))

@@ -6,9 +6,12 @@ Nothing here asserts on speed.
 import json
 
 import numpy as np
+from absl import flags
 
-from configs import debug
-from nerf_jax import bench_render, cli, render_lib, renderer, train_lib
+from nerf_jax import cli, experiment, outputs, train_lib
+from nerf_jax.bench import cli as bench_cli
+from nerf_jax.bench import render
+from nerf_jax.configs import debug
 
 
 def _trained_workdir(tmp_path):
@@ -21,25 +24,33 @@ def _trained_workdir(tmp_path):
   return workdir
 
 
-def test_render_bench_writes_frame_video_and_big_frame_figures(tmp_path):
+def test_render_bench_writes_frame_video_and_big_frame_figures(tmp_path, capsys):
   workdir = _trained_workdir(tmp_path)
   out = tmp_path / "render.json"
-  bench_render.main([f"--workdir={workdir}", "--frame_size=24", "--repeats=2", "--frames=2",
-                     "--sizes=40", f"--out={out}"])
+  argv = ["nerf_jax.bench.render", f"--workdir={workdir}", "--frame_size=24", "--repeats=2",
+          "--frames=2", "--sizes=40", f"--out={out}"]
+  values = flags.FlagValues()  # private: absl's global flags hold each name once per process
+  bench_cli.define_render_flags(values)
+  cli.parse_flags(argv, values)
+  bench_cli.render_speed(values)
+  assert capsys.readouterr().out.strip().splitlines()[-1] == f"-> {out}"
   record = json.loads(out.read_text())
   assert len(record["frame_ms"]) == 2 and record["frame_ms_median"] > 0
   assert len(record["plain_frame_ms"]) == 2  # the plain path, side by side
   assert record["video_frames"] == 2 and record["video_seconds"] > 0
-  (big,) = record["big_frames"]
+  (big,) = record["big_frames"]  # measured by `python -m nerf_jax.bench.render` in a subprocess
   assert big["size"] == 40 and big["finite"]
   assert big["peak_rss_mb"] >= big["rss_before_mb"] > 0
   assert record["machine"]["cpu_count"] >= 1
 
-  # At the dataset's own size the timed frame is exactly the first test view.
-  restored = cli.restore_for_render(workdir)
-  config, model, params, _, test_ds, near, far = restored
-  frame = bench_render._render_once(restored, test_ds.width)()
-  evaluator_frame = render_lib.render_pose(
-      renderer.make_image_renderer(model, config, near, far)(params), test_ds.poses[0], test_ds.height, test_ds.width, test_ds.intrinsics, config,
-      render_lib.background_colour(config))
-  np.testing.assert_allclose(frame["rgb"], evaluator_frame["rgb"], atol=1e-6)
+  # At the dataset's own size the timed frame is exactly the evaluator's first test view.
+  exp, state = experiment.restore(workdir)
+  test = exp.test_ds
+  height, width, intrinsics = exp.camera(1.0)  # the frame's camera: the training one
+  assert (height, width) == (test.height, test.width)
+  np.testing.assert_allclose(intrinsics, test.intrinsics)
+  frame = render.frame_renderer(exp, state.params, max(test.height, test.width))()
+  views = {}
+  outputs.make_evaluator(exp)(state.params, max_views=1,
+                              on_view=lambda i, out, truth: views.update({i: out}))
+  np.testing.assert_allclose(frame["rgb"], views[0]["rgb"], atol=1e-6)

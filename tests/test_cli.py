@@ -1,7 +1,8 @@
 """Bad input gets one clear line and exit status 1, through the entry points' own code paths.
 
-Most cases run in-process (`cli.run_main` around `cli.train` / `cli.render`, `cli.parse_flags`
-on a private FlagValues); a few run `train.py` / `python -m nerf_jax.*` in a subprocess.
+Most cases run in-process (`cli.run_main` around `cli.train` / `outputs.render`,
+`cli.resolve_config_argv` and `cli.parse_flags` on a private FlagValues); a few run `train.py`,
+`render.py` in a subprocess.
 """
 
 import copy
@@ -18,10 +19,9 @@ import pytest
 from absl import flags, logging
 from ml_collections import config_flags
 
-from configs import debug, default
-from nerf_jax import checkpoints, cli, train_lib
+from nerf_jax import checkpoints, cli, config_lib, experiment, outputs
+from nerf_jax.configs import debug, default
 from nerf_jax.data import DataError
-from nerf_jax.model import make_model
 from tests.helpers import blender_folder as _blender
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -172,10 +172,9 @@ def test_run_writes_tensorboard_events_and_json_logs(trained):
   assert [r["step"] for r in records] == [1, 2, 2] and "eval_psnr" in records[1]
   assert records[2]["final"] and "eval_ssim" in records[2]
   # The wall time spent travels inside the checkpoint (no separate, non-atomic progress file).
-  template = train_lib.state_template(make_model(config.model),
-                                      train_lib.make_optimizer(config.train), config)
+  template = experiment.state_template(experiment.setup(config))
   _, meta = checkpoints.restore_with_meta(checkpoints.latest_path(str(workdir)), template,
-                                          train_lib.model_signature(config))
+                                          experiment.model_signature(config))
   assert meta["wall_seconds"] > 0 and not (workdir / "progress.json").exists()
 
 
@@ -202,27 +201,28 @@ def test_damaged_checkpoint_is_named(capsys, tmp_path, trained):
 
 
 def test_render_needs_a_workdir_with_a_checkpoint(capsys, tmp_path):
-  _one_line_error(capsys, lambda: cli.render(str(tmp_path / "none"), "eval"),
+  _one_line_error(capsys, lambda: outputs.render(str(tmp_path / "none"), "eval"),
                   "none", "no such directory")
-  _one_line_error(capsys, lambda: cli.render(str(tmp_path), "eval"),
+  _one_line_error(capsys, lambda: outputs.render(str(tmp_path), "eval"),
                   "config.json not found")
   (tmp_path / "config.json").write_text(_config().to_json())
-  _one_line_error(capsys, lambda: cli.render(str(tmp_path), "eval"),
+  _one_line_error(capsys, lambda: outputs.render(str(tmp_path), "eval"),
                   "no checkpoint", "train first")
 
 
 # --- flags and config overrides -----------------------------------------------------------------
 
-def _parse(monkeypatch, capsys, *args):
-  """cli.parse_flags on a private FlagValues with a config flag; returns (flag values, error)."""
-  argv = ["train.py", *args]
-  monkeypatch.setattr(sys, "argv", argv)  # config_flags reads the overrides from sys.argv
+def _parse(capsys, *args):
+  """cli.resolve_config_argv + cli.parse_flags on a private FlagValues with the config flag, as
+  train_main does; returns (flag values, the one error line or None)."""
   values = flags.FlagValues()
-  config_flags.DEFINE_config_file("config", os.path.join(ROOT, "configs", "debug.py"), "",
-                                  flag_values=values, lock_config=True)
   capsys.readouterr()
   try:
+    argv, _ = cli.resolve_config_argv(["train.py", *args])
+    config_flags.DEFINE_config_file("config", config_lib.resolve("debug"), "",
+                                    flag_values=values, lock_config=True, sys_argv=argv)
     cli.parse_flags(argv, values)
+    values.config.seed  # the config flag loads lazily  # pylint: disable=pointless-statement
   except SystemExit as e:
     assert e.code == 1
     lines = capsys.readouterr().err.strip().splitlines()
@@ -231,23 +231,49 @@ def _parse(monkeypatch, capsys, *args):
   return values, None
 
 
-def test_config_overrides(monkeypatch, capsys):
+def test_config_overrides(capsys):
   cfg = f"--config={os.path.join(ROOT, 'configs', 'debug.py')}"
-  values, error = _parse(monkeypatch, capsys, cfg, "--config.data.holdout_from=3")
+  values, error = _parse(capsys, cfg, "--config.data.holdout_from=3")
   assert error is None and values.config.data.holdout_from == 3
-  _, error = _parse(monkeypatch, capsys, cfg, "--config.data.bogus=1")
+  _, error = _parse(capsys, cfg, "--config.data.bogus=1")
   assert "--config.data.bogus" in error and "config.data has no field 'bogus'" in error
   assert "holdout_from" in error  # lists the valid fields
-  _, error = _parse(monkeypatch, capsys, cfg, "--config.bogus.x=1")
+  _, error = _parse(capsys, cfg, "--config.bogus.x=1")
   assert "config has no field 'bogus'" in error
-  _, error = _parse(monkeypatch, capsys, cfg, "--config.train.max_steps=1.5")
+  _, error = _parse(capsys, cfg, "--config.train.max_steps=1.5")
   assert "--config.train.max_steps=1.5" in error and "int" in error
-  _, error = _parse(monkeypatch, capsys, "--config=nope/missing.py")
-  assert "--config=nope/missing.py: no such config file" in error
-  _, error = _parse(monkeypatch, capsys, cfg, "stray")
+  _, error = _parse(capsys, "--config=nope/missing.py")
+  assert "--config=nope/missing.py: no such config file or name" in error
+  _, error = _parse(capsys, cfg, "stray")
   assert "unexpected argument 'stray'" in error
-  _, error = _parse(monkeypatch, capsys, "--workdir=x")
+  _, error = _parse(capsys, "--workdir=x")
   assert "workdir" in error
+
+
+def test_config_by_name_from_anywhere(capsys, tmp_path, monkeypatch):
+  """`--config=fast` and `--config=scenes/fog` name installed configs from any directory."""
+  monkeypatch.chdir(tmp_path)
+  values, error = _parse(capsys, "--config=fast", "--config.train.max_steps=7")
+  assert error is None and values.config.model.encoding == "grid"
+  assert values.config.train.max_steps == 7
+  values, error = _parse(capsys, "--config=scenes/fog")
+  assert error is None and values.config.data.scene == "fog"
+  (tmp_path / "broken.py").write_text("def get_config():\n  return 1 / 0\n")
+  _, error = _parse(capsys, "--config=broken.py")
+  assert error == "error: --config=broken.py: cannot load the config file (ZeroDivisionError: " \
+                  "division by zero)"
+
+
+def test_saved_config_is_completed_with_todays_defaults(tmp_path):
+  """A config.json written before a field existed gets the default's value for it, once."""
+  saved = _config().to_dict()
+  del saved["render"]["march"], saved["model"]["encoding"]
+  saved["model"]["skip_layers"] = [1]  # JSON has no tuples
+  (tmp_path / "config.json").write_text(json.dumps(saved))
+  config = config_lib.load_saved(str(tmp_path))
+  assert config.render.march == default.get_config().render.march
+  assert config.model.encoding == "posenc" and config.model.skip_layers == (1,)
+  assert config.train.max_steps == 2  # the saved values win
 
 
 def _run(args, cwd=ROOT):
@@ -262,7 +288,10 @@ def test_entry_points_print_one_line(tmp_path):
   assert res.returncode == 1 and res.stderr.strip().splitlines() == [
       f"error: --config.data.bogus: config.data has no field 'bogus' (fields: "
       f"{', '.join(sorted(debug.get_config().data.keys()))})"], res.stderr
-  res = _run(["-m", "nerf_jax.train", "--config=configs/debug.py",
+  res = _run(["render.py", "--workdir=" + str(tmp_path / "nowhere")])
+  assert res.returncode == 1 and res.stderr.strip().splitlines() == [
+      f"error: --workdir={tmp_path}/nowhere: no such directory"], res.stderr
+  res = _run(["train.py", "--config=configs/debug.py",
               f"--config.data.path={tmp_path}/missing.npz", f"--workdir={tmp_path}/w"])
   assert res.returncode == 1, res.stderr
   assert res.stderr.strip().splitlines() == [f"error: {tmp_path}/missing.npz: no such file "
@@ -270,6 +299,7 @@ def test_entry_points_print_one_line(tmp_path):
 
 
 def test_verbosity_asks_for_the_traceback(monkeypatch, tmp_path):
+  """With --verbosity the user's error propagates (absl then prints the traceback)."""
   monkeypatch.setattr(flags.FLAGS["verbosity"], "present", 1)
   previous = logging.get_verbosity()
   logging.set_verbosity(logging.DEBUG)
@@ -286,5 +316,5 @@ def test_every_config_sets_only_fields_the_default_has(name):
   flat = lambda c, p="": {k for key, v in c.items()
                           for k in (flat(v, f"{p}{key}.") if hasattr(v, "items")
                                     else [f"{p}{key}"])}
-  config = importlib.import_module(f"configs.{name}").get_config()
+  config = importlib.import_module(f"nerf_jax.configs.{name}").get_config()
   assert flat(config) == flat(default.get_config())

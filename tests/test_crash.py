@@ -14,8 +14,9 @@ import jax
 import numpy as np
 import pytest
 
-from configs import debug
+from nerf_jax.configs import debug
 from nerf_jax import checkpoints, cli, train_lib
+from tests.conftest import params_equal, restored_params
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 STEPS, EVERY = 120, 10
@@ -104,8 +105,5 @@ def test_killed_then_stopped_then_resumed_run_matches_an_uninterrupted_one(tmp_p
     assert resumed[key] == clean[key], key
   saved = json.loads(open(os.path.join(workdir, "metrics.json")).read())
   assert saved["per_view"] == clean["per_view"]
-  _, _, p_resumed, *_ = cli.restore_for_render(workdir)
-  _, _, p_clean, *_ = cli.restore_for_render(str(tmp_path / "clean"))
-  for a, b in zip(jax.tree_util.tree_leaves(p_resumed), jax.tree_util.tree_leaves(p_clean)):
-    np.testing.assert_array_equal(a, b)  # bitwise
+  assert params_equal(restored_params(workdir), restored_params(tmp_path / "clean"))  # bitwise
   assert len(checkpoints.list_steps(workdir)) <= 3  # keep_checkpoints

@@ -7,8 +7,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from configs import debug
-from nerf_jax import grid, renderer
+from nerf_jax.configs import debug
+from nerf_jax import field, grid, renderer
+from nerf_jax import rays as rays_lib
 from nerf_jax.model import make_model
 from nerf_jax.rays import Rays, get_rays, pose_spherical
 
@@ -56,7 +57,7 @@ def _box_bounds_brute(o, d, bound, near, far, n=200001):
 def test_ray_box_bounds_match_brute_force():
   origins, directions = get_rays(7, 7, 5.0, pose_spherical(30.0, -40.0, 4.0))
   o, d = np.asarray(origins).reshape(-1, 3), np.asarray(directions).reshape(-1, 3)
-  t0, t1 = grid.ray_box_bounds(jnp.asarray(o), jnp.asarray(d), 1.0, 2.0, 6.0)
+  t0, t1 = rays_lib.ray_box_bounds(jnp.asarray(o), jnp.asarray(d), 1.0, 2.0, 6.0)
   hits = 0
   for i in range(len(o)):
     brute = _box_bounds_brute(o[i], d[i], 1.0, 2.0, 6.0)
@@ -71,7 +72,7 @@ def test_ray_box_bounds_match_brute_force():
 def test_ray_box_bounds_axis_parallel_and_zero_directions_are_finite():
   o = jnp.array([[0.0, 0.0, 4.0], [2.0, 0.0, 4.0], [0.0, 0.0, 0.0]])
   d = jnp.array([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0], [0.0, 0.0, 0.0]])
-  t0, t1 = grid.ray_box_bounds(o, d, 1.0, 2.0, 6.0)
+  t0, t1 = rays_lib.ray_box_bounds(o, d, 1.0, 2.0, 6.0)
   assert np.all(np.isfinite(t0)) and np.all(np.isfinite(t1))
   np.testing.assert_allclose([t0[0], t1[0]], [3.0, 5.0], atol=1e-6)
   assert t1[1] == t0[1]  # parallel to the box, outside it: empty segment
@@ -90,17 +91,17 @@ def test_box_restricted_sampling_renders_the_plain_image():
   """Sampling only inside the box changes cost, not the image: the field is empty outside."""
   config = _grid_config()
   model = make_model(config.model)
-  params = renderer.init_params(model, config, jax.random.PRNGKey(0))
+  params = field.init_params(model, config, jax.random.PRNGKey(0))
   # A "trained toy model": a dense blob in the middle of the box.
   level = params["coarse"]["grid_16"]
   params["coarse"]["grid_16"] = level.at[5:11, 5:11, 5:11].set(3.0)
   origins, directions = get_rays(12, 12, 15.0, pose_spherical(10.0, -30.0, 4.0))
-  rays = Rays(origins.reshape(-1, 3), directions.reshape(-1, 3))
+  rays = Rays.create(origins.reshape(-1, 3), directions.reshape(-1, 3), 2.0, 6.0)
   fast_cfg, plain_cfg = _grid_config(), _grid_config()
   fast_cfg.num_samples, fast_cfg.data.scene_bound = 256, 1.5
   plain_cfg.num_samples, plain_cfg.data.scene_bound = 1024, 0.0
-  fast = renderer.final(renderer.render_rays(model, params, rays, fast_cfg, 2.0, 6.0))
-  plain = renderer.final(renderer.render_rays(model, params, rays, plain_cfg, 2.0, 6.0))
+  fast = renderer.final(renderer.render_rays(model, params, rays, fast_cfg))
+  plain = renderer.final(renderer.render_rays(model, params, rays, plain_cfg))
   assert float(jnp.max(fast["acc"])) > 0.5  # the blob is visible
   np.testing.assert_allclose(fast["rgb"], plain["rgb"], atol=2e-2)
   np.testing.assert_allclose(fast["acc"], plain["acc"], atol=2e-2)

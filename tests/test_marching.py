@@ -9,8 +9,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from configs import fast
-from nerf_jax import cli, marching, render_lib, renderer, rendering, sampling, train_lib
+from nerf_jax.configs import fast
+from nerf_jax import background, empty_space, experiment, image_renderer, rendering, sampling
+from nerf_jax import train_lib
 
 NUM_RAYS, NUM_SAMPLES = 64, 32
 RADIUS = 0.5  # the analytic field: a ball of this radius at the origin
@@ -43,9 +44,9 @@ def _plain_and_marched(density, mask, min_transmittance, live=None, group=4):
   rgb_all, sigma_all = field(None, points.reshape(-1, 3), None)
   plain = rendering.composite(rgb_all.reshape(NUM_RAYS, NUM_SAMPLES, 3),
                               sigma_all.reshape(NUM_RAYS, NUM_SAMPLES), t)
-  occupied, rank = marching.occupied_ranks(mask, points, 1.0)
+  occupied, rank = empty_space.occupied_ranks(mask, points, 1.0)
   live = np.ones(NUM_RAYS, bool) if live is None else live
-  sigma, rgb, queried = marching.march(marching.make_query_round(field), None, t, points,
+  sigma, rgb, queried = empty_space.march(empty_space.make_query_round(field), None, t, points,
                                        viewdirs, occupied, rank, live, group, min_transmittance)
   return plain, rendering.composite(rgb, sigma, t), queried, occupied
 
@@ -80,7 +81,7 @@ def test_skipped_cells_are_never_queried_and_exact_where_empty():
   # A mask of the ball's cells (grid over [-1, 1]^3): outside samples are skipped, and they are
   # empty, so the image is exactly the plain one.
   field = _ball_field(5.0)
-  mask = marching.skip_grid(lambda p: field(None, p, None)[1], 16, 1.0, 1e-3)
+  mask = empty_space.skip_grid(lambda p: field(None, p, None)[1], 16, 1.0, 1e-3)
   plain, marched, queried, occupied = _plain_and_marched(5.0, mask, 0.0)
   assert 0 < int(occupied.sum()) < 0.5 * occupied.size
   assert queried < 0.5 * NUM_RAYS * NUM_SAMPLES
@@ -96,16 +97,16 @@ def test_an_empty_mask_or_dead_rays_query_nothing():
 
 
 def test_buffers_cover_every_selected_sample_once():
-  small, large = marching.SMALL_BUFFER, marching.LARGE_BUFFER
-  assert marching.buffers(0) == []
-  assert marching.buffers(1) == [(0, small)]
-  assert marching.buffers(small + 1) == [(0, 2 * small)]
-  assert marching.buffers(2 * large + 1) == [(0, large), (large, large), (2 * large, small)]
+  small, large = empty_space.SMALL_BUFFER, empty_space.LARGE_BUFFER
+  assert empty_space.buffers(0) == []
+  assert empty_space.buffers(1) == [(0, small)]
+  assert empty_space.buffers(small + 1) == [(0, 2 * small)]
+  assert empty_space.buffers(2 * large + 1) == [(0, large), (large, large), (2 * large, small)]
 
 
 def test_a_round_bigger_than_a_buffer_is_queried_in_several(monkeypatch):
-  monkeypatch.setattr(marching, "SMALL_BUFFER", 16)
-  monkeypatch.setattr(marching, "LARGE_BUFFER", 100)  # a round of 64 rays needs several
+  monkeypatch.setattr(empty_space, "SMALL_BUFFER", 16)
+  monkeypatch.setattr(empty_space, "LARGE_BUFFER", 100)  # a round of 64 rays needs several
   plain, marched, queried, _ = _plain_and_marched(5.0, jnp.ones((8, 8, 8), bool), 0.0)
   assert queried == NUM_RAYS * NUM_SAMPLES
   np.testing.assert_allclose(marched["rgb"], plain["rgb"], rtol=1e-6, atol=1e-6)
@@ -115,11 +116,11 @@ def test_a_round_bigger_than_a_buffer_is_queried_in_several(monkeypatch):
                                     {"render.march": False}, {"occupancy.enabled": True}])
 def test_marching_only_where_it_applies(change):
   config = fast.get_config()
-  assert renderer.marches(config)
+  assert image_renderer.marches(config)
   for field, value in change.items():
     section, _, name = field.rpartition(".")
     (config[section] if section else config)[name] = value
-  assert not renderer.marches(config)
+  assert not image_renderer.marches(config)
 
 
 @pytest.fixture(scope="module")
@@ -141,22 +142,21 @@ def trained_fast(tmp_path_factory):
   workdir = str(tmp_path_factory.mktemp("fast") / "run")
   result = train_lib.train_and_evaluate(config, workdir)
   assert result["psnr"] > 20  # the model has learnt the scene: empty space is empty
-  config, model, params, _, test_ds, near, far = cli.restore_for_render(workdir)
-  return config, model, params, test_ds, near, far
+  exp, state = experiment.restore(workdir)
+  return exp, state.params
 
 
 def test_marching_renders_the_plain_image_of_a_trained_model(trained_fast):
-  config, model, params, test_ds, near, far = trained_fast
-  assert renderer.marches(config)
-  background = render_lib.background_colour(config)
-  marched = renderer.make_image_renderer(model, config, near, far)(params)
-  plain_chunk = renderer.make_chunk_renderer(model, config, near, far)
+  exp, params = trained_fast
+  config, test_ds = exp.config, exp.test_ds
+  assert image_renderer.marches(config)
+  bg = background.parse(config.data.background)
+  marched = image_renderer.make_image_renderer(exp.model, config)(params)
+  plain_chunk = image_renderer.make_chunk_renderer(exp.model, config)
   for i in range(len(test_ds)):
-    origins, directions, viewdirs = renderer.camera_rays(
-        test_ds.height, test_ds.width, test_ds.intrinsics, test_ds.poses[i], config)
-    a = renderer.render_image(plain_chunk, params, origins, directions, config.render.chunk,
-                              background, viewdirs)
-    b = marched(origins, directions, viewdirs=viewdirs, background=background)
+    rays = exp.rays(test_ds.poses[i])
+    a = image_renderer.render_image(plain_chunk, params, rays, bg, config.render.chunk)
+    b = marched(rays, bg)
     assert np.max(np.abs(a["rgb"] - b["rgb"])) < 2e-2
     assert np.mean(np.abs(a["rgb"] - b["rgb"])) < 2e-3
     # The documented bound on opacity: the skipped cells' density along the longest segment in
@@ -169,14 +169,13 @@ def test_marching_renders_the_plain_image_of_a_trained_model(trained_fast):
 
 
 def test_marching_skips_most_samples_of_a_trained_model(trained_fast):
-  config, model, params, test_ds, near, far = trained_fast
-  marcher = renderer._Marcher(model, config, near, far)
+  exp, params = trained_fast
+  config = exp.config
+  marcher = image_renderer._Marcher(exp.model, config)  # pylint: disable=protected-access
   mask = marcher.skip_grid(params)
-  origins, directions, viewdirs = renderer.camera_rays(
-      test_ds.height, test_ds.width, test_ds.intrinsics, test_ds.poses[0], config)
-  flat = lambda a: jnp.asarray(a, jnp.float32).reshape(-1, 3)
-  t, points, occupied, rank = marcher.plan(mask, flat(origins), flat(directions))
-  _, _, queried = marching.march(marcher.query_round, params, t, points, flat(viewdirs),
+  rays = exp.rays(exp.test_ds.poses[0]).reshape(-1)
+  t, points, occupied, rank = marcher.plan(mask, rays)
+  _, _, queried = empty_space.march(marcher.query_round, params, t, points, rays.viewdirs,
                                  occupied, rank, np.ones(t.shape[0], bool),
                                  config.render.march_group, config.render.min_transmittance)
   assert 0.0 < float(jnp.mean(mask)) < 0.5  # the trained toy field: about 12% non-empty

@@ -9,8 +9,8 @@ import jax
 import numpy as np
 import pytest
 
-from configs import debug
-from nerf_jax import checkpoints, mesh, scenes, train_lib
+from nerf_jax.configs import debug
+from nerf_jax import checkpoints, experiment, scenes, surface
 from nerf_jax.model import make_model
 from nerf_jax.scenes.geometry import Box, Cylinder, Sphere
 
@@ -25,8 +25,8 @@ def _sphere_density(radius, centre=(0.0, 0.0, 0.0), scale=100.0):
 @pytest.mark.parametrize("resolution", [24, 61])
 def test_sphere_radius_within_a_voxel(resolution):
   radius, centre, bound, threshold = 0.63, (0.1, -0.2, 0.05), 1.0, 5.0
-  density = mesh.sample_grid(_sphere_density(radius, centre), bound, resolution, chunk=4096)
-  vertices, faces, normals = mesh.marching_cubes(density, threshold, bound)
+  density = surface.sample_grid(_sphere_density(radius, centre), bound, resolution, chunk=4096)
+  vertices, faces, normals = surface.marching_cubes(density, threshold, bound)
   voxel = 2 * bound / (resolution - 1)
   distance = np.linalg.norm(vertices - centre, axis=-1)
   truth = radius - threshold / 100.0  # where sigma = threshold
@@ -57,8 +57,8 @@ def test_built_in_scene_surfaces_within_a_voxel():
   occupancy = lambda p: 100.0 * np.any([_signed_distance(s, p) <= 0 for s in shapes], axis=0)
   bound, resolution = 1.2, 49
   voxel = 2 * bound / (resolution - 1)
-  density = mesh.sample_grid(occupancy, bound, resolution, chunk=8192)
-  vertices, faces, _ = mesh.marching_cubes(density, 50.0, bound)
+  density = surface.sample_grid(occupancy, bound, resolution, chunk=8192)
+  vertices, faces, _ = surface.marching_cubes(density, 50.0, bound)
   assert len(faces) > 1000
   distances = np.abs(np.stack([_signed_distance(s, vertices) for s in shapes]))
   # Every vertex is within a voxel of some object's surface...
@@ -73,9 +73,9 @@ def test_built_in_scene_surfaces_within_a_voxel():
 
 
 def test_threshold_without_a_surface_is_refused():
-  density = mesh.sample_grid(_sphere_density(0.5), 1.0, 8)
+  density = surface.sample_grid(_sphere_density(0.5), 1.0, 8)
   with pytest.raises(ValueError, match="--threshold=1000: no surface"):
-    mesh.marching_cubes(density, 1000.0, 1.0)
+    surface.marching_cubes(density, 1000.0, 1.0)
 
 
 def test_ply_round_trip(tmp_path):
@@ -84,14 +84,14 @@ def test_ply_round_trip(tmp_path):
   faces = rng.integers(0, 7, size=(5, 3)).astype(np.int32)
   colors = rng.integers(0, 256, size=(7, 3)).astype(np.uint8)
   path = str(tmp_path / "m.ply")
-  mesh.write_ply(path, vertices, faces, colors)
+  surface.write_ply(path, vertices, faces, colors)
   with open(path, "rb") as f:
     assert f.read(3) == b"ply"
-  back = mesh.read_ply(path)
+  back = surface.read_ply(path)
   for a, b in zip(back, (vertices, faces, colors)):
     np.testing.assert_array_equal(a, b)
-  mesh.write_ply(path, vertices, faces)
-  assert mesh.read_ply(path)[2] is None
+  surface.write_ply(path, vertices, faces)
+  assert surface.read_ply(path)[2] is None
 
 
 RADIUS, RED = 0.6, np.array([250, 5, 5])
@@ -107,10 +107,8 @@ def _sphere_field_workdir(workdir):
   config.model.grid_bound = 1.0
   config.model.width = 4
   config.model.density_activation = "relu"
-  model = make_model(config.model)
-  tx = train_lib.make_optimizer(config.train)
   state = jax.tree_util.tree_map(lambda s: np.zeros(s.shape, s.dtype),
-                                 train_lib.state_template(model, tx, config))
+                                 experiment.state_template(experiment.setup(config)))
   params = state.params
   net = params["coarse"]
   axis = np.linspace(-1.0, 1.0, 33)
@@ -123,21 +121,21 @@ def _sphere_field_workdir(workdir):
   os.makedirs(workdir)
   with open(os.path.join(workdir, "config.json"), "w") as f:
     f.write(config.to_json())
-  checkpoints.save(workdir, 1, state, train_lib.model_signature(config))
+  checkpoints.save(workdir, 1, state, experiment.model_signature(config))
   return config
 
 
 def test_render_mesh_mode_recovers_the_sphere_of_a_field(tmp_path):
   workdir = str(tmp_path / "sphere")
   _sphere_field_workdir(workdir)
-  res = subprocess.run([sys.executable, "-m", "nerf_jax.render", f"--workdir={workdir}",
+  res = subprocess.run([sys.executable, "render.py", f"--workdir={workdir}",
                         "--mode=mesh", "--resolution=41", "--threshold=1"], cwd=ROOT,
                        env=dict(os.environ, PYTHONPATH=ROOT), capture_output=True, text=True,
                        timeout=300)
   assert res.returncode == 0, res.stderr[-2000:]
   path = os.path.join(workdir, "mesh", "mesh.ply")
   assert f"to {path}" in res.stdout
-  vertices, faces, colors = mesh.read_ply(path)
+  vertices, faces, colors = surface.read_ply(path)
   voxel = 2.0 / 40
   assert len(faces) > 100
   assert np.abs(np.linalg.norm(vertices, axis=-1) - RADIUS).max() < voxel

@@ -401,7 +401,7 @@ def test_case08_axis_parallel_and_zero_directions():
 
 def _box_bounds_sum(origins, directions):
   from nerf_jax import grid  # pylint: disable=g-import-not-at-top
-  t_min, t_max = grid.ray_box_bounds(origins, directions, 1.5, 2.0, 6.0)
+  t_min, t_max = rays.ray_box_bounds(origins, directions, 1.5, 2.0, 6.0)
   return jnp.sum(t_min) + jnp.sum(t_max), (t_min, t_max)
 
 
@@ -617,29 +617,27 @@ def test_case11_low_precision_mlp_composited():
 @functools.lru_cache(maxsize=None)
 def _train_setup():
   """The debug config's model, optimizer and jitted train step (compiled once), and 2 views."""
-  from configs import debug  # pylint: disable=g-import-not-at-top
-  from nerf_jax import train_lib  # pylint: disable=g-import-not-at-top
+  from nerf_jax import experiment, train_lib  # pylint: disable=g-import-not-at-top
+  from nerf_jax.configs import debug  # pylint: disable=g-import-not-at-top
   config = debug.get_config()
   config.train.batch_rays = 64
-  model = train_lib.make_model(config.model)
-  tx = train_lib.make_optimizer(config.train)
-  step = train_lib.make_train_step(model, tx, config, 2.0, 6.0)
+  exp = experiment.setup(config)
+  step = train_lib.make_train_step(exp)
   # Two views of a random 8x8 target from cameras 4 units from the origin; near 2, far 6.
   ray_list = [rays.get_rays(8, 8, 10.0, pose) for pose in rays.orbit_poses(num_frames=2)]
-  directions = jnp.stack([d.reshape(-1, 3) for _, d in ray_list])
-  fields = {"origins": jnp.stack([o.reshape(-1, 3) for o, _ in ray_list]),
-            "directions": directions, "viewdirs": rays.safe_normalize(directions),
-            "rgb": jnp.asarray(np.random.default_rng(12).uniform(size=(2, 64, 3)), jnp.float32),
-            "acc": jnp.ones((2, 64), jnp.float32)}
-  names = [f.name for f in dataclasses.fields(train_lib.TrainData)]
-  data = train_lib.TrainData(**{name: fields[name] for name in names})
-  return train_lib, config, model, tx, step, data
+  data = train_lib.TrainData(
+      rays=rays.Rays.create(jnp.stack([o.reshape(-1, 3) for o, _ in ray_list]),
+                            jnp.stack([d.reshape(-1, 3) for _, d in ray_list]), 2.0, 6.0),
+      rgb=jnp.asarray(np.random.default_rng(12).uniform(size=(2, 64, 3)), jnp.float32),
+      acc=jnp.ones((2, 64), jnp.float32))
+  return exp, step, data
 
 
 @functools.lru_cache(maxsize=None)
 def _jitted_init_state():
-  train_lib, config, model, tx, _, _ = _train_setup()
-  return jax.jit(lambda: train_lib.init_state(model, tx, config))  # one compile, not op by op
+  from nerf_jax import experiment  # pylint: disable=g-import-not-at-top
+  exp, _, _ = _train_setup()
+  return jax.jit(lambda: experiment.init_state(exp))  # one compile, not op by op
 
 
 def _init_state():
@@ -648,7 +646,8 @@ def _init_state():
 
 @pytest.mark.parametrize("start", ["transparent", "opaque"])
 def test_case12_train_step_from_degenerate_start(start):
-  train_lib, config, model, tx, step, data = _train_setup()
+  exp, step, data = _train_setup()
+  config, tx = exp.config, exp.tx
   assert config.model.density_activation == "relu" and config.model.density_noise == 0
   state = _init_state()
   # Push the density output's bias far out: raw sigma ~ -1e4 (sigma = 0, every ray empty and the

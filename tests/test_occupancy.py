@@ -8,9 +8,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from configs import debug
-from nerf_jax import checkpoints, cli, grid, occupancy, renderer, train_lib
+from nerf_jax.configs import debug
+from nerf_jax import checkpoints, grid, occupancy, renderer, train_lib
+from nerf_jax import rays as rays_lib
 from nerf_jax.rays import Rays
+from tests.conftest import params_equal, restored_params
 
 BOUND = 1.5
 
@@ -60,7 +62,7 @@ def test_an_untrained_uniform_field_counts_as_occupied_everywhere():
 
 def test_all_occupied_gives_stratified_intervals_tiling_the_segment():
   origins, directions = _rays(32)
-  t_min, t_max = grid.ray_box_bounds(origins, directions, BOUND, 2.0, 6.0)
+  t_min, t_max = rays_lib.ray_box_bounds(origins, directions, BOUND, 2.0, 6.0)
   k = 16
   starts, ends, valid = occupancy.sample_occupied(jnp.ones((8, 8, 8), bool), origins, directions,
                                                   t_min, t_max, BOUND, 128, k)
@@ -77,7 +79,7 @@ def test_sparse_grid_samples_exactly_the_occupied_candidates():
   mask = np.zeros((res, res, res), bool)
   mask[3:5, 3:5, 3:5] = True  # the central cube [-0.375, 0.375]^3
   origins, directions = _rays(64, seed=1)
-  t_min, t_max = grid.ray_box_bounds(origins, directions, BOUND, 2.0, 6.0)
+  t_min, t_max = rays_lib.ray_box_bounds(origins, directions, BOUND, 2.0, 6.0)
   starts, ends, valid = occupancy.sample_occupied(jnp.asarray(mask), origins, directions, t_min,
                                                   t_max, BOUND, m, k)
   starts, ends, valid = map(np.asarray, (starts, ends, valid))
@@ -125,10 +127,10 @@ def test_rendering_through_the_grid_matches_dense_sampling():
   occ_config = _analytic_config(64, True)
   params = {"coarse": {}}
   params["occupancy"] = renderer.occupancy_grid(model, params, occ_config)
-  rays = Rays(*_rays(200, seed=2))
-  fast = renderer.final(renderer.render_rays(model, params, rays, occ_config, 2.0, 6.0))
+  rays = Rays.create(*_rays(200, seed=2), 2.0, 6.0)
+  fast = renderer.final(renderer.render_rays(model, params, rays, occ_config))
   dense = renderer.final(renderer.render_rays(model, {"coarse": {}}, rays,
-                                              _analytic_config(4096, False), 2.0, 6.0))
+                                              _analytic_config(4096, False)))
   assert float(jnp.mean(dense["acc"] > 0.5)) > 0.2  # the rays do hit the sphere
   np.testing.assert_allclose(fast["acc"], dense["acc"], atol=0.02)
   np.testing.assert_allclose(fast["rgb"], dense["rgb"], atol=0.02)
@@ -138,7 +140,7 @@ def test_rendering_through_the_grid_matches_dense_sampling():
   # Jittered (training) samples stay finite with gradients through the colour and density.
   key = jax.random.PRNGKey(0)
   loss = lambda o: jnp.sum(renderer.final(renderer.render_rays(
-      model, params, Rays(o, rays.directions), occ_config, 2.0, 6.0, key=key))["rgb"])
+      model, params, Rays.create(o, rays.directions, 2.0, 6.0), occ_config, key=key))["rgb"])
   assert bool(jnp.all(jnp.isfinite(jax.grad(loss)(rays.origins))))
 
 
@@ -167,10 +169,8 @@ def test_training_with_the_grid_resumes_bitwise_and_refreshes_the_grid(tmp_path)
   os.remove(os.path.join(checkpoints.checkpoint_dir(split), "ckpt_20.msgpack"))
   resumed = train_lib.train_and_evaluate(_train_config(20), split)
   assert resumed["steps"] == 20 and np.isfinite(full["psnr"])
-  _, model, p_full, *_ = cli.restore_for_render(str(tmp_path / "full"))
-  _, _, p_split, *_ = cli.restore_for_render(split)
-  for a, b in zip(jax.tree_util.tree_leaves(p_full), jax.tree_util.tree_leaves(p_split)):
-    assert np.array_equal(a, b)
+  p_full, p_split = restored_params(tmp_path / "full"), restored_params(split)
+  assert params_equal(p_full, p_split)
   assert p_full["occupancy"].shape == (12, 12, 12) and float(jnp.max(p_full["occupancy"])) > 0
   assert checkpoints.list_steps(split)[-1] == 20
 
@@ -179,8 +179,8 @@ def test_occupancy_config_errors_name_the_field():
   config = _train_config(1)
   config.data.scene_bound = 0.0
   with pytest.raises(ValueError, match="scene_bound"):
-    renderer.check_occupancy_config(config)
+    occupancy.check_config(config)
   config = _train_config(1)
   config.num_fine_samples = 8
   with pytest.raises(ValueError, match="num_fine_samples"):
-    renderer.check_occupancy_config(config)
+    occupancy.check_config(config)

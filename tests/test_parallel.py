@@ -21,24 +21,19 @@ SCRIPT = r"""
 import json, sys
 import jax
 import numpy as np
-from configs import debug
-from nerf_jax import parallel, train_lib
-from nerf_jax.data import loaders
-from nerf_jax.model import make_model
+from nerf_jax.configs import debug
+from nerf_jax import experiment, parallel, train_lib
 
 config = debug.get_config()
 config.render.after_training = False
-train_ds, _ = loaders.load_dataset(config.data)
-near, far = train_lib.bounds(config, train_ds)
-model = make_model(config.model)
-tx = train_lib.make_optimizer(config.train)
-data = train_lib.make_train_data(train_ds, config)
+exp = experiment.setup(config)
+data = train_lib.make_train_data(exp)
 key = jax.random.PRNGKey(1)
 
 def run(mesh):
-  state = parallel.replicate(train_lib.init_state(model, tx, config), mesh)
+  state = parallel.replicate(experiment.init_state(exp), mesh)
   replicated = parallel.replicate(data, mesh)
-  step = train_lib.make_train_step(model, tx, config, near, far, mesh)
+  step = train_lib.make_train_step(exp, mesh)
   hlo = step.lower(state, replicated, key).compile().as_text()
   losses = []
   for _ in range(STEPS):

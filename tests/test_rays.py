@@ -143,10 +143,13 @@ def test_safe_normalize_value_and_gradient():
 
 def test_rays_pytree_reshape_and_viewdirs():
   origins, directions = get_rays(HEIGHT, WIDTH, 2.0, _c2w(4), 0.0)
-  r = rays.Rays(origins=origins, directions=directions)
+  r = rays.Rays.create(origins, directions, 2.0, 6.0)
   flat = r.reshape(-1)
   assert flat.origins.shape == flat.directions.shape == (HEIGHT * WIDTH, 3)
+  assert flat.near.shape == flat.far.shape == (HEIGHT * WIDTH,) and flat.shape == (HEIGHT * WIDTH,)
   viewdirs = jax.jit(lambda r: r.viewdirs)(flat)
   np.testing.assert_allclose(np.linalg.norm(viewdirs, axis=-1), 1.0, rtol=1e-6)
+  np.testing.assert_allclose(viewdirs, flat.directions / np.linalg.norm(
+      flat.directions, axis=-1, keepdims=True), rtol=1e-6)
   leaves = jax.tree_util.tree_leaves(r)
-  assert len(leaves) == 2
+  assert len(leaves) == 5

@@ -5,8 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from configs import debug
-from nerf_jax import renderer
+from nerf_jax.configs import debug
+from nerf_jax import field, image_renderer, renderer
 from nerf_jax.model import make_model
 from nerf_jax.rays import Rays, get_rays, pose_spherical
 
@@ -20,7 +20,7 @@ def _setup(**overrides):
       node = node[p]
     node[last] = value
   model = make_model(config.model)
-  params = renderer.init_params(model, config, jax.random.PRNGKey(0))
+  params = field.init_params(model, config, jax.random.PRNGKey(0))
   return config, model, params
 
 
@@ -33,20 +33,21 @@ def _rays(n=37):
 def test_render_image_in_chunks_equals_one_call(fine):
   config, model, params = _setup(num_fine_samples=fine)
   origins, directions = _rays()
-  whole = renderer.final(renderer.render_rays(model, params, Rays(origins, directions), config,
-                                              2.0, 6.0))
-  chunked = renderer.render_image(renderer.make_chunk_renderer(model, config, 2.0, 6.0), params,
-                                  origins, directions, chunk=16)
+  rays = Rays.create(origins, directions, 2.0, 6.0)
+  whole = renderer.final(renderer.render_rays(model, params, rays, config))
+  chunked = image_renderer.render_image(image_renderer.make_chunk_renderer(model, config), params,
+                                        rays, chunk=16)
   for k in ("rgb", "depth", "acc"):
     np.testing.assert_allclose(chunked[k], whole[k], rtol=1e-5, atol=1e-6)
 
 
 def test_render_image_does_not_recompile_across_images():
   config, model, params = _setup()
-  render_chunk = renderer.make_chunk_renderer(model, config, 2.0, 6.0)
+  render_chunk = image_renderer.make_chunk_renderer(model, config)
   for n in (37, 20, 64):
     origins, directions = _rays(n)
-    out = renderer.render_image(render_chunk, params, origins, directions, chunk=16)
+    out = image_renderer.render_image(render_chunk, params,
+                                      Rays.create(origins, directions, 2.0, 6.0), chunk=16)
     assert out["rgb"].shape == (n, 3)
   assert render_chunk._cache_size() == 1
 
@@ -54,7 +55,7 @@ def test_render_image_does_not_recompile_across_images():
 def test_hierarchical_pass_uses_union_of_edges():
   config, model, params = _setup(num_fine_samples=8)
   origins, directions = _rays(5)
-  out = renderer.render_rays(model, params, Rays(origins, directions), config, 2.0, 6.0,
+  out = renderer.render_rays(model, params, Rays.create(origins, directions, 2.0, 6.0), config,
                              key=jax.random.PRNGKey(1))
   t_coarse, t_fine = out["coarse"]["t"], out["fine"]["t"]
   assert t_fine.shape == (5, config.num_samples + 8 + 1)
@@ -71,8 +72,8 @@ def test_shared_fine_network_has_one_parameter_set():
 
 def test_deterministic_without_key_and_random_with_key():
   config, model, params = _setup()
-  rays = Rays(*_rays(9))
-  render = lambda key: renderer.final(renderer.render_rays(model, params, rays, config, 2.0, 6.0,
+  rays = Rays.create(*_rays(9), 2.0, 6.0)
+  render = lambda key: renderer.final(renderer.render_rays(model, params, rays, config,
                                                            key=key))["rgb"]
   np.testing.assert_array_equal(render(None), render(None))
   np.testing.assert_array_equal(render(jax.random.PRNGKey(3)), render(jax.random.PRNGKey(3)))
@@ -81,12 +82,12 @@ def test_deterministic_without_key_and_random_with_key():
 
 def test_density_noise_only_with_a_key():
   config, model, params = _setup(**{"model.density_noise": 1.0})
-  rays = Rays(*_rays(9))
+  rays = Rays.create(*_rays(9), 2.0, 6.0)
   t = jnp.broadcast_to(jnp.linspace(2.0, 6.0, 5), (9, 5))
   points = rays.origins[:, None] + rays.directions[:, None] * t[..., None]
-  _, s0 = renderer.query_field(model, params["coarse"], points, rays.viewdirs, config)
-  _, s1 = renderer.query_field(model, params["coarse"], points, rays.viewdirs, config)
-  _, s2 = renderer.query_field(model, params["coarse"], points, rays.viewdirs, config,
+  _, s0 = field.query(model, params["coarse"], points, rays.viewdirs, config)
+  _, s1 = field.query(model, params["coarse"], points, rays.viewdirs, config)
+  _, s2 = field.query(model, params["coarse"], points, rays.viewdirs, config,
                                key=jax.random.PRNGKey(0))
   np.testing.assert_array_equal(s0, s1)
   assert np.all(s2 >= 0) and np.max(np.abs(s2 - s0)) > 0
@@ -96,12 +97,12 @@ def test_density_noise_only_with_a_key():
 def test_remat_chunks_match_one_call_in_values_and_gradients(view_dependent):
   config, model, params = _setup(**{"model.view_dependent": view_dependent})
   origins, directions = _rays(36)
-  rays = Rays(origins, directions)
+  rays = Rays.create(origins, directions, 2.0, 6.0)
   key = jax.random.PRNGKey(3)
 
   def loss(p, chunk):
     config.train.remat_chunk = chunk
-    out = renderer.render_rays(model, p, rays, config, 2.0, 6.0, key=key)["coarse"]
+    out = renderer.render_rays(model, p, rays, config, key=key)["coarse"]
     return jnp.sum(out["rgb"] ** 2) + jnp.sum(out["depth"]), out["rgb"]
 
   (plain, rgb_plain), g_plain = jax.value_and_grad(loss, has_aux=True)(params, 0)
@@ -112,5 +113,5 @@ def test_remat_chunks_match_one_call_in_values_and_gradients(view_dependent):
     np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)
   # A chunk size that does not divide the batch falls back to one call.
   config.train.remat_chunk = 10
-  odd = renderer.render_rays(model, params, rays, config, 2.0, 6.0, key=key)["coarse"]["rgb"]
+  odd = renderer.render_rays(model, params, rays, config, key=key)["coarse"]["rgb"]
   np.testing.assert_array_equal(odd, rgb_plain)

@@ -11,7 +11,7 @@ SCENES = ["diffuse", "glossy", "fog", "white", "forward"]
 
 
 def _shrunk(name):
-  config = importlib.import_module(f"configs.scenes.{name}").get_config()
+  config = importlib.import_module(f"nerf_jax.configs.scenes.{name}").get_config()
   config.data.num_views, config.data.image_size, config.data.holdout_from = 6, 16, 5
   config.model.depth, config.model.width, config.model.skip_layers = 2, 16, (0,)
   config.num_samples = 8
@@ -22,7 +22,7 @@ def _shrunk(name):
 
 
 def test_components_match_the_scene():
-  load = lambda n: importlib.import_module(f"configs.scenes.{n}").get_config()
+  load = lambda n: importlib.import_module(f"nerf_jax.configs.scenes.{n}").get_config()
   assert not load("diffuse").model.view_dependent and load("diffuse").num_fine_samples == 0
   assert load("glossy").model.view_dependent
   assert load("fog").num_fine_samples > 0

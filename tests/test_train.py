@@ -11,25 +11,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from configs import debug
-from nerf_jax import checkpoints, cli, render_lib, train_lib
-from nerf_jax.data import loaders
-from nerf_jax.model import make_model
+from nerf_jax import checkpoints, experiment, outputs, train_lib
+from nerf_jax.configs import debug
+from tests.conftest import params_equal as _params_equal
+from tests.conftest import restored_params
+from tests.conftest import tiny_config as _config
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
-def _config(**train):
-  config = debug.get_config()
-  config.render.after_training = False
-  for k, v in train.items():
-    config.train[k] = v
-  return config
-
-
-def _params_equal(a, b):
-  leaves = zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b))
-  return all(np.array_equal(x, y) for x, y in leaves)
 
 
 def test_training_raises_test_psnr_well_above_untrained(tmp_path):
@@ -63,8 +51,7 @@ def test_resume_continues_at_the_right_step_and_matches_an_uninterrupted_run(tmp
   # Each run ends with its final-eval record; the resumed run logged only step 20 and its eval.
   assert [(r["step"], "final" in r) for r in lines] == [(10, False), (20, False), (20, True),
                                                         (20, False), (20, True)]
-  _, _, p_full, *_ = cli.restore_for_render(str(tmp_path / "full"))
-  _, _, p_split, *_ = cli.restore_for_render(split)
+  p_full, p_split = restored_params(tmp_path / "full"), restored_params(split)
   assert _params_equal(p_full, p_split)  # bitwise: batches are drawn from fold_in(key, step)
   assert resumed["psnr"] == full["psnr"]
 
@@ -73,9 +60,8 @@ def test_checkpoint_restore_render_gives_the_same_image(tmp_path):
   workdir = str(tmp_path / "run")
   config = _config(max_steps=10)
   train_lib.train_and_evaluate(config, workdir)
-  config2, model, params, _, test_ds, near, far = cli.restore_for_render(workdir)
-  evaluate = render_lib.make_evaluator(model, config2, near, far, test_ds)
-  again = evaluate(params)
+  exp, state = experiment.restore(workdir)
+  again = outputs.make_evaluator(exp)(state.params)
   stored = json.loads((tmp_path / "run" / "metrics.json").read_text())
   assert again["per_view"] == stored["per_view"]
 
@@ -83,16 +69,14 @@ def test_checkpoint_restore_render_gives_the_same_image(tmp_path):
 def test_same_seed_same_parameters(tmp_path):
   train_lib.train_and_evaluate(_config(max_steps=5), str(tmp_path / "a"))
   train_lib.train_and_evaluate(_config(max_steps=5), str(tmp_path / "b"))
-  _, _, pa, *_ = cli.restore_for_render(str(tmp_path / "a"))
-  _, _, pb, *_ = cli.restore_for_render(str(tmp_path / "b"))
-  assert _params_equal(pa, pb)
+  assert _params_equal(restored_params(tmp_path / "a"), restored_params(tmp_path / "b"))
 
 
 def test_non_finite_loss_stops_with_step_and_checkpoint_named(tmp_path):
   config = _config(max_steps=20, log_every=5, checkpoint_every=5)
   config.train.lr = 1e30  # parameters overflow within a few steps
   config.train.lr_final = 1e30
-  with pytest.raises(train_lib.TrainingError, match=r"non-finite .* at step \d+.*checkpoint"):
+  with pytest.raises(experiment.TrainingError, match=r"non-finite .* at step \d+.*checkpoint"):
     train_lib.train_and_evaluate(config, str(tmp_path / "nan"))
 
 
@@ -102,13 +86,12 @@ def test_no_checkpoint_is_written_after_a_non_finite_step(tmp_path):
   config.train.lr = 1e30
   config.train.lr_final = 1e30
   workdir = str(tmp_path / "nan")
-  with pytest.raises(train_lib.TrainingError, match="non-finite") as info:
+  with pytest.raises(experiment.TrainingError, match="non-finite") as info:
     train_lib.train_and_evaluate(config, workdir)
-  model = make_model(config.model)
-  template = train_lib.state_template(model, train_lib.make_optimizer(config.train), config)
+  template = experiment.state_template(experiment.setup(config))
   for step in checkpoints.list_steps(workdir):
     path = os.path.join(checkpoints.checkpoint_dir(workdir), f"ckpt_{step}.msgpack")
-    state = checkpoints.restore(path, template, train_lib.model_signature(config))
+    state = checkpoints.restore(path, template, experiment.model_signature(config))
     assert int(state.bad_step) < 0, step
     assert all(np.isfinite(x).all() for x in jax.tree_util.tree_leaves(state.params))
   named = checkpoints.latest_path(workdir) or "none yet"
@@ -139,7 +122,8 @@ def test_epoch_image_order_visits_every_image_once_per_epoch():
   config.train.image_order = "epochs"
   num_images = 10  # debug config: views 0-9 train; 3 steps of 3 per epoch, one image dropped
   ids = jnp.broadcast_to(jnp.arange(num_images, dtype=jnp.float32)[:, None, None], (10, 2, 3))
-  data = train_lib.TrainData(ids, ids, ids, ids, ids[..., 0])  # every pixel holds its image id
+  rays = train_lib.Rays(ids, ids, ids, ids[..., 0], ids[..., 0])
+  data = train_lib.TrainData(rays, ids, ids[..., 0])  # every pixel holds its image id
   run_key = jax.random.PRNGKey(7)
   draw = jax.jit(lambda step: train_lib.draw_batch(data, config, None, step, run_key).rgb)
   epochs = []
@@ -155,8 +139,9 @@ def test_whole_image_batching_draws_whole_images():
   config = _config()
   config.train.batching = "images"
   config.train.images_per_step = 2
-  train_ds, _ = loaders.load_dataset(config.data)
-  data = train_lib.make_train_data(train_ds, config)
+  exp = experiment.setup(config)
+  train_ds = exp.train_ds
+  data = train_lib.make_train_data(exp)
   rgb = train_lib.draw_batch(data, config, jax.random.PRNGKey(0)).rgb
   pixels = train_ds.height * train_ds.width
   assert rgb.shape == (2 * pixels, 3)
@@ -205,11 +190,12 @@ def test_render_without_checkpoint_is_one_clear_line(tmp_path):
 def test_targets_are_recomposited_on_the_configured_background():
   config = _config()
   config.data.scene = "white"
-  train_ds, _ = loaders.load_dataset(config.data)
+  config.data.background = "black"
+  exp = experiment.setup(config)
+  train_ds = exp.train_ds
   empty = train_ds.accs == 0
   assert empty.any() and np.all(train_ds.images[empty] == 1.0)
-  config.data.background = "black"
-  acc, rgb = train_lib._targets(train_ds, config)
+  acc, rgb = train_lib._targets(exp)
   assert np.all(rgb[empty] == 0.0)
   opaque = train_ds.accs == 1
   np.testing.assert_allclose(rgb[opaque], train_ds.images[opaque], atol=1e-6)
@@ -220,17 +206,17 @@ def test_random_background_trains_and_needs_opacity(tmp_path):
   config.data.background = "random"
   result = train_lib.train_and_evaluate(config, str(tmp_path / "random"))
   assert np.isfinite(result["psnr"])
-  train_ds, _ = loaders.load_dataset(config.data)
-  train_ds.accs = None
-  with pytest.raises(train_lib.TrainingError, match="opacity"):
-    train_lib.make_train_data(train_ds, config)
+  exp = experiment.setup(config)
+  exp.train_ds.accs = None
+  with pytest.raises(experiment.TrainingError, match="opacity"):
+    train_lib.make_train_data(exp)
 
 
 def test_forward_facing_video_follows_a_spiral():
   config = _config()
   config.data.scene, config.data.ndc = "forward", True
-  train_ds, _ = loaders.load_dataset(config.data)
-  poses = render_lib.video_poses(config, train_ds)
+  train_ds = experiment.setup(config).train_ds
+  poses = outputs.video_poses(config, train_ds)
   assert poses.shape == (config.render.video_frames, 4, 4)
   # Cameras stay near the capture plane and keep looking down -z, as the training cameras do.
   assert np.all(poses[:, 2, 2] > 0.9)
@@ -242,32 +228,32 @@ def test_views_render_at_a_scaled_resolution_with_the_same_field_of_view(tmp_pat
   config = _config(max_steps=2)
   workdir = str(tmp_path / "run")
   train_lib.train_and_evaluate(config, workdir)
-  train_ds, _ = loaders.load_dataset(config.data)
-  height, width, (fx, fy, cx, cy) = render_lib.scaled_camera(train_ds, 2.0)
+  exp = experiment.setup(config)
+  train_ds = exp.train_ds
+  height, width, (fx, fy, cx, cy) = exp.camera(2.0)
   assert (height, width) == (2 * train_ds.height, 2 * train_ds.width)
   assert (fx / width, cx / width) == pytest.approx((train_ds.intrinsics[0] / train_ds.width,
                                                    train_ds.intrinsics[2] / train_ds.width))
   poses = tmp_path / "poses.npy"
   np.save(poses, train_ds.poses[:2])
-  cli.render(workdir, "views", str(poses), str(tmp_path / "views"), scale=2.0)
+  outputs.render(workdir, "views", str(poses), str(tmp_path / "views"), scale=2.0)
   image = imageio.imread(tmp_path / "views" / "view_001.png")
   assert image.shape[:2] == (height, width)
   with pytest.raises(ValueError, match="--scale"):
-    cli.render(workdir, "views", str(poses), scale=0.0)
+    outputs.render(workdir, "views", str(poses), scale=0.0)
 
 
 def test_evaluation_scores_against_truth_on_the_configured_background():
   """A black-background scene trained on white is scored against its images on white."""
   config = _config()
   config.data.background = "white"
-  train_ds, test_ds = loaders.load_dataset(config.data)
-  model = cli.make_model(config.model)
-  params = train_lib.init_state(model, train_lib.make_optimizer(config.train), config).params
-  near, far = train_lib.bounds(config, train_ds)
+  exp = experiment.setup(config)
+  test_ds = exp.test_ds
+  params = experiment.init_state(exp).params
   seen = []
-  render_lib.make_evaluator(model, config, near, far, test_ds)(
+  outputs.make_evaluator(exp)(
       params, max_views=1, on_view=lambda i, out, truth: seen.append(truth))
   empty = test_ds.accs[0] == 0
   assert empty.any() and np.all(seen[0][empty] == 1.0)
-  np.testing.assert_allclose(seen[0][~empty], render_lib.images_on_background(
+  np.testing.assert_allclose(seen[0][~empty], outputs.images_on_background(
       test_ds, config)[1][0][~empty])

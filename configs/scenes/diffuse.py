@@ -5,7 +5,7 @@ default model, on its cheapest path.
   python train.py --config=configs/scenes/diffuse.py --workdir=runs/diffuse
 """
 
-from configs import default
+from nerf_jax.configs import default
 
 
 def get_config():

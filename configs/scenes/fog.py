@@ -6,7 +6,7 @@ no view branch.
   python train.py --config=configs/scenes/fog.py --workdir=runs/fog
 """
 
-from configs import default
+from nerf_jax.configs import default
 
 
 def get_config():

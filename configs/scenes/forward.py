@@ -6,7 +6,7 @@ disparity. Lambertian, so no view branch. Videos follow a spiral instead of an o
   python train.py --config=configs/scenes/forward.py --workdir=runs/forward
 """
 
-from configs import default
+from nerf_jax.configs import default
 
 
 def get_config():

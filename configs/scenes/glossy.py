@@ -5,7 +5,7 @@ so there is no fine pass.
   python train.py --config=configs/scenes/glossy.py --workdir=runs/glossy
 """
 
-from configs import default
+from nerf_jax.configs import default
 
 
 def get_config():

@@ -4,7 +4,7 @@ composites on white, so empty space stays empty instead of the network painting 
   python train.py --config=configs/scenes/white.py --workdir=runs/white
 """
 
-from configs import default
+from nerf_jax.configs import default
 
 
 def get_config():

@@ -12,7 +12,7 @@ import zipfile
 
 import numpy as np
 
-from nerf_jax import scenes
+from nerf_jax import config_lib, scenes
 from nerf_jax.data import validate
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.data.llff import load_llff
@@ -126,39 +126,38 @@ def load_blender(path, background=(0.0, 0.0, 0.0), half_res=False, split="train"
 
 
 def load_dataset(config):
-  """(train, test) Datasets from a `data` ConfigDict (or dict).
+  """(train, test) Datasets from a `data` ConfigDict (a dict is completed with the defaults of
+  configs/default.py; see it for every field).
 
-  Fields (all optional): path ('' = built-in `scene`), scene, holdout_from, num_views,
-  image_size and pixel_center (built-in only; focal keeps tiny_nerf's field of view), background
-  and half_res (.npz and Blender), factor (default 1), bd_factor (default 0.75; 0 = keep the
-  file's units) and recenter (default True) for LLFF, see `load_llff`: the defaults are the
-  original NeRF's LLFF pipeline, which NDC rays (near plane 1, world -z forward) rely on.
+  path '' = the built-in `scene` (image_size, num_views and pixel_center apply; focal keeps
+  tiny_nerf's field of view); background and half_res apply to .npz and Blender; factor,
+  bd_factor (0 = keep the file's units) and recenter to LLFF, see `load_llff`: the defaults are
+  the original NeRF's LLFF pipeline, which NDC rays (near plane 1, world -z forward) rely on.
   holdout_from: views[holdout_from:] are the test views; -1 = the default split of the format:
   the reference's 80/20 for built-in scenes and .npz, every 8th view (0, 8, 16, ...) for LLFF
   (the original NeRF's convention); Blender folders have their own test split and ignore it.
   """
-  path = config.get("path", "") or ""
-  holdout_from = config.get("holdout_from", -1)
-  background = parse_background(config.get("background", "black"))
+  if isinstance(config, dict):
+    config = config_lib.complete({"data": config}).data
+  path, holdout_from = config.path, config.holdout_from
+  background = parse_background(config.background)
   if not path:
-    name, size = config.get("scene", "diffuse"), config.get("image_size", 100)
+    name, size = config.scene, config.image_size
     if name not in scenes.SCENES:
       raise DataError(f"data.scene: unknown scene {name!r} (valid: {', '.join(scenes.SCENES)})")
     dataset = scenes.make_dataset(
-        name, num_views=config.get("num_views", 100), height=size, width=size,
-        focal=scenes.TINY_NERF_FOCAL * size / 100, pixel_center=config.get("pixel_center", 0.0))
+        name, num_views=config.num_views, height=size, width=size,
+        focal=scenes.TINY_NERF_FOCAL * size / 100, pixel_center=config.pixel_center)
     return dataset.split(holdout_from)
   if not os.path.exists(path):
     raise DataError(f"{path}: no such file or directory")
   if os.path.isfile(path) and path.endswith(".npz"):
     return load_npz(path, background).split(holdout_from)
   if os.path.isfile(os.path.join(path, "transforms_train.json")):
-    half_res = config.get("half_res", False)
-    return tuple(load_blender(path, background, half_res, s) for s in ("train", "test"))
+    return tuple(load_blender(path, background, config.half_res, s) for s in ("train", "test"))
   if os.path.isfile(os.path.join(path, "poses_bounds.npy")):
-    dataset = load_llff(path, factor=config.get("factor", 1) or 1,
-                        bd_factor=config.get("bd_factor", 0.75) or None,
-                        recenter=config.get("recenter", True))
+    dataset = load_llff(path, factor=config.factor or 1, bd_factor=config.bd_factor or None,
+                        recenter=config.recenter)
     return dataset.split_every(8) if holdout_from == -1 else dataset.split(holdout_from)
   raise DataError(f"unknown dataset format at {path} (expected a .npz file or a directory with "
                   "transforms_train.json or poses_bounds.npy)")

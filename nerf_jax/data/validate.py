@@ -7,23 +7,16 @@ field at fault) when its input is malformed.
 import imageio.v3 as iio
 import numpy as np
 
+from nerf_jax import background as background_lib
 from nerf_jax.data.dataset import DataError
-
-_BACKGROUNDS = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0),
-                "random": (0.0, 0.0, 0.0)}  # 'random': the trainer re-composites per step
 
 
 def parse_background(background):
-  """'black', 'white', 'random' or an RGB triple in [0, 1] -> float64 [3]."""
-  if isinstance(background, str):
-    if background not in _BACKGROUNDS:
-      raise DataError(f"background: unknown name {background!r} (valid: black, white, random, "
-                      "or an RGB triple)")
-    return np.array(_BACKGROUNDS[background])
-  rgb = np.asarray(background, np.float64)
-  if rgb.shape != (3,) or not np.all((rgb >= 0) & (rgb <= 1)):
-    raise DataError(f"background: expected an RGB triple in [0, 1], got {background!r}")
-  return rgb
+  """'black', 'white', 'random' or an RGB triple in [0, 1] -> float64 [3] (background.parse)."""
+  try:
+    return background_lib.parse(background, "background").astype(np.float64)
+  except ValueError as e:
+    raise DataError(str(e)) from None
 
 
 def composite(rgba, background):

@@ -1,4 +1,5 @@
-"""Rendering trained models: test-view evaluation, 360° videos, views from a pose file.
+"""What render.py writes from a trained model: test-view evaluation, videos, views from a pose
+file, the surface mesh.
 
 Depth images are z-depth (distance along the camera's optical axis, see rays.py); the float
 arrays are saved as `.npy` (float32, scene units; a ray that hits nothing has depth = far), and
@@ -13,7 +14,7 @@ import warnings
 import imageio.v2 as imageio
 import numpy as np
 
-from nerf_jax import metrics, progress, renderer
+from nerf_jax import background, experiment, image_renderer, metrics, progress, surface
 from nerf_jax.rays import orbit_poses, spiral_poses
 
 # Control points of a perceptually ordered colour map (dark blue -> teal -> yellow), for depth.
@@ -34,60 +35,42 @@ def to_uint8(image):
   return (np.clip(np.asarray(image), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
-def background_colour(config):
-  """The compositing background as float32 [3] (black for 'random', which is drawn per ray)."""
-  bg = config.data.background
-  named = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0), "random": (0.0, 0.0, 0.0)}
-  if isinstance(bg, str):
-    if bg not in named:
-      raise ValueError(f"config.data.background={bg!r}: use 'black', 'white', 'random' "
-                          "or an RGB triple")
-    return np.array(named[bg], np.float32)
-  return np.asarray(bg, np.float32).reshape(3)
-
-
 def images_on_background(dataset, config):
   """(acc float32 [N, H, W], rgb float32 [N, H, W, 3]): the dataset's images re-composited on
-  the configured background (`background_colour`), what the model is trained and scored against.
+  the configured background, what the model is trained and scored against.
 
-  With known opacity, `images + (1 - acc)·(new - old)` swaps the background exactly; without it
+  With known opacity the background is swapped exactly (background.recomposite); without it
   the images are used as they are (acc = ones).
   """
-  accs = getattr(dataset, "accs", None)
-  if accs is None:
+  if dataset.accs is None:
     return np.ones(dataset.images.shape[:-1], np.float32), dataset.images
-  old = np.asarray(getattr(dataset, "background", (0.0, 0.0, 0.0)), np.float32)
-  rgb = dataset.images + (1.0 - accs)[..., None] * (background_colour(config) - old)
-  return accs, rgb.astype(np.float32)
+  old = np.asarray(dataset.background, np.float32)
+  new = background.parse(config.data.background)
+  return dataset.accs, background.recomposite(dataset.images, dataset.accs, old,
+                                              new).astype(np.float32)
 
 
-def render_pose(draw, pose, height, width, intrinsics, config, background):
-  """Render one camera with `draw` (see `renderer.make_image_renderer`): numpy dict
-  rgb [H, W, 3], depth [H, W], acc [H, W]."""
-  origins, directions, viewdirs = renderer.camera_rays(height, width, intrinsics, pose, config)
-  return draw(origins, directions, viewdirs=viewdirs, background=background)
-
-
-def make_evaluator(model, config, near, far, test_ds):
+def make_evaluator(exp):
   """fn(params, max_views=None, out_dir=None, on_view=None) -> {'psnr', 'ssim', 'per_view'}.
 
-  Evaluates the test views. With `out_dir`, writes per view a PNG of
-  [prediction | depth | ground truth] and depth `.npy`. on_view(index, out, truth) is called
-  for every view with the rendered numpy dict (rgb [H, W, 3], depth [H, W], acc [H, W]) and the
-  true image float32 [H, W, 3] on the configured background (see `images_on_background`; the
-  trainer sends the first one to TensorBoard).
+  Evaluates the test views of `exp` (an experiment.Experiment). With `out_dir`, writes per view
+  a PNG of [prediction | depth | ground truth] and depth `.npy`. on_view(index, out, truth) is
+  called for every view with the rendered numpy dict (rgb [H, W, 3], depth [H, W], acc [H, W])
+  and the true image float32 [H, W, 3] on the configured background (see
+  `images_on_background`; the trainer sends the first one to TensorBoard).
   """
-  image_renderer = renderer.make_image_renderer(model, config, near, far)
-  background = background_colour(config)
-  truths = images_on_background(test_ds, config)[1]
+  make_draw = image_renderer.make_image_renderer(exp.model, exp.config)
+  bg = background.parse(exp.config.data.background)
+  test_ds = exp.test_ds
+  camera = (test_ds.height, test_ds.width, test_ds.intrinsics)
+  truths = images_on_background(test_ds, exp.config)[1]
 
   def evaluate(params, max_views=None, out_dir=None, on_view=None):
     count = len(test_ds) if max_views is None else min(max_views, len(test_ds))
     per_view = []
-    draw = image_renderer(params)
+    draw = make_draw(params)
     for i in range(count):
-      out = render_pose(draw, test_ds.poses[i], test_ds.height, test_ds.width,
-                        test_ds.intrinsics, config, background)
+      out = draw(exp.rays(test_ds.poses[i], camera), bg)
       truth = truths[i]
       view = {"view": i, "psnr": float(metrics.psnr(out["rgb"], truth)),
               "ssim": float(metrics.ssim(out["rgb"], truth))}
@@ -95,7 +78,7 @@ def make_evaluator(model, config, near, far, test_ds):
       if on_view is not None:
         on_view(i, out, truth)
       if out_dir:
-        _write_eval_view(out_dir, i, out, truth, near, far)
+        _write_eval_view(out_dir, i, out, truth, exp.near, exp.far)
     result = {"psnr": float(np.mean([v["psnr"] for v in per_view])),
               "ssim": float(np.mean([v["ssim"] for v in per_view])), "per_view": per_view}
     if out_dir:
@@ -114,23 +97,14 @@ def _write_eval_view(out_dir, index, out, truth, near, far):
   np.save(os.path.join(out_dir, f"depth_{index:03d}.npy"), out["depth"].astype(np.float32))
 
 
-def scaled_camera(dataset, scale=1.0):
-  """(height, width, intrinsics) of the dataset's camera with `scale` times as many pixels per side.
-
-  The field of view stays the same: focal lengths and principal point scale with the image.
-  """
-  height, width = max(1, round(dataset.height * scale)), max(1, round(dataset.width * scale))
-  sx, sy = width / dataset.width, height / dataset.height
-  fx, fy, cx, cy = dataset.intrinsics
-  return height, width, (fx * sx, fy * sy, cx * sx, cy * sy)
-
-
-def render_frames(model, params, config, near, far, poses, height, width, intrinsics):
-  """Render a list of poses: yields numpy dicts rgb [H, W, 3], depth [H, W], acc [H, W]."""
-  draw = renderer.make_image_renderer(model, config, near, far)(params)
-  background = background_colour(config)
+def render_frames(exp, params, poses, scale=1.0):
+  """Render `poses` (float32 [F, 4, 4]) through the training camera with `scale` times its pixels
+  per side: yields numpy dicts rgb [H, W, 3], depth [H, W], acc [H, W]."""
+  draw = image_renderer.make_image_renderer(exp.model, exp.config)(params)
+  bg = background.parse(exp.config.data.background)
+  camera = exp.camera(scale)
   for pose in poses:
-    yield render_pose(draw, pose, height, width, intrinsics, config, background)
+    yield draw(exp.rays(pose, camera), bg)
 
 
 def video_poses(config, dataset):
@@ -141,7 +115,7 @@ def video_poses(config, dataset):
   reference's pose_spherical path.
   """
   frames = config.render.video_frames
-  if not config.data.get("ndc", False):
+  if not config.data.ndc:
     return orbit_poses(frames, config.render.orbit_phi, config.render.orbit_radius)
   centre = np.eye(4, dtype=np.float32)
   centre[:3, :] = dataset.poses[:, :3, :].mean(axis=0)
@@ -152,19 +126,18 @@ def video_poses(config, dataset):
   return spiral_poses(centre, np.maximum(radii, 1e-3), focus, frames)
 
 
-def render_video(model, params, config, near, far, dataset, out_dir, depth_npy=False,
-                 show_progress=True, scale=1.0):
+def render_video(exp, params, out_dir, depth_npy=False, show_progress=True, scale=1.0):
   """The video path (see `video_poses`) as rgb.mp4 and depth.mp4 in `out_dir`.
 
   depth_npy: also save the float depth of every frame as `depth_frames.npy`, float32 [F, H, W]
   (z-depth in scene units, see the module docstring). scale: frames have `scale` times the
-  dataset's pixels per side (see `scaled_camera`). Returns {'rgb', 'depth'[, 'depth_npy']} paths.
+  training images' pixels per side (see Experiment.camera). Returns {'rgb', 'depth'[, 'depth_npy']} paths.
   """
   os.makedirs(out_dir, exist_ok=True)
-  poses = video_poses(config, dataset)
+  poses = video_poses(exp.config, exp.train_ds)
+  near, far = exp.near, exp.far
   rgb_frames, depth_frames, depths = [], [], []
-  frames = render_frames(model, params, config, near, far, poses,
-                         *scaled_camera(dataset, scale))
+  frames = render_frames(exp, params, poses, scale)
   if show_progress:
     frames = progress.track(frames, total=len(poses), desc="video")
   for out in frames:
@@ -180,7 +153,7 @@ def render_video(model, params, config, near, far, dataset, out_dir, depth_npy=F
     paths[name] = os.path.join(out_dir, f"{name}.mp4")
     with warnings.catch_warnings():  # imageio-ffmpeg forks ffmpeg; JAX warns about any fork
       warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
-      imageio.mimwrite(paths[name], frames, fps=config.render.fps, macro_block_size=1)
+      imageio.mimwrite(paths[name], frames, fps=exp.config.render.fps, macro_block_size=1)
   return paths
 
 
@@ -200,16 +173,59 @@ def load_poses(path):
   return poses
 
 
-def render_views(model, params, config, near, far, dataset, poses, out_dir, scale=1.0):
+def render_views(exp, params, poses, out_dir, scale=1.0):
   """Render `poses` to `out_dir/view_XXX.png` (+ depth PNG and .npy). Returns the count.
 
-  scale: images have `scale` times the dataset's pixels per side (see `scaled_camera`).
+  scale: images have `scale` times the training images' pixels per side.
   """
   os.makedirs(out_dir, exist_ok=True)
-  frames = render_frames(model, params, config, near, far, poses,
-                         *scaled_camera(dataset, scale))
-  for i, out in enumerate(frames):
+  near, far = exp.near, exp.far
+  for i, out in enumerate(render_frames(exp, params, poses, scale)):
     imageio.imwrite(os.path.join(out_dir, f"view_{i:03d}.png"), to_uint8(out["rgb"]))
     imageio.imwrite(os.path.join(out_dir, f"depth_{i:03d}.png"), colorize(out["depth"], near, far))
     np.save(os.path.join(out_dir, f"depth_{i:03d}.npy"), out["depth"].astype(np.float32))
   return len(poses)
+
+
+MODES = ("eval", "video", "views", "mesh")
+
+
+def render(workdir, mode, poses_path="", out_dir="", depth_npy=False, resolution=128,
+           threshold=50.0, bound=0.0, scale=1.0):
+  """Render `mode` (one of MODES) from the newest checkpoint of `workdir`; returns what it wrote.
+
+  depth_npy: video mode also writes float depth_frames.npy. resolution, threshold, bound: mesh
+  mode (see surface.extract). scale: video and views modes render `scale` times the training
+  images' pixels per side.
+  """
+  if not os.path.isdir(workdir):
+    raise FileNotFoundError(f"--workdir={workdir}: no such directory")
+  if scale <= 0:
+    raise ValueError(f"--scale={scale}: must be positive")
+  if mode == "views" and not poses_path:
+    raise ValueError("--mode=views needs --poses=FILE (.npy [N,4,4] or .json with frames)")
+  if mode == "views" and not os.path.exists(poses_path):
+    raise FileNotFoundError(f"{poses_path}: no such poses file")
+  exp, state = experiment.restore(workdir)
+  params = state.params
+  print(f"restored step {int(state.step)} from {workdir}", flush=True)
+  out_dir = out_dir or os.path.join(workdir, mode)
+  if mode == "mesh":
+    mesh = surface.extract(exp.model, params, exp.config, resolution, threshold, bound)
+    os.makedirs(out_dir, exist_ok=True)
+    path = os.path.join(out_dir, "mesh.ply")
+    surface.write_ply(path, mesh["vertices"], mesh["faces"], mesh["colors"])
+    print(f"wrote {len(mesh['vertices'])} vertices and {len(mesh['faces'])} faces to {path}")
+    return path
+  if mode == "eval":
+    result = make_evaluator(exp)(params, out_dir=out_dir)
+    print(f"test PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.4f} "
+          f"over {len(result['per_view'])} views -> {out_dir}")
+    return result
+  if mode == "video":
+    paths = render_video(exp, params, out_dir, depth_npy=depth_npy, scale=scale)
+    print(f"wrote {', '.join(paths.values())}")
+    return paths
+  count = render_views(exp, params, load_poses(poses_path), out_dir, scale)
+  print(f"wrote {count} views to {out_dir}")
+  return out_dir

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from skimage import measure
 
-from nerf_jax import renderer
+from nerf_jax import field
 
 
 def sample_grid(fn, bound, resolution, chunk=65536):
@@ -59,16 +59,16 @@ def field_functions(model, params, config):
   density_fn(points float32 [C, 3]) -> sigma float32 [C].
   color_fn(points float32 [C, 3], viewdirs float32 [C, 3] unit) -> rgb float32 [C, 3].
   """
-  net = jax.device_put(params[renderer.network_names(config)[-1]])  # an argument, not a constant
+  net = jax.device_put(params[field.network_names(config)[-1]])  # an argument, not a constant
 
   @jax.jit
   def density(net, points):
     viewdirs = jnp.broadcast_to(jnp.array([0.0, 0.0, -1.0]), points.shape)  # density ignores it
-    return renderer.query_field(model, net, points[:, None, :], viewdirs, config)[1][:, 0]
+    return field.query(model, net, points[:, None, :], viewdirs, config)[1][:, 0]
 
   @jax.jit
   def color(net, points, viewdirs):
-    return renderer.query_field(model, net, points[:, None, :], viewdirs, config)[0][:, 0]
+    return field.query(model, net, points[:, None, :], viewdirs, config)[0][:, 0]
 
   return (lambda points: density(net, points)), (lambda p, d: color(net, p, d))
 
@@ -86,9 +86,9 @@ def vertex_colors(color_fn, vertices, normals, chunk=65536):
 def default_bound(config):
   """Half-size of the export box: the scene box, else the grid's box, else 1.5 (the 360° built-in
   scenes fit in a ball of radius 1.2)."""
-  if config.data.get("scene_bound", 0.0) > 0:
+  if config.data.scene_bound > 0:
     return float(config.data.scene_bound)
-  if config.model.get("encoding", "posenc") == "grid":
+  if config.model.encoding == "grid":
     return float(config.model.grid_bound)
   return 1.5
 

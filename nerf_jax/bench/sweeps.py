@@ -1,25 +1,25 @@
-"""The benchmark's sweeps, as data, and how a sweep entry becomes a full config.
+"""The benchmark's sweeps, as data, and how a command's `Request` becomes the configs it runs.
 
-A sweep is a list of `Entry`s: a label, a dict of dotted config overrides and the config module
-they apply to (`configs/<base>.py`). `SCENES` says which scenes a sweep runs on by default.
+A sweep is a list of `Entry`s: a label, a dict of dotted config overrides and the config they
+apply to (a name under configs/). `SCENES` says which scenes a sweep runs on by default. A run's
+config is: the entry's base config (the command's --config for entries based on 'default'), the
+entry's overrides, the scene, the command's --config.FIELD overrides, then the budget.
 """
 
-import ast
-import importlib
-import importlib.util
+import dataclasses
 import json
 import os
 from typing import NamedTuple
 
 import ml_collections
 
-from nerf_jax import scenes
+from nerf_jax import config_lib, scenes
 
 
 class Entry(NamedTuple):
   label: str  # short name in tables and plots
   overrides: dict = {}  # dotted config field -> value, e.g. {'model.width': 128}
-  base: str = "default"  # config module under configs/ the overrides apply to
+  base: str = "default"  # config name under configs/ the overrides apply to
 
 
 _NO_SKIP = {"model.skip_layers": ()}  # a 4-layer MLP has no layer 4 to skip after
@@ -96,6 +96,26 @@ SCENES = {"effects": ("diffuse", "glossy", "fog", "white"), "occupancy": ("diffu
 DEFAULT_SCENES = ("diffuse",)
 
 
+# Fields the bench sets itself: an override would mislabel or unbudget the runs.
+OWN_FIELDS = {"data.path": "--scenes", "data.scene": "--scenes",
+              "train.max_steps": "--steps or --budget_seconds",
+              "train.max_seconds": "--budget_seconds or --steps"}
+
+
+@dataclasses.dataclass
+class Request:
+  """The runs a bench command asks for (each field is the flag of the same name)."""
+  sweep: str = "all"  # comma list of sweep names, or 'all'
+  only: tuple = ()  # configuration labels to keep (empty: all)
+  scenes: tuple = ()  # built-in scene names or dataset paths (empty: each sweep's own)
+  base: str = "default"  # --config: the config replacing configs/default.py as the entries' base
+  overrides: dict = dataclasses.field(default_factory=dict)  # --config.FIELD: typed values
+  image_size: int = None  # built-in scenes: image side (None: the config's)
+  steps: int = 0  # equal-steps mode when > 0
+  budget_seconds: float = 120.0  # else equal wall clock, compilation included
+  keep_schedule: bool = False  # budget mode: the config's max_steps and schedule, not fitted
+
+
 def sweep_names(spec):
   """Sweep names from a comma list; 'all' = every sweep except 'quick' and 'default_tuning'."""
   names = [n.strip() for n in spec.split(",") if n.strip()]
@@ -103,19 +123,9 @@ def sweep_names(spec):
     return [n for n in SWEEPS if n not in ("quick", "default_tuning")]
   unknown = [n for n in names if n not in SWEEPS]
   if unknown:
-    raise ValueError(f"unknown sweep(s) {', '.join(unknown)} (valid: all, {', '.join(SWEEPS)})")
+    raise ValueError(f"--sweep: unknown sweep(s) {', '.join(unknown)} "
+                     f"(valid: all, {', '.join(SWEEPS)})")
   return names
-
-
-def load_base(name):
-  """get_config() of `configs/<name>.py`, or of a config file given by its path."""
-  if name.endswith(".py"):
-    spec = importlib.util.spec_from_file_location(os.path.basename(name)[:-3], name)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-  else:
-    module = importlib.import_module(f"configs.{name}")
-  return module.get_config()
 
 
 def scene_overrides(scene, image_size=None):
@@ -125,30 +135,23 @@ def scene_overrides(scene, image_size=None):
     return out if image_size is None else {**out, "data.image_size": image_size}
   if os.path.exists(scene):
     return {"data.path": scene}
-  raise ValueError(f"scene {scene!r}: neither a built-in scene ({', '.join(scenes.SCENES)}) "
-                   "nor an existing dataset path")
+  raise ValueError(f"--scenes: {scene!r} is neither a built-in scene "
+                   f"({', '.join(scenes.SCENES)}) nor an existing dataset path")
 
 
 def scene_label(scene):
   return scene if scene in scenes.SCENES else os.path.basename(scene.rstrip("/"))
 
 
-def parse_value(text):
-  """A --set value: a Python literal (1, 0.5, True, (4,), 'white') or else the bare string."""
-  try:
-    return ast.literal_eval(text)
-  except (ValueError, SyntaxError):
-    return text
+def make_config(entry, scene, overrides=None, base="default", image_size=None):
+  """The ConfigDict of one run: base config, entry overrides, scene, then `overrides`.
 
-
-def make_config(entry, scene, extra=None, base=None, image_size=None):
-  """The ConfigDict of one run: base config, entry overrides, scene, then `extra` overrides.
-
-  base: replaces the entry's base when the entry uses 'default' (e.g. 'debug' for tests).
+  base: a config name or path (config_lib.resolve) replacing the entry's base when that is
+  'default' (e.g. 'debug' for tests).
   """
-  name = base if base and entry.base == "default" else entry.base
-  config = load_base(name)
-  flat = {**entry.overrides, **scene_overrides(scene, image_size), **(extra or {})}
+  name = base if entry.base == "default" else entry.base
+  config = config_lib.load(name)
+  flat = {**entry.overrides, **scene_overrides(scene, image_size), **(overrides or {})}
   config.lock()  # a misspelt field is an error, not a new field
   try:
     config.update_from_flattened_dict(flat)
@@ -169,42 +172,39 @@ def as_config(config_json):
   return ml_collections.ConfigDict(json.loads(config_json))
 
 
-def plan(args):
-  """[(sweep, Entry, scene, ConfigDict)] of every run `args` (bench's command line) asks for."""
-  bad = [s for s in args.set if "=" not in s]
-  if bad:
-    raise ValueError(f"--set {bad[0]!r}: expected FIELD=VALUE, e.g. --set=model.width=128")
-  extra = {k: parse_value(v) for k, v in (s.split("=", 1) for s in args.set)}
-  if args.seed is not None:
-    extra["seed"] = args.seed
-  only = {s.strip() for s in args.only.split(",") if s.strip()}
+def plan(request):
+  """[(sweep, Entry, scene, ConfigDict)] of every run `request` asks for."""
+  for field in request.overrides:
+    if field in OWN_FIELDS:
+      raise ValueError(f"--config.{field}: the bench sets it; use {OWN_FIELDS[field]}")
+  only = set(request.only)
   runs = []
-  for sweep in sweep_names(args.sweep):
-    names = args.scenes.split(",") if args.scenes else SCENES.get(sweep, DEFAULT_SCENES)
-    for scene in names:
+  for sweep in sweep_names(request.sweep):
+    for scene in request.scenes or SCENES.get(sweep, DEFAULT_SCENES):
       for entry in SWEEPS[sweep]:
         if only and entry.label not in only:
           continue
-        config = make_config(entry, scene, extra, args.base, args.image_size)
-        _set_budget(config, args)
+        config = make_config(entry, scene, request.overrides, request.base, request.image_size)
+        _set_budget(config, request)
         runs.append((sweep, entry, scene, config))
   if not runs:
-    raise ValueError(f"nothing to run: --only={args.only} matches no label of --sweep={args.sweep}")
+    raise ValueError(f"nothing to run: --only={','.join(request.only)} matches no label of "
+                     f"--sweep={request.sweep}")
   return runs
 
 
-def _set_budget(config, args):
+def _set_budget(config, request):
   """Equal-steps mode (--steps) or equal wall-clock mode (--budget_seconds)."""
-  if args.steps:
-    fit_schedule(config.train, args.steps)
+  if request.steps:
+    fit_schedule(config.train, request.steps)
     config.train.max_seconds = 0.0
   else:
-    config.train.max_seconds = float(args.budget_seconds)  # the worker may fit max_steps
+    config.train.max_seconds = float(request.budget_seconds)  # the run may fit max_steps
 
 
-def mode(args):
+def mode(request):
   """The budget of every run: equal steps or equal wall clock (JSON-able)."""
-  if args.steps:
-    return {"kind": "steps", "steps": args.steps}
-  return {"kind": "budget", "budget_seconds": float(args.budget_seconds),
-          "schedule": "config" if args.keep_schedule else "fitted"}
+  if request.steps:
+    return {"kind": "steps", "steps": request.steps}
+  return {"kind": "budget", "budget_seconds": float(request.budget_seconds),
+          "schedule": "config" if request.keep_schedule else "fitted"}

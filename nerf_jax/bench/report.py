@@ -1,16 +1,26 @@
 """The benchmark's report: the results.md table, and plots of PSNR over training time and of
 the Pareto fronts of quality against cost.
 
-A record is one run's dict (see bench.run_config) with 'scene', 'sweep', 'label', 'machine',
-'mode' and 'command' added by bench.run_sweep; a failed run has an 'error' instead of numbers.
+A record is one run's dict (see timed_run.run_config) with 'scene', 'sweep', 'label', 'machine',
+'mode' and 'command' added by runner.run_sweep; a failed run has an 'error' instead of numbers.
 Plots have one panel per scene. matplotlib is imported only here, through its object-oriented
-API (no pyplot, no global backend), so it stays an optional dependency of the benchmark.
+API (no pyplot, no global backend), so it stays an optional dependency: the `bench` extra.
 """
 
 import math
 import os
 
 PLOTS = ("psnr_vs_time.png", "pareto_render.png", "pareto_train.png")
+MISSING_MATPLOTLIB = 'plots need matplotlib: pip install -e ".[bench]"'
+
+
+def missing_dependency():
+  """None if the plots can be drawn, else the one line saying what to install."""
+  try:
+    import matplotlib.figure  # noqa: F401  pylint: disable=import-outside-toplevel,unused-import
+  except ImportError:
+    return MISSING_MATPLOTLIB
+  return None
 
 
 def pareto_front(costs, scores):
@@ -158,8 +168,8 @@ def table_lines(records):
   """Markdown table lines, one row per record."""
   times = shown_times(records)
   head = (["scene", "config", "test PSNR", "SSIM"] + [f"PSNR@{t:g}s" for t in times] +
-          ["steps", "train s (incl. compile)", "compile s", "step ms", "rays/s", "MLP GFLOP/s (% peak)",
-           "render ms/frame", "params", "peak RSS MB"])
+          ["steps", "train s (incl. compile)", "compile s", "step ms", "rays/s",
+           "MLP GFLOP/s (% peak)", "render ms/frame", "params", "peak RSS MB"])
   lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
   for r in records:
     name = run_name(r, records)

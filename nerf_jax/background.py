@@ -1,0 +1,43 @@
+"""Backgrounds: the one table of named colours, and swapping an image's background.
+
+`config.data.background` is 'black', 'white', 'random' or an RGB triple in [0, 1]. 'random'
+draws a fresh colour per ray while training (so the field cannot paint the background into its
+density) and renders on black.
+"""
+
+import numpy as np
+
+NAMED = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0),
+         "random": (0.0, 0.0, 0.0)}  # 'random': the colour it renders and scores on
+
+
+def parse(value, where="config.data.background"):
+  """float32 [3] for a background name or RGB triple; ValueError naming `where` otherwise."""
+  if isinstance(value, str):
+    if value not in NAMED:
+      raise ValueError(f"{where}: unknown name {value!r} (valid: black, white, random, or an RGB "
+                       "triple)")
+    return np.array(NAMED[value], np.float32)
+  try:
+    rgb = np.asarray(value, np.float64)
+  except (TypeError, ValueError):
+    rgb = np.zeros(0)
+  if rgb.shape != (3,) or not np.all((rgb >= 0) & (rgb <= 1)):
+    raise ValueError(f"{where}: expected an RGB triple in [0, 1], got {value!r}")
+  return rgb.astype(np.float32)
+
+
+def is_random(value):
+  """Whether the background is drawn per ray while training."""
+  return isinstance(value, str) and value == "random"
+
+
+def recomposite(rgb, acc, old, new):
+  """Colours composited on `old` moved onto `new`: rgb + (1 - acc)·(new - old).
+
+  rgb: float32 [..., 3], composited on `old` (float32 broadcastable to [..., 3]). acc: float32
+  [...], opacity. new: float32 broadcastable to [..., 3]. Exact for any opacity: the field's
+  emission is untouched, only the light let through, (1 - acc), sees the other background.
+  Works on numpy and jax arrays alike.
+  """
+  return rgb + (1.0 - acc)[..., None] * (new - old)

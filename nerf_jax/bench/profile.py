@@ -1,0 +1,106 @@
+"""Where a train step's time goes: each stage of the step timed alone, side by side.
+
+  python -m nerf_jax.bench.profile                          # configs/default.py
+  python -m nerf_jax.bench.profile --config=fast --config.train.batch_rays=2048
+
+Stages (each jitted on its own, median of --repeats calls after a warm-up): the library's whole
+train step (train_lib.make_train_step); drawing the batch; sampling + encoding (forward only:
+nothing upstream needs a gradient); the field's forward + backward on pre-encoded inputs;
+compositing forward + backward; and plain matmuls with the MLP's shapes, [rays·samples, in] ×
+[in, out], forward only. The stages do not add up exactly (XLA fuses across them in the real
+step), but they show which one dominates and how far the MLP (fwd + bwd ≈ 3 × the forward FLOPs)
+is from the matmul speed of its own shapes and from the large-square matmul peak. The flags are
+in bench/cli.py.
+"""
+
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from nerf_jax import (compositing, encoding, experiment, field, renderer, sampling,
+                      train_lib)
+from nerf_jax.bench import measure
+
+
+def median_ms(fn, *args, repeats=10):
+  """Median wall milliseconds of fn(*args) (jitted, blocking), compilation excluded."""
+  compiled = jax.jit(fn).lower(*args).compile()
+  run = lambda: jax.block_until_ready(compiled(*args))
+  return 1e3 * float(np.median(measure.sample_seconds(run, repeats)))
+
+
+def _kernels(params):
+  leaves = jax.tree_util.tree_flatten_with_path(params)[0]
+  return [x for path, x in leaves if getattr(path[-1], "key", None) == "kernel"]
+
+
+def profile(config, repeats=10):
+  """[(stage, ms, note)] for one train step of `config` on its dataset."""
+  exp = experiment.setup(config)
+  state = experiment.init_state(exp)
+  data = train_lib.make_train_data(exp)
+  key = jax.random.PRNGKey(0)
+  rays, samples = train_lib.rays_per_step(config, exp.train_ds), config.num_samples
+  step = train_lib.make_train_step(exp)
+  compiled = step.lower(state, data, key).compile()
+  times = []
+  for _ in range(repeats + 1):
+    start = time.perf_counter()
+    state, stats = compiled(state, data, key)
+    jax.block_until_ready(stats)
+    times.append(time.perf_counter() - start)
+  rows = [("train step (all)", 1e3 * float(np.median(times[1:])), f"{rays} rays × {samples}")]
+
+  batch = train_lib.draw_batch(data, config, key).rays
+  rows.append(("draw batch (gathers)", median_ms(
+      lambda k: train_lib.draw_batch(data, config, k), key, repeats=repeats), ""))
+
+  def sample_encode(batch, k):
+    t_near, t_far = renderer.sample_bounds(batch, config)
+    t = sampling.stratified(t_near, t_far, samples, batch.shape, k, lindisp=config.data.lindisp)
+    points = (batch.origins[..., None, :]
+              + batch.directions[..., None, :] * sampling.midpoints(t)[..., None])
+    if not field.encodes_positions(config):
+      return points  # the grids are the encoding
+    return encoding.positional_encoding(points, config.pos_encode_dims)
+  features = sample_encode(batch, key)
+  rows.append(("sample + encode (fwd)", median_ms(sample_encode, batch, key, repeats=repeats),
+               f"{features.shape}"))
+
+  params = state.params["coarse"]
+  dirs = None
+  if config.model.view_dependent:
+    dirs = jnp.zeros((*features.shape[:-1], encoding.encoded_width(3, config.dir_encode_dims)))
+  field_sum = lambda p, x: jnp.sum(sum(jnp.sum(o) for o in exp.model.apply({"params": p}, x,
+                                                                             dirs)))
+  rows.append(("field fwd+bwd", median_ms(jax.grad(field_sum), params, features,
+                                          repeats=repeats),
+               f"{len(_kernels(params))} dense layers"))
+
+  rgb = jnp.full((rays, samples, 3), 0.5)
+  sigma = jnp.ones((rays, samples))
+  t = jnp.broadcast_to(jnp.linspace(exp.near, exp.far, samples + 1), (rays, samples + 1))
+  composite = lambda c, s: jnp.sum(compositing.composite(c, s, t)["rgb"])
+  rows.append(("composite fwd+bwd", median_ms(jax.grad(composite, argnums=(0, 1)), rgb, sigma,
+                                               repeats=repeats), ""))
+
+  n = rays * samples
+  kernels = _kernels(params)
+  inputs = [jnp.ones((n, k.shape[0])) for k in kernels]
+  flops = sum(2 * n * k.shape[0] * k.shape[1] for k in kernels)
+  ms = median_ms(lambda xs, ks: [x @ k for x, k in zip(xs, ks)], inputs, kernels,
+                 repeats=repeats)
+  rows.append(("the MLP's matmuls alone (fwd)", ms, f"{flops / ms / 1e6:.1f} GFLOP/s at its "
+               "shapes"))
+  field_ms = rows[3][1]
+  rows[3] = (*rows[3][:2], f"{rows[3][2]}, {3 * flops / field_ms / 1e6:.1f} GFLOP/s")
+  peak = max(measure.matmul_gflops(repeats=repeats).values())
+  rows.append(("dense matmul peak", float("nan"), f"{peak:.1f} GFLOP/s (large square)"))
+  return rows
+
+
+if __name__ == "__main__":
+  from nerf_jax.bench import cli  # pylint: disable=import-outside-toplevel
+  cli.profile_main()

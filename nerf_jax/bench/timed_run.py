@@ -1,0 +1,186 @@
+"""One configuration trained under the benchmark's clock and measured: its record.
+
+The run is built and stepped by the library (experiment.setup / init_state,
+train_lib.make_train_data / make_train_step, outputs.make_evaluator, Experiment.camera); only
+the loop around the step is the bench's own: it syncs once per segment of steps, times the
+segments, and probes PSNR with the clock paused (see measure.py for the time words), which is
+not what train_lib.train_and_evaluate measures.
+
+Run alone, `python -m nerf_jax.bench.timed_run SPEC.json` is the subprocess of one run of a
+sweep (see runner.py): it reads {'config', 'options', 'record_path'} and writes the record there.
+"""
+
+import dataclasses
+import json
+import math
+import sys
+import time
+import traceback
+
+import jax
+import numpy as np
+
+from nerf_jax import background, experiment, image_renderer, outputs, train_lib
+from nerf_jax.bench import measure, sweeps
+
+SEGMENT_SECONDS = 0.25  # steps between host syncs: about this long (bounds budget overshoot)
+MAX_SEGMENT_STEPS = 64
+CALIBRATION_SECONDS = 3.0  # budget mode: time a throwaway run this long to fit the schedule
+RENDER_PIXELS = 100 * 100  # render time is reported per frame of this many pixels
+
+
+@dataclasses.dataclass
+class Options:
+  """How each run is measured (the config says what is trained and for how long)."""
+  eval_times: tuple = (15, 30, 60, 120, 300, 600)  # train seconds at which to probe PSNR
+  eval_views: int = 1  # test views per probe (the final metrics use all)
+  render_repeats: int = 5  # timed renders of a frame, after one warm-up
+  matmul_repeats: int = 10  # timed matmuls per shape for the machine's peak
+  fit_schedule: bool = True  # budget mode: stretch the lr schedule to the steps that fit
+
+
+def train_loop(step_fn, state, max_steps, max_seconds, probe_times, probe, clock):
+  """Step until `max_steps`, or until `clock` passes `max_seconds` (> 0); probe on the way.
+
+  step_fn: state -> state, may return before the work is done; the loop syncs once per segment
+  of steps (about SEGMENT_SECONDS long) and times the segment. probe: state -> PSNR, run with
+  the clock paused at the last sync expected before each of `probe_times` (train seconds).
+  Returns (state, steps, segments [(steps, seconds)], probes [{'seconds', 'step', 'psnr'}]).
+  """
+  pending = sorted(probe_times)
+  segments, probes, step, size = [], [], 0, 1
+  while step < max_steps and not (max_seconds > 0 and clock.seconds() >= max_seconds):
+    size = min(size, max_steps - step)
+    start = time.perf_counter()
+    for _ in range(size):
+      state = step_fn(state)
+    jax.block_until_ready(state)
+    seconds = time.perf_counter() - start
+    segments.append((size, seconds))
+    step += size
+    per_step = seconds / size
+    size = int(np.clip(SEGMENT_SECONDS / per_step, 1, MAX_SEGMENT_STEPS))
+    # When the next sync should fall, with half a segment to spare for noisy step times.
+    horizon = clock.seconds() + 1.5 * size * per_step
+    if pending and pending[0] <= horizon:
+      now = clock.seconds()
+      pending = [t for t in pending if t > horizon]
+      with clock.paused():
+        probes.append({"seconds": now, "step": step, "psnr": float(probe(state))})
+  return state, step, segments, probes
+
+
+def _build(exp):
+  """(the library's jitted train step, a fresh TrainState) of `exp`. The step donates its state,
+  so every loop needs a state of its own."""
+  # One compiled init instead of dozens of eagerly compiled small ops: same values, less setup.
+  state = jax.jit(lambda: experiment.init_state(exp))()
+  return train_lib.make_train_step(exp), state
+
+
+def calibrate(exp, data, key):
+  """(seconds per step, compile seconds) of a throwaway run of CALIBRATION_SECONDS, timed in
+  segments as the real run is; the first step is left out."""
+  jitted, state = _build(exp)
+  compiled, compile_seconds = measure.compile_jitted(jitted, state, data, key)
+  clock = measure.Clock()
+  clock.start()
+  _, _, segments, _ = train_loop(lambda s: compiled(s, data, key)[0], state, sys.maxsize,
+                                 CALIBRATION_SECONDS, [], None, clock)
+  return measure.median_step_seconds(segments[1:] or segments), compile_seconds
+
+
+def frame_seconds(exp, params, repeats):
+  """([seconds per frame], (height, width)): renders of test view 0's pose, from pose to pixels,
+  through the training camera scaled to about RENDER_PIXELS pixels (Experiment.camera: same
+  field of view and aspect), after one warm-up render that compiles."""
+  scale = math.sqrt(RENDER_PIXELS / (exp.train_ds.height * exp.train_ds.width))
+  camera = exp.camera(scale)
+  draw = image_renderer.make_image_renderer(exp.model, exp.config)(params)
+  bg = background.parse(exp.config.data.background)
+  pose = exp.test_ds.poses[0]
+  return measure.sample_seconds(lambda: draw(exp.rays(pose, camera), bg), repeats), camera[:2]
+
+
+def run_config(config, options):
+  """Train `config` under its budget in this process and measure it. Returns the record."""
+  start = time.perf_counter()
+  exp = experiment.setup(config)
+  data = train_lib.make_train_data(exp)
+  key = jax.random.PRNGKey(config.seed + 1)  # as train_lib.train_and_evaluate
+  tc = config.train
+  max_steps = tc.max_steps
+  if tc.max_seconds > 0 and options.fit_schedule:
+    # The schedule spans the steps expected to fit in the budget; the clock alone ends the run.
+    step_seconds, compile_seconds = calibrate(exp, data, key)
+    sweeps.fit_schedule(tc, max(1, int((tc.max_seconds - compile_seconds) / step_seconds)))
+    exp = dataclasses.replace(exp, tx=experiment.make_optimizer(tc))  # on the fitted schedule
+    max_steps = sys.maxsize
+  jitted, state = _build(exp)
+  evaluate = outputs.make_evaluator(exp)
+  clock = measure.Clock()
+
+  def probe(state):
+    psnr = evaluate(state.params, max_views=options.eval_views)["psnr"]
+    print(f"  {clock.seconds():7.1f} s  step {int(state.step):6d}  probe PSNR {psnr:.2f}",
+          flush=True)
+    return psnr
+
+  probes = [{"seconds": 0.0, "step": 0, "psnr": probe(state)}]
+  setup = {"setup_seconds": time.perf_counter() - start, "setup_rss_mb": measure.peak_rss_mb()}
+  # The peak under the same machine load as this run's training, moments before it.
+  peak = max(measure.matmul_gflops(config.model.dtype, repeats=options.matmul_repeats).values())
+  clock.start()
+  compiled, compile_seconds = measure.compile_jitted(jitted, state, data, key)
+  state, steps, segments, more = train_loop(lambda s: compiled(s, data, key)[0], state,
+                                            max_steps, tc.max_seconds, options.eval_times,
+                                            probe, clock)
+  train_seconds = clock.stop()
+  probes += more
+  if probes[-1]["step"] != steps:
+    probes.append({"seconds": train_seconds, "step": steps, "psnr": probe(state)})
+
+  start = time.perf_counter()
+  final = evaluate(state.params)
+  eval_seconds = time.perf_counter() - start
+  render_times, render_size = frame_seconds(exp, state.params, options.render_repeats)
+  step_seconds = measure.median_step_seconds(segments)
+  rays = train_lib.rays_per_step(config, exp.train_ds)
+  flops = measure.mlp_flops_per_step(state.params, config, rays)
+  bad = int(state.bad_step)
+  return {
+      "test_psnr": final["psnr"], "test_ssim": final["ssim"], "test_views": len(exp.test_ds),
+      "psnr_at": {f"{t:g}": v for t, v in zip(options.eval_times,
+                                              measure.psnr_at_times(probes, options.eval_times))},
+      "probes": probes, "steps": steps, "train_seconds": train_seconds,
+      "compile_seconds": compile_seconds, "step_ms": 1e3 * step_seconds,
+      "step_ms_samples": len(segments), "rays_per_step": rays,
+      "rays_per_second": rays / step_seconds, "mlp_flops_per_step": flops,
+      "mlp_gflops": flops / step_seconds / 1e9, "matmul_peak_gflops": peak,
+      "peak_fraction": flops / step_seconds / 1e9 / peak,
+      "render_ms": 1e3 * float(np.median(render_times)),
+      "render_ms_samples": [1e3 * t for t in render_times], "render_size": list(render_size),
+      "params": int(sum(x.size for name, net in state.params.items() if name != "occupancy"
+                        for x in jax.tree_util.tree_leaves(net))),  # trained weights only
+      "peak_rss_mb": measure.peak_rss_mb(), "device_peak_mb": measure.device_peak_mb(),
+      "eval_seconds": eval_seconds, "diverged_at_step": bad + 1 if bad >= 0 else None,
+      "schedule_steps": tc.max_steps, "config": json.loads(config.to_json()), **setup}
+
+
+def worker(spec_path):
+  """The subprocess of one run: run the config in `spec_path`, write its record (or its error).
+  Returns the exit status."""
+  with open(spec_path) as f:
+    spec = json.load(f)
+  try:
+    record = run_config(sweeps.as_config(spec["config"]), Options(**spec["options"]))
+  except Exception as e:  # any failure of one run is reported in its record, the sweep goes on
+    traceback.print_exc()
+    record = {"error": f"{type(e).__name__}: {e}"}
+  with open(spec["record_path"], "w") as f:
+    json.dump(record, f)
+  return 1 if "error" in record else 0
+
+
+if __name__ == "__main__":
+  sys.exit(worker(sys.argv[1]))

@@ -1,0 +1,122 @@
+"""Finding and loading configs: the files in configs/ (installed as `nerf_jax.configs`) and the
+`config.json` a run saves in its workdir.
+
+A config is named by a path (`configs/fast.py`, `my/exp.py`) or, from any directory, by its name
+under configs/ (`fast`, `scenes/fog`); `:arg` after either is passed to `get_config(arg)` as
+ml_collections' config_flags does. A saved config is completed with `configs/default.py`'s values
+for fields it lacks (written before they existed), so the defaults live in one place.
+"""
+
+import importlib.resources
+import importlib.util
+import json
+import os
+
+import ml_collections
+
+from nerf_jax.configs import default as _default
+
+
+class ConfigError(ValueError):
+  """A config name, file or saved config that cannot be used; the message says which."""
+
+
+def configs_dir():
+  """The directory of the installed configs (the repository's configs/)."""
+  return str(importlib.resources.files("nerf_jax.configs"))
+
+
+def resolve(spec):
+  """The file path for `spec` = PATH or NAME, with any ':arg' suffix kept.
+
+  An existing path wins; else NAME (with or without '.py', with or without a leading
+  'configs/') under the installed configs/. ConfigError if neither exists.
+  """
+  path, colon, arg = spec.partition(":")
+  if os.path.isfile(path):
+    return spec
+  name = path[len("configs/"):] if path.startswith("configs/") else path
+  name = name if name.endswith(".py") else name + ".py"
+  installed = os.path.join(configs_dir(), name)
+  if os.path.isfile(installed):
+    return installed + colon + arg
+  known = ", ".join(available())
+  raise ConfigError(f"--config={spec}: no such config file or name (names: {known})")
+
+
+def available():
+  """Names of the installed configs: ['debug', 'default', ..., 'scenes/fog', ...]."""
+  root, names = configs_dir(), []
+  for folder, _, files in os.walk(root):
+    rel = os.path.relpath(folder, root)
+    names += [os.path.normpath(os.path.join(rel, f[:-3])) for f in files
+              if f.endswith(".py") and f != "__init__.py"]
+  return sorted(names)
+
+
+def load(spec):
+  """The ConfigDict of `spec` (see `resolve`); ConfigError with one line if the file fails."""
+  path = resolve(spec)
+  path, _, arg = path.partition(":")
+  try:
+    module_spec = importlib.util.spec_from_file_location("_nerf_jax_config", path)
+    module = importlib.util.module_from_spec(module_spec)
+    module_spec.loader.exec_module(module)
+    return module.get_config(arg) if arg else module.get_config()
+  except Exception as e:  # pylint: disable=broad-except  (any error in the user's file)
+    raise ConfigError(f"--config={spec}: cannot load the config file "
+                      f"({type(e).__name__}: {_last_line(e)})") from e
+
+
+def _last_line(exc):
+  lines = [l.strip() for l in str(exc).splitlines() if l.strip()]
+  return lines[-1] if lines else type(exc).__name__
+
+
+def default():
+  """configs/default.py's config: every field, at its default."""
+  return _default.get_config()
+
+
+def complete(saved):
+  """A ConfigDict of `saved` (a dict, e.g. a run's config.json) with the default's value for
+  every field it lacks; tuples come back as tuples (JSON stores lists). Fields the default does
+  not have are kept as they are."""
+  return ml_collections.ConfigDict(_merge(default().to_dict(), saved))
+
+
+def _merge(base, saved):
+  out = dict(base)
+  for key, value in saved.items():
+    if isinstance(base.get(key), dict) and isinstance(value, dict):
+      out[key] = _merge(base[key], value)
+    elif isinstance(base.get(key), tuple) and isinstance(value, list):
+      out[key] = tuple(value)
+    else:
+      out[key] = value
+  return out
+
+
+def load_saved(workdir):
+  """The completed config a run saved in `workdir/config.json`."""
+  path = os.path.join(workdir, "config.json")
+  if not os.path.exists(path):
+    raise ConfigError(f"{path} not found: is {workdir} a training workdir?")
+  try:
+    with open(path) as f:
+      saved = json.load(f)
+  except (OSError, ValueError) as e:
+    raise ConfigError(f"{path}: cannot read the saved config ({e})") from None
+  return complete(saved)
+
+
+def unknown_override(config, field):
+  """None if `config` has the dotted `field`, else one line naming the missing part."""
+  node, known = config, ["config"]
+  for part in field.split("."):
+    if not isinstance(node, ml_collections.ConfigDict) or part not in node:
+      valid = (f" (fields: {', '.join(sorted(node.keys()))})"
+               if isinstance(node, ml_collections.ConfigDict) else "")
+      return f"--config.{field}: {'.'.join(known)} has no field {part!r}{valid}"
+    node, known = node[part], known + [part]
+  return None

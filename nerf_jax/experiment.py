@@ -1,0 +1,134 @@
+"""What a run is made of, built once for every entry point (training, rendering, benchmarks,
+the viewer, tests): the config, the model, the optimiser, the datasets and the ray bounds; the
+train state and its checkpoint signature; and restoring all of it from a workdir.
+"""
+
+import dataclasses
+from typing import Any
+
+import flax.struct
+import jax
+import jax.numpy as jnp
+import ml_collections
+import optax
+
+from nerf_jax import checkpoints, config_lib, field, occupancy
+from nerf_jax.data import loaders
+from nerf_jax.data.dataset import Dataset
+from nerf_jax.model import make_model
+from nerf_jax.rays import camera_rays
+
+
+class TrainingError(RuntimeError):
+  """Training cannot go on (non-finite loss, bad config); the message says why and what to do."""
+
+
+@flax.struct.dataclass
+class TrainState:
+  step: jnp.ndarray  # int32 [], steps taken
+  params: dict  # {'coarse': ..., ['fine': ...], ['occupancy': ...]}
+  opt_state: optax.OptState
+  bad_step: jnp.ndarray  # int32 [], first step whose loss or gradient was non-finite, -1 if none
+
+
+@dataclasses.dataclass
+class Experiment:
+  """A config and what it builds. near, far: the ray bounds (z-depth; [0, 1] in NDC)."""
+  config: ml_collections.ConfigDict
+  model: Any
+  tx: optax.GradientTransformation
+  train_ds: Dataset
+  test_ds: Dataset
+  near: float
+  far: float
+
+  def camera(self, scale=1.0):
+    """(height, width, intrinsics) of the training camera with `scale` times its pixels per side
+    (same field of view: focal lengths and principal point scale with the image)."""
+    ds = self.train_ds
+    height, width = max(1, round(ds.height * scale)), max(1, round(ds.width * scale))
+    sx, sy = width / ds.width, height / ds.height
+    fx, fy, cx, cy = ds.intrinsics
+    return height, width, (fx * sx, fy * sy, cx * sx, cy * sy)
+
+  def rays(self, pose, camera=None):
+    """Rays [H, W] of `pose` (float32 [4, 4] camera-to-world) through `camera` (default: the
+    training camera), as the config asks (pixel centres, NDC)."""
+    height, width, intrinsics = camera or self.camera()
+    return camera_rays(height, width, intrinsics, pose, self.near, self.far,
+                       self.config.data.pixel_center, self.config.data.ndc)
+
+
+def setup(config):
+  """The Experiment of `config`: loads the data, builds the model and the optimiser."""
+  train_ds, test_ds = loaders.load_dataset(config.data)
+  near, far = bounds(config, train_ds)
+  return Experiment(config, make_model(config.model), make_optimizer(config.train), train_ds,
+                    test_ds, near, far)
+
+
+def bounds(config, dataset):
+  """(near, far): [0, 1] in NDC, else the config's overrides where set, else the dataset's."""
+  if config.data.ndc:
+    return 0.0, 1.0  # NDC rays run from the near plane (0) to infinity (1)
+  return (float(config.data.near or dataset.near), float(config.data.far or dataset.far))
+
+
+def make_schedule(train_config):
+  """Linear warm-up to `lr`, then exponential decay reaching `lr_final` at `max_steps`."""
+  tc = train_config
+  decay_steps = max(tc.max_steps - tc.warmup_steps, 1)
+  decay = optax.exponential_decay(tc.lr, decay_steps, tc.lr_final / tc.lr)
+  if tc.warmup_steps <= 0:
+    return decay
+  warmup = optax.linear_schedule(0.0, tc.lr, tc.warmup_steps)
+  return optax.join_schedules([warmup, decay], [tc.warmup_steps])
+
+
+def make_optimizer(train_config):
+  """Adam on the schedule, with optional global-norm gradient clipping."""
+  adam = optax.adam(make_schedule(train_config))
+  if train_config.grad_clip > 0:
+    return optax.chain(optax.clip_by_global_norm(train_config.grad_clip), adam)
+  return adam
+
+
+def model_signature(config):
+  """Config fields that fix the parameter shapes; a checkpoint only restores under the same."""
+  m = config.model
+  signature = {"pos_encode_dims": config.pos_encode_dims,
+               "dir_encode_dims": config.dir_encode_dims, "depth": m.depth, "width": m.width,
+               "skip_layers": list(m.skip_layers), "view_dependent": m.view_dependent,
+               "view_width": m.view_width, "networks": list(field.network_names(config))}
+  if m.encoding != "posenc":  # only then, so older checkpoints stay valid
+    signature.update(encoding=m.encoding, grid_resolutions=list(m.grid_resolutions),
+                     grid_features=m.grid_features)
+  if occupancy.enabled(config):
+    signature.update(occupancy_resolution=config.occupancy.resolution)
+  return signature
+
+
+def init_state(exp):
+  """A fresh TrainState of `exp` (parameters from config.seed)."""
+  params = field.init_params(exp.model, exp.config, jax.random.PRNGKey(exp.config.seed))
+  return TrainState(step=jnp.array(0, jnp.int32), params=params, opt_state=exp.tx.init(params),
+                    bad_step=jnp.array(-1, jnp.int32))
+
+
+def state_template(exp):
+  """The structure of `init_state` (shapes and dtypes, nothing computed): what a checkpoint
+  restores into, in a fraction of a second instead of initialising every parameter eagerly."""
+  return jax.eval_shape(lambda: init_state(exp))
+
+
+def restore(workdir, with_meta=False):
+  """(Experiment, TrainState[, meta]) of the newest checkpoint in `workdir`, under the config
+  the run saved (completed with today's defaults, see config_lib.load_saved)."""
+  config = config_lib.load_saved(workdir)
+  path = checkpoints.latest_path(workdir)
+  if path is None:
+    raise TrainingError(f"no checkpoint in {checkpoints.checkpoint_dir(workdir)}: "
+                        "train first (python train.py --workdir=...)")
+  exp = setup(config)
+  state, meta = checkpoints.restore_with_meta(path, state_template(exp), model_signature(config))
+  return (exp, state, meta) if with_meta else (exp, state)

@@ -1,0 +1,142 @@
+"""Rendering images: any number of rays in fixed-size padded chunks (no recompiles, bounded
+memory), on the plain path (renderer.render_rays) or, for models that allow it, with
+empty-space skipping and early ray termination (empty_space.py).
+
+A draw function takes `rays.Rays` with any batch shape `...` and a background RGB and returns
+a numpy dict rgb float32 [..., 3], depth float32 [...], acc float32 [...].
+"""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from nerf_jax import compositing, empty_space, field, occupancy, renderer, sampling
+
+
+def make_chunk_renderer(model, config):
+  """A jitted deterministic renderer for one fixed-size chunk of rays.
+
+  Returns fn(params, rays: Rays [C], background float32 [3]) -> dict of rgb [C, 3], depth [C],
+  acc [C].
+  """
+  @jax.jit
+  def render_chunk(params, rays, background):
+    out = renderer.final(renderer.render_rays(model, params, rays, config, key=None,
+                                              background=background))
+    return {k: out[k] for k in ("rgb", "depth", "acc")}
+  return render_chunk
+
+
+def render_image(render_chunk, params, rays, background=(0.0, 0.0, 0.0), chunk=4096):
+  """Render `rays` (Rays [...]) with `render_chunk` (from `make_chunk_renderer`) in chunks of
+  `chunk` rays. background: RGB. Returns numpy dict rgb [..., 3], depth [...], acc [...]."""
+  num_rays, flat = _padded(rays, chunk)
+  background = jnp.asarray(background, jnp.float32)
+  pieces = [render_chunk(params, _rows(flat, i, chunk), background)
+            for i in range(0, len(flat.origins), chunk)]
+  return _joined(pieces, num_rays, rays.shape)
+
+
+def _padded(rays, chunk):
+  """(num_rays, Rays [P] as numpy): `rays` flattened, P the next multiple of `chunk`. Padding
+  rays are copies of ray 0, so they are as well-behaved as a real ray."""
+  num_rays = int(np.prod(rays.shape))
+  padded = -(-num_rays // chunk) * chunk
+
+  def pad(a):
+    a = np.asarray(a, np.float32).reshape(num_rays, *a.shape[len(rays.shape):])
+    return np.concatenate([a, np.repeat(a[:1], padded - num_rays, axis=0)])
+  return num_rays, jax.tree_util.tree_map(pad, rays)
+
+
+def _rows(rays, start, chunk):
+  return jax.tree_util.tree_map(lambda a: a[start:start + chunk], rays)
+
+
+def _joined(pieces, num_rays, batch_shape):
+  """Per-chunk output dicts -> one numpy dict with leading shape batch_shape (padding dropped)."""
+  out = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs)[:num_rays], *pieces)
+  return {k: v.reshape(*batch_shape, *v.shape[1:]) for k, v in out.items()}
+
+
+def marches(config):
+  """Whether rendering `config`'s model skips empty space and stops at opaque surfaces.
+
+  `config.render.march` applies to single-pass models sampling a scene box (data.scene_bound >
+  0) with plain stratified samples; any other model renders on the plain path.
+  """
+  return bool(config.render.march and config.data.scene_bound > 0
+              and config.num_fine_samples == 0 and not occupancy.enabled(config)
+              and not config.data.ndc)
+
+
+def make_image_renderer(model, config):
+  """fn(params) -> draw(rays, background=(0, 0, 0)) -> numpy dict rgb [..., 3], depth [...],
+  acc [...], rendering Rays [...] in chunks of `config.render.chunk`.
+
+  The plain path (`make_chunk_renderer` + `render_image`) or, where `marches(config)`, the
+  marching one (empty_space.py: the same samples, the field queried only where they matter);
+  the skip grid of the marching path is computed once per call with new params.
+  """
+  if not marches(config):
+    render_chunk = make_chunk_renderer(model, config)
+    # Parameters go to the device once, not with every chunk (restored ones are numpy arrays).
+    return lambda params: functools.partial(render_image, render_chunk, jax.device_put(params),
+                                            chunk=config.render.chunk)
+  return _Marcher(model, config).bind
+
+
+class _Marcher:
+  """The jitted pieces of empty_space.py for one model and config (compiled once, reused)."""
+
+  def __init__(self, model, config):
+    self.config = config
+    rc, box = config.render, config.data.scene_bound
+
+    def query(params, points, viewdirs):  # [B, 3], [B, 3] -> rgb [B, 3], sigma [B]
+      rgb, sigma = field.query(model, params["coarse"], points[:, None, :], viewdirs, config)
+      return rgb[:, 0], sigma[:, 0]
+
+    self.skip_grid = jax.jit(lambda params: empty_space.skip_grid(
+        field.coarse_density(model, params, config), rc.march_grid, box, rc.march_threshold))
+    self.query_round = empty_space.make_query_round(query)
+
+    @jax.jit
+    def plan(mask, rays):
+      t_near, t_far = renderer.sample_bounds(rays, config)
+      t = sampling.stratified(t_near, t_far, config.num_samples, rays.shape, None,
+                              lindisp=config.data.lindisp)
+      points = (rays.origins[:, None, :]
+                + rays.directions[:, None, :] * sampling.midpoints(t)[..., None])
+      return (t, points, *empty_space.occupied_ranks(mask, points, box))
+
+    @jax.jit
+    def finish(sigma, rgb, t, far, background):
+      out = compositing.composite(rgb, sigma, t, background)
+      return {"rgb": out["rgb"], "depth": renderer.empty_depth_is_far(out, far),
+              "acc": out["acc"]}
+
+    self.plan, self.finish = plan, finish
+
+  def bind(self, params):
+    """The draw function of `make_image_renderer` for `params`."""
+    params = jax.device_put(params)  # once, not with every query
+    mask = self.skip_grid(params)
+    return functools.partial(self.draw, params, mask)
+
+  def draw(self, params, mask, rays, background=(0.0, 0.0, 0.0)):
+    rc, chunk = self.config.render, self.config.render.chunk
+    num_rays, flat = _padded(rays, chunk)
+    live = np.arange(len(flat.origins)) < num_rays  # padding rays query nothing
+    background = jnp.asarray(background, jnp.float32)
+    pieces = []
+    for i in range(0, len(flat.origins), chunk):
+      part = _rows(flat, i, chunk)
+      t, points, occupied, rank = self.plan(mask, part)
+      sigma, rgb, _ = empty_space.march(self.query_round, params, t, points, part.viewdirs,
+                                        occupied, rank, live[i:i + chunk], rc.march_group,
+                                        rc.min_transmittance)
+      pieces.append(self.finish(sigma, rgb, t, part.far, background))
+    return _joined(pieces, num_rays, rays.shape)
