@@ -1,7 +1,7 @@
 """The 8×64 MLP at 64 samples and 1024 rays per step (the default until the speed work): the
 base of the README's knob, effects, precision, remat and scaling sweeps.
 
-  python -m nerf_jax.bench --sweep=samples,freqs,width --base=mlp64 --budget_seconds=60
+  python -m nerf_jax.bench --sweep=samples,freqs,width --config=mlp64 --budget_seconds=60
 """
 
 from nerf_jax.configs import default
