@@ -34,10 +34,16 @@ def get_config():
   data.scene_bound = 0.0  # half-size of a box holding the scene; sample only inside it (0 = off)
 
   config.model = model = ml_collections.ConfigDict()
-  model.encoding = "posenc"  # 'posenc' (NeRF MLP) or 'grid' (dense feature grids, configs/fast.py)
+  model.encoding = "posenc"  # 'posenc' (NeRF MLP), 'grid' (dense grids, configs/fast.py), 'hash'
   model.grid_resolutions = (32, 64, 128)  # grid encoding: lattice points per side of each level
   model.grid_features = 4  # grid encoding: features per lattice point
-  model.grid_bound = 1.5  # grid encoding: the grids cover [-bound, bound]^3
+  model.grid_bound = 1.5  # grid and hash encodings: the grids cover [-bound, bound]^3
+  model.hash_levels = 16  # hash encoding: resolution levels (configs/hash.py)
+  model.hash_log2_size = 19  # hash encoding: log2 of the rows of each level's table
+  model.hash_features = 2  # hash encoding: features per row
+  model.hash_base_resolution = 16  # hash encoding: lattice points per side of the coarsest level
+  model.hash_max_resolution = 2048  # hash encoding: lattice points per side of the finest level
+  model.hash_dtype = "float32"  # hash encoding: dtype of the gathered rows (table stays float32)
   model.depth = 8  # hidden layers
   model.width = 64  # units per hidden layer (reference 64, paper 256)
   model.skip_layers = (4,)  # re-inject the input after these layers (0-based)

@@ -103,6 +103,10 @@ def model_signature(config):
   if m.encoding != "posenc":  # only then, so older checkpoints stay valid
     signature.update(encoding=m.encoding, grid_resolutions=list(m.grid_resolutions),
                      grid_features=m.grid_features)
+  if m.encoding == "hash":  # the table's shape and the meaning of its rows
+    signature.update(hash_levels=m.hash_levels, hash_log2_size=m.hash_log2_size,
+                     hash_features=m.hash_features, hash_base_resolution=m.hash_base_resolution,
+                     hash_max_resolution=m.hash_max_resolution)
   if occupancy.enabled(config):
     signature.update(occupancy_resolution=config.occupancy.resolution)
   return signature

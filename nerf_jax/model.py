@@ -14,7 +14,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from nerf_jax import grid
+from nerf_jax import grid, hashgrid
 
 
 class NerfMLP(nn.Module):
@@ -91,9 +91,60 @@ class GridNeRF(nn.Module):
     return nn.sigmoid(rgb), raw_sigma
 
 
+class HashNeRF(nn.Module):
+  """GridNeRF with a multiresolution hash grid (hashgrid.py) in place of the dense grids.
+
+  The same inputs, outputs, head and out-of-box density as GridNeRF; the table holds the
+  `levels` levels' rows, initialised uniform in ±1e-4 as in instant-ngp (the MLP starts from a
+  nearly constant field, and no level dominates before training).
+  hash_dtype: dtype of the gathered corner rows (the table stays float32, see hashgrid.encode).
+  """
+  levels: int = 16
+  log2_size: int = 19
+  features: int = 2
+  base_resolution: int = 16
+  max_resolution: int = 2048
+  hash_dtype: str = "float32"
+  bound: float = 1.5
+  hidden: int = 64
+  view_dependent: bool = False
+  view_width: int = 32
+  dtype: str = "float32"
+
+  def _dense(self, features, name):
+    return nn.Dense(features, dtype=jnp.dtype(self.dtype), param_dtype=jnp.float32, name=name)
+
+  @nn.compact
+  def __call__(self, points, dir_features=None):
+    resolutions = hashgrid.level_resolutions(self.levels, self.base_resolution,
+                                             self.max_resolution)
+    rows = sum(hashgrid.level_rows(resolutions, self.log2_size))
+    init = lambda key, shape: jax.random.uniform(key, shape, jnp.float32, -1e-4, 1e-4)
+    table = self.param("hash_table", init, (rows, self.features))
+    unit = grid.to_unit_cube(points.astype(jnp.float32), self.bound)
+    h = hashgrid.encode(table, unit, resolutions, self.log2_size, self.hash_dtype)
+    h = nn.relu(self._dense(self.hidden, "hidden")(h.astype(jnp.dtype(self.dtype))))
+    raw_sigma = self._dense(1, "sigma")(h)[..., 0].astype(jnp.float32)
+    raw_sigma = jnp.where(grid.inside_box(unit), raw_sigma, -1e5)
+    if self.view_dependent:
+      h = jnp.concatenate([h, dir_features.astype(h.dtype)], axis=-1)
+      h = nn.relu(self._dense(self.view_width, "view")(h))
+    rgb = self._dense(3, "rgb")(h).astype(jnp.float32)
+    return nn.sigmoid(rgb), raw_sigma
+
+
 def make_model(model_config):
-  """The field described by `config.model` (a ConfigDict): NerfMLP or GridNeRF."""
-  if model_config.encoding == "grid":
+  """The field described by `config.model` (a ConfigDict): NerfMLP, GridNeRF or HashNeRF."""
+  encoding = model_config.encoding
+  if encoding not in ("posenc", "grid", "hash"):
+    raise ValueError(f"config.model.encoding must be 'posenc', 'grid' or 'hash', got {encoding!r}")
+  if encoding == "hash":
+    m = model_config
+    return HashNeRF(levels=m.hash_levels, log2_size=m.hash_log2_size, features=m.hash_features,
+                    base_resolution=m.hash_base_resolution, max_resolution=m.hash_max_resolution,
+                    hash_dtype=m.hash_dtype, bound=m.grid_bound, hidden=m.width,
+                    view_dependent=m.view_dependent, view_width=m.view_width, dtype=m.dtype)
+  if encoding == "grid":
     return GridNeRF(resolutions=tuple(model_config.grid_resolutions),
                     features=model_config.grid_features, bound=model_config.grid_bound,
                     hidden=model_config.width, view_dependent=model_config.view_dependent,

@@ -14,7 +14,7 @@ import warnings
 import imageio.v2 as imageio
 import numpy as np
 
-from nerf_jax import background, experiment, image_renderer, metrics, progress, surface
+from nerf_jax import background, experiment, image_renderer, lpips, metrics, progress, surface
 from nerf_jax.rays import orbit_poses, spiral_poses
 
 # Control points of a perceptually ordered colour map (dark blue -> teal -> yellow), for depth.
@@ -51,7 +51,9 @@ def images_on_background(dataset, config):
 
 
 def make_evaluator(exp):
-  """fn(params, max_views=None, out_dir=None, on_view=None) -> {'psnr', 'ssim', 'per_view'}.
+  """fn(params, max_views=None, out_dir=None, on_view=None) -> {'psnr', 'ssim', 'lpips',
+  'per_view'}; without LPIPS (the `lpips` extra missing, or images under 31 px a side) the
+  'lpips' keys are absent and 'lpips_skipped' says why in one line.
 
   Evaluates the test views of `exp` (an experiment.Experiment). With `out_dir`, writes per view
   a PNG of [prediction | depth | ground truth] and depth `.npy`. on_view(index, out, truth) is
@@ -64,6 +66,7 @@ def make_evaluator(exp):
   test_ds = exp.test_ds
   camera = (test_ds.height, test_ds.width, test_ds.intrinsics)
   truths = images_on_background(test_ds, exp.config)[1]
+  lpips_skipped = lpips.unavailable_reason(test_ds.height, test_ds.width)  # None: LPIPS runs
 
   def evaluate(params, max_views=None, out_dir=None, on_view=None):
     count = len(test_ds) if max_views is None else min(max_views, len(test_ds))
@@ -74,13 +77,20 @@ def make_evaluator(exp):
       truth = truths[i]
       view = {"view": i, "psnr": float(metrics.psnr(out["rgb"], truth)),
               "ssim": float(metrics.ssim(out["rgb"], truth))}
+      if lpips_skipped is None:
+        view["lpips"] = float(lpips.lpips(out["rgb"], truth))
       per_view.append(view)
       if on_view is not None:
         on_view(i, out, truth)
       if out_dir:
         _write_eval_view(out_dir, i, out, truth, exp.near, exp.far)
     result = {"psnr": float(np.mean([v["psnr"] for v in per_view])),
-              "ssim": float(np.mean([v["ssim"] for v in per_view])), "per_view": per_view}
+              "ssim": float(np.mean([v["ssim"] for v in per_view]))}
+    if lpips_skipped is None:
+      result["lpips"] = float(np.mean([v["lpips"] for v in per_view]))
+    else:
+      result["lpips_skipped"] = lpips_skipped
+    result["per_view"] = per_view
     if out_dir:
       with open(os.path.join(out_dir, "metrics.json"), "w") as f:
         json.dump(result, f, indent=2)
@@ -219,8 +229,8 @@ def render(workdir, mode, poses_path="", out_dir="", depth_npy=False, resolution
     return path
   if mode == "eval":
     result = make_evaluator(exp)(params, out_dir=out_dir)
-    print(f"test PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.4f} "
-          f"over {len(result['per_view'])} views -> {out_dir}")
+    print(f"test PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.4f}, "
+          f"{lpips.describe(result)} over {len(result['per_view'])} views -> {out_dir}")
     return result
   if mode == "video":
     paths = render_video(exp, params, out_dir, depth_npy=depth_npy, scale=scale)

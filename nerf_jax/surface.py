@@ -88,7 +88,7 @@ def default_bound(config):
   scenes fit in a ball of radius 1.2)."""
   if config.data.scene_bound > 0:
     return float(config.data.scene_bound)
-  if config.model.encoding == "grid":
+  if config.model.encoding in ("grid", "hash"):
     return float(config.model.grid_bound)
   return 1.5
 

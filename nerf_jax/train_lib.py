@@ -20,8 +20,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from nerf_jax import (background, checkpoints, experiment, metrics, occupancy, outputs, parallel,
-                      progress, renderer, summary)
+from nerf_jax import (background, checkpoints, experiment, lpips, metrics, occupancy, outputs,
+                      parallel, progress, renderer, summary)
 from nerf_jax.experiment import TrainingError, TrainState  # noqa: F401  (re-exported)
 from nerf_jax.rays import Rays
 
@@ -291,9 +291,11 @@ def train_and_evaluate(config, workdir):
   checkpoints.atomic_write(os.path.join(workdir, "metrics.json"),
                            json.dumps(result, indent=2).encode())
   _log(workdir, {"step": step, "wall_seconds": round(train_seconds, 3),
-                 "eval_psnr": result["psnr"], "eval_ssim": result["ssim"], "final": True})
-  print(f"test PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.4f} over "
-        f"{len(result['per_view'])} views after {step} steps ({train_seconds:.0f} s)", flush=True)
+                 "eval_psnr": result["psnr"], "eval_ssim": result["ssim"],
+                 **({"eval_lpips": result["lpips"]} if "lpips" in result else {}), "final": True})
+  print(f"test PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.4f}, {lpips.describe(result)} "
+        f"over {len(result['per_view'])} views after {step} steps ({train_seconds:.0f} s)",
+        flush=True)
   if config.render.after_training:
     outputs.render_video(exp, params, os.path.join(workdir, "video"))
   return result

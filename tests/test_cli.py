@@ -310,7 +310,7 @@ def test_verbosity_asks_for_the_traceback(monkeypatch, tmp_path):
     logging.set_verbosity(previous)
 
 
-@pytest.mark.parametrize("name", ["debug", "fast", "keras_seed", "mlp64", "tiny_nerf"])
+@pytest.mark.parametrize("name", ["debug", "fast", "hash", "keras_seed", "mlp64", "tiny_nerf"])
 def test_every_config_sets_only_fields_the_default_has(name):
   # ConfigDict accepts new attributes, so a misspelt field would silently do nothing.
   flat = lambda c, p="": {k for key, v in c.items()

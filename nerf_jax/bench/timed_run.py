@@ -149,7 +149,8 @@ def run_config(config, options):
   flops = measure.mlp_flops_per_step(state.params, config, rays)
   bad = int(state.bad_step)
   return {
-      "test_psnr": final["psnr"], "test_ssim": final["ssim"], "test_views": len(exp.test_ds),
+      "test_psnr": final["psnr"], "test_ssim": final["ssim"], "test_lpips": final.get("lpips"),
+      "test_views": len(exp.test_ds),
       "psnr_at": {f"{t:g}": v for t, v in zip(options.eval_times,
                                               measure.psnr_at_times(probes, options.eval_times))},
       "probes": probes, "steps": steps, "train_seconds": train_seconds,

@@ -126,8 +126,8 @@ def load_blender(path, background=(0.0, 0.0, 0.0), half_res=False, split="train"
 
 
 def load_dataset(config):
-  """(train, test) Datasets from a `data` ConfigDict (a dict is completed with the defaults of
-  configs/default.py; see it for every field).
+  """(train, test) Datasets from a `data` ConfigDict or dict (fields it lacks take the defaults
+  of configs/default.py, which documents every field).
 
   path '' = the built-in `scene` (image_size, num_views and pixel_center apply; focal keeps
   tiny_nerf's field of view); background and half_res apply to .npz and Blender; factor,
@@ -137,8 +137,8 @@ def load_dataset(config):
   the reference's 80/20 for built-in scenes and .npz, every 8th view (0, 8, 16, ...) for LLFF
   (the original NeRF's convention); Blender folders have their own test split and ignore it.
   """
-  if isinstance(config, dict):
-    config = config_lib.complete({"data": config}).data
+  saved = config.to_dict() if hasattr(config, "to_dict") else dict(config)
+  config = config_lib.complete({"data": saved}).data  # a partial one gets the defaults
   path, holdout_from = config.path, config.holdout_from
   background = parse_background(config.background)
   if not path:

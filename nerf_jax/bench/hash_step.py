@@ -1,0 +1,80 @@
+"""Train-step time of the dense grids (configs/fast.py) beside hash grids of several table sizes.
+
+  python -m nerf_jax.bench.hash_step                                 # log2 sizes 14 16 17 18 19
+  python -m nerf_jax.bench.hash_step--log2_sizes=15,19 --steps=20 --float16
+
+Every variant is compiled first; then the steps are timed in rounds, one step of each variant per
+round, so a change of the machine's load hits all variants alike. Reports the median
+milliseconds per step (compilation excluded) and its ratio to the dense grids. The rays come
+from the built-in scene of configs/fast.py (its batch of 2048 rays x 64 samples). Measured
+figures: docs/hashgrid.md.
+"""
+
+import time
+
+import jax
+import numpy as np
+from absl import app, flags
+
+from nerf_jax import cli, experiment, train_lib
+from nerf_jax.configs import fast
+from nerf_jax.configs import hash as hash_config
+
+
+def variants(log2_sizes, float16):
+  """[(name, config)]: fast.py's grids, then configs/hash.py at each table size."""
+  out = [("grid 32,64,128", fast.get_config())]
+  for log2 in log2_sizes:
+    for dtype in ("float32", "float16") if float16 else ("float32",):
+      config = hash_config.get_config()
+      config.model.hash_log2_size = log2
+      config.model.hash_dtype = dtype
+      out.append((f"hash 2^{log2}" + (" f16" if dtype == "float16" else ""), config))
+  return out
+
+
+def num_params(params):
+  return sum(int(np.prod(x.shape)) for x in jax.tree_util.tree_leaves(params))
+
+
+def step_times(named_configs, steps, num_views):
+  """{name: (median ms, params)} of each config's train step, timed in interleaved rounds."""
+  runs = {}
+  for name, config in named_configs:
+    config.data.num_views = num_views
+    exp = experiment.setup(config)
+    state = experiment.init_state(exp)
+    data = train_lib.make_train_data(exp)
+    step = train_lib.make_train_step(exp)
+    key = jax.random.PRNGKey(0)
+    state, _ = jax.block_until_ready(step(state, data, key))  # compile + one warm-up step
+    runs[name] = [step, state, data, key, [], num_params(state.params)]
+  for _ in range(steps):
+    for run in runs.values():
+      step, state, data, key, times, _ = run
+      start = time.perf_counter()
+      run[1], _ = jax.block_until_ready(step(state, data, key))
+      times.append(time.perf_counter() - start)
+  return {name: (1e3 * float(np.median(run[4])), run[5]) for name, run in runs.items()}
+
+
+def main(argv=None):
+  log2_sizes = flags.DEFINE_list("log2_sizes", ["14", "16", "17", "18", "19"],
+                                 "hash table sizes, log2")
+  steps = flags.DEFINE_integer("steps", 20, "timed steps per variant")
+  num_views = flags.DEFINE_integer("num_views", 20, "views of the built-in scene")
+  float16 = flags.DEFINE_bool("float16", False, "also time hash_dtype=float16")
+
+  def run(_):
+    sizes = [int(s) for s in log2_sizes.value]
+    results = step_times(variants(sizes, float16.value), steps.value, num_views.value)
+    grid_ms = next(iter(results.values()))[0]
+    print(f"{'variant':<18} {'params':>10} {'ms/step':>9} {'x grid':>7}")
+    for name, (ms, params) in results.items():
+      print(f"{name:<18} {params:>10} {ms:>9.1f} {ms / grid_ms:>7.2f}")
+
+  app.run(lambda argv: cli.run_main(lambda: run(argv)), argv=argv, flags_parser=cli.parse_flags)
+
+
+if __name__ == "__main__":
+  main()
