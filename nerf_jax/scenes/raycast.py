@@ -133,5 +133,5 @@ def intersect_group(shapes, origins, directions):
 
 def intersect(shape, origins, directions):
   """(t_in, t_out, normal) of one shape, jax.numpy float32 (see the module doc)."""
-  return tuple(a[..., 0, :] if a.ndim == origins.ndim else a[..., 0]
+  return tuple(a[..., 0, :] if a.ndim > origins.ndim else a[..., 0]
                for a in intersect_group([shape], origins, directions))

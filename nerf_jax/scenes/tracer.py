@@ -136,6 +136,9 @@ def trace(scene, origins, directions, near, far):
   return rgb, t, hit
 
 
+trace_rays = jax.jit(trace, static_argnums=0)  # `trace`, compiled once per scene and ray shape
+
+
 def _check(scene):
   if scene.medium is not None or scene.effects.shadows:
     raise ValueError(f"scene {scene.name!r}: the tracer renders neither fog nor shadows; "
@@ -155,18 +158,17 @@ def _subsamples(s):
   return ox.astype(np.float32), oy.astype(np.float32), weight.astype(np.float32), centre
 
 
-@functools.partial(jax.jit, static_argnums=(0, 1, 2, 3, 4, 5, 6, 7))
-def _render_pixels(scene, height, width, focal, pixel_center, near, far, supersample, poses,
-                   ids):
-  """Pixels `ids` (int32 [P], flat over [V, H, W]) of cameras poses: float32 [V, 4, 4].
+@functools.partial(jax.jit, static_argnums=(0, 1))
+def _render_pixels(scene, supersample, c2w, row, col, height, width, focal, pixel_center, near,
+                   far):
+  """Pixels (row, col): int32 [P] of cameras c2w: float32 [P, 3, 4] (each pixel's own; shapes
+  fixed by the chunk, so one compilation per scene and s serves every image size and view
+  count). height, width: int32 scalars; focal, pixel_center, near, far: float32 scalars.
   Returns rgb float32 [P, 3], depth float32 [P], acc float32 [P] (see the module doc)."""
-  view, pixel = ids // (height * width), ids % (height * width)
-  row, col = pixel // width, pixel % width
   ox, oy, weight, centre = _subsamples(supersample)
   x = (col[:, None] + pixel_center + ox - 0.5 * width) / focal
   y = -(row[:, None] + pixel_center + oy - 0.5 * height) / focal
   cam = jnp.stack([x, y, -jnp.ones_like(x)], -1)  # [P, S, 3], camera-space z = -1
-  c2w = poses[view]
   directions = jnp.einsum("pij,psj->psi", c2w[:, :3, :3], cam)
   origins = jnp.broadcast_to(c2w[:, None, :3, 3], directions.shape)
   rgb, t, hit = trace(scene, origins, directions, near, far)
@@ -196,15 +198,18 @@ def render_images(scene, poses, height, width, focal, pixel_center=0.0, near=2.0
   Returns {'rgb': float32 [V, H, W, 3], 'depth': float32 [V, H, W], 'acc': float32 [V, H, W]}.
   """
   _check(scene)
-  poses = jnp.asarray(poses, jnp.float32)
+  poses = np.asarray(poses, np.float32)[:, :3, :4]
   total = len(poses) * height * width
-  static = (scene, height, width, float(focal), float(pixel_center), float(near), float(far),
-            int(scene.supersample if supersample is None else supersample))
+  s = int(scene.supersample if supersample is None else supersample)
+  scalars = (jnp.int32(height), jnp.int32(width),
+             *(jnp.float32(a) for a in (focal, pixel_center, near, far)))
   order = tile_order(len(poses), height, width, tile)
   chunk = tile * tile
-  padded = np.concatenate([order, np.full(-total % chunk, order[-1])]).astype(np.int32)
-  outs = [_render_pixels(*static, poses, jnp.asarray(padded[k:k + chunk]))  # async dispatch
-          for k in range(0, len(padded), chunk)]
+  padded = np.concatenate([order, np.full(-total % chunk, order[-1])])
+  view, pixel = np.divmod(padded, height * width)
+  row, col = (a.astype(np.int32) for a in np.divmod(pixel, width))
+  outs = [_render_pixels(scene, s, poses[view[k:k + chunk]], row[k:k + chunk], col[k:k + chunk],
+                         *scalars) for k in range(0, len(padded), chunk)]  # async dispatch
   shape = (len(poses), height, width)
   result = {}
   for name, parts in zip(("rgb", "depth", "acc"), zip(*outs)):
