@@ -110,7 +110,7 @@ def _spy(monkeypatch, name):
   return calls
 
 
-@pytest.mark.parametrize("function,computed_for", [("specular", {"glossy"}),
+@pytest.mark.parametrize("function,computed_for", [("specular", {"glossy", "detail"}),
                                                    ("trace_medium", {"fog"}),
                                                    ("_shadow", {"glossy", "fog", "white",
                                                                 "forward"})])

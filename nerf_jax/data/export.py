@@ -76,7 +76,8 @@ def main(argv=None):
   parser.add_argument("--format", required=True, choices=("npz", "blender", "llff"))
   parser.add_argument("--out", required=True, help=".npz file, or Blender or LLFF folder to write")
   parser.add_argument("--num_views", type=int, default=100)
-  parser.add_argument("--image_size", type=int, default=100)
+  parser.add_argument("--image_size", type=int, default=None,
+                      help="height = width in pixels (default: the scene's, 100 or 400)")
   parser.add_argument("--pixel_center", type=float, default=0.0)
   parser.add_argument("--seed", type=int, default=0)
   parser.add_argument("--alpha", action="store_true", help="Blender: alpha = opacity")
@@ -86,8 +87,7 @@ def main(argv=None):
   try:
     dataset = scenes.make_dataset(
         args.scene, args.num_views, args.image_size, args.image_size,
-        scenes.TINY_NERF_FOCAL * args.image_size / 100, pixel_center=args.pixel_center,
-        seed=args.seed)
+        pixel_center=args.pixel_center, seed=args.seed)  # focal: tiny_nerf's field of view
     if args.format == "npz":
       export_npz(dataset, args.out, rgb_only=args.rgb_only)
     elif args.format == "llff":

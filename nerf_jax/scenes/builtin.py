@@ -13,7 +13,7 @@ import numpy as np
 
 from nerf_jax import rays as rays_lib
 from nerf_jax.data.dataset import Dataset
-from nerf_jax.scenes import simulator
+from nerf_jax.scenes import cache, detail, simulator
 from nerf_jax.scenes.geometry import Box, Cylinder, Sphere
 from nerf_jax.scenes.scene import Effects, Light, Material, Medium, Object, Scene
 
@@ -84,6 +84,7 @@ SCENES = {
     "white": Scene("white", _objects(), Effects(background=True, shadows=True),
                    background=(1.0, 1.0, 1.0)),
     "forward": _forward_scene(),
+    "detail": detail.SCENE,
 }
 
 
@@ -112,25 +113,33 @@ def forward_poses(num_views, extent=0.3, seed=0):
   return poses
 
 
-def make_dataset(name, num_views=100, height=100, width=100, focal=TINY_NERF_FOCAL, radius=4.0,
+def make_dataset(name, num_views=100, height=None, width=None, focal=None, radius=4.0,
                  pixel_center=0.0, seed=0, near=None, far=None):
   """Ground-truth `Dataset` of a built-in scene (with `depths` and `accs`).
 
   The cameras follow the scene's rig: `random_poses(num_views, radius, seed)` or
-  `forward_poses(num_views, seed=seed)` (radius is ignored). near, far: float or None (= the
-  scene's bounds).
+  `forward_poses(num_views, seed=seed)` (radius is ignored). height, width: int or None (= the
+  scene's `image_size`). focal: float or None (= tiny_nerf's field of view at this width).
+  near, far: float or None (= the scene's bounds). A scene with `supersample > 1` is rendered by
+  `tracer` (s x s rays per pixel), through the disk `cache` when large.
   """
   scene = get_scene(name)
   near = scene.near if near is None else near
   far = scene.far if far is None else far
+  height = scene.image_size if height is None else height
+  width = scene.image_size if width is None else width
+  focal = TINY_NERF_FOCAL * width / 100 if focal is None else focal
   if scene.camera_rig == "forward":
     poses = forward_poses(num_views, seed=seed)
   else:
     poses = random_poses(num_views, radius, seed)
-  origins, directions = _batched_rays(height, width, focal, poses, pixel_center)
-  out = simulator.render_rays(scene, np.reshape(origins, (-1, 3)),
-                              np.reshape(directions, (-1, 3)), near, far)
   shape = (num_views, height, width)
+  if scene.supersample > 1:
+    out = cache.render_images(scene, poses, height, width, focal, pixel_center, near, far)
+  else:
+    origins, directions = _batched_rays(height, width, focal, poses, pixel_center)
+    out = simulator.render_rays(scene, np.reshape(origins, (-1, 3)),
+                                np.reshape(directions, (-1, 3)), near, far)
   return Dataset(
       images=out["rgb"].reshape(*shape, 3).astype(np.float32), poses=poses,
       intrinsics=(float(focal), float(focal), width * 0.5, height * 0.5), near=near, far=far,

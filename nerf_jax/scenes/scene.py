@@ -9,8 +9,9 @@ import dataclasses
 from typing import Optional, Union
 
 from nerf_jax.scenes.geometry import Box, Cylinder, Sphere
+from nerf_jax.scenes.raycast import Rod
 
-Shape = Union[Sphere, Box, Cylinder]
+Shape = Union[Sphere, Box, Cylinder, Rod]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -20,6 +21,7 @@ class Material:
   shininess: float = 32.0  # Blinn-Phong exponent
   checker: float = 0.0  # > 0: squares of this side in world x-y alternate albedo and albedo2
   albedo2: tuple = (0.0, 0.0, 0.0)  # the second checker colour
+  texture: object = None  # a `nerf_jax.scenes.textures.Texture` modulating albedo, or None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,6 +73,8 @@ class Scene:
   camera_rig: str = "hemisphere"  # 'hemisphere' (orbit the origin) or 'forward' (LLFF-like)
   near: float = 2.0  # z-depth bounds of everything the rig's cameras see
   far: float = 6.0
+  image_size: int = 100  # default height = width of its datasets, in pixels
+  supersample: int = 1  # s > 1: s x s rays per pixel, traced by `nerf_jax.scenes.tracer`
 
   def __post_init__(self):
     if self.camera_rig not in ("hemisphere", "forward"):

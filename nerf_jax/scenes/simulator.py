@@ -11,6 +11,7 @@ Only the effects the scene declares are computed (`Scene.effects`).
 import numpy as np
 
 from nerf_jax import rays as rays_lib
+from nerf_jax.scenes import textures
 from nerf_jax.scenes.geometry import dot
 
 
@@ -87,6 +88,8 @@ def surface_rgb(scene, index, points, normals, viewdirs):
   mats = [o.material for o in scene.objects]
   lit = _shadow(scene, points, normals) if scene.effects.shadows else np.ones(len(index))
   albedo = _albedo(mats, index, points)
+  if any(m.texture is not None for m in mats):  # procedural textures are float32 jax.numpy
+    albedo = np.asarray(textures.albedo(mats, index, points, normals), np.float64)
   rgb = diffuse(albedo, normals, scene.light, lit)
   if scene.effects.view_dependent:
     strength = np.array([m.specular for m in mats])[index]
