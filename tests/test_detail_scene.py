@@ -253,13 +253,13 @@ def test_large_renders_are_cached(tmp_path, monkeypatch):
 
 
 def test_default_size_and_config():
-  config = importlib.import_module("configs.scenes.detail").get_config()
+  config = importlib.import_module("nerf_jax.configs.scenes.detail").get_config()
   assert config.data.image_size == SCENE.image_size == 400 and config.model.view_dependent
   assert SCENE.effects.names() == {"view_dependent"} and SCENE.background == (0.0, 0.0, 0.0)
 
 
 def test_detail_config_loads_the_scene():
-  config = importlib.import_module("configs.scenes.detail").get_config()
+  config = importlib.import_module("nerf_jax.configs.scenes.detail").get_config()
   config.data.num_views, config.data.image_size = 5, 12
   train, test = loaders.load_dataset(config.data)
   assert (len(train), len(test)) == (4, 1) and train.images.shape[1:] == (12, 12, 3)

@@ -36,15 +36,15 @@ def test_depth_is_z_depth_of_the_hit_point():
 
 
 def test_empty_ray_is_background_with_far_depth():
-  out = simulator.render_rays(_one_sphere(background=True), [[0.0, 0.0, 4.0]], [[0.0, 0.0, 1.0]])
+  out = simulator.trace_rays(_one_sphere(background=True), [[0.0, 0.0, 4.0]], [[0.0, 0.0, 1.0]])
   assert out["acc"][0] == 0.0 and out["depth"][0] == 6.0
   np.testing.assert_array_equal(out["rgb"][0], 1.0)
 
 
 def test_only_surfaces_between_near_and_far_count():
   o, d = [[0.0, 0.0, 4.0]], [[0.0, 0.0, -1.0]]  # the sphere spans t in [3.5, 4.5]
-  assert simulator.render_rays(_one_sphere(), o, d, near=2.0, far=3.0)["acc"][0] == 0.0
-  inside = simulator.render_rays(_one_sphere(), o, d, near=4.0, far=6.0)  # starts in the solid
+  assert simulator.trace_rays(_one_sphere(), o, d, near=2.0, far=3.0)["acc"][0] == 0.0
+  inside = simulator.trace_rays(_one_sphere(), o, d, near=4.0, far=6.0)  # starts in the solid
   assert inside["acc"][0] == 1.0 and inside["depth"][0] == 4.0
 
 
@@ -88,7 +88,7 @@ def _top_of_red_sphere(scene_name):
   light = np.asarray(scene.light.direction) / np.linalg.norm(scene.light.direction)
   mirror = np.array([-light[0], -light[1], light[2]])  # reflection of the light about +z
   origins, dirs = _rays_to(np.array([0.0, 0.0, 0.5]), [mirror, [0.5, 0.6, 0.7]])
-  out = simulator.render_rays(scene, origins, dirs, near=0.1, far=10.0)
+  out = simulator.trace_rays(scene, origins, dirs, near=0.1, far=10.0)
   np.testing.assert_allclose(out["depth"], 1.5, atol=1e-9)  # 3 / |d| = 1.5: both hit the point
   return out["rgb"]
 
@@ -136,7 +136,7 @@ def _fog_reference(scene, origins, directions, near, far, steps=20000):
   opaque surface comes from the same scene rendered without its medium."""
   solid = dataclasses.replace(scene, medium=None, effects=dataclasses.replace(
       scene.effects, participating_medium=False))
-  surf = simulator.render_rays(solid, origins, directions, near, far)
+  surf = simulator.trace_rays(solid, origins, directions, near, far)
   fog, out = scene.medium, {"rgb": [], "acc": [], "depth": []}
   for o, d, s_acc, s_depth, s_rgb in zip(origins, directions, surf["acc"], surf["depth"],
                                          surf["rgb"]):
@@ -159,7 +159,7 @@ def test_fog_matches_brute_force_quadrature():
   scene = scenes.get_scene("fog")
   o, d = rays_lib.get_rays(12, 12, 16.7, rays_lib.pose_spherical(20.0, -30.0, 4.0))
   o, d = np.asarray(o, np.float64).reshape(-1, 3), np.asarray(d, np.float64).reshape(-1, 3)
-  exact = simulator.render_rays(scene, o, d, 2.0, 6.0)
+  exact = simulator.trace_rays(scene, o, d, 2.0, 6.0)
   ref = _fog_reference(scene, o, d, 2.0, 6.0)
   partial = (exact["acc"] > 0.05) & (exact["acc"] < 0.95)
   assert partial.sum() >= 5 and (exact["acc"] == 1.0).sum() >= 5  # fog alone and surfaces
@@ -222,7 +222,7 @@ def test_checkered_wall_alternates_albedo():
   wall = scene.objects[0].material
   xy = np.array([[1.6, 1.6], [2.1, 1.6], [1.9, 1.9]])  # squares (3, 3), (4, 3), (3, 3) of 0.5
   origins = np.concatenate([xy, np.zeros((3, 1))], -1)
-  out = simulator.render_rays(scene, origins, np.tile([0.0, 0.0, -1.0], (3, 1)), 1.0, 6.0)
+  out = simulator.trace_rays(scene, origins, np.tile([0.0, 0.0, -1.0], (3, 1)), 1.0, 6.0)
   np.testing.assert_allclose(out["depth"], 5.0)
   np.testing.assert_allclose(out["rgb"][2], out["rgb"][0], atol=1e-12)
   np.testing.assert_allclose(out["rgb"][1] / out["rgb"][0],

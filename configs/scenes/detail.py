@@ -8,7 +8,7 @@ primitives of the other scenes, so a fine pass puts samples where the coarse wei
   python -m nerf_jax.data.export --scene=detail --format=blender --alpha --out=/tmp/detail
 """
 
-from configs import default
+from nerf_jax.configs import default
 
 
 def get_config():

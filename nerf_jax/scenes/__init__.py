@@ -5,5 +5,5 @@ from nerf_jax.scenes.builtin import (SCENES, TINY_NERF_FOCAL, forward_poses, get
 from nerf_jax.scenes.geometry import Box, Cylinder, Sphere
 from nerf_jax.scenes.raycast import Rod
 from nerf_jax.scenes.scene import Effects, Light, Material, Medium, Object, Scene
-from nerf_jax.scenes.simulator import render_rays, render_view
+from nerf_jax.scenes.simulator import render_view, trace_rays
 from nerf_jax.scenes.textures import Texture

@@ -138,7 +138,7 @@ def make_dataset(name, num_views=100, height=None, width=None, focal=None, radiu
     out = cache.render_images(scene, poses, height, width, focal, pixel_center, near, far)
   else:
     origins, directions = _batched_rays(height, width, focal, poses, pixel_center)
-    out = simulator.render_rays(scene, np.reshape(origins, (-1, 3)),
+    out = simulator.trace_rays(scene, np.reshape(origins, (-1, 3)),
                                 np.reshape(directions, (-1, 3)), near, far)
   return Dataset(
       images=out["rgb"].reshape(*shape, 3).astype(np.float32), poses=poses,

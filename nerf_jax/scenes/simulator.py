@@ -110,7 +110,7 @@ def _albedo(materials, index, points):
   return np.where(second[:, None], np.array([m.albedo2 for m in materials])[index], albedo)
 
 
-def render_rays(scene, origins, directions, near=2.0, far=6.0, chunk=1 << 16):
+def trace_rays(scene, origins, directions, near=2.0, far=6.0, chunk=1 << 16):
   """Ground truth for a batch of rays.
 
   origins, directions: float [R, 3] (directions un-normalised as in `nerf_jax.rays`).
@@ -124,7 +124,7 @@ def render_rays(scene, origins, directions, near=2.0, far=6.0, chunk=1 << 16):
 
 
 def _render_chunk(scene, origins, directions, near, far):
-  """`render_rays` on float64 [R, 3] rays: the first opaque hit, then the fog in front of it."""
+  """`trace_rays` on float64 [R, 3] rays: the first opaque hit, then the fog in front of it."""
   t_hit, index, normal = first_hit(scene.objects, origins, directions, near, far)
   hit = np.isfinite(t_hit)
   colour = np.zeros_like(origins)
@@ -153,7 +153,7 @@ def render_view(scene, c2w, height, width, focal, pixel_center=0.0, near=2.0, fa
   'depth': float32 [H, W], 'acc': float32 [H, W]}.
   """
   origins, directions = rays_lib.get_rays(height, width, focal, c2w, pixel_center)
-  out = render_rays(scene, np.asarray(origins).reshape(-1, 3),
+  out = trace_rays(scene, np.asarray(origins).reshape(-1, 3),
                     np.asarray(directions).reshape(-1, 3), near, far)
   return {k: v.reshape(height, width, *v.shape[1:]).astype(np.float32) for k, v in out.items()}
 
