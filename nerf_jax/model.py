@@ -55,7 +55,30 @@ class NerfMLP(nn.Module):
     return nn.sigmoid(rgb), raw_sigma
 
 
-class GridNeRF(nn.Module):
+class _GridHead(nn.Module):
+  """The tiny MLP of the grid fields: grid features float [..., F] at unit-cube positions
+  float32 [..., 3] (and encoded directions) -> (rgb float32 [..., 3], raw_sigma float32 [...])."""
+  hidden: int = 64
+  view_dependent: bool = False
+  view_width: int = 32
+  dtype: str = "float32"
+
+  def _dense(self, features, name):
+    return nn.Dense(features, dtype=jnp.dtype(self.dtype), param_dtype=jnp.float32, name=name)
+
+  def _head(self, h, unit, dir_features):
+    """Density and a feature from one hidden layer, colour from the feature (and direction)."""
+    h = nn.relu(self._dense(self.hidden, "hidden")(h))
+    raw_sigma = self._dense(1, "sigma")(h)[..., 0].astype(jnp.float32)
+    raw_sigma = jnp.where(grid.inside_box(unit), raw_sigma, -1e5)
+    if self.view_dependent:
+      h = jnp.concatenate([h, dir_features.astype(h.dtype)], axis=-1)
+      h = nn.relu(self._dense(self.view_width, "view")(h))
+    rgb = self._dense(3, "rgb")(h).astype(jnp.float32)
+    return nn.sigmoid(rgb), raw_sigma
+
+
+class GridNeRF(_GridHead):
   """The fast field: multiresolution dense feature grids over the scene box + a tiny MLP.
 
   Takes raw world positions `points: float32 [..., 3]` (no positional encoding: the grids are
@@ -67,31 +90,17 @@ class GridNeRF(nn.Module):
   resolutions: Sequence[int] = (32, 64, 128)
   features: int = 4
   bound: float = 1.5
-  hidden: int = 64
-  view_dependent: bool = False
-  view_width: int = 32
-  dtype: str = "float32"
-
-  def _dense(self, features, name):
-    return nn.Dense(features, dtype=jnp.dtype(self.dtype), param_dtype=jnp.float32, name=name)
 
   @nn.compact
   def __call__(self, points, dir_features=None):
     init = lambda key, shape: 1e-2 * jax.random.normal(key, shape, jnp.float32)
     grids = [self.param(f"grid_{r}", init, (r, r, r, self.features)) for r in self.resolutions]
     unit = grid.to_unit_cube(points.astype(jnp.float32), self.bound)
-    h = grid.multires_features(grids, unit).astype(jnp.dtype(self.dtype))
-    h = nn.relu(self._dense(self.hidden, "hidden")(h))
-    raw_sigma = self._dense(1, "sigma")(h)[..., 0].astype(jnp.float32)
-    raw_sigma = jnp.where(grid.inside_box(unit), raw_sigma, -1e5)
-    if self.view_dependent:
-      h = jnp.concatenate([h, dir_features.astype(h.dtype)], axis=-1)
-      h = nn.relu(self._dense(self.view_width, "view")(h))
-    rgb = self._dense(3, "rgb")(h).astype(jnp.float32)
-    return nn.sigmoid(rgb), raw_sigma
+    return self._head(grid.multires_features(grids, unit).astype(jnp.dtype(self.dtype)), unit,
+                      dir_features)
 
 
-class HashNeRF(nn.Module):
+class HashNeRF(_GridHead):
   """GridNeRF with a multiresolution hash grid (hashgrid.py) in place of the dense grids.
 
   The same inputs, outputs, head and out-of-box density as GridNeRF; the table holds the
@@ -106,13 +115,6 @@ class HashNeRF(nn.Module):
   max_resolution: int = 2048
   hash_dtype: str = "float32"
   bound: float = 1.5
-  hidden: int = 64
-  view_dependent: bool = False
-  view_width: int = 32
-  dtype: str = "float32"
-
-  def _dense(self, features, name):
-    return nn.Dense(features, dtype=jnp.dtype(self.dtype), param_dtype=jnp.float32, name=name)
 
   @nn.compact
   def __call__(self, points, dir_features=None):
@@ -123,14 +125,7 @@ class HashNeRF(nn.Module):
     table = self.param("hash_table", init, (rows, self.features))
     unit = grid.to_unit_cube(points.astype(jnp.float32), self.bound)
     h = hashgrid.encode(table, unit, resolutions, self.log2_size, self.hash_dtype)
-    h = nn.relu(self._dense(self.hidden, "hidden")(h.astype(jnp.dtype(self.dtype))))
-    raw_sigma = self._dense(1, "sigma")(h)[..., 0].astype(jnp.float32)
-    raw_sigma = jnp.where(grid.inside_box(unit), raw_sigma, -1e5)
-    if self.view_dependent:
-      h = jnp.concatenate([h, dir_features.astype(h.dtype)], axis=-1)
-      h = nn.relu(self._dense(self.view_width, "view")(h))
-    rgb = self._dense(3, "rgb")(h).astype(jnp.float32)
-    return nn.sigmoid(rgb), raw_sigma
+    return self._head(h.astype(jnp.dtype(self.dtype)), unit, dir_features)
 
 
 def make_model(model_config):
