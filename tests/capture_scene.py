@@ -31,20 +31,23 @@ def _value_noise(points, lattice, frequency):
   return out
 
 
-def albedo(points, seed=0):
-  """Noise texture of 3 octaves: float64 [R, 3] in [0.05, 0.95]."""
+def albedo(points, octaves=3, seed=0):
+  """Noise texture of 1 to 3 octaves (1: smooth): float64 [R, 3] in [0.05, 0.95]."""
   rng = np.random.default_rng(seed)
   total = np.zeros((len(points), 3))
-  for k, (freq, amp) in enumerate(((5.0, 0.3), (12.0, 0.35), (26.0, 0.35))):
+  bands = ((5.0, 0.3), (12.0, 0.35), (26.0, 0.35))[:octaves]
+  for k, (freq, amp) in enumerate(bands):
     total += amp * _value_noise(points + 0.37 * k, rng.uniform(0, 1, (32, 32, 32, 3)), freq)
+  total /= sum(amp for _, amp in bands)
   return np.clip(0.5 + 2.5 * (total - 0.5), 0.05, 0.95)
 
 
-def render(c2w, height, width, intrinsics, dist=None, near=0.5, far=20.0):
+def render(c2w, height, width, intrinsics, dist=None, octaves=3, near=0.5, far=20.0):
   """One photograph: float32 [H, W, 3] in [0, 1] (black background).
 
   c2w: float [4, 4] (`nerf_jax.rays` conventions). intrinsics: (fx, fy, cx, cy) in COLMAP's
   pixel convention (pixel k's centre at k + 0.5). dist: None or (k1, k2, p1, p2): the photo is
+  octaves: texture detail (`albedo`). The photo is
   taken through that OpenCV lens (each pixel centre is undistorted by fixed-point iteration,
   independently of `nerf_jax.data.lens`).
   """
@@ -61,15 +64,20 @@ def render(c2w, height, width, intrinsics, dist=None, near=0.5, far=20.0):
       y = (yd - p1 * (r2 + 2 * y * y) - 2 * p2 * x * y) / radial
   dirs = np.stack([x, -y, -np.ones_like(x)], -1).reshape(-1, 3)  # OpenCV y down -> ours y up
   origins, directions = rays_lib.camera_rays(dirs, np.asarray(c2w, np.float32))
-  origins = np.asarray(origins, np.float64)
-  directions = np.asarray(directions, np.float64)
+  return render_rays(origins, directions, octaves, near, far).reshape(height, width, 3)
+
+
+def render_rays(origins, directions, octaves=3, near=0.5, far=20.0):
+  """Colours of rays: origins, directions float [..., 3] -> float32 [R, 3] (flattened)."""
+  origins = np.asarray(origins, np.float64).reshape(-1, 3)
+  directions = np.asarray(directions, np.float64).reshape(-1, 3)
   objects = tuple(_Solid(s) for s in SHAPES)
   t, index, normal = simulator.first_hit(objects, origins, directions, near, far)
   hit = np.isfinite(t)
   rgb = np.zeros_like(origins)
   points = origins[hit] + t[hit, None] * directions[hit]
-  rgb[hit] = simulator.diffuse(albedo(points), normal[hit], LIGHT, np.ones(hit.sum()))
-  return np.clip(rgb, 0, 1).reshape(height, width, 3).astype(np.float32)
+  rgb[hit] = simulator.diffuse(albedo(points, octaves), normal[hit], LIGHT, np.ones(hit.sum()))
+  return np.clip(rgb, 0, 1).astype(np.float32)
 
 
 class _Solid:

@@ -72,15 +72,16 @@ def _number(frame, meta, key, where, default=None):
   return validate.scalar(value, f"{where}.{key}")
 
 
-def _camera(frame, meta, image_size, where):
+def _camera(frame, meta, image_size, full_size, where):
   """(COLMAP-convention (fx, fy, cx, cy), dist (k1, k2, p1, p2, k3)) of one frame, scaled to
-  the image's actual size."""
+  the image's actual size. image_size, full_size: (height, width) of the loaded image and of
+  the photo before any downscaling (the default of w, h)."""
   model = frame.get("camera_model", meta.get("camera_model", "OPENCV"))
   if model in _UNSUPPORTED_MODELS:
     raise DataError(f"{where}.camera_model: {model!r} is not supported (OPENCV or a pinhole)")
   height, width = image_size
-  w = _number(frame, meta, "w", where, width)
-  h = _number(frame, meta, "h", where, height)
+  w = _number(frame, meta, "w", where, full_size[1])
+  h = _number(frame, meta, "h", where, full_size[0])
   if "fl_x" in frame or "fl_x" in meta:
     fx = _number(frame, meta, "fl_x", where)
   elif "camera_angle_x" in frame or "camera_angle_x" in meta:
@@ -148,10 +149,11 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1):
       raise DataError(f"{where}: missing key 'transform_matrix'")
     image_path, prescaled = _image_path(root, frame["file_path"], factor, where)
     image = validate.read_image(image_path)
+    full_size = tuple(n * (factor if prescaled else 1) for n in image.shape[:2])
     image = image if prescaled else _downscale(image, factor)
     poses.append(validate.poses(np.asarray(frame["transform_matrix"], np.float64)[None],
                                 f"{where}.transform_matrix")[0])
-    cameras.append(_camera(frame, meta, image.shape[:2], where))
+    cameras.append(_camera(frame, meta, image.shape[:2], full_size, where))
     images.append(image)
     names.append(frame["file_path"])
   shapes = sorted({im.shape[:2] for im in images})
