@@ -5,7 +5,7 @@
 
 Writes OUT/images/ (the photos, or the sampled video frames), OUT/transforms.json (nerfstudio
 format, `nerf_jax.data.nerfstudio`), OUT/sparse_pc.ply (the sparse points) and OUT/colmap/
-(COLMAP's database and model). The scene is re-oriented (z up) and scaled into the box
+(COLMAP's database, every model in models/, the one used in sparse/0). The scene is re-oriented (z up) and scaled into the box
 [-1, 1]^3 (`nerf_jax.data.orient`); near and far are stored in the file. Needs the `capture`
 extra (pycolmap): pip install -e ".[capture]".
 """
@@ -127,12 +127,12 @@ def process(out_dir, images="", video="", num_frames=100, matcher="auto",
         shutil.copy2(os.path.join(images, name), os.path.join(image_dir, name))
   work_dir = os.path.join(out_dir, "colmap")
   shutil.rmtree(work_dir, ignore_errors=True)  # a stale database would mix in old images
-  os.makedirs(os.path.join(work_dir, "sparse"))
+  os.makedirs(os.path.join(work_dir, "models"))
   matcher = sfm.choose_matcher(matcher, len(names))
   log(f"[2/4] structure from motion ({matcher} matching, {camera_model} camera)")
   rec, seconds = sfm.reconstruct(image_dir, work_dir, matcher, camera_model, single_camera,
                                  log=log)
-  registered = len(rec.names)
+  registered = 0 if rec is None else len(rec.names)
   if registered < max(3, min_registered * len(names)):
     raise sfm.SfmError(
         f"only {registered} of {len(names)} images registered (need {min_registered:.0%}): take "

@@ -10,6 +10,7 @@ in COLMAP's pixel convention (`nerf_jax.data.lens`).
 """
 
 import dataclasses
+import os
 import time
 
 import numpy as np
@@ -90,10 +91,11 @@ def reconstruct(image_dir, work_dir, matcher="exhaustive", camera_model="SIMPLE_
                 single_camera=True, num_threads=-1, log=print):
   """Run SfM on every image in `image_dir`; keep the largest model.
 
-  work_dir: str, gets COLMAP's database.db and sparse/. matcher: 'exhaustive' or 'sequential'
+  work_dir: str, gets COLMAP's database.db, every model in models/ and the largest in
+  sparse/0 (where COLMAP tools and nerfstudio look). matcher: 'exhaustive' or 'sequential'
   (`choose_matcher`). camera_model: a key of `lens.COLMAP_PARAMS`. single_camera: one camera
   shared by all images (one device), else one per image. num_threads: -1 = all cores.
-  Returns (Reconstruction, {stage: seconds}); SfmError if no model could be built.
+  Returns (Reconstruction or None if no model could be built, {stage: seconds}).
   """
   pycolmap = require_pycolmap()
   if camera_model not in lens.COLMAP_PARAMS:
@@ -119,12 +121,12 @@ def reconstruct(image_dir, work_dir, matcher="exhaustive", camera_model="SIMPLE_
   _, times["matching"] = _stage(log, f"{matcher} matching", lambda: match(
       database, matching_options=matching, device=device))
   models, times["mapping"] = _stage(log, "incremental mapping", lambda: pycolmap.incremental_mapping(
-      database, image_dir, f"{work_dir}/sparse", options=mapping))
+      database, image_dir, f"{work_dir}/models", options=mapping))
   if not models:
-    raise SfmError(f"{image_dir}: no images could be registered (no two images share enough "
-                   "matched features: take photos with more overlap, or use --matcher=sequential "
-                   "for an ordered capture)")
+    return None, times
   best = max(models.values(), key=lambda m: m.num_reg_images())
+  os.makedirs(f"{work_dir}/sparse/0", exist_ok=True)
+  best.write(f"{work_dir}/sparse/0")
   return convert(best), times
 
 
