@@ -12,7 +12,7 @@ import numpy as np
 import pycolmap
 import pytest
 
-import capture_scene
+from nerf_jax.scenes import capture as capture_scene
 from helpers import assert_data_error
 from nerf_jax.data import lens, nerfstudio, pointcloud, process, sfm
 
