@@ -126,7 +126,8 @@ def test_unnormalised_folder_is_reoriented_and_scaled(tmp_path):
   np.testing.assert_allclose(ratio(centres), ratio(poses[:, :3, 3]), rtol=1e-5)
   # The points, carried by the same similarity, have a centred 2-98 percentile box that is
   # [-1, 1] on its longest side.
-  scale = np.linalg.norm(centres[1] - centres[0]) / np.linalg.norm(poses[1, :3, 3] - poses[0, :3, 3])
+  step = lambda c: np.linalg.norm(c[1] - c[0])
+  scale = step(centres) / step(poses[:, :3, 3])
   rot = dataset.poses[0, :3, :3] @ poses[0, :3, :3].T
   mapped = scale * (points - poses[0, :3, 3]) @ rot.T + centres[0]
   lo, hi = np.percentile(mapped, [2, 98], axis=0)

@@ -154,7 +154,7 @@ def load_dataset(config):
     raise DataError(f"{path}: no such file or directory")
   if os.path.isfile(path) and path.endswith(".npz"):
     return load_npz(path, background).split(holdout_from)
-  if os.path.isfile(os.path.join(path, nerfstudio.FILENAME)) or path.endswith(nerfstudio.FILENAME):
+  if path.endswith(nerfstudio.FILENAME) or os.path.isfile(os.path.join(path, nerfstudio.FILENAME)):
     return nerfstudio.load_split(path, background, config.get("factor", 1) or 1, holdout_from)
   if os.path.isfile(os.path.join(path, "transforms_train.json")):
     half_res = config.get("half_res", False)

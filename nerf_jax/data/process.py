@@ -5,9 +5,9 @@
 
 Writes OUT/images/ (the photos, or the sampled video frames), OUT/transforms.json (nerfstudio
 format, `nerf_jax.data.nerfstudio`), OUT/sparse_pc.ply (the sparse points) and OUT/colmap/
-(COLMAP's database, every model in models/, the one used in sparse/0). The scene is re-oriented (z up) and scaled into the box
-[-1, 1]^3 (`nerf_jax.data.orient`); near and far are stored in the file. Needs the `capture`
-extra (pycolmap): pip install -e ".[capture]".
+(COLMAP's database, every model in models/, the one used in sparse/0). The scene is re-oriented
+(z up) and scaled into the box [-1, 1]^3 (`nerf_jax.data.orient`); near and far are stored in
+the file. Needs the `capture` extra (pycolmap): pip install -e ".[capture]".
 """
 
 import os

@@ -120,8 +120,8 @@ def reconstruct(image_dir, work_dir, matcher="exhaustive", camera_model="SIMPLE_
   match = pycolmap.match_exhaustive if matcher == "exhaustive" else pycolmap.match_sequential
   _, times["matching"] = _stage(log, f"{matcher} matching", lambda: match(
       database, matching_options=matching, device=device))
-  models, times["mapping"] = _stage(log, "incremental mapping", lambda: pycolmap.incremental_mapping(
-      database, image_dir, f"{work_dir}/models", options=mapping))
+  models, times["mapping"] = _stage(log, "incremental mapping", lambda: (
+      pycolmap.incremental_mapping(database, image_dir, f"{work_dir}/models", options=mapping)))
   if not models:
     return None, times
   best = max(models.values(), key=lambda m: m.num_reg_images())
