@@ -17,6 +17,7 @@ from helpers import assert_data_error
 from nerf_jax.data import lens, nerfstudio, pointcloud, process, sfm
 
 NUM_VIEWS, SIZE, FOCAL = 24, 128, 160.0
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # this checkout
 
 
 def _photograph(folder, num_views=NUM_VIEWS):
@@ -154,7 +155,7 @@ def test_cli_exits_1_with_one_line(tmp_path):
   result = subprocess.run(
       [sys.executable, "-m", "nerf_jax.data.process", f"--images={tmp_path}",
        f"--out={tmp_path / 'o'}"], capture_output=True, text=True, timeout=120,
-      env={**os.environ, "PYTHONPATH": "."})
+      env={**os.environ, "PYTHONPATH": ROOT}, cwd=ROOT)
   assert result.returncode == 1
   assert result.stderr.strip().splitlines() == [f"error: --images={tmp_path}: no images "
                                                 "(.jpg, .jpeg, .png) found"]

@@ -169,12 +169,14 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1):
     near, far = orient.depth_bounds(poses, points)
   near = validate.scalar(near if near is not None else 2.0, f"{meta_path}: 'near'")
   far = validate.scalar(far if far is not None else 6.0, f"{meta_path}: 'far'")
+  has_alpha = any(im.shape[-1] == 4 for im in images)
   rgba = np.stack([im if im.shape[-1] == 4 else np.concatenate([im, np.ones_like(im[..., :1])],
                                                                -1) for im in images])
   bg = parse_background(background)
   dataset = Dataset(composite(rgba, bg), poses.astype(np.float32),
                     lens.dataset_intrinsics(intrinsics), near=near, far=far, name=root,
-                    accs=rgba[..., 3].astype(np.float32), background=tuple(bg.tolist()))
+                    accs=rgba[..., 3].astype(np.float32) if has_alpha else None,  # RGB: unknown
+                    background=tuple(bg.tolist()))
   return dataset, names, _test_names(meta, names)
 
 
