@@ -14,6 +14,7 @@ import pytest
 
 from nerf_jax.scenes import capture as capture_scene
 from helpers import assert_data_error
+from nerf_jax import rays as rays_lib
 from nerf_jax.data import lens, nerfstudio, pointcloud, process, sfm
 
 NUM_VIEWS, SIZE, FOCAL = 24, 128, 160.0
@@ -161,6 +162,14 @@ def test_cli_exits_1_with_one_line(tmp_path):
                                                 "(.jpg, .jpeg, .png) found"]
 
 
+def test_matcher_choice():
+  assert sfm.choose_matcher("auto", sfm.EXHAUSTIVE_MAX) == "exhaustive"
+  assert sfm.choose_matcher("auto", sfm.EXHAUSTIVE_MAX + 1) == "sequential"
+  assert sfm.choose_matcher("auto", 10, ordered=True) == "sequential"
+  assert sfm.choose_matcher("exhaustive", 500, ordered=True) == "exhaustive"
+  assert_data_error(["--matcher=vocab"], sfm.choose_matcher, "vocab", 10)
+
+
 def test_video_frames_are_sampled_evenly(tmp_path):
   frames = [np.full((16, 16, 3), 10 * k, np.uint8) for k in range(20)]
   iio.imwrite(tmp_path / "v.mp4", np.stack(frames), fps=10, codec="libx264",
@@ -176,3 +185,18 @@ def test_video_frames_are_sampled_evenly(tmp_path):
     assert abs(iio.imread(out / name).mean() - 10 * k) < 4
   assert_data_error(["--video=", "no such file"], process.sample_video,
                     str(tmp_path / "nope.mp4"), 5, str(out))
+
+
+def test_video_in_posed_dataset_out(tmp_path):
+  """The --video path end to end: a 48-frame orbit video, 24 frames sampled, sequential
+  matching, a loadable dataset."""
+  poses = [rays_lib.pose_spherical(theta, -30.0, 3.2) for theta in np.arange(0, 360, 7.5)]
+  frames = [(capture_scene.render(p, SIZE, SIZE, (FOCAL, FOCAL, SIZE / 2, SIZE / 2)) * 255)
+            .round().astype(np.uint8) for p in poses]
+  iio.imwrite(tmp_path / "orbit.mp4", np.stack(frames), fps=24, codec="libx264", quality=9,
+              macro_block_size=1)
+  summary = process.process(str(tmp_path / "out"), video=str(tmp_path / "orbit.mp4"),
+                            num_frames=24, log=lambda _: None)
+  assert summary["num_images"] == 24 and summary["num_registered"] >= 20
+  train, test = nerfstudio.load_split(str(tmp_path / "out"))
+  assert len(train) + len(test) == summary["num_registered"] and len(test) >= 3

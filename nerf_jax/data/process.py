@@ -128,7 +128,7 @@ def process(out_dir, images="", video="", num_frames=100, matcher="auto",
   work_dir = os.path.join(out_dir, "colmap")
   shutil.rmtree(work_dir, ignore_errors=True)  # a stale database would mix in old images
   os.makedirs(os.path.join(work_dir, "models"))
-  matcher = sfm.choose_matcher(matcher, len(names))
+  matcher = sfm.choose_matcher(matcher, len(names), ordered=bool(video))
   log(f"[2/4] structure from motion ({matcher} matching, {camera_model} camera)")
   rec, seconds = sfm.reconstruct(image_dir, work_dir, matcher, camera_model, single_camera,
                                  log=log)
@@ -165,7 +165,7 @@ def main():
   out = flags.DEFINE_string("out", "", "Output directory (the dataset).")
   matcher = flags.DEFINE_enum("matcher", "auto", ["auto", "exhaustive", "sequential"],
                               f"Feature matching; auto = exhaustive up to "
-                              f"{sfm.EXHAUSTIVE_MAX} images, else sequential.")
+                              f"{sfm.EXHAUSTIVE_MAX} photos, sequential for more or a video.")
   camera_model = flags.DEFINE_enum("camera_model", "SIMPLE_RADIAL",
                                    list(nerfstudio.lens.COLMAP_PARAMS), "COLMAP camera model.")
   single_camera = flags.DEFINE_bool("single_camera", True, "All photos share one camera.")

@@ -69,12 +69,13 @@ def c2w_from_cam_from_world(matrix):
   return c2w @ OPENCV_TO_OPENGL
 
 
-def choose_matcher(matcher, num_images):
-  """'exhaustive' or 'sequential' for matcher in ('auto', 'exhaustive', 'sequential')."""
+def choose_matcher(matcher, num_images, ordered=False):
+  """'exhaustive' or 'sequential' for matcher in ('auto', 'exhaustive', 'sequential'); 'auto'
+  is sequential for an ordered capture (video frames) or more than EXHAUSTIVE_MAX images."""
   if matcher not in ("auto", "exhaustive", "sequential"):
     raise SfmError(f"--matcher={matcher}: expected auto, exhaustive or sequential")
   if matcher == "auto":
-    return "exhaustive" if num_images <= EXHAUSTIVE_MAX else "sequential"
+    return "sequential" if ordered or num_images > EXHAUSTIVE_MAX else "exhaustive"
   return matcher
 
 
