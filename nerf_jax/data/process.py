@@ -96,6 +96,28 @@ def write_dataset(out_dir, rec, image_subdir="images"):
           "orbit_phi": phi}
 
 
+def _fresh(folder):
+  """Make `folder` empty: what an earlier run left there would mix in."""
+  shutil.rmtree(folder, ignore_errors=True)
+  os.makedirs(folder)
+
+
+def _gather(image_dir, images, video, num_frames, log):
+  """Fill `image_dir` with the photos or the video's frames; returns their sorted names."""
+  if video:
+    log(f"[1/4] sampling {num_frames} frames of {video}")
+    _fresh(image_dir)
+    sample_video(video, num_frames, image_dir)
+    return list_images(image_dir)
+  names = list_images(images)
+  log(f"[1/4] {len(names)} images in {images}")
+  if os.path.realpath(images) != os.path.realpath(image_dir):
+    _fresh(image_dir)
+    for name in names:
+      shutil.copy2(os.path.join(images, name), os.path.join(image_dir, name))
+  return names
+
+
 def process(out_dir, images="", video="", num_frames=100, matcher="auto",
             camera_model="SIMPLE_RADIAL", single_camera=True, min_registered=0.5, log=print):
   """Photos (`images`, a directory) or a `video` -> a posed dataset in `out_dir`.
@@ -110,23 +132,13 @@ def process(out_dir, images="", video="", num_frames=100, matcher="auto",
     raise DataError("--out: an output directory is required")
   sfm.require_pycolmap()  # before any work: a missing extra is the first thing to say
   start = time.perf_counter()
+  for stale in (nerfstudio.FILENAME, "sparse_pc.ply"):  # a failed run must not leave old ones
+    if os.path.isfile(os.path.join(out_dir, stale)):
+      os.remove(os.path.join(out_dir, stale))
   image_dir = os.path.join(out_dir, "images")
-  if video:
-    shutil.rmtree(image_dir, ignore_errors=True)  # frames of an earlier run would mix in
-    os.makedirs(image_dir)
-    log(f"[1/4] sampling {num_frames} frames of {video}")
-    sample_video(video, num_frames, image_dir)
-    names = list_images(image_dir)
-  else:
-    names = list_images(images)
-    log(f"[1/4] {len(names)} images in {images}")
-    if os.path.realpath(images) != os.path.realpath(image_dir):
-      shutil.rmtree(image_dir, ignore_errors=True)  # photos of an earlier run would mix in
-      os.makedirs(image_dir)
-      for name in names:
-        shutil.copy2(os.path.join(images, name), os.path.join(image_dir, name))
+  names = _gather(image_dir, images, video, num_frames, log)
   work_dir = os.path.join(out_dir, "colmap")
-  shutil.rmtree(work_dir, ignore_errors=True)  # a stale database would mix in old images
+  _fresh(work_dir)  # a stale database would mix in old images
   os.makedirs(os.path.join(work_dir, "models"))
   matcher = sfm.choose_matcher(matcher, len(names), ordered=bool(video))
   log(f"[2/4] structure from motion ({matcher} matching, {camera_model} camera)")
