@@ -16,7 +16,7 @@ def get_config():
   config.dir_encode_dims = 4  # frequency bands for viewing directions (view-dependent model)
 
   config.data = data = ml_collections.ConfigDict()
-  data.path = ""  # dataset: .npz (tiny_nerf) or Blender directory; empty = built-in scene
+  data.path = ""  # dataset: .npz, Blender, LLFF or transforms.json folder; empty = built-in scene
   data.scene = "diffuse"  # built-in scene name (see nerf_jax/scenes)
   data.num_views = 100  # built-in scene: number of rendered views
   data.image_size = 100  # built-in scene: height = width in pixels
@@ -24,7 +24,7 @@ def get_config():
   data.pixel_center = 0.0  # 0 = rays through pixel corners (reference), 0.5 = pixel centres
   data.background = "black"  # 'black', 'white', 'random' (training) or an RGB triple
   data.half_res = False  # Blender data: load at half resolution
-  data.factor = 1  # LLFF data: downsample images by this integer factor
+  data.factor = 1  # LLFF and transforms.json data: downsample images by this integer factor
   data.bd_factor = 0.75  # LLFF data: scale so the nearest bound is 1/bd_factor (0 = keep units)
   data.recenter = True  # LLFF data: move the mean camera pose to the origin
   data.lindisp = False  # sample linearly in inverse depth instead of depth

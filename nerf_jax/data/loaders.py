@@ -13,7 +13,7 @@ import zipfile
 import numpy as np
 
 from nerf_jax import config_lib, scenes
-from nerf_jax.data import validate
+from nerf_jax.data import nerfstudio, validate
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.data.llff import load_llff
 from nerf_jax.data.validate import composite, parse_background
@@ -135,7 +135,9 @@ def load_dataset(config):
   the original NeRF's LLFF pipeline, which NDC rays (near plane 1, world -z forward) rely on.
   holdout_from: views[holdout_from:] are the test views; -1 = the default split of the format:
   the reference's 80/20 for built-in scenes and .npz, every 8th view (0, 8, 16, ...) for LLFF
-  (the original NeRF's convention); Blender folders have their own test split and ignore it.
+  (the original NeRF's convention) and for transforms.json folders unless the file names its
+  test images (`nerfstudio.load_split`); Blender folders have their own test split and ignore it.
+  factor also downscales transforms.json folders (nerfstudio / nerf-process output).
   """
   saved = config.to_dict() if hasattr(config, "to_dict") else dict(config)
   config = config_lib.complete({"data": saved}).data  # a partial one gets the defaults
@@ -153,6 +155,8 @@ def load_dataset(config):
     raise DataError(f"{path}: no such file or directory")
   if os.path.isfile(path) and path.endswith(".npz"):
     return load_npz(path, background).split(holdout_from)
+  if path.endswith(nerfstudio.FILENAME) or os.path.isfile(os.path.join(path, nerfstudio.FILENAME)):
+    return nerfstudio.load_split(path, background, config.factor or 1, holdout_from)
   if os.path.isfile(os.path.join(path, "transforms_train.json")):
     return tuple(load_blender(path, background, config.half_res, s) for s in ("train", "test"))
   if os.path.isfile(os.path.join(path, "poses_bounds.npy")):
@@ -160,4 +164,4 @@ def load_dataset(config):
                         recenter=config.recenter)
     return dataset.split_every(8) if holdout_from == -1 else dataset.split(holdout_from)
   raise DataError(f"unknown dataset format at {path} (expected a .npz file or a directory with "
-                  "transforms_train.json or poses_bounds.npy)")
+                  "transforms.json, transforms_train.json or poses_bounds.npy)")

@@ -74,5 +74,6 @@ def read_image(path):
   try:
     image = iio.imread(path)
   except Exception as e:  # imageio raises many types for unreadable files
-    raise DataError(f"{path}: cannot read image ({e})") from None
+    lines = str(e).strip().splitlines() or [type(e).__name__]  # imageio's can be many lines
+    raise DataError(f"{path}: cannot read image ({lines[0]})") from None
   return unit_images(image, path)

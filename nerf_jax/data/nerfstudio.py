@@ -1,0 +1,226 @@
+"""The nerfstudio / instant-ngp `transforms.json` format: what `nerf-process` writes and what
+nerfstudio's `ns-process-data` writes.
+
+Fields read (top level for one camera, or per frame for several; a frame's own value wins):
+  fl_x, fl_y (default fl_x), or camera_angle_x / camera_angle_y (instant-ngp);
+  cx, cy (default the image centre), w, h (default the image size), all in pixels, COLMAP's
+  convention (`nerf_jax.data.lens`); camera_model ('OPENCV' or absent: pinhole + k1, k2, k3,
+  p1, p2; fisheye and equirectangular models are refused);
+  frames[].file_path (relative to the folder), frames[].transform_matrix (camera-to-world,
+  OpenGL axes, as `nerf_jax.rays`);
+  train_filenames / test_filenames (optional split, nerfstudio's names);
+  ply_file_path (optional sparse points, used to centre and scale);
+  near, far, nerf_jax_normalized (written by `nerf-process`).
+
+Lens distortion is removed once, at load: every image is resampled (bilinear) into one shared
+pinhole camera — the mean of the frames' intrinsics — so the rest of the code sees a Dataset
+with plain (fx, fy, cx, cy). Frames without distortion whose intrinsics are that camera's are
+not resampled. Folders that `nerf-process` did not normalise are re-oriented and scaled at load
+(`nerf_jax.data.orient`).
+"""
+
+import json
+import math
+import os
+
+import numpy as np
+
+from nerf_jax.data import lens, orient, pointcloud, validate
+from nerf_jax.data.dataset import DataError, Dataset
+from nerf_jax.data.validate import composite, parse_background
+
+FILENAME = "transforms.json"
+_UNSUPPORTED_MODELS = ("OPENCV_FISHEYE", "EQUIRECTANGULAR", "FISHEYE")
+_DIST_KEYS = ("k1", "k2", "p1", "p2", "k3")
+
+
+def write(out_dir, frames, camera, extra):
+  """Write OUT/transforms.json.
+
+  frames: list of (file_path str, pose float [4, 4]). camera: dict of the shared camera's
+  fl_x, fl_y, cx, cy, w, h, k1, k2, p1, p2 (top level), or a list of such dicts, one per frame.
+  extra: dict of further top-level fields.
+  """
+  shared = isinstance(camera, dict)
+  meta = {"camera_model": "OPENCV", **(camera if shared else {})}
+  meta["frames"] = [{"file_path": path, "transform_matrix": np.asarray(pose).tolist(),
+                     **({} if shared else camera[k])} for k, (path, pose) in enumerate(frames)]
+  meta.update(extra)
+  with open(os.path.join(out_dir, FILENAME), "w") as f:
+    json.dump(meta, f, indent=2)
+
+
+def _read_meta(path):
+  if not os.path.isfile(path):
+    raise DataError(f"{path}: no such file")
+  with open(path) as f:
+    try:
+      meta = json.load(f)
+    except json.JSONDecodeError as e:
+      raise DataError(f"{path}: malformed JSON at line {e.lineno} column {e.colno}: "
+                      f"{e.msg}") from None
+  frames = meta.get("frames") if isinstance(meta, dict) else None
+  if not isinstance(frames, list) or not frames:
+    raise DataError(f"{path}: 'frames' must be a non-empty list")
+  return meta
+
+
+def _number(frame, meta, key, where, default=None):
+  value = frame.get(key, meta.get(key, default))
+  if value is None:
+    raise DataError(f"{where}: missing key {key!r} (per frame or at the top level)")
+  return validate.scalar(value, f"{where}.{key}")
+
+
+def _camera(frame, meta, image_size, full_size, where):
+  """(COLMAP-convention (fx, fy, cx, cy), dist (k1, k2, p1, p2, k3)) of one frame, scaled to
+  the image's actual size. image_size, full_size: (height, width) of the loaded image and of
+  the photo before any downscaling (the default of w, h)."""
+  model = frame.get("camera_model", meta.get("camera_model", "OPENCV"))
+  if model in _UNSUPPORTED_MODELS:
+    raise DataError(f"{where}.camera_model: {model!r} is not supported (OPENCV or a pinhole)")
+  height, width = image_size
+  w = _number(frame, meta, "w", where, full_size[1])
+  h = _number(frame, meta, "h", where, full_size[0])
+  if "fl_x" in frame or "fl_x" in meta:
+    fx = _number(frame, meta, "fl_x", where)
+  elif "camera_angle_x" in frame or "camera_angle_x" in meta:
+    fx = 0.5 * w / math.tan(0.5 * _number(frame, meta, "camera_angle_x", where))
+  else:
+    raise DataError(f"{where}: missing key 'fl_x' (or 'camera_angle_x')")
+  if "fl_y" in frame or "fl_y" in meta:
+    fy = _number(frame, meta, "fl_y", where)
+  elif "camera_angle_y" in frame or "camera_angle_y" in meta:
+    fy = 0.5 * h / math.tan(0.5 * _number(frame, meta, "camera_angle_y", where))
+  else:
+    fy = fx
+  cx, cy = _number(frame, meta, "cx", where, 0.5 * w), _number(frame, meta, "cy", where, 0.5 * h)
+  sx, sy = width / w, height / h
+  if abs(sx - sy) > 0.01 * sx:
+    raise DataError(f"{where}: image is {width}x{height} but w, h say {w:g}x{h:g} (a different "
+                    "aspect ratio)")
+  if not (fx > 0 and fy > 0):
+    raise DataError(f"{where}: focal lengths fl_x={fx:g}, fl_y={fy:g} must be positive")
+  dist = tuple(_number(frame, meta, k, where, 0.0) for k in _DIST_KEYS)
+  return (fx * sx, fy * sy, cx * sx, cy * sy), dist
+
+
+def _downscale(image, factor):
+  """Block average of float [H, W, C] by an integer factor (odd edges are cropped)."""
+  if factor == 1:
+    return image
+  height, width = image.shape[0] // factor, image.shape[1] // factor
+  blocks = image[:height * factor, :width * factor]
+  return blocks.reshape(height, factor, width, factor, -1).mean((1, 3))
+
+
+def _image_path(root, file_path, factor, where):
+  """The frame's image, from `images_{factor}/` when nerfstudio wrote downscaled copies."""
+  path = os.path.join(root, file_path)
+  parts = os.path.normpath(file_path).split(os.sep)
+  if factor > 1 and len(parts) > 1:
+    scaled = os.path.join(root, f"{parts[0]}_{factor}", *parts[1:])
+    if os.path.isfile(scaled):
+      return scaled, True
+  if not os.path.isfile(path):
+    raise DataError(f"{where}.file_path: image {path} not found")
+  return path, False
+
+
+def load(path, background=(0.0, 0.0, 0.0), factor=1):
+  """All frames of a transforms.json folder (or the file itself), sorted by file_path.
+
+  factor: int, downscale the images by this factor (nerfstudio's `images_{factor}/` copies when
+  present, else a block average). Returns (Dataset, names, test_names): names, the frames'
+  file_path values in the Dataset's order; test_names, the set of them the file names as test
+  (or val) images, or None.
+  """
+  meta_path = path if path.endswith(".json") else os.path.join(path, FILENAME)
+  root = os.path.dirname(meta_path)
+  meta = _read_meta(meta_path)
+  factor = int(factor) if factor else 1
+  order = sorted(range(len(meta["frames"])), key=lambda k: str(meta["frames"][k].get("file_path")))
+  images, poses, cameras, names = [], [], [], []
+  for k in order:
+    frame, where = meta["frames"][k], f"{meta_path}: frames[{k}]"
+    if not isinstance(frame, dict) or "file_path" not in frame:
+      raise DataError(f"{where}: missing key 'file_path'")
+    if "transform_matrix" not in frame:
+      raise DataError(f"{where}: missing key 'transform_matrix'")
+    image_path, prescaled = _image_path(root, frame["file_path"], factor, where)
+    image = validate.read_image(image_path)
+    full_size = tuple(n * (factor if prescaled else 1) for n in image.shape[:2])
+    image = image if prescaled else _downscale(image, factor)
+    poses.append(validate.poses(np.asarray(frame["transform_matrix"], np.float64)[None],
+                                f"{where}.transform_matrix")[0])
+    cameras.append(_camera(frame, meta, image.shape[:2], full_size, where))
+    images.append(image)
+    names.append(frame["file_path"])
+  shapes = sorted({im.shape[:2] for im in images})
+  if len(shapes) > 1:
+    raise DataError(f"{meta_path}: images have different sizes {shapes}")
+  images, intrinsics = _undistort(images, cameras)
+  poses = np.stack(poses)
+  near, far = meta.get("near"), meta.get("far")
+  if not meta.get("nerf_jax_normalized", False):
+    points = _points(root, meta, meta_path)
+    transform = orient.normalize(poses, points)
+    poses, points = orient.apply(transform, poses, points)
+    near, far = orient.depth_bounds(poses, points)
+  near = validate.scalar(near if near is not None else 2.0, f"{meta_path}: 'near'")
+  far = validate.scalar(far if far is not None else 6.0, f"{meta_path}: 'far'")
+  has_alpha = any(im.shape[-1] == 4 for im in images)
+  rgba = np.stack([im if im.shape[-1] == 4 else np.concatenate([im, np.ones_like(im[..., :1])],
+                                                               -1) for im in images])
+  bg = parse_background(background)
+  dataset = Dataset(composite(rgba, bg), poses.astype(np.float32),
+                    lens.dataset_intrinsics(intrinsics), near=near, far=far, name=root,
+                    accs=rgba[..., 3].astype(np.float32) if has_alpha else None,  # RGB: unknown
+                    background=tuple(bg.tolist()))
+  return dataset, names, _test_names(meta, names)
+
+
+def _points(root, meta, meta_path):
+  """The sparse points (float64 [P, 3]) named by ply_file_path, or None."""
+  if not meta.get("ply_file_path"):
+    return None
+  ply = os.path.join(root, meta["ply_file_path"])
+  if not os.path.isfile(ply):
+    raise DataError(f"{meta_path}: ply_file_path {ply} not found")
+  return pointcloud.read_ply(ply)[0]
+
+
+def _undistort(images, cameras):
+  """Images resampled into one pinhole camera: (list of float64 [H, W, C], COLMAP-convention
+  (fx, fy, cx, cy))."""
+  target = tuple(float(v) for v in np.mean([c[0] for c in cameras], axis=0))
+  size = images[0].shape[:2]
+  out = []
+  for image, (intrinsics, dist) in zip(images, cameras):
+    exact = not any(dist) and np.allclose(intrinsics, target, rtol=0, atol=1e-6)
+    out.append(image if exact else lens.resample(image, intrinsics, dist, target, size))
+  return out, target
+
+
+def _test_names(meta, names):
+  """file_path values of the test split the file names (test, else val), or None."""
+  for key in ("test_filenames", "val_filenames"):
+    if meta.get(key):
+      listed = {os.path.normpath(p) for p in meta[key]}
+      return {n for n in names if os.path.normpath(n) in listed}
+  return None
+
+
+def load_split(path, background=(0.0, 0.0, 0.0), factor=1, holdout_from=-1):
+  """(train, test) Datasets: the file's test_filenames, else every 8th frame (0, 8, 16, ...
+  of the sorted file paths); holdout_from >= 1 overrides both (`Dataset.split`)."""
+  dataset, names, test_names = load(path, background, factor)
+  if holdout_from != -1:
+    return dataset.split(holdout_from)
+  if test_names is None:
+    return dataset.split_every(8)
+  is_test = np.array([n in test_names for n in names])
+  if is_test.all() or not is_test.any():
+    raise DataError(f"{path}: test_filenames leave an empty train or test split")
+  return dataset.subset(np.flatnonzero(~is_test)), dataset.subset(np.flatnonzero(is_test))
+

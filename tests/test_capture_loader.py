@@ -1,0 +1,175 @@
+"""The transforms.json loader (nerf_jax.data.nerfstudio): intrinsics, distortion, splits,
+re-orientation, one-line errors. Photos come from nerf_jax.scenes.capture's own ray tracer."""
+
+import json
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+from nerf_jax.scenes import capture as capture_scene
+from helpers import assert_data_error
+from nerf_jax import rays as rays_lib
+from nerf_jax.data import loaders, nerfstudio, orient, pointcloud
+
+SIZE = (48, 56)  # (height, width)
+
+
+def _write(tmp_path, frames, top=None, images=None, fmt="png"):
+  """A transforms.json folder: frames = list of (pose, per-frame dict)."""
+  (tmp_path / "images").mkdir(exist_ok=True)
+  entries = []
+  for k, (pose, fields) in enumerate(frames):
+    name = f"images/f_{k:02d}.{fmt}"
+    iio.imwrite(tmp_path / name, images[k])
+    entries.append({"file_path": name, "transform_matrix": np.asarray(pose).tolist(), **fields})
+  meta = {"nerf_jax_normalized": True, "near": 1.0, "far": 8.0, **(top or {}), "frames": entries}
+  (tmp_path / "transforms.json").write_text(json.dumps(meta))
+  return str(tmp_path)
+
+
+def _u8(image):
+  return (np.clip(image, 0, 1) * 255).round().astype(np.uint8)
+
+
+def test_per_frame_intrinsics_and_distortion_are_undistorted_into_one_pinhole(tmp_path):
+  poses = capture_scene.ring_poses(2, seed=3)
+  cams = [((60.0, 62.0, 28.3, 23.6), (-0.15, 0.04, 0.003, -0.002)),
+          ((64.0, 64.0, 27.7, 24.4), (0.08, 0.0, 0.0, 0.0))]
+  photos = [_u8(capture_scene.render(p, *SIZE, k, d, octaves=1)) for p, (k, d) in zip(poses, cams)]
+  fields = [dict(zip(("fl_x", "fl_y", "cx", "cy"), k), **dict(zip(("k1", "k2", "p1", "p2"), d)))
+            for k, d in cams]
+  path = _write(tmp_path, list(zip(poses, fields)), {"camera_model": "OPENCV"}, photos)
+  dataset, names, test_names = nerfstudio.load(path)
+  assert names == ["images/f_00.png", "images/f_01.png"] and test_names is None
+  target = np.mean([k for k, _ in cams], axis=0)  # the shared pinhole: the mean camera
+  np.testing.assert_allclose(dataset.intrinsics, target - [0, 0, 0.5, 0.5], atol=1e-9)
+  np.testing.assert_allclose(dataset.poses, poses, atol=1e-6)
+  for k, pose in enumerate(poses):
+    # Ground truth: the scene through the rays nerf_jax casts for the Dataset's camera, and the
+    # same camera half a pixel off (what a wrong pixel-centre convention would give).
+    errors = []
+    for shift in (0.0, 0.5, -0.5):
+      intrinsics = np.add(dataset.intrinsics, [0, 0, shift, shift])
+      origins, directions = rays_lib.get_rays_intrinsics(*SIZE, tuple(intrinsics), pose)
+      truth = capture_scene.render_rays(origins, directions, octaves=1).reshape(*SIZE, 3)
+      inner = np.s_[4:-4, 4:-4]  # the photo does not cover the border of the mean camera
+      lit = truth[inner].max(-1) > 0.05  # the object, not the black background
+      error = lambda image: np.median(np.abs(image[inner] - truth[inner])[lit])  # not edges
+      errors.append(error(dataset.images[k]))
+      if shift == 0.0:
+        raw = error(photos[k] / 255.0)  # not undistorted
+    assert errors[0] < 0.015 and errors[0] < 0.5 * min(errors[1:]) and errors[0] < 0.2 * raw, (
+        k, errors, raw)
+
+
+def test_camera_angle_and_image_size_scaling(tmp_path):
+  pose = capture_scene.ring_poses(1)[0]
+  photo = _u8(capture_scene.render(pose, *SIZE, (50.0, 50.0, 28.0, 24.0)))
+  # instant-ngp style: camera_angle_x, no camera_model; w, h twice the image (a downscaled copy)
+  angle = 2 * np.arctan(0.5 * 112 / 100.0)
+  path = _write(tmp_path, [(pose, {})], {"camera_angle_x": angle, "w": 112, "h": 96},
+                [photo])
+  dataset, _, _ = nerfstudio.load(path)
+  np.testing.assert_allclose(dataset.intrinsics, (50.0, 50.0, 27.5, 23.5), atol=1e-9)
+  np.testing.assert_allclose(dataset.images[0], photo / 255.0, atol=1e-6)  # no resampling
+
+
+def test_factor_block_averages_and_scales_intrinsics(tmp_path):
+  photo = np.random.default_rng(0).integers(0, 256, (8, 12, 3)).astype(np.uint8)
+  path = _write(tmp_path, [(np.eye(4), {})], {"fl_x": 10.0, "cx": 6.0, "cy": 4.0}, [photo])
+  dataset, _, _ = nerfstudio.load(path, factor=2)
+  want = photo.reshape(4, 2, 6, 2, 3).mean((1, 3)) / 255.0
+  np.testing.assert_allclose(dataset.images[0], want, atol=1e-6)
+  np.testing.assert_allclose(dataset.intrinsics, (5.0, 5.0, 2.5, 1.5), atol=1e-9)
+
+
+def test_split_every_8th_or_as_the_file_says(tmp_path):
+  photos = [np.full((4, 4, 3), k, np.uint8) for k in range(10)]
+  frames = [(np.eye(4), {}) for _ in range(10)]
+  config = {"path": _write(tmp_path, frames, {"fl_x": 5.0}, photos)}
+  train, test = loaders.load_dataset(config)
+  assert [round(im[0, 0, 0] * 255) for im in test.images] == [0, 8]
+  assert len(train) == 8
+  meta = json.loads((tmp_path / "transforms.json").read_text())
+  meta["test_filenames"] = ["images/f_03.png", "./images/f_05.png"]
+  (tmp_path / "transforms.json").write_text(json.dumps(meta))
+  train, test = loaders.load_dataset(config)
+  assert [round(im[0, 0, 0] * 255) for im in test.images] == [3, 5] and len(train) == 8
+
+
+def test_unnormalised_folder_is_reoriented_and_scaled(tmp_path):
+  """An ns-process-data-like folder in an arbitrary similarity frame with its sparse points."""
+  poses = capture_scene.ring_poses(12, seed=1)
+  points = np.random.default_rng(0).uniform(-0.6, 0.6, (300, 3)) * [1.0, 0.8, 0.5]
+  angle = 0.7
+  rot = np.array([[1, 0, 0], [0, np.cos(angle), -np.sin(angle)],
+                  [0, np.sin(angle), np.cos(angle)]]) @ np.array([[0, 1, 0], [1, 0, 0],
+                                                                  [0, 0, -1]])
+  sim = np.eye(4)
+  sim[:3, :3], sim[:3, 3] = 2.5 * rot, [3.0, -1.0, 7.0]
+  moved_poses, moved_points = orient.apply(sim, poses, points)
+  pointcloud.write_ply(tmp_path / "sparse_pc.ply", moved_points,
+                       np.zeros((300, 3), np.uint8))
+  path = _write(tmp_path, [(p, {}) for p in moved_poses],
+                {"fl_x": 5.0, "ply_file_path": "sparse_pc.ply", "nerf_jax_normalized": None},
+                [np.zeros((4, 4, 3), np.uint8)] * 12)
+  dataset, _, _ = nerfstudio.load(path)
+  # Up is +z again: the ring of cameras lies in a horizontal plane (z spread only from elevation).
+  centres = dataset.poses[:, :3, 3]
+  normal = np.linalg.svd(centres - centres.mean(0))[2][2]
+  assert abs(normal[2]) > 0.99
+  # Relative geometry is kept: rotations between cameras and ratios of distances.
+  rel = lambda p: np.einsum("ji,jk->ik", p[0, :3, :3], p[1, :3, :3])
+  np.testing.assert_allclose(rel(dataset.poses), rel(poses), atol=1e-5)
+  ratio = lambda c: np.linalg.norm(c[1] - c[0]) / np.linalg.norm(c[2] - c[0])
+  np.testing.assert_allclose(ratio(centres), ratio(poses[:, :3, 3]), rtol=1e-5)
+  # The points, carried by the same similarity, have a centred 2-98 percentile box that is
+  # [-1, 1] on its longest side.
+  step = lambda c: np.linalg.norm(c[1] - c[0])
+  scale = step(centres) / step(poses[:, :3, 3])
+  rot = dataset.poses[0, :3, :3] @ poses[0, :3, :3].T
+  mapped = scale * (points - poses[0, :3, 3]) @ rot.T + centres[0]
+  lo, hi = np.percentile(mapped, [2, 98], axis=0)
+  np.testing.assert_allclose(np.max(hi - lo), 2.0, rtol=1e-5)
+  np.testing.assert_allclose(lo + hi, 0.0, atol=1e-5)
+  assert dataset.near < dataset.far
+
+
+def test_ply_roundtrip_ascii_and_binary(tmp_path):
+  rng = np.random.default_rng(0)
+  points, colors = rng.normal(size=(7, 3)), rng.integers(0, 256, (7, 3)).astype(np.uint8)
+  pointcloud.write_ply(tmp_path / "a.ply", points, colors)
+  got, got_colors = pointcloud.read_ply(tmp_path / "a.ply")
+  np.testing.assert_allclose(got, points, atol=1e-6)
+  np.testing.assert_array_equal(got_colors, colors)
+  table = np.zeros(7, [("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("red", "u1"), ("green", "u1"),
+                       ("blue", "u1")])
+  for k, n in enumerate("xyz"):
+    table[n] = points[:, k]
+  header = ("ply\nformat binary_little_endian 1.0\nelement vertex 7\nproperty double x\n"
+            "property double y\nproperty double z\nproperty uchar red\nproperty uchar green\n"
+            "property uchar blue\nend_header\n")
+  (tmp_path / "b.ply").write_bytes(header.encode() + table.tobytes())
+  np.testing.assert_array_equal(pointcloud.read_ply(tmp_path / "b.ply")[0], points)
+
+
+@pytest.mark.parametrize("top,frame,match", [
+    ({"camera_model": "OPENCV_FISHEYE"}, {}, ["frames[0].camera_model", "OPENCV_FISHEYE"]),
+    ({}, {}, ["frames[0]", "'fl_x'"]),
+    ({"fl_x": -3.0}, {}, ["frames[0]", "positive"]),
+    ({"fl_x": 5.0, "w": 8, "h": 4}, {}, ["frames[0]", "aspect ratio"]),
+    ({"fl_x": 5.0, "ply_file_path": "nope.ply", "nerf_jax_normalized": None}, {},
+     ["nope.ply not found"]),
+])
+def test_bad_files_give_one_line(tmp_path, top, frame, match):
+  path = _write(tmp_path, [(np.eye(4), frame)], top, [np.zeros((4, 4, 3), np.uint8)])
+  assert_data_error(match, nerfstudio.load, path)
+
+
+def test_missing_image_and_mixed_sizes(tmp_path):
+  images = [np.zeros((4, 4, 3), np.uint8), np.zeros((4, 6, 3), np.uint8)]
+  path = _write(tmp_path, [(np.eye(4), {}), (np.eye(4), {})], {"fl_x": 5.0}, images)
+  assert_data_error(["different sizes"], nerfstudio.load, path)
+  (tmp_path / "images" / "f_01.png").unlink()
+  assert_data_error(["frames[1].file_path", "not found"], nerfstudio.load, path)
