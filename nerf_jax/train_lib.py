@@ -25,6 +25,7 @@ from nerf_jax import checkpoints, metrics, parallel, progress, render_lib, rende
 from nerf_jax.data import loaders
 from nerf_jax.model import make_model
 from nerf_jax.rays import Rays
+from nerf_jax.viewer import training as live_viewer
 
 
 class TrainingError(RuntimeError):
@@ -300,10 +301,12 @@ def train_and_evaluate(config, workdir):
   step = start_step
   bar = progress.Progress(tc.max_steps, "train", start=start_step,
                           stream=None if main else io.StringIO())
+  viewer = live_viewer.start(config, model, near, far, train_ds, workdir, enabled=main)
   with _StopRequest() as stop:
     while step < tc.max_steps:
       state, stats = train_step(state, data, key)
       step += 1
+      viewer.after_step(step, lambda: _one_device(state.params, mesh))
       budget_over = tc.max_seconds > 0 and time.perf_counter() - t_start >= tc.max_seconds
       log_now = step % tc.log_every == 0 or step == tc.max_steps or budget_over or stop.signum
       if log_now:
@@ -348,6 +351,7 @@ def train_and_evaluate(config, workdir):
       if budget_over:
         break
   bar.close()
+  viewer.close()
   train_seconds = time.perf_counter() - t_start
   _check_finite(state, workdir)
   params = _one_device(state.params, mesh)

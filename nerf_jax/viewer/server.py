@@ -55,6 +55,15 @@ def check_port(host, port):
   raise ViewerError(f"port {port} on {host} is taken (another viewer or program){hint}")
 
 
+def box_edges(half):
+  """The 12 edges of the cube [-half, half]^3: float32 [12, 2, 3] (segment end points)."""
+  corners = np.array([[x, y, z] for x in (-half, half) for y in (-half, half)
+                      for z in (-half, half)], np.float32)
+  pairs = [(i, j) for i in range(8) for j in range(i + 1, 8)
+           if np.sum(corners[i] != corners[j]) == 1]  # corners differing in one coordinate
+  return np.stack([corners[[i, j]] for i, j in pairs])
+
+
 def depth_range(depth, acc, near, far):
   """(lo, hi): the 2nd and 98th percentile depth of the rays that hit something (acc > 0.5),
   or (near, far) when none does. depth, acc: float32 [H, W]."""
@@ -92,7 +101,8 @@ class _View:
 
 
 class Viewer:
-  """A viser server showing `scene` drawn with `params`; `set_params` swaps in new ones.
+  """A viser server showing `scene` drawn with `params` (None: nothing until `set_params`);
+  `set_params` swaps in new ones.
 
   target_fps: frames per second to hold while the camera moves. still_height: pixels of the
   full-resolution frame (None = the training images'). out_dir: where 'Save path' writes.
@@ -114,6 +124,7 @@ class Viewer:
     self.out_dir, self.host, self.port = out_dir, host, port
     self.meter = policy.RateMeter()
     self.frames_sent, self.last_frame, self.last_info = 0, None, ""
+    self.frame_log = []  # (time sent, width, height, moving, seconds) of every frame
     self._lock = threading.Lock()
     self._params, self._step, self._params_version, self._bound = params, step, 0, (-1, None)
     self._views, self._keyframes = {}, []
@@ -157,21 +168,21 @@ class Viewer:
     positions = scene.poses[:, :3, 3] * self.scale
     size = 0.08 * float(np.median(np.linalg.norm(positions - positions.mean(0), axis=1)) or 1.0)
     fov, aspect = scene.fov(), scene.width / scene.height
-    step = max(1, scene.height // 32)
-    for i, pose in enumerate(scene.poses):
+    for i, pose in enumerate(scene.poses):  # no thumbnails: from a camera's apex they'd cover
       wxyz, position = camera.c2w_to_viewer(pose, self.scale)
       frustum = sc.add_camera_frustum(
           f"/cameras/{i}", fov=fov, aspect=aspect, scale=size, wxyz=wxyz, position=position,
-          image=to_uint8(scene.images[i, ::step, ::step]), color=(60, 110, 230))
+          thickness=1.5, thickness_units="screen", color=(60, 110, 230))
       frustum.on_click(self._jump_to(wxyz, position, fov))
-    if scene.scene_bound > 0:
-      side = 2 * scene.scene_bound * self.scale
-      sc.add_box("/scene_box", color=(255, 150, 0), dimensions=(side, side, side), wireframe=True)
+    if scene.scene_bound > 0:  # lines, not add_box: a box mesh hides the background image
+      sc.add_line_segments("/scene_box", box_edges(scene.scene_bound * self.scale),
+                           (255, 150, 0), thickness=1.5, thickness_units="screen")
     wxyz, position = camera.c2w_to_viewer(scene.poses[0], self.scale)
     forward = camera.quaternion_to_matrix(wxyz)[:, 2]
     reach = max(float(np.dot(-position, forward)), 0.1 * self.scale)  # nearest to the origin
-    initial = self.server.initial_camera
-    initial.position, initial.look_at = position, position + reach * forward
+    look_at = position + reach * forward
+    initial = self.server.initial_camera  # behind the first training camera, looking past it
+    initial.position, initial.look_at = look_at + 1.3 * (position - look_at), look_at
     initial.up, initial.fov = up, fov
 
   def _jump_to(self, wxyz, position, fov):
@@ -252,21 +263,22 @@ class Viewer:
     with self._lock:
       version, params, step = self._params_version, self._params, self._step
     if self._bound[0] != version:
-      self._bound = (version, self.scene.make_draw(params))
+      self._bound = (version, None if params is None else self.scene.make_draw(params))
       self.gui_step.value = str(step)
       if version > 0:
         self._redraw()
     return self._bound[1]
 
   def warm_up(self):
-    """Render the first training camera twice (compiling, then timing it) to seed the meter."""
-    draw = self._draw()
-    for _ in range(2):
+    """Render the first training camera a few times (compiling, then timing it) to seed the
+    render-rate meter."""
+    draw, pose, fov = self._draw(), self.scene.poses[0], self.scene.fov()
+    for aspect in (1.0, 16 / 9, 1.0):  # the marcher's buffer sizes vary with the frame
+      height, width = camera.frame_size(self.still_height, aspect)
       start = time.perf_counter()
-      self.scene.render(draw, self.scene.poses[0], self.scene.height, self.scene.width,
-                        self.scene.fov())
+      self.scene.render(draw, pose, height, width, fov)
       seconds = time.perf_counter() - start
-    self.meter.rays_per_second = self.scene.height * self.scene.width / seconds
+    self.meter.rays_per_second = height * width / seconds
 
   def _loop(self):
     if self._warm_up:
@@ -275,7 +287,7 @@ class Viewer:
       self._wake.wait(timeout=0.5)
       self._wake.clear()
       draw = self._draw()
-      for view in list(self._views.values()):
+      for view in list(self._views.values()) if draw is not None else ():
         if self._closing:
           break
         version, cam = view.snapshot()
@@ -312,6 +324,7 @@ class Viewer:
     done = time.perf_counter()
     self.meter.add(height * width, rendered - start, done - start)
     self.frames_sent += 1
+    self.frame_log.append((done, width, height, moving, done - start))
     self.last_frame = image
     self.last_info = (f"{width}×{height} {'moving' if moving else 'still'}, "
                       f"{1000 * (done - start):.0f} ms")
