@@ -15,7 +15,7 @@ from nerf_jax import render_lib, renderer, train_lib
 from nerf_jax.data import loaders
 from nerf_jax.model import make_model
 from nerf_jax.rays import pose_spherical, project
-from nerf_jax.viewer import camera, paths, policy, scene, server
+from nerf_jax.viewer import camera, paths, policy, scene, server, training
 
 
 def _rodrigues(axis, angle):
@@ -217,3 +217,42 @@ def test_viewer_camera_at_a_training_pose_renders_what_render_py_does(tmp_path):
   np.testing.assert_allclose(out["depth"], expected_depth, atol=1e-4)
   rgb = render_lib.to_uint8(out["rgb"]).astype(int)
   assert np.abs(rgb - imageio.imread(tmp_path / "view_000.png").astype(int)).max() <= 1
+
+
+class _FakeViewer:
+  def __init__(self):
+    self.watching, self.received = False, []
+
+  def watched(self):
+    return self.watching
+
+  def set_params(self, params, step):
+    self.received.append((params, step))
+
+
+def test_training_hook_copies_params_only_while_watched_and_at_most_every_refresh():
+  viewer, now = _FakeViewer(), [0.0]
+  hook = training.LiveViewer(viewer, refresh_s=1.0, clock=lambda: now[0])
+  calls = []
+  params = {"w": jax.numpy.arange(3.0)}
+  get = lambda: calls.append(1) or params
+  for step in range(5):
+    hook.after_step(step, get)
+  assert not calls and not viewer.received  # nobody watching: nothing is copied
+  viewer.watching = True
+  for step in range(5, 30):
+    now[0] = 0.25 * step
+    hook.after_step(step, get)
+  assert [s for _, s in viewer.received] == [5, 9, 13, 17, 21, 25, 29]  # every 4th step = 1 s
+  sent = viewer.received[0][0]["w"]
+  assert sent is not params["w"]
+  np.testing.assert_array_equal(sent, params["w"])
+
+
+def test_scene_box_edges_are_the_cube_edges():
+  edges = server.box_edges(1.5)
+  assert edges.shape == (12, 2, 3)
+  delta = np.abs(edges[:, 1] - edges[:, 0])
+  np.testing.assert_allclose(np.sort(delta, axis=1), np.broadcast_to([0, 0, 3.0], (12, 3)))
+  assert np.all(np.abs(edges) == 1.5)
+  assert len({tuple(sorted(map(tuple, e))) for e in edges}) == 12  # no edge twice

@@ -99,7 +99,7 @@ def test_page_shows_rendered_frames_and_dragging_changes_them(workdir):
           "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"])
       page = browser.new_page(viewport={"width": 1000, "height": 600})
       page.goto(viewer.url)
-      _wait(page, lambda: any(not moving for *_, moving, _ in viewer.frame_log), 60, "a still frame")
+      _wait(page, lambda: any(not log[3] for log in viewer.frame_log), 60, "a still frame")
       page.wait_for_timeout(1000)  # the page draws the frame it received
       before = imageio.imread(page.screenshot())
       first = viewer.last_frame
@@ -113,7 +113,7 @@ def test_page_shows_rendered_frames_and_dragging_changes_them(workdir):
         page.mouse.move(200 + 12 * i, 300 + 2 * i)
         page.wait_for_timeout(40)
       page.mouse.up()
-      _wait(page, lambda: any(not m for *_, m, _ in viewer.frame_log[sent + 1:]), 60,
+      _wait(page, lambda: any(not log[3] for log in viewer.frame_log[sent + 1:]), 60,
             "a still frame after dragging")
       page.wait_for_timeout(1000)
       after = imageio.imread(page.screenshot())

@@ -107,8 +107,8 @@ class Viewer:
   target_fps: frames per second to hold while the camera moves. still_height: pixels of the
   full-resolution frame (None = the training images'). out_dir: where 'Save path' writes.
   scale: the viewer's world is ours times `scale`. warm_up: compile and time the renderer on
-  the first training camera before the first browser comes (off while training: it would take
-  time from the steps).
+  the first training camera before serving (off while training: it would take time from the
+  steps).
   """
 
   def __init__(self, scene, params, host="127.0.0.1", port=7007, step=None, target_fps=10.0,
@@ -128,9 +128,11 @@ class Viewer:
     self._lock = threading.Lock()
     self._params, self._step, self._params_version, self._bound = params, step, 0, (-1, None)
     self._views, self._keyframes = {}, []
-    self._wake, self._closing, self._warm_up = threading.Event(), False, warm_up
+    self._wake, self._closing = threading.Event(), False
     self._add_scene()
     self._add_gui()
+    if warm_up:
+      self.warm_up()
     self.server.on_client_connect(self._connect)
     self.server.on_client_disconnect(self._disconnect)
     self._thread = threading.Thread(target=self._loop, name="viewer-render", daemon=True)
@@ -233,7 +235,7 @@ class Viewer:
                               bool(self.gui_loop.value))
     path = os.path.join(self.out_dir, "camera_path.json")
     paths.save_path(path, np.stack(self._keyframes), poses, self.scene.config.render.fps)
-    self.gui_saved.value = f"{len(poses)} poses: render.py --mode=path --poses={path}"
+    self.gui_saved.value = f"{len(poses)} poses: render.py --mode=views --poses={path}"
     return path
 
   # Browsers.
@@ -273,16 +275,17 @@ class Viewer:
     """Render the first training camera a few times (compiling, then timing it) to seed the
     render-rate meter."""
     draw, pose, fov = self._draw(), self.scene.poses[0], self.scene.fov()
-    for aspect in (1.0, 16 / 9, 1.0):  # the marcher's buffer sizes vary with the frame
-      height, width = camera.frame_size(self.still_height, aspect)
+    # Every frame height at a wide canvas's aspect: the marcher compiles a query buffer size
+    # (renderer.py, marching.py) the first time a frame needs it, ~1 s each.
+    heights = [h for h in policy.MOVING_HEIGHTS if h < self.still_height]
+    for height, aspect in [(h, 16 / 9) for h in heights] + [(self.still_height, 1.0)] * 2:
+      height, width = camera.frame_size(height, aspect)
       start = time.perf_counter()
       self.scene.render(draw, pose, height, width, fov)
       seconds = time.perf_counter() - start
     self.meter.rays_per_second = height * width / seconds
 
   def _loop(self):
-    if self._warm_up:
-      self.warm_up()
     while not self._closing:
       self._wake.wait(timeout=0.5)
       self._wake.clear()
