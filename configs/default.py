@@ -94,4 +94,8 @@ def get_config():
   render.orbit_phi = -30.0  # orbit elevation in degrees
   render.orbit_radius = 4.0  # orbit distance from the origin
   render.after_training = True  # train.py renders test views and the video when done
+
+  config.viewer = viewer = ml_collections.ConfigDict()
+  viewer.enabled = False  # serve the live viewer (viser) while training: pip install -e ".[viewer]"
+  viewer.port = 7007  # port of the live viewer's page (http://localhost:PORT)
   return config

@@ -24,6 +24,7 @@ from nerf_jax import (background, checkpoints, experiment, lpips, metrics, occup
                       parallel, progress, renderer, summary)
 from nerf_jax.experiment import TrainingError, TrainState  # noqa: F401  (re-exported)
 from nerf_jax.rays import Rays
+from nerf_jax.viewer import training as live_viewer
 
 
 @flax.struct.dataclass
@@ -227,10 +228,12 @@ def train_and_evaluate(config, workdir):
   step = start_step
   bar = progress.Progress(tc.max_steps, "train", start=start_step,
                           stream=None if main else io.StringIO())
+  viewer = live_viewer.start(exp, workdir, enabled=main)
   with _StopRequest() as stop:
     while step < tc.max_steps:
       state, stats = train_step(state, data, key)
       step += 1
+      viewer.after_step(step, lambda: _one_device(state.params, mesh))
       budget_over = tc.max_seconds > 0 and time.perf_counter() - t_start >= tc.max_seconds
       log_now = step % tc.log_every == 0 or step == tc.max_steps or budget_over or stop.signum
       if log_now:
@@ -275,6 +278,7 @@ def train_and_evaluate(config, workdir):
       if budget_over:
         break
   bar.close()
+  viewer.close()
   train_seconds = time.perf_counter() - t_start
   _check_finite(state, workdir)
   params = _one_device(state.params, mesh)

@@ -1,0 +1,50 @@
+"""Fly around a trained NeRF in the browser: `python -m nerf_jax.view`, `nerf-view`.
+
+  pip install -e ".[viewer]"
+  nerf-view --workdir=runs/fast            # then open the printed address
+  nerf-view --workdir=runs/fast --port=7008 --host=0.0.0.0
+"""
+
+import time
+
+from absl import app, flags
+
+from nerf_jax import cli
+
+
+def serve(workdir, host, port, fps, still_height, out_dir):
+  """Serve the newest checkpoint of `workdir` until interrupted."""
+  from nerf_jax.viewer import scene, server  # pylint: disable=import-outside-toplevel
+  server.import_viser()  # the missing-extra error before the model loads
+  server.check_port(host, port)
+  loaded, params, step = scene.from_workdir(workdir)
+  viewer = server.Viewer(loaded, params, host=host, port=port, step=step, target_fps=fps,
+                         still_height=still_height or None, out_dir=out_dir or workdir)
+  print(f"viewer: open {viewer.url} (Ctrl-C stops)", flush=True)
+  try:
+    while True:
+      time.sleep(1.0)
+  finally:
+    viewer.close()
+
+
+def main():
+  """Define the flags, parse them (one-line errors) and serve."""
+  workdir = flags.DEFINE_string("workdir", None, "Training run directory.", required=True)
+  port = flags.DEFINE_integer("port", 7007, "Port to serve the page on.")
+  host = flags.DEFINE_string("host", "127.0.0.1", "Address to listen on (0.0.0.0: all).")
+  fps = flags.DEFINE_float("fps", 10.0, "Frames per second to hold while the camera moves.")
+  still_height = flags.DEFINE_integer("still_height", 0, "Pixels per column of the still frame "
+                                      "(0 = the training images').")
+  out = flags.DEFINE_string("out", "", "Where 'Save path' writes (default: the workdir).")
+
+  def run(argv):
+    del argv
+    cli.run_main(lambda: serve(workdir.value, host.value, port.value, fps.value,
+                               still_height.value, out.value))
+
+  app.run(run, flags_parser=cli.parse_flags)
+
+
+if __name__ == "__main__":
+  main()

@@ -1,0 +1,83 @@
+"""What the viewer draws: a model, its parameters and its cameras, from a checkpoint or a run.
+
+This module is the viewer's one contact with the rest of nerf_jax (restoring, ray generation,
+image rendering, colour maps); re-point it here when those move.
+"""
+
+import dataclasses
+import os
+
+import numpy as np
+
+from nerf_jax import background, experiment, image_renderer, outputs
+from nerf_jax.rays import camera_rays
+from nerf_jax.viewer import camera, policy
+
+colorize, to_uint8 = outputs.colorize, outputs.to_uint8
+
+
+@dataclasses.dataclass
+class Scene:
+  """A model ready to draw and the training cameras to show.
+
+  make_draw: fn(params) -> draw (image_renderer.make_image_renderer), draw(rays, background)
+    -> numpy dict rgb [n, 3], depth [n], acc [n].
+  poses: float32 [N, 4, 4] training cameras (c2w). images: float32 [N, H, W, 3] their images.
+  intrinsics: (fx, fy, cx, cy) of the training cameras in pixels. near, far: float bounds.
+  scene_bound: float, half-size of the scene box (0 = none). background: float32 [3].
+  """
+  config: object
+  make_draw: object
+  poses: np.ndarray
+  images: np.ndarray
+  intrinsics: tuple
+  near: float
+  far: float
+  scene_bound: float
+  background: np.ndarray
+
+  @property
+  def height(self):
+    return self.images.shape[1]
+
+  @property
+  def width(self):
+    return self.images.shape[2]
+
+  @property
+  def chunk(self):
+    return self.config.render.chunk
+
+  def fov(self):
+    """Vertical field of view (radians) of the training cameras."""
+    return camera.vertical_fov(self.height, self.intrinsics[1])
+
+  def render(self, draw, c2w, height, width, fov, cancelled=None):
+    """Render a `height`×`width` frame of camera `c2w` float [4, 4] with vertical `fov`
+    (radians), in chunks (see policy.render_in_chunks). Returns numpy dict rgb [H, W, 3],
+    depth [H, W], acc [H, W], or None when `cancelled()` turned true."""
+    intrinsics = camera.frame_intrinsics(height, width, fov)
+    rays = camera_rays(height, width, intrinsics, c2w, self.near, self.far,
+                       self.config.data.pixel_center, self.config.data.ndc)
+    return policy.render_in_chunks(draw, rays, self.chunk, self.background, cancelled)
+
+
+def from_run(exp):
+  """The Scene of a model being trained (or restored): an experiment.Experiment."""
+  config, dataset = exp.config, exp.train_ds
+  return Scene(config=config, make_draw=image_renderer.make_image_renderer(exp.model, config),
+               poses=np.asarray(dataset.poses, np.float32), images=dataset.images,
+               intrinsics=tuple(float(v) for v in dataset.intrinsics), near=float(exp.near),
+               far=float(exp.far), scene_bound=float(config.data.scene_bound),
+               background=background.parse(config.data.background))
+
+
+def from_workdir(workdir):
+  """(Scene, params, step) of the newest checkpoint in `workdir`.
+
+  Raises FileNotFoundError or experiment.TrainingError (one line) when there is none.
+  """
+  if not os.path.isdir(workdir):
+    raise FileNotFoundError(f"--workdir={workdir}: no such directory")
+  exp, state = experiment.restore(workdir)
+  return from_run(exp), state.params, int(state.step)

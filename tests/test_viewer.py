@@ -1,0 +1,257 @@
+"""The viewer's plain functions: camera conversion, resolution policy, cancellation, paths, and
+a viewer camera at a training pose rendering what render.py renders (no browser needed)."""
+
+import math
+import socket
+import sys
+
+import imageio.v2 as imageio
+import jax
+import numpy as np
+import pytest
+
+from nerf_jax import config_lib, experiment, field, outputs
+from nerf_jax.configs import fast
+from nerf_jax.rays import Rays, pose_spherical, project
+from nerf_jax.viewer import camera, paths, policy, scene, server, training
+
+
+def _rodrigues(axis, angle):
+  """Reference rotation matrix of `angle` radians about `axis`."""
+  k = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+  kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+  return np.eye(3) + math.sin(angle) * kx + (1 - math.cos(angle)) * kx @ kx
+
+
+AXES_ANGLES = [((0, 0, 1), 0.0), ((1, 0, 0), 0.3), ((0, 1, 0), 2.0), ((1, 2, 3), math.pi - 1e-4),
+               ((1, -1, 0.5), math.pi), ((0.2, 0.1, -1), 4.0)]
+
+
+@pytest.mark.parametrize("axis,angle", AXES_ANGLES)
+def test_quaternions_match_axis_angle(axis, angle):
+  k = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+  q = np.concatenate([[math.cos(angle / 2)], math.sin(angle / 2) * k])
+  np.testing.assert_allclose(camera.quaternion_to_matrix(q), _rodrigues(axis, angle), atol=1e-12)
+  back = camera.matrix_to_quaternion(_rodrigues(axis, angle))
+  assert min(np.abs(back - q).max(), np.abs(back + q).max()) < 1e-9  # q and -q: one rotation
+
+
+def _opencv_pixel(point, wxyz, position, f, cx, cy):
+  """Brute-force OpenCV pinhole: camera looks down +z, pixel rows grow downwards (+y)."""
+  cam = camera.quaternion_to_matrix(wxyz).T @ (np.asarray(point) - position)
+  assert cam[2] > 0, "the point must be in front of the camera"
+  return np.array([f * cam[0] / cam[2] + cx, f * cam[1] / cam[2] + cy])
+
+
+@pytest.mark.parametrize("theta,phi,scale", [(0, -30, 1.0), (75, -10, 2.5), (200, -60, 0.1)])
+def test_viewer_camera_sees_points_where_ours_does(theta, phi, scale):
+  pose = pose_spherical(theta, phi, 4.0)
+  wxyz, position = camera.c2w_to_viewer(pose, scale)
+  np.testing.assert_allclose(camera.viewer_to_c2w(wxyz, position, scale), pose, atol=1e-6)
+  np.testing.assert_allclose(position, pose[:3, 3] * scale, rtol=1e-6)
+  f, size = 50.0, 64
+  for point in np.random.default_rng(0).uniform(-1, 1, (8, 3)):
+    ours = project(point, size, size, f, pose)  # (column, row) of our camera
+    theirs = _opencv_pixel(point * scale, wxyz, position, f, size / 2, size / 2)
+    np.testing.assert_allclose(theirs, ours, atol=1e-6)
+
+
+def test_opencv_identity_is_our_camera_looking_down_world_z():
+  c2w = camera.viewer_to_c2w((1, 0, 0, 0), (1, 2, 3))
+  np.testing.assert_allclose(c2w[:3, 2], [0, 0, -1])  # we look down -z: the world's +z
+  np.testing.assert_allclose(c2w[:3, 1], [0, -1, 0])  # OpenCV's y is down
+  np.testing.assert_allclose(c2w[:3, 3], [1, 2, 3])
+
+
+def test_frame_intrinsics_invert_vertical_fov():
+  fov = camera.vertical_fov(100, 138.9)
+  assert camera.frame_intrinsics(100, 150, fov) == pytest.approx((138.9, 138.9, 75.0, 50.0))
+  assert camera.frame_size(48, 16 / 9) == (48, 85)
+
+
+def _brute_height(rate, aspect, fps, overhead, max_height):
+  ok = [h for h in policy.MOVING_HEIGHTS if (max_height is None or h <= max_height)
+        and h * max(1, round(h * aspect)) <= (1 / fps - overhead) * rate]
+  return max(ok) if ok else policy.MOVING_HEIGHTS[0]
+
+
+@pytest.mark.parametrize("rate", [1e3, 5e4, 2.3e5, 1e6, 1e8])
+@pytest.mark.parametrize("aspect,overhead,max_height", [(1.0, 0.0, None), (16 / 9, 0.02, 100)])
+def test_moving_height_is_the_largest_that_keeps_the_frame_rate(rate, aspect, overhead,
+                                                                max_height):
+  h = policy.moving_height(rate, aspect, 10.0, overhead, max_height)
+  assert h == _brute_height(rate, aspect, 10.0, overhead, max_height)
+  if h != policy.MOVING_HEIGHTS[0]:
+    assert h * round(h * aspect) / rate + overhead <= 0.1
+
+
+def test_rate_meter_converges_to_a_steady_rate():
+  meter = policy.RateMeter(rays_per_second=1.0, overhead_s=1.0)
+  for _ in range(60):
+    meter.add(20000, 0.1, 0.13)
+  assert meter.rays_per_second == pytest.approx(2e5, rel=1e-6)
+  assert meter.overhead_s == pytest.approx(0.03, rel=1e-6)
+
+
+def _fake_draw(calls):
+  def draw(rays, background=None):
+    calls.append(len(rays.origins))
+    return {"rgb": rays.origins + rays.directions, "depth": rays.viewdirs[:, 0],
+            "acc": rays.origins[:, 1]}
+  return draw
+
+
+def test_render_in_chunks_equals_one_call_and_stops_when_cancelled():
+  rng = np.random.default_rng(1)
+  o, d, v = (rng.normal(size=(5, 7, 3)).astype(np.float32) for _ in range(3))
+  rays = Rays(o, d, v, np.full((5, 7), 2.0, np.float32), np.full((5, 7), 6.0, np.float32))
+  calls = []
+  out = policy.render_in_chunks(_fake_draw(calls), rays, 8, (0, 0, 0))
+  assert calls == [8, 8, 8, 8, 3]
+  np.testing.assert_array_equal(out["rgb"], o + d)
+  np.testing.assert_array_equal(out["depth"], v[..., 0])
+  np.testing.assert_array_equal(out["acc"], o[..., 1])
+  calls, checks = [], []
+  cancel_after = lambda: checks.append(1) or len(checks) > 2  # the camera moves after 2 chunks
+  assert policy.render_in_chunks(_fake_draw(calls), rays, 8, (0, 0, 0), cancel_after) is None
+  assert calls == [8, 8]
+
+
+def test_path_passes_through_key_cameras_and_turns_evenly():
+  keys = np.stack([np.eye(4)] * 3)
+  keys[1, :3, :3] = _rodrigues((0, 0, 1), math.pi / 2)
+  keys[2, :3, :3] = _rodrigues((0, 0, 1), math.pi)
+  keys[:, :3, 3] = [[0, 0, 0], [1, 0, 0], [2, 0, 0]]  # evenly spaced on a line
+  poses = paths.interpolate(keys, 4)
+  assert poses.shape == (9, 4, 4)
+  np.testing.assert_allclose(poses[::4], keys, atol=1e-6)
+  for i, pose in enumerate(poses):
+    np.testing.assert_allclose(pose[:3, :3], _rodrigues((0, 0, 1), i * math.pi / 8), atol=1e-6)
+    np.testing.assert_allclose(pose[:3, 3], [i / 4, 0, 0], atol=1e-6)  # constant speed
+  looped = paths.interpolate(keys, 4, loop=True)
+  assert looped.shape == (12, 4, 4)
+  np.testing.assert_allclose(looped[::4], keys, atol=1e-6)  # through the keys, then back
+  np.testing.assert_allclose(looped[:9, :3, :3], poses[:, :3, :3], atol=1e-6)
+  angle = lambda a, b: math.acos(np.clip((np.trace(a[:3, :3].T @ b[:3, :3]) - 1) / 2, -1, 1))
+  assert angle(looped[10], keys[2]) == pytest.approx(math.pi / 2, abs=1e-6)  # halfway home
+  assert angle(looped[10], keys[0]) == pytest.approx(math.pi / 2, abs=1e-6)
+  with pytest.raises(ValueError, match="at least 2"):
+    paths.interpolate(keys[:1], 4)
+
+
+def test_saved_path_is_what_render_py_loads(tmp_path):
+  keys = np.stack([pose_spherical(th, -30, 4.0) for th in (0, 60, 150)])
+  poses = paths.interpolate(keys, 5)
+  json_path, npy_path = paths.save_path(str(tmp_path / "camera_path.json"), keys, poses, 24)
+  np.testing.assert_allclose(outputs.load_poses(json_path), poses, atol=1e-6)
+  np.testing.assert_array_equal(outputs.load_poses(npy_path), poses)
+  rot = poses[:, :3, :3]
+  np.testing.assert_allclose(rot @ np.swapaxes(rot, 1, 2), np.broadcast_to(np.eye(3), rot.shape),
+                             atol=1e-5)
+
+
+def test_depth_output_names_its_range():
+  depth = np.linspace(2.0, 4.0, 100, dtype=np.float32).reshape(10, 10)
+  acc = np.ones_like(depth)
+  acc[:, :5] = 0.0  # misses: not part of the range
+  lo, hi = server.depth_range(depth, acc, 1.0, 9.0)
+  hits = depth[:, 5:]
+  assert (lo, hi) == pytest.approx(tuple(np.percentile(hits, [2, 98])))
+  image, caption = server.output_image({"depth": depth, "acc": acc, "rgb": None}, "Depth", 1, 9)
+  assert image.shape == (10, 10, 3) and f"{lo:.3g}" in caption and f"{hi:.3g}" in caption
+  assert server.depth_range(depth, np.zeros_like(acc), 1.0, 9.0) == (1.0, 9.0)
+  opacity, _ = server.output_image({"depth": depth, "acc": acc, "rgb": None}, "Opacity", 1, 9)
+  np.testing.assert_array_equal(opacity[..., 0], outputs.to_uint8(acc))
+
+
+def test_port_taken_names_it_and_suggests_a_free_one():
+  with socket.socket() as s:
+    s.bind(("127.0.0.1", 0))
+    s.listen()
+    port = s.getsockname()[1]
+    with pytest.raises(server.ViewerError) as info:
+      server.check_port("127.0.0.1", port)
+  message = str(info.value)
+  assert f"port {port}" in message and "--port=" in message and "\n" not in message
+  suggested = int(message.split("--port=")[1])
+  assert suggested != port and server.port_free("127.0.0.1", suggested)
+
+
+def test_missing_viser_says_which_extra(monkeypatch):
+  monkeypatch.setitem(sys.modules, "viser", None)  # import viser now raises ImportError
+  with pytest.raises(server.ViewerError, match=r'pip install -e "\.\[viewer\]"'):
+    server.import_viser()
+
+
+def test_workdir_without_checkpoint_is_one_line(tmp_path):
+  with pytest.raises(FileNotFoundError, match="no such directory"):
+    scene.from_workdir(str(tmp_path / "missing"))
+  with pytest.raises(config_lib.ConfigError, match="config.json not found"):
+    scene.from_workdir(str(tmp_path))
+
+
+def _tiny_fast_config():
+  config = fast.get_config()
+  config.data.image_size, config.data.num_views, config.data.holdout_from = 20, 4, 3
+  config.num_samples = 16
+  config.model.grid_resolutions, config.model.width = (8, 16), 16
+  config.render.chunk = 128
+  return config
+
+
+def test_viewer_camera_at_a_training_pose_renders_what_render_py_does(tmp_path):
+  config = _tiny_fast_config()
+  exp = experiment.setup(config)
+  train_ds = exp.train_ds
+  params = field.init_params(exp.model, config, jax.random.PRNGKey(3))
+  pose = train_ds.poses[1]
+  outputs.render_views(exp, params, pose[None], str(tmp_path))
+
+  view = scene.from_run(exp)
+  wxyz, position = camera.c2w_to_viewer(pose, 2.0)  # what the browser's camera holds
+  out = view.render(view.make_draw(params), camera.viewer_to_c2w(wxyz, position, 2.0),
+                    train_ds.height, train_ds.width, view.fov())
+  expected_depth = np.load(tmp_path / "depth_000.npy")
+  assert np.ptp(expected_depth) > 0.01  # not a blank image
+  np.testing.assert_allclose(out["depth"], expected_depth, atol=1e-4)
+  rgb = outputs.to_uint8(out["rgb"]).astype(int)
+  assert np.abs(rgb - imageio.imread(tmp_path / "view_000.png").astype(int)).max() <= 1
+
+
+class _FakeViewer:
+  def __init__(self):
+    self.watching, self.received = False, []
+
+  def watched(self):
+    return self.watching
+
+  def set_params(self, params, step):
+    self.received.append((params, step))
+
+
+def test_training_hook_copies_params_only_while_watched_and_at_most_every_refresh():
+  viewer, now = _FakeViewer(), [0.0]
+  hook = training.LiveViewer(viewer, refresh_s=1.0, clock=lambda: now[0])
+  calls = []
+  params = {"w": jax.numpy.arange(3.0)}
+  get = lambda: calls.append(1) or params
+  for step in range(5):
+    hook.after_step(step, get)
+  assert not calls and not viewer.received  # nobody watching: nothing is copied
+  viewer.watching = True
+  for step in range(5, 30):
+    now[0] = 0.25 * step
+    hook.after_step(step, get)
+  assert [s for _, s in viewer.received] == [5, 9, 13, 17, 21, 25, 29]  # every 4th step = 1 s
+  sent = viewer.received[0][0]["w"]
+  assert sent is not params["w"]
+  np.testing.assert_array_equal(sent, params["w"])
+
+
+def test_scene_box_edges_are_the_cube_edges():
+  edges = server.box_edges(1.5)
+  assert edges.shape == (12, 2, 3)
+  delta = np.abs(edges[:, 1] - edges[:, 0])
+  np.testing.assert_allclose(np.sort(delta, axis=1), np.broadcast_to([0, 0, 3.0], (12, 3)))
+  assert np.all(np.abs(edges) == 1.5)
+  assert len({tuple(sorted(map(tuple, e))) for e in edges}) == 12  # no edge twice
