@@ -6,7 +6,7 @@ collisions (detail) for step time, see docs/hashgrid.md for measured step times.
   python train.py --config=configs/hash.py --workdir=runs/hash
 """
 
-from configs import fast
+from nerf_jax.configs import fast
 
 
 def get_config():

@@ -146,7 +146,7 @@ def training_overhead(pairs=2, steps=60):
   The fast config on 64×64 images; the first log record (compilation) is left out.
   """
   import tempfile  # pylint: disable=import-outside-toplevel
-  from configs import fast  # pylint: disable=import-outside-toplevel
+  from nerf_jax.configs import fast  # pylint: disable=import-outside-toplevel
   from nerf_jax import train_lib  # pylint: disable=import-outside-toplevel
   rates = {False: [], True: []}
   for _ in range(pairs):
