@@ -59,6 +59,7 @@ def _spy_one_step(monkeypatch, config):
   return calls
 
 
+@pytest.mark.slow  # eager steps (the spies see values): about 10 s per scene on 2 cores
 @pytest.mark.parametrize("name", SCENES)
 def test_each_scene_configs_switches_change_what_a_step_computes(monkeypatch, name):
   config = _scene_config(name)
