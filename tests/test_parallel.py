@@ -12,8 +12,8 @@ import types
 
 import pytest
 
-from nerf_jax import experiment, parallel
-from tests.conftest import assert_beats_trivial, shared_config
+from nerf_jax import parallel, train_lib
+from tests.conftest import tiny_config
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 STEPS = 10
@@ -49,8 +49,7 @@ leaves = jax.tree_util.tree_leaves
 diff = max(float(np.max(np.abs(np.asarray(a) - np.asarray(b))))
            for a, b in zip(leaves(single.params), leaves(multi.params)))
 kernel = leaves(multi.params)[0]
-from tests.conftest import shared_config
-result = train_lib.train_and_evaluate(shared_config(), sys.argv[1])  # the whole loop, 4 devices
+result = train_lib.train_and_evaluate(config, sys.argv[1])  # the whole loop on 4 devices
 print(json.dumps({
     "devices": jax.device_count(), "mesh": None if mesh is None else mesh.size,
     "single": single_losses, "multi": multi_losses, "param_diff": diff,
@@ -61,7 +60,7 @@ print(json.dumps({
 
 
 @pytest.mark.slow
-def test_four_devices_match_one(tmp_path, trained_run):
+def test_four_devices_match_one(tmp_path):
   env = dict(os.environ, PYTHONPATH=ROOT, XLA_FLAGS="--xla_force_host_platform_device_count=4",
              JAX_PLATFORMS="cpu")
   res = subprocess.run([sys.executable, "-c", SCRIPT, str(tmp_path / "run")], cwd=ROOT, env=env,
@@ -75,12 +74,12 @@ def test_four_devices_match_one(tmp_path, trained_run):
   assert out["single"] == pytest.approx(out["multi"], rel=1e-4)
   assert out["single"][-1] < out["single"][0]
   assert out["param_diff"] < 1e-4
-  # The whole loop on 4 devices learns what the shared single-device run of the same config
-  # learns (conftest.trained_run), well above the trivial answers.
-  _, single = trained_run
-  assert out["steps"] == 600 and out["psnr"] == pytest.approx(single["psnr"], abs=0.05)
-  assert_beats_trivial(out["psnr"], experiment.setup(shared_config()))
-  assert os.path.exists(tmp_path / "run" / "checkpoints" / "ckpt_600.msgpack")
+  # The whole loop on 4 devices scores what the same loop on one device scores (20 steps learn
+  # little: the quality bar against trivial answers is test_quality.py's, on the shared run).
+  config = tiny_config()
+  single = train_lib.train_and_evaluate(config, str(tmp_path / "single"))
+  assert out["steps"] == 20 and out["psnr"] == pytest.approx(single["psnr"], abs=0.02)
+  assert os.path.exists(tmp_path / "run" / "checkpoints" / "ckpt_20.msgpack")
 
 
 def test_one_device_or_disabled_is_a_no_op():
