@@ -209,3 +209,13 @@ def test_export_cli(tmp_path):
   assert load_npz(out).images.shape == (3, 8, 8, 3)
   assert export.main(["--scene=lego", "--format=npz", f"--out={out}"]) == 1
   assert not os.path.exists(tmp_path / "x")
+
+
+def test_blender_focal_comes_from_camera_angle_x_and_the_width(tmp_path):
+  """NeRF-synthetic's 800-pixel-wide frames at camera_angle_x = 0.6911112 have focal 1111.11;
+  a non-square frame (2 rows) shows the width, not the height, sets it."""
+  folder = _blender(tmp_path, {"camera_angle_x": 0.6911112}, image=np.zeros((2, 800, 4), np.uint8))
+  train = load_blender(folder)
+  fx, fy, cx, cy = train.intrinsics
+  assert fx == fy == pytest.approx(1111.11, abs=0.01)
+  assert (cx, cy) == (400.0, 1.0) and (train.height, train.width) == (2, 800)

@@ -12,7 +12,8 @@ import types
 
 import pytest
 
-from nerf_jax import parallel
+from nerf_jax import parallel, train_lib
+from tests.conftest import tiny_config
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 STEPS = 10
@@ -58,6 +59,7 @@ print(json.dumps({
 """.replace("STEPS", str(STEPS))
 
 
+@pytest.mark.slow
 def test_four_devices_match_one(tmp_path):
   env = dict(os.environ, PYTHONPATH=ROOT, XLA_FLAGS="--xla_force_host_platform_device_count=4",
              JAX_PLATFORMS="cpu")
@@ -72,7 +74,11 @@ def test_four_devices_match_one(tmp_path):
   assert out["single"] == pytest.approx(out["multi"], rel=1e-4)
   assert out["single"][-1] < out["single"][0]
   assert out["param_diff"] < 1e-4
-  assert out["steps"] == 20 and out["psnr"] > 10
+  # The whole loop on 4 devices scores what the same loop on one device scores (20 steps learn
+  # little: the quality bar against trivial answers is test_quality.py's, on the shared run).
+  config = tiny_config()
+  single = train_lib.train_and_evaluate(config, str(tmp_path / "single"))
+  assert out["steps"] == 20 and out["psnr"] == pytest.approx(single["psnr"], abs=0.02)
   assert os.path.exists(tmp_path / "run" / "checkpoints" / "ckpt_20.msgpack")
 
 

@@ -115,3 +115,89 @@ def test_remat_chunks_match_one_call_in_values_and_gradients(view_dependent):
   config.train.remat_chunk = 10
   odd = renderer.render_rays(model, params, rays, config, key=key)["coarse"]["rgb"]
   np.testing.assert_array_equal(odd, rgb_plain)
+
+
+# --- hierarchical sampling on analytic fields ------------------------------------------------------
+
+COARSE, FINE = 16, 32
+
+
+def _analytic(monkeypatch, sigma_rgb, fine=FINE, coarse=COARSE):
+  """A config and params rendering the analytic field `sigma_rgb(points float32 [..., 3]) ->
+  (sigma [...], rgb [..., 3])` in place of the network (field.query is replaced)."""
+  def query(model, params, points, viewdirs, config, key=None):
+    del model, params, viewdirs, config, key
+    sigma, rgb = sigma_rgb(points)
+    return rgb, sigma
+  monkeypatch.setattr(field, "query", query)
+  config = debug.get_config()
+  config.num_samples, config.num_fine_samples = coarse, fine
+  config.train.remat_chunk = 0
+  return config, {"coarse": None, "fine": None}
+
+
+def _ball(points, radius=0.5, density=20.0):
+  inside = jnp.sum(points ** 2, -1) < radius ** 2
+  return jnp.where(inside, density, 0.0), jax.nn.sigmoid(3.0 * points)
+
+
+def _fog(points):
+  """A fog ball (radius 0.75, density 1.2, blue) in front of an opaque red slab at z in [-1.2, -1]."""
+  fog = jnp.sum(points ** 2, -1) < 0.75 ** 2
+  slab = (points[..., 2] > -1.2) & (points[..., 2] < -1.0)
+  sigma = jnp.where(slab, 200.0, jnp.where(fog, 1.2, 0.0))
+  rgb = jnp.where(slab[..., None], jnp.array([0.9, 0.2, 0.15]), jnp.array([0.35, 0.6, 1.0]))
+  return sigma, rgb
+
+
+def _down_rays(n=24):
+  """Rays from z = 3 down -z through x, y in [-0.45, 0.45] (all cross the ball), t in [1, 5]."""
+  xy = np.stack(np.meshgrid(np.linspace(-0.3, 0.3, 6), np.linspace(-0.3, 0.3, n // 6)), -1)
+  origins = np.concatenate([xy.reshape(-1, 2), np.full((n, 1), 3.0)], -1).astype(np.float32)
+  directions = np.tile(np.float32([0.0, 0.0, -1.0]), (n, 1))
+  return Rays.create(jnp.asarray(origins), jnp.asarray(directions), 1.0, 5.0)
+
+
+def _errors(monkeypatch, sigma_rgb):
+  """{pass: (mean |rgb error|, mean |depth error|)} against a dense 4096-sample render, for the
+  coarse and fine passes and a single uniform pass with as many samples as coarse + fine."""
+  rays = _down_rays()
+  render = lambda fine, coarse: renderer.render_rays(
+      None, params, rays, _analytic(monkeypatch, sigma_rgb, fine, coarse)[0])
+  _, params = _analytic(monkeypatch, sigma_rgb)
+  outs = render(FINE, COARSE)
+  dense, uniform = render(0, 4096)["coarse"], render(0, COARSE + FINE)["coarse"]
+  err = lambda out: tuple(float(jnp.mean(jnp.abs(out[k] - dense[k]))) for k in ("rgb", "depth"))
+  return {"coarse": err(outs["coarse"]), "fine": err(outs["fine"]), "uniform": err(uniform)}
+
+
+def test_fine_samples_concentrate_where_the_coarse_weights_are(monkeypatch):
+  rays = _down_rays()
+  config, params = _analytic(monkeypatch, _ball)
+  outs = renderer.render_rays(None, params, rays, config)
+  t_coarse, t_fine = np.asarray(outs["coarse"]["t"]), np.asarray(outs["fine"]["t"])
+  r2 = np.sum(np.asarray(rays.origins)[:, :2] ** 2, -1)
+  half = np.sqrt(0.25 - r2)  # the ball spans t in [3 - half, 3 + half] on each ray
+  spacing = 4.0 / COARSE  # a fine sample may fall anywhere in a coarse interval holding weight
+  inside = []
+  for row_c, row_f, h in zip(t_coarse, t_fine, half):
+    extra = row_f[~np.isin(row_f, row_c)]
+    assert len(extra) >= FINE - 2  # (an extra edge may coincide with a coarse one)
+    inside.append(np.mean((extra > 3 - h - spacing) & (extra < 3 + h + spacing)))
+  # Uniform samples would put (2h + 2 spacing) / 4 <= 50% there.
+  assert np.mean(inside) > 0.9, np.mean(inside)
+
+
+@pytest.mark.parametrize("scene", ["ball", "fog"])
+def test_fine_render_is_closer_to_a_dense_render_than_coarse(monkeypatch, scene):
+  errors = _errors(monkeypatch, {"ball": _ball, "fog": _fog}[scene])
+  for k in (0, 1):  # rgb, depth
+    assert errors["fine"][k] < 0.5 * errors["coarse"][k], errors
+
+
+def test_fine_pass_in_fog_finds_the_surface_behind_it(monkeypatch):
+  """In fog the coarse weights are spread along the medium and spike at the slab behind it: the
+  fine samples go there, so the depth is three times closer to the dense render's than with the
+  same number of uniform samples (measured: 0.006 vs 0.019)."""
+  errors = _errors(monkeypatch, _fog)
+  assert errors["fine"][1] < 0.5 * errors["uniform"][1], errors

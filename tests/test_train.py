@@ -20,22 +20,8 @@ from tests.conftest import tiny_config as _config
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def test_training_raises_test_psnr_well_above_untrained(tmp_path):
-  config = _config(max_steps=300, lr=5e-3, log_every=100, checkpoint_every=300)
-  config.data.holdout_from = 10
-  untrained = _config(max_steps=1)
-  untrained.train.lr = 1e-12  # one step that changes nothing measurable
-  before = train_lib.train_and_evaluate(untrained, str(tmp_path / "before"))
-  after = train_lib.train_and_evaluate(config, str(tmp_path / "after"))
-  assert after["psnr"] > before["psnr"] + 5.0, (before["psnr"], after["psnr"])
-  assert after["steps"] == 300 and len(after["per_view"]) == 2
-  saved = json.loads((tmp_path / "after" / "metrics.json").read_text())
-  assert saved["psnr"] == pytest.approx(after["psnr"])
-  assert {"psnr", "ssim", "per_view", "train_seconds", "steps"} <= set(saved)
-  lines = (tmp_path / "after" / "metrics.jsonl").read_text().splitlines()
-  records = [json.loads(l) for l in lines]
-  assert [r["step"] for r in records] == [100, 200, 300, 300]  # 3 log steps + the final eval
-  assert records[-1]["eval_psnr"] == pytest.approx(after["psnr"]) and records[-1]["final"]
+# Quality after training (against trivial answers, depth) is tests/test_quality.py, on the
+# shared trained run.
 
 
 def test_resume_continues_at_the_right_step_and_matches_an_uninterrupted_run(tmp_path):
