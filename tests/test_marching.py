@@ -174,8 +174,8 @@ def test_marching_skips_most_samples_of_a_trained_model(trained_fast):
   marcher = image_renderer._Marcher(exp.model, config)  # pylint: disable=protected-access
   mask = marcher.skip_grid(params)
   rays = exp.rays(exp.test_ds.poses[0]).reshape(-1)
-  t, points, occupied, rank = marcher.plan(mask, rays)
-  _, _, queried = empty_space.march(marcher.query_round, params, t, points, rays.viewdirs,
+  _, t_world, points, occupied, rank = marcher.plan(mask, rays)
+  _, _, queried = empty_space.march(marcher.query_round, params, t_world, points, rays.viewdirs,
                                  occupied, rank, np.ones(t.shape[0], bool),
                                  config.render.march_group, config.render.min_transmittance)
   assert 0.0 < float(jnp.mean(mask)) < 0.5  # the trained toy field: about 12% non-empty
