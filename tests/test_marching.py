@@ -176,7 +176,7 @@ def test_marching_skips_most_samples_of_a_trained_model(trained_fast):
   rays = exp.rays(exp.test_ds.poses[0]).reshape(-1)
   _, t_world, points, occupied, rank = marcher.plan(mask, rays)
   _, _, queried = empty_space.march(marcher.query_round, params, t_world, points, rays.viewdirs,
-                                 occupied, rank, np.ones(t.shape[0], bool),
+                                 occupied, rank, np.ones(t_world.shape[0], bool),
                                  config.render.march_group, config.render.min_transmittance)
   assert 0.0 < float(jnp.mean(mask)) < 0.5  # the trained toy field: about 12% non-empty
   assert queried < 0.4 * occupied.size
