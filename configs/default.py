@@ -52,7 +52,9 @@ def get_config():
   occ.enabled = False  # sample only in occupied cells of a grid over data.scene_bound's box
   occ.resolution = 32  # occupancy cells per side of the box
   occ.candidates = 256  # candidate intervals per ray; the occupied ones share num_samples samples
-  occ.update_every = 16  # train steps between recomputing the grid from the density field
+  occ.update_every = 16  # train steps between probing the density field again
+  occ.probes = 2  # probes per cell side at each refresh, at jittered positions
+  occ.decay = 0.95  # each refresh keeps max(decay·old, new): probes add up, gone density fades
   occ.threshold = 1.0  # density (per scene unit) from which a cell counts as occupied
 
   config.train = train = ml_collections.ConfigDict()
@@ -81,6 +83,7 @@ def get_config():
   render.march = True  # skip empty space, stop at opaque surfaces (scene-box single-pass models)
   render.march_grid = 48  # cells per side of the skip grid computed from the trained density
   render.march_threshold = 0.1  # density (per scene unit) below which a cell is skipped
+  render.march_probes = 4  # skip-grid probes per cell side: keeps structure >= √3/4 cell thick
   render.march_group = 16  # samples per ray offered in each marching round
   render.min_transmittance = 1e-4  # a ray stops once less light than this gets through
   render.video_frames = 60  # frames in the 360° orbit video

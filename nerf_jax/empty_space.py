@@ -4,7 +4,8 @@ The plain renderer queries the field at all S samples of every ray, though most 
 empty space or behind an opaque surface and add nothing to the pixel. Marching keeps the same
 samples and the same compositing, but queries the field only at samples that
   * lie in a cell of a skip grid that may hold density: `occupancy.density_grid` of the trained
-    field (σ probed at 8 points per cell, max-pooled over the 3×3×3 neighbours) >= `threshold`;
+    field (σ probed on a lattice of `march_probes`^3 points per cell, max-pooled over the 3×3×3
+    neighbours) >= `threshold`;
   * are reached with optical depth below -log(min_transmittance) (early ray termination).
 Samples not queried get σ = 0 (and rgb = 0), so `compositing.composite` sees what the plain path
 sees up to: the skipped cells' density, at most `threshold`·(box diagonal) of optical depth if the
@@ -36,12 +37,14 @@ SMALL_BUFFER = 1024
 LARGE_BUFFER = 16384
 
 
-def skip_grid(density_fn, resolution, bound, threshold):
+def skip_grid(density_fn, resolution, bound, threshold, probes):
   """bool [R, R, R]: the cells of the box [-bound, bound]^3 where the field may be non-empty.
 
   density_fn: points float32 [P, 3] -> σ float32 [P]. threshold: float, density per scene unit.
+  probes: int, probes per cell side (`occupancy.density_grid`: structure at least √3·cell/probes
+  thick is never skipped).
   """
-  return occupancy.density_grid(density_fn, resolution, bound) >= threshold
+  return occupancy.density_grid(density_fn, resolution, bound, probes) >= threshold
 
 
 def occupied_ranks(mask, points, bound):

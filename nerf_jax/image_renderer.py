@@ -100,7 +100,8 @@ class _Marcher:
       return rgb[:, 0], sigma[:, 0]
 
     self.skip_grid = jax.jit(lambda params: empty_space.skip_grid(
-        field.coarse_density(model, params, config), rc.march_grid, box, rc.march_threshold))
+        field.coarse_density(model, params, config), rc.march_grid, box, rc.march_threshold,
+        rc.march_probes))
     self.query_round = empty_space.make_query_round(query)
 
     @jax.jit

@@ -104,7 +104,9 @@ def final(outputs):
   return outputs.get("fine", outputs["coarse"])
 
 
-def occupancy_grid(model, params, config):
-  """The occupancy grid of the coarse network's density: float32 [R, R, R] (see occupancy.py)."""
-  return occupancy.density_grid(field.coarse_density(model, params, config),
-                                config.occupancy.resolution, config.data.scene_bound)
+def occupancy_grid(model, params, config, key=None):
+  """The occupancy grid of the coarse network's density: float32 [R, R, R] (see occupancy.py),
+  probed at config.occupancy.probes per cell side, jittered from `key` (None: not jittered)."""
+  oc = config.occupancy
+  return occupancy.density_grid(field.coarse_density(model, params, config), oc.resolution,
+                                config.data.scene_bound, oc.probes, key)

@@ -110,20 +110,25 @@ def make_train_step(exp, mesh=None):
     best = mses.get("fine", mses["coarse"])
     return loss, {"loss": loss, "psnr": metrics.mse_to_psnr(best)}
 
-  def refresh_occupancy(params, step):
-    """Recompute the occupancy grid from the density field every `update_every` steps."""
+  def refresh_occupancy(params, step, run_key):
+    """Every `update_every` steps, probe the density field at jittered positions (drawn from the
+    step: a resumed run probes where the uninterrupted one did) and accumulate them into the
+    occupancy grid with decay (occupancy.accumulate)."""
     if not occupancy.enabled(config):
       return params
-    every = config.occupancy.update_every
-    grid = jax.lax.cond(step % every == 0, lambda p: renderer.occupancy_grid(model, p, config),
-                        lambda p: p["occupancy"], params)
+    oc = config.occupancy
+    # A stream of its own: fold_in(run_key, n) is step n's key, and step 2^32 - 1 never comes.
+    key = jax.random.fold_in(jax.random.fold_in(run_key, 0xFFFFFFFF), step)
+    refresh = lambda p: occupancy.accumulate(
+        p["occupancy"], renderer.occupancy_grid(model, p, config, key), oc.decay)
+    grid = jax.lax.cond(step % oc.update_every == 0, refresh, lambda p: p["occupancy"], params)
     return {**params, "occupancy": grid}
 
   def step(state, data, run_key):
     key = jax.random.fold_in(run_key, state.step)
     batch_key, render_key = jax.random.split(key)
     batch = parallel.shard_batch(draw_batch(data, config, batch_key, state.step, run_key), mesh)
-    params = refresh_occupancy(state.params, state.step)
+    params = refresh_occupancy(state.params, state.step, run_key)
     grads, stats = jax.grad(loss_fn, has_aux=True)(params, batch, render_key)
     finite = jnp.isfinite(stats["loss"]) & jnp.all(jnp.array(
         [jnp.all(jnp.isfinite(g)) for g in jax.tree_util.tree_leaves(grads)]))

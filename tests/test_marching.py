@@ -81,7 +81,7 @@ def test_skipped_cells_are_never_queried_and_exact_where_empty():
   # A mask of the ball's cells (grid over [-1, 1]^3): outside samples are skipped, and they are
   # empty, so the image is exactly the plain one.
   field = _ball_field(5.0)
-  mask = empty_space.skip_grid(lambda p: field(None, p, None)[1], 16, 1.0, 1e-3)
+  mask = empty_space.skip_grid(lambda p: field(None, p, None)[1], 16, 1.0, 1e-3, 2)
   plain, marched, queried, occupied = _plain_and_marched(5.0, mask, 0.0)
   assert 0 < int(occupied.sum()) < 0.5 * occupied.size
   assert queried < 0.5 * NUM_RAYS * NUM_SAMPLES
