@@ -21,7 +21,7 @@ def get_config():
   data.num_views = 100  # built-in scene: number of rendered views
   data.image_size = 100  # built-in scene: height = width in pixels
   data.holdout_from = -1  # views[holdout_from:] are test views; -1 = the reference's 80/20 split
-  data.pixel_center = 0.0  # 0 = rays through pixel corners (reference), 0.5 = pixel centres
+  data.pixel_center = -1.0  # -1 = the data's own (0.5 centres; 0 corners for tiny_nerf .npz)
   data.background = "black"  # 'black', 'white', 'random' (training) or an RGB triple
   data.half_res = False  # Blender data: load at half resolution
   data.factor = 1  # LLFF data: downsample images by this integer factor

@@ -16,6 +16,7 @@ def get_config():
   config.num_samples = 32  # NUM_SAMPLES
   config.pos_encode_dims = 16  # POS_ENCODE_DIMS
   config.data.holdout_from = -1  # 80/20 split
+  config.data.pixel_center = 0.0  # rays through pixel corners, as the reference
   config.data.near = 2.0  # near plane, whatever the dataset says
   config.data.far = 6.0  # far plane
   config.model.depth = 8  # 8 Dense layers

@@ -15,6 +15,7 @@ def get_config():
   config.model.width = 256  # of 256 units
   config.model.skip_layers = (4,)  # input re-injected after layer 5 (i % 4 == 0, i > 0)
   config.model.view_dependent = False  # position-only
+  config.data.pixel_center = 0.0  # rays through pixel corners, as the notebook
   config.train.batching = "images"  # one whole image per step
   config.train.images_per_step = 1  # one image
   config.train.lr = 5e-4  # Adam(5e-4)

@@ -51,20 +51,38 @@ class Experiment:
     fx, fy, cx, cy = ds.intrinsics
     return height, width, (fx * sx, fy * sy, cx * sx, cy * sy)
 
+  @property
+  def pixel_center(self):
+    """Where in its pixel each ray passes: config.data.pixel_center, or the data's own (-1)."""
+    return pixel_center(self.config, self.train_ds)
+
   def rays(self, pose, camera=None):
     """Rays [H, W] of `pose` (float32 [4, 4] camera-to-world) through `camera` (default: the
     training camera), as the config asks (pixel centres, NDC)."""
     height, width, intrinsics = camera or self.camera()
     return camera_rays(height, width, intrinsics, pose, self.near, self.far,
-                       self.config.data.pixel_center, self.config.data.ndc)
+                       self.pixel_center, self.config.data.ndc)
 
 
 def setup(config):
   """The Experiment of `config`: loads the data, builds the model and the optimiser."""
   train_ds, test_ds = loaders.load_dataset(config.data)
+  pixel_center(config, train_ds)  # a bad value fails here, naming the field
   near, far = bounds(config, train_ds)
   return Experiment(config, make_model(config.model), make_optimizer(config.train), train_ds,
                     test_ds, near, far)
+
+
+def pixel_center(config, dataset):
+  """config.data.pixel_center, or with -1 the dataset's (what its images were taken through);
+  ValueError naming the field for any other value outside [0, 1]."""
+  value = config.data.pixel_center
+  if value == -1:
+    return float(dataset.pixel_center)
+  if not 0.0 <= value <= 1.0:
+    raise ValueError(f"config.data.pixel_center={value}: use -1 (the data's own), 0 (pixel "
+                     "corners) or 0.5 (pixel centres)")
+  return float(value)
 
 
 def bounds(config, dataset):

@@ -113,12 +113,13 @@ def forward_poses(num_views, extent=0.3, seed=0):
 
 
 def make_dataset(name, num_views=100, height=100, width=100, focal=TINY_NERF_FOCAL, radius=4.0,
-                 pixel_center=0.0, seed=0, near=None, far=None):
+                 pixel_center=0.5, seed=0, near=None, far=None):
   """Ground-truth `Dataset` of a built-in scene (with `depths` and `accs`).
 
   The cameras follow the scene's rig: `random_poses(num_views, radius, seed)` or
   `forward_poses(num_views, seed=seed)` (radius is ignored). near, far: float or None (= the
-  scene's bounds).
+  scene's bounds). pixel_center: where in each pixel its ray passes (0.5 centres, as a renderer
+  samples; 0 corners), recorded in the Dataset.
   """
   scene = get_scene(name)
   near = scene.near if near is None else near
@@ -137,4 +138,4 @@ def make_dataset(name, num_views=100, height=100, width=100, focal=TINY_NERF_FOC
       depths=out["depth"].reshape(shape).astype(np.float32),
       accs=out["acc"].reshape(shape).astype(np.float32), name=name,
       background=tuple(float(c) for c in scene.background),
-      forward_facing=scene.camera_rig == "forward")
+      forward_facing=scene.camera_rig == "forward", pixel_center=float(pixel_center))
