@@ -58,8 +58,9 @@ def get_config():
   occ.threshold = 1.0  # density (per scene unit) from which a cell counts as occupied
 
   config.train = train = ml_collections.ConfigDict()
-  train.max_steps = 2500  # step budget
-  train.max_seconds = 0.0  # wall-clock budget in seconds (0 = no limit)
+  train.max_steps = 0  # step budget (0 = fitted to max_seconds if set, else default_steps)
+  train.max_seconds = 0.0  # wall-clock budget in seconds; alone, the run lasts exactly this long
+  train.default_steps = 2500  # step budget when neither max_steps nor max_seconds is set
   train.batch_rays = 512  # rays per step (random rays over all training images)
   train.batching = "rays"  # 'rays' (random rays) or 'images' (whole images, as the reference)
   train.images_per_step = 5  # whole images per step when batching == 'images'

@@ -21,7 +21,7 @@ def get_config():
   config.train.lr = 5e-4  # Adam(5e-4)
   config.train.lr_final = 5e-4  # constant
   config.train.warmup_steps = 0  # no warm-up
-  config.train.max_steps = 1000  # N_iters
+  config.train.default_steps = 1000  # N_iters
   config.train.remat_chunk = 0  # the notebook's plain step
   config.train.log_every = 25  # i_plot
   return config

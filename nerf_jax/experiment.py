@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import ml_collections
 import optax
 
-from nerf_jax import checkpoints, config_lib, field, occupancy
+from nerf_jax import budget, checkpoints, config_lib, field, occupancy
 from nerf_jax.data import loaders
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.model import make_model
@@ -92,20 +92,34 @@ def bounds(config, dataset):
   return (float(config.data.near or dataset.near), float(config.data.far or dataset.far))
 
 
-def make_schedule(train_config):
-  """Linear warm-up to `lr`, then exponential decay reaching `lr_final` at `max_steps`."""
+def make_schedule(train_config, planned_steps=None):
+  """count -> learning rate: linear warm-up from 0 to `lr` over `warmup_steps`, then exponential
+  decay reaching `lr_final` at the planned steps and staying there (a time-budget run may take a
+  few more).
+
+  planned_steps: None for `budget.planned_steps` of the config, or an int32 [] (possibly traced:
+  a time budget's fitted length, see budget.py, so one compiled step serves any length), over
+  which warm-up keeps its share of the config's planned steps (as `budget.fit_schedule`).
+  """
   tc = train_config
-  decay_steps = max(tc.max_steps - tc.warmup_steps, 1)
-  decay = optax.exponential_decay(tc.lr, decay_steps, tc.lr_final / tc.lr)
-  if tc.warmup_steps <= 0:
-    return decay
-  warmup = optax.linear_schedule(0.0, tc.lr, tc.warmup_steps)
-  return optax.join_schedules([warmup, decay], [tc.warmup_steps])
+  planned, warmup = budget.planned_steps(tc), tc.warmup_steps
+  if planned_steps is not None:
+    warmup = jnp.round(tc.warmup_steps / max(planned, 1) * planned_steps)
+    planned = planned_steps
+
+  def schedule(count):
+    count = jnp.asarray(count, jnp.float32)
+    progress = jnp.clip((count - warmup) / jnp.maximum(planned - warmup, 1), 0.0, 1.0)
+    decayed = tc.lr * (tc.lr_final / tc.lr) ** progress
+    if tc.warmup_steps <= 0:
+      return decayed
+    return jnp.where(count < warmup, tc.lr * count / jnp.maximum(warmup, 1), decayed)
+  return schedule
 
 
-def make_optimizer(train_config):
-  """Adam on the schedule, with optional global-norm gradient clipping."""
-  adam = optax.adam(make_schedule(train_config))
+def make_optimizer(train_config, planned_steps=None):
+  """Adam on the schedule (see `make_schedule`), with optional global-norm gradient clipping."""
+  adam = optax.adam(make_schedule(train_config, planned_steps))
   if train_config.grad_clip > 0:
     return optax.chain(optax.clip_by_global_norm(train_config.grad_clip), adam)
   return adam
