@@ -128,8 +128,8 @@ def march(query_round, params, t, points, viewdirs, occupied, rank, live_rays, g
 
   query_round: from `make_query_round`. t: float32 [C, S + 1], edges in world length (see
   `optical_depth`). points: float32 [C, S, 3]. viewdirs: float32 [C, 3]. occupied, rank: from
-  `occupied_ranks`. live_rays: bool [C]. Returns (sigma float32 [C, S], rgb float32 [C, S, 3], queried int: samples queried,
-  not counting the buffers' padding).
+  `occupied_ranks`. live_rays: bool [C]. Returns (sigma float32 [C, S], rgb float32 [C, S, 3],
+  queried int: samples queried, not counting the buffers' padding).
   """
   num_rays, num_samples = occupied.shape
   sigma = jnp.zeros((num_rays, num_samples), jnp.float32)

@@ -25,9 +25,10 @@ from nerf_jax.data.llff import export_llff
 
 
 def export_npz(dataset, path, rgb_only=False):
-  """tiny_nerf arrays (images, poses, focal) plus near, far, background and any ground-truth
-  depths, accs and pixel_center; with rgb_only, just the three arrays of the reference's tiny_nerf_data.npz (a
-  loader then knows nothing of opacity or background, as with captured RGB images)."""
+  """tiny_nerf arrays (images, poses, focal) plus near, far, background, pixel_center and any
+  ground-truth depths, accs; with rgb_only, just the three arrays of the reference's
+  tiny_nerf_data.npz (a loader then knows nothing of opacity, background or pixel centres, as
+  with captured RGB images, and reads it through pixel corners as the reference does)."""
   arrays = {"images": dataset.images, "poses": dataset.poses, "focal": dataset.pinhole_focal()}
   if not rgb_only:
     arrays.update(near=dataset.near, far=dataset.far, background=np.asarray(dataset.background),
