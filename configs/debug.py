@@ -18,7 +18,7 @@ def get_config():
   config.model.width = 32  # of 32 units
   config.model.skip_layers = (1,)  # skip after the second layer
   config.model.view_width = 16  # narrow view layer
-  config.train.max_steps = 20  # a few steps
+  config.train.default_steps = 20  # a few steps
   config.train.batch_rays = 256  # small batches
   config.train.warmup_steps = 0  # no warm-up
   config.train.log_every = 10  # log twice

@@ -21,7 +21,7 @@ def get_config():
   data.num_views = 100  # built-in scene: number of rendered views
   data.image_size = 100  # built-in scene: height = width in pixels
   data.holdout_from = -1  # views[holdout_from:] are test views; -1 = the reference's 80/20 split
-  data.pixel_center = 0.0  # 0 = rays through pixel corners (reference), 0.5 = pixel centres
+  data.pixel_center = -1.0  # -1 = the data's own (0.5 centres; 0 corners for tiny_nerf .npz)
   data.background = "black"  # 'black', 'white', 'random' (training) or an RGB triple
   data.half_res = False  # Blender data: load at half resolution
   data.factor = 1  # LLFF and transforms.json data: downsample images by this integer factor
@@ -58,12 +58,15 @@ def get_config():
   occ.enabled = False  # sample only in occupied cells of a grid over data.scene_bound's box
   occ.resolution = 32  # occupancy cells per side of the box
   occ.candidates = 256  # candidate intervals per ray; the occupied ones share num_samples samples
-  occ.update_every = 16  # train steps between recomputing the grid from the density field
+  occ.update_every = 16  # train steps between probing the density field again
+  occ.probes = 2  # probes per cell side at each refresh, at jittered positions
+  occ.decay = 0.95  # each refresh keeps max(decay·old, new): probes add up, gone density fades
   occ.threshold = 1.0  # density (per scene unit) from which a cell counts as occupied
 
   config.train = train = ml_collections.ConfigDict()
-  train.max_steps = 2500  # step budget
-  train.max_seconds = 0.0  # wall-clock budget in seconds (0 = no limit)
+  train.max_steps = 0  # step budget (0 = fitted to max_seconds if set, else default_steps)
+  train.max_seconds = 0.0  # wall-clock budget in seconds; alone, the run lasts exactly this long
+  train.default_steps = 2500  # step budget when neither max_steps nor max_seconds is set
   train.batch_rays = 512  # rays per step (random rays over all training images)
   train.batching = "rays"  # 'rays' (random rays) or 'images' (whole images, as the reference)
   train.images_per_step = 5  # whole images per step when batching == 'images'
@@ -87,6 +90,7 @@ def get_config():
   render.march = True  # skip empty space, stop at opaque surfaces (scene-box single-pass models)
   render.march_grid = 48  # cells per side of the skip grid computed from the trained density
   render.march_threshold = 0.1  # density (per scene unit) below which a cell is skipped
+  render.march_probes = 4  # skip-grid probes per cell side: keeps structure >= √3/4 cell thick
   render.march_group = 16  # samples per ray offered in each marching round
   render.min_transmittance = 1e-4  # a ray stops once less light than this gets through
   render.video_frames = 60  # frames in the 360° orbit video

@@ -16,6 +16,7 @@ def get_config():
   config.num_samples = 32  # NUM_SAMPLES
   config.pos_encode_dims = 16  # POS_ENCODE_DIMS
   config.data.holdout_from = -1  # 80/20 split
+  config.data.pixel_center = 0.0  # rays through pixel corners, as the reference
   config.data.near = 2.0  # near plane, whatever the dataset says
   config.data.far = 6.0  # far plane
   config.model.depth = 8  # 8 Dense layers
@@ -31,7 +32,7 @@ def get_config():
   config.train.warmup_steps = 0  # no warm-up
   config.train.remat_chunk = 0  # the reference's plain step
   # 20 epochs of floor(80 / 5) = 16 steps each over the 80 training views of a 100-view scene.
-  config.train.max_steps = 20 * 16  # EPOCHS = 20
+  config.train.default_steps = 20 * 16  # EPOCHS = 20
   config.train.log_every = 16  # once per epoch
   config.train.checkpoint_every = 80  # every 5 epochs
   config.render.chunk = 8192  # bigger chunks: 50k rays per training step anyway

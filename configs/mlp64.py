@@ -13,6 +13,6 @@ def get_config():
   config.train.batch_rays = 1024  # rays per step
   config.train.lr = 2e-3  # initial Adam learning rate
   config.train.remat_chunk = 0  # the plain step
-  config.train.max_steps = 600  # step budget (about 4.5 min on 2 cores)
+  config.train.default_steps = 600  # step budget without max_steps or max_seconds (~4.5 min)
   config.train.checkpoint_every = 200  # steps between checkpoints
   return config

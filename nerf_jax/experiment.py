@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import ml_collections
 import optax
 
-from nerf_jax import checkpoints, config_lib, field, occupancy
+from nerf_jax import budget, checkpoints, config_lib, field, occupancy
 from nerf_jax.data import loaders
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.model import make_model
@@ -51,20 +51,38 @@ class Experiment:
     fx, fy, cx, cy = ds.intrinsics
     return height, width, (fx * sx, fy * sy, cx * sx, cy * sy)
 
+  @property
+  def pixel_center(self):
+    """Where in its pixel each ray passes: config.data.pixel_center, or the data's own (-1)."""
+    return pixel_center(self.config, self.train_ds)
+
   def rays(self, pose, camera=None):
     """Rays [H, W] of `pose` (float32 [4, 4] camera-to-world) through `camera` (default: the
     training camera), as the config asks (pixel centres, NDC)."""
     height, width, intrinsics = camera or self.camera()
     return camera_rays(height, width, intrinsics, pose, self.near, self.far,
-                       self.config.data.pixel_center, self.config.data.ndc)
+                       self.pixel_center, self.config.data.ndc)
 
 
 def setup(config):
   """The Experiment of `config`: loads the data, builds the model and the optimiser."""
   train_ds, test_ds = loaders.load_dataset(config.data)
+  pixel_center(config, train_ds)  # a bad value fails here, naming the field
   near, far = bounds(config, train_ds)
   return Experiment(config, make_model(config.model), make_optimizer(config.train), train_ds,
                     test_ds, near, far)
+
+
+def pixel_center(config, dataset):
+  """config.data.pixel_center, or with -1 the dataset's (what its images were taken through);
+  ValueError naming the field for any other value outside [0, 1]."""
+  value = config.data.pixel_center
+  if value == -1:
+    return float(dataset.pixel_center)
+  if not 0.0 <= value <= 1.0:
+    raise ValueError(f"config.data.pixel_center={value}: use -1 (the data's own), 0 (pixel "
+                     "corners) or 0.5 (pixel centres)")
+  return float(value)
 
 
 def bounds(config, dataset):
@@ -74,20 +92,34 @@ def bounds(config, dataset):
   return (float(config.data.near or dataset.near), float(config.data.far or dataset.far))
 
 
-def make_schedule(train_config):
-  """Linear warm-up to `lr`, then exponential decay reaching `lr_final` at `max_steps`."""
+def make_schedule(train_config, planned_steps=None):
+  """count -> learning rate: linear warm-up from 0 to `lr` over `warmup_steps`, then exponential
+  decay reaching `lr_final` at the planned steps and staying there (a time-budget run may take a
+  few more).
+
+  planned_steps: None for `budget.planned_steps` of the config, or an int32 [] (possibly traced:
+  a time budget's fitted length, see budget.py, so one compiled step serves any length), over
+  which warm-up keeps its share of the config's planned steps (as `budget.fit_schedule`).
+  """
   tc = train_config
-  decay_steps = max(tc.max_steps - tc.warmup_steps, 1)
-  decay = optax.exponential_decay(tc.lr, decay_steps, tc.lr_final / tc.lr)
-  if tc.warmup_steps <= 0:
-    return decay
-  warmup = optax.linear_schedule(0.0, tc.lr, tc.warmup_steps)
-  return optax.join_schedules([warmup, decay], [tc.warmup_steps])
+  planned, warmup = budget.planned_steps(tc), tc.warmup_steps
+  if planned_steps is not None:
+    warmup = jnp.round(tc.warmup_steps / max(planned, 1) * planned_steps)
+    planned = planned_steps
+
+  def schedule(count):
+    count = jnp.asarray(count, jnp.float32)
+    progress = jnp.clip((count - warmup) / jnp.maximum(planned - warmup, 1), 0.0, 1.0)
+    decayed = tc.lr * (tc.lr_final / tc.lr) ** progress
+    if tc.warmup_steps <= 0:
+      return decayed
+    return jnp.where(count < warmup, tc.lr * count / jnp.maximum(warmup, 1), decayed)
+  return schedule
 
 
-def make_optimizer(train_config):
-  """Adam on the schedule, with optional global-norm gradient clipping."""
-  adam = optax.adam(make_schedule(train_config))
+def make_optimizer(train_config, planned_steps=None):
+  """Adam on the schedule (see `make_schedule`), with optional global-norm gradient clipping."""
+  adam = optax.adam(make_schedule(train_config, planned_steps))
   if train_config.grad_clip > 0:
     return optax.chain(optax.clip_by_global_norm(train_config.grad_clip), adam)
   return adam

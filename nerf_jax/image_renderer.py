@@ -100,22 +100,27 @@ class _Marcher:
       return rgb[:, 0], sigma[:, 0]
 
     self.skip_grid = jax.jit(lambda params: empty_space.skip_grid(
-        field.coarse_density(model, params, config), rc.march_grid, box, rc.march_threshold))
+        field.coarse_density(model, params, config), rc.march_grid, box, rc.march_threshold,
+        rc.march_probes))
     self.query_round = empty_space.make_query_round(query)
 
     @jax.jit
     def plan(mask, rays):
+      """(t, t_world, points, occupied, rank): the plain path's edges t (z-depth) and the same
+      edges in world length (t·|d|, for the stop test), float32 [C, S + 1]; the rest as in
+      empty_space.occupied_ranks."""
       t_near, t_far = renderer.sample_bounds(rays, config)
       t = sampling.stratified(t_near, t_far, config.num_samples, rays.shape, None,
                               lindisp=config.data.lindisp)
       points = (rays.origins[:, None, :]
                 + rays.directions[:, None, :] * sampling.midpoints(t)[..., None])
-      return (t, points, *empty_space.occupied_ranks(mask, points, box))
+      t_world = t * jnp.linalg.norm(rays.directions, axis=-1)[:, None]
+      return (t, t_world, points, *empty_space.occupied_ranks(mask, points, box))
 
     @jax.jit
-    def finish(sigma, rgb, t, far, background):
-      out = compositing.composite(rgb, sigma, t, background)
-      return {"rgb": out["rgb"], "depth": renderer.empty_depth_is_far(out, far),
+    def finish(sigma, rgb, t, rays, background):
+      out = compositing.composite(rgb, renderer.per_unit_t(sigma, rays), t, background)
+      return {"rgb": out["rgb"], "depth": renderer.empty_depth_is_far(out, rays.far),
               "acc": out["acc"]}
 
     self.plan, self.finish = plan, finish
@@ -134,9 +139,9 @@ class _Marcher:
     pieces = []
     for i in range(0, len(flat.origins), chunk):
       part = _rows(flat, i, chunk)
-      t, points, occupied, rank = self.plan(mask, part)
-      sigma, rgb, _ = empty_space.march(self.query_round, params, t, points, part.viewdirs,
-                                        occupied, rank, live[i:i + chunk], rc.march_group,
-                                        rc.min_transmittance)
-      pieces.append(self.finish(sigma, rgb, t, part.far, background))
+      t, t_world, points, occupied, rank = self.plan(mask, part)
+      sigma, rgb, _ = empty_space.march(self.query_round, params, t_world, points,
+                                        part.viewdirs, occupied, rank, live[i:i + chunk],
+                                        rc.march_group, rc.min_transmittance)
+      pieces.append(self.finish(sigma, rgb, t, part, background))
     return _joined(pieces, num_rays, rays.shape)

@@ -1,10 +1,13 @@
 """Empty-space skipping: an occupancy grid over the scene box, and sampling only where it is full.
 
 The grid (`config.occupancy`) is float32 [R, R, R]: the largest density σ found in each cell of the
-box [-bound, bound]^3, max-pooled over the neighbouring cells so structure thinner than a cell is
-not lost. Training recomputes it from the density field every `update_every` steps and keeps it in
-the parameters as params['occupancy'] (it gets no gradient, so Adam never moves it, and it is
-checkpointed and restored with them, so a resumed run uses exactly the grid it would have).
+box [-bound, bound]^3 by probes on a sub-cell lattice, max-pooled over the neighbouring cells so
+structure thinner than a cell is not lost (`density_grid` says how thin). Every `update_every`
+steps training probes the density field again at jittered positions (a key folded from the step)
+and keeps max(decay·old, new) (Instant-NGP's update, `accumulate`): probes add up across refreshes
+and density that has gone is forgotten. The grid lives in the parameters as params['occupancy']
+(it gets no gradient, so Adam never moves it, and it is checkpointed and restored with them, so a
+resumed run uses exactly the grid it would have).
 
 Sampling with static shapes: each ray's segment inside the box is cut into M candidate intervals
 of width Δ = segment / M; the occupied candidates, in order, are dealt into K = num_samples
@@ -43,33 +46,59 @@ def check_config(config):
     raise ValueError("config.occupancy.enabled does not work with config.data.ndc")
 
 
-# Offsets of the points probed in each cell, in cells from its centre: the 8 corners of the inner
-# half-cell, so a feature smaller than a cell between two cells' probes is still likely seen.
-_PROBES = jnp.array([[x, y, z] for x in (-0.25, 0.25) for y in (-0.25, 0.25)
-                     for z in (-0.25, 0.25)], jnp.float32)
-
-
 def cell_centres(resolution, bound):
   """float32 [R, R, R, 3]: the centres of the R^3 cells of the box [-bound, bound]^3."""
   c = (jnp.arange(resolution, dtype=jnp.float32) + 0.5) / resolution * 2.0 * bound - bound
   return jnp.stack(jnp.meshgrid(c, c, c, indexing="ij"), axis=-1)
 
 
-def density_grid(density_fn, resolution, bound):
+def probe_offsets(probes):
+  """float32 [P^3, 3]: a cell's probes in cells from its centre, the lattice (j + 0.5)/P - 0.5,
+  j = 0..P-1 per axis (spacing 1/P; P = 2 gives the 8 points at ±0.25)."""
+  j = (jnp.arange(probes, dtype=jnp.float32) + 0.5) / probes - 0.5
+  return jnp.stack(jnp.meshgrid(j, j, j, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def density_grid(density_fn, resolution, bound, probes=2, key=None):
   """The occupancy grid of a density field: float32 [R, R, R].
 
-  density_fn: points float32 [P, 3] -> σ float32 [P]. Probed at 8 points per cell, one x-slab of
-  cells at a time (bounded memory), then max-pooled over each cell's 3×3×3 neighbourhood.
+  density_fn: points float32 [P, 3] -> σ float32 [P]. probes: int P, probes per cell side: σ is
+  probed on a lattice of spacing h = cell / P (`probe_offsets`), one x-slab of cells at a time
+  (bounded memory); key: None for that lattice, else each cell's lattice is shifted by its own
+  uniform offset in [-h/2, h/2)^3 (random positions, accumulated across refreshes by
+  `accumulate`). The largest σ of each cell is then max-pooled over its 3×3×3 neighbourhood.
+
+  What the lattice (key=None, P >= 2) finds, see docs/numerics.md: a point x of a structure that
+  lies in a ball of radius (√3/2)·h inside it (density >= σ) has a probe p inside that ball (the
+  lattice's covering radius is (√3/2)·h), |p - x| <= √3·h < 1 cell, so p is in x's cell or a
+  neighbour and the pooling gives x's cell at least σ: a slab or rod at least √3·h thick is never
+  lost. Thinner ones can fall between the probes; jittered refreshes find them over time.
   """
   cell = 2.0 * bound / resolution
   centres = cell_centres(resolution, bound)  # [R, R, R, 3]
+  if key is None:
+    shifts = jnp.zeros_like(centres)
+  else:
+    shifts = (jax.random.uniform(key, centres.shape, jnp.float32) - 0.5) / probes
+  offsets = probe_offsets(probes)
 
-  def slab(points):  # [R, R, 3] -> [R, R]
-    probes = points[:, :, None, :] + cell * _PROBES
-    return density_fn(probes.reshape(-1, 3)).reshape(resolution, resolution, -1).max(-1)
+  def slab(args):  # centres, shifts [R, R, 3] -> [R, R]
+    points, shift = args
+    probed = points[:, :, None, :] + cell * (offsets + shift[:, :, None, :])
+    return density_fn(probed.reshape(-1, 3)).reshape(resolution, resolution, -1).max(-1)
 
-  sigma = jax.lax.map(slab, centres)
+  sigma = jax.lax.map(slab, (centres, shifts))
   return jax.lax.reduce_window(sigma, -jnp.inf, jax.lax.max, (3, 3, 3), (1, 1, 1), "SAME")
+
+
+def accumulate(old, new, decay):
+  """Instant-NGP's update of a grid float32 [R, R, R]: max(decay·old, new).
+
+  Jittered probes of successive refreshes add up (a structure missed by one refresh's probes is
+  kept from an earlier one), while decay < 1 forgets density that has gone: a cell once high
+  falls below any threshold after a few refreshes, and a cell once empty is back as soon as a
+  refresh finds density there."""
+  return jnp.maximum(decay * old, new)
 
 
 def occupied_mask(grid, threshold):

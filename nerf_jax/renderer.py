@@ -3,6 +3,9 @@
 rays: `rays.Rays` (origins, directions, viewdirs, near, far) with batch shape `...`.
 A pass's output (a dict): rgb float32 [..., 3], depth float32 [...], acc float32 [...],
 weights float32 [..., S], t float32 [..., S + 1].
+The field's density is per unit of world length; t is z-depth along un-normalised directions,
+so every pass composites `per_unit_t(sigma, rays)` = σ·|d| (as the original NeRF, jaxnerf and
+multinerf scale their intervals by |d|), and depth stays z-depth.
 Rendering whole images in fixed-size chunks is image_renderer.py.
 """
 
@@ -19,9 +22,16 @@ def _shade(model, params, rays, t, config, background, key):
   points = rays.origins[..., None, :] + rays.directions[..., None, :] * positions[..., None]
   rgb, sigma = field.query_in_chunks(model, params, points, rays.viewdirs, config, key,
                                      config.train.remat_chunk)
-  out = compositing.composite(rgb, sigma, t, background)
+  out = compositing.composite(rgb, per_unit_t(sigma, rays), t, background)
   out["t"] = t
   return out
+
+
+def per_unit_t(sigma, rays):
+  """Density per unit of t: sigma float32 [..., S] (per unit of world length) times |d| of
+  `rays` [...]. A ray's t advances |d| world units per unit, so its optical depth over [t_i,
+  t_{i+1}] is σ·|d|·(t_{i+1} - t_i)."""
+  return sigma * jnp.linalg.norm(rays.directions, axis=-1)[..., None]
 
 
 def _shade_occupied(model, params, rays, t_min, t_max, config, background, keys):
@@ -35,7 +45,7 @@ def _shade_occupied(model, params, rays, t_min, t_max, config, background, keys)
   positions = starts + (ends - starts) * u
   points = rays.origins[..., None, :] + rays.directions[..., None, :] * positions[..., None]
   rgb, sigma = field.query(model, params["coarse"], points, rays.viewdirs, config, keys[1])
-  sigma = jnp.where(valid, sigma, 0.0)  # unused slots: zero-width and empty
+  sigma = jnp.where(valid, per_unit_t(sigma, rays), 0.0)  # unused slots: zero-width and empty
   t = occupancy.interleave_gaps(starts, ends, t_max)
   out = compositing.composite(occupancy.with_gaps(rgb, axis=-2), occupancy.with_gaps(sigma), t,
                               background)
@@ -94,7 +104,9 @@ def final(outputs):
   return outputs.get("fine", outputs["coarse"])
 
 
-def occupancy_grid(model, params, config):
-  """The occupancy grid of the coarse network's density: float32 [R, R, R] (see occupancy.py)."""
-  return occupancy.density_grid(field.coarse_density(model, params, config),
-                                config.occupancy.resolution, config.data.scene_bound)
+def occupancy_grid(model, params, config, key=None):
+  """The occupancy grid of the coarse network's density: float32 [R, R, R] (see occupancy.py),
+  probed at config.occupancy.probes per cell side, jittered from `key` (None: not jittered)."""
+  oc = config.occupancy
+  return occupancy.density_grid(field.coarse_density(model, params, config), oc.resolution,
+                                config.data.scene_bound, oc.probes, key)

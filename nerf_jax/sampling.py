@@ -83,8 +83,9 @@ def sample_pdf(t, weights, num_samples, key=None, padding=0.01):
   cdf = jnp.minimum(1.0, jnp.cumsum(pdf[..., :-1], axis=-1))
   # A cumulative sum need not be exactly monotone when evaluated as a parallel scan.
   cdf = jax.lax.cummax(cdf, axis=cdf.ndim - 1)
-  zeros = jnp.zeros_like(cdf[..., :1])
-  ones = jnp.ones_like(cdf[..., :1])
+  # From pdf (S >= 1 entries), not cdf: with one interval cdf has no entries, and so would these.
+  zeros = jnp.zeros_like(pdf[..., :1])
+  ones = jnp.ones_like(pdf[..., :1])
   cdf = jnp.concatenate([zeros, cdf, ones], axis=-1)  # [..., S + 1], exactly 0 and 1 at the ends
   batch_shape = t.shape[:-1]
   if key is None:

@@ -8,20 +8,23 @@ replicated and only process 0 writes files.
 """
 
 import collections
+import functools
 import io
 import json
 import os
 import signal
+import sys
 import time
 
 import flax.struct
 import jax
 import jax.numpy as jnp
+import ml_collections
 import numpy as np
 import optax
 
-from nerf_jax import (background, checkpoints, experiment, lpips, metrics, occupancy, outputs,
-                      parallel, progress, renderer, summary)
+from nerf_jax import (background, budget, checkpoints, experiment, lpips, metrics, occupancy,
+                      outputs, parallel, progress, renderer, summary)
 from nerf_jax.experiment import TrainingError, TrainState  # noqa: F401  (re-exported)
 from nerf_jax.rays import Rays
 from nerf_jax.viewer import training as live_viewer
@@ -88,7 +91,9 @@ def draw_batch(data, config, key, step=0, run_key=None):
 
 
 def make_train_step(exp, mesh=None):
-  """The jitted train step: (state, data, key) -> (state, stats). `state` is donated.
+  """The jitted train step: (state, data, key[, planned_steps]) -> (state, stats). `state` is
+  donated. planned_steps: int32 [], the length of a time budget's fitted schedule (see
+  experiment.make_schedule; one compiled step for any length), or absent for the config's.
 
   mesh: a `parallel.make_mesh` Mesh to split each batch over its devices (data and state
   replicated on it), or None for one device.
@@ -111,25 +116,32 @@ def make_train_step(exp, mesh=None):
     best = mses.get("fine", mses["coarse"])
     return loss, {"loss": loss, "psnr": metrics.mse_to_psnr(best)}
 
-  def refresh_occupancy(params, step):
-    """Recompute the occupancy grid from the density field every `update_every` steps."""
+  def refresh_occupancy(params, step, run_key):
+    """Every `update_every` steps, probe the density field at jittered positions (drawn from the
+    step: a resumed run probes where the uninterrupted one did) and accumulate them into the
+    occupancy grid with decay (occupancy.accumulate)."""
     if not occupancy.enabled(config):
       return params
-    every = config.occupancy.update_every
-    grid = jax.lax.cond(step % every == 0, lambda p: renderer.occupancy_grid(model, p, config),
-                        lambda p: p["occupancy"], params)
+    oc = config.occupancy
+    # A stream of its own: fold_in(run_key, n) is step n's key, and step 2^32 - 1 never comes.
+    key = jax.random.fold_in(jax.random.fold_in(run_key, 0xFFFFFFFF), step)
+    refresh = lambda p: occupancy.accumulate(
+        p["occupancy"], renderer.occupancy_grid(model, p, config, key), oc.decay)
+    grid = jax.lax.cond(step % oc.update_every == 0, refresh, lambda p: p["occupancy"], params)
     return {**params, "occupancy": grid}
 
-  def step(state, data, run_key):
+  def step(state, data, run_key, planned_steps=None):
     key = jax.random.fold_in(run_key, state.step)
     batch_key, render_key = jax.random.split(key)
     batch = parallel.shard_batch(draw_batch(data, config, batch_key, state.step, run_key), mesh)
-    params = refresh_occupancy(state.params, state.step)
+    params = refresh_occupancy(state.params, state.step, run_key)
     grads, stats = jax.grad(loss_fn, has_aux=True)(params, batch, render_key)
     finite = jnp.isfinite(stats["loss"]) & jnp.all(jnp.array(
         [jnp.all(jnp.isfinite(g)) for g in jax.tree_util.tree_leaves(grads)]))
     # The occupancy grid gets a zero gradient, so Adam leaves it as refreshed above.
-    updates, opt_state = tx.update(grads, state.opt_state, params)
+    step_tx = tx if planned_steps is None else experiment.make_optimizer(config.train,
+                                                                         planned_steps)
+    updates, opt_state = step_tx.update(grads, state.opt_state, params)
     params = optax.apply_updates(params, updates)
     # A non-finite step is not applied (the state stays the last good one) and is reported.
     keep = lambda new, old: jax.tree_util.tree_map(lambda n, o: jnp.where(finite, n, o), new, old)
@@ -192,6 +204,9 @@ def train_and_evaluate(config, workdir):
 
   Resumes from the newest checkpoint in `workdir`. Returns the final metrics dict (also written to
   `workdir/metrics.json`). Writes metrics.jsonl and TensorBoard events (workdir/tb) at log steps.
+  The run lasts train.max_steps steps if set, else until train.max_seconds with the schedule
+  fitted to the steps expected in it (budget.py), else train.default_steps steps; the run's
+  config.json holds the schedule it used.
   """
   main = parallel.is_main_process()
   os.makedirs(workdir, exist_ok=True)
@@ -199,7 +214,7 @@ def train_and_evaluate(config, workdir):
   near, far = exp.near, exp.far
   signature = experiment.model_signature(config)
   ckpt = checkpoints.latest_path(workdir)
-  elapsed = 0.0
+  elapsed, meta = 0.0, {}
   if not ckpt:
     state = experiment.init_state(exp)
   else:
@@ -207,35 +222,42 @@ def train_and_evaluate(config, workdir):
     elapsed = float(meta.get("wall_seconds", 0.0))
     if main:
       print(f"resuming from {ckpt} at step {int(state.step)}", flush=True)
-  if main:
-    checkpoints.atomic_write(os.path.join(workdir, "config.json"),
-                             config.to_json(indent=2).encode())
+  t_start = time.perf_counter() - elapsed  # a time budget's calibration counts against it
 
-  tc = config.train
-  mesh = parallel.make_mesh(tc.data_parallel)
+  mesh = parallel.make_mesh(config.train.data_parallel)
   step_rays = rays_per_step(config, exp.train_ds)
   parallel.check_batch(step_rays, mesh)
   data = parallel.replicate(make_train_data(exp), mesh)
-  state = parallel.replicate(state, mesh)
+  key = jax.random.PRNGKey(config.seed + 1)
   train_step = cached_train_step(exp, mesh)
+  last_step = budget.planned_steps(config.train)
+  if budget.fits_time(config.train):
+    config = _fit_to_time(exp, train_step, data, key, mesh, meta, t_start)
+    planned = jnp.int32(config.train.max_steps)
+    train_step = functools.partial(train_step, planned_steps=planned)
+    last_step = sys.maxsize  # the clock ends the run
+  if main:  # with the schedule the run uses
+    checkpoints.atomic_write(os.path.join(workdir, "config.json"),
+                             config.to_json(indent=2).encode())
+  tc = config.train
+  state = parallel.replicate(state, mesh)
   evaluate = outputs.make_evaluator(exp)
   schedule = experiment.make_schedule(tc)
   writer = summary.Writer(workdir, enabled=main and tc.tensorboard)
-  key = jax.random.PRNGKey(config.seed + 1)
   start_step = int(state.step)
-  t_start = time.perf_counter() - elapsed
   last_log, last_log_step = time.perf_counter(), start_step
   step = start_step
-  bar = progress.Progress(tc.max_steps, "train", start=start_step,
+  planned = budget.planned_steps(tc)
+  bar = progress.Progress(planned, "train", start=start_step,
                           stream=None if main else io.StringIO())
   viewer = live_viewer.start(exp, workdir, enabled=main)
   with _StopRequest() as stop:
-    while step < tc.max_steps:
+    while step < last_step:
       state, stats = train_step(state, data, key)
       step += 1
       viewer.after_step(step, lambda: _one_device(state.params, mesh))
       budget_over = tc.max_seconds > 0 and time.perf_counter() - t_start >= tc.max_seconds
-      log_now = step % tc.log_every == 0 or step == tc.max_steps or budget_over or stop.signum
+      log_now = step % tc.log_every == 0 or step == last_step or budget_over or stop.signum
       if log_now:
         stats = jax.device_get(stats)
         _check_finite(state, workdir)
@@ -258,19 +280,19 @@ def train_and_evaluate(config, workdir):
                               "train/rays_per_second": rays_s,
                               **({"eval/psnr": record["eval_psnr"]}
                                  if "eval_psnr" in record else {})})
-        eta = (tc.max_steps - step) * wall / max(step - start_step, 1)
+        eta = max(planned - step, 0) * wall / max(step - start_step, 1)
         if tc.max_seconds > 0:
-          eta = min(eta, tc.max_seconds - wall)
+          eta = max(min(eta, tc.max_seconds - wall), 0.0)
         bar.update(step, info=f"loss {record['loss']:.5f} psnr {record['train_psnr']:.2f}")
-        bar.write(f"step {step}/{tc.max_steps} loss {record['loss']:.5f} "
+        bar.write(f"step {step}/{planned} loss {record['loss']:.5f} "
                   f"psnr {record['train_psnr']:.2f} {rays_s:,.0f} rays/s "
                   f"elapsed {progress.format_seconds(wall)} eta {progress.format_seconds(eta)}")
       elif bar.due():
         jax.block_until_ready(state.step)  # show steps done, not steps queued (a scalar sync)
         bar.update(step)
-      if step % tc.checkpoint_every == 0 or step == tc.max_steps or budget_over or stop.signum:
+      if step % tc.checkpoint_every == 0 or step == last_step or budget_over or stop.signum:
         _check_finite(state, workdir)  # never checkpoint a state that has seen a bad step
-        _save(workdir, state, signature, tc.keep_checkpoints, time.perf_counter() - t_start)
+        _save(workdir, state, signature, tc, time.perf_counter() - t_start)
       if stop.signum:
         bar.close()
         raise KeyboardInterrupt(f"stopped by signal {stop.signum} at step {step}; "
@@ -305,6 +327,27 @@ def train_and_evaluate(config, workdir):
   return result
 
 
+def _fit_to_time(exp, train_step, data, key, mesh, meta, t_start):
+  """A copy of exp.config whose step budget and schedule fit train.max_seconds (budget.py).
+
+  A resumed run takes the schedule its checkpoint `meta` recorded (the one it started with);
+  a new one first times `train_step` (which the run then uses, compiled once) on a throwaway
+  fresh state, with the clock started at `t_start`.
+  """
+  config = ml_collections.ConfigDict(exp.config.to_dict())
+  tc = config.train
+  if "schedule_steps" in meta:
+    tc.max_steps, tc.warmup_steps = int(meta["schedule_steps"]), int(meta["warmup_steps"])
+    return config
+  state = parallel.replicate(experiment.init_state(exp), mesh)
+  seconds = min(budget.CALIBRATION_SECONDS, budget.CALIBRATION_SHARE * tc.max_seconds)
+  step_seconds, _ = budget.calibrate(
+      lambda s: train_step(s, data, key, planned_steps=jnp.int32(1))[0], state, seconds)
+  left = tc.max_seconds - (time.perf_counter() - t_start)
+  budget.fit_schedule(tc, budget.steps_in(left, step_seconds, 0.0))  # compiled already
+  return config
+
+
 def _one_device(params, mesh):
   """Parameters for rendering on one device (a replicated copy would render on every device)."""
   if mesh is None:
@@ -322,12 +365,16 @@ def _first_view_into(images, near, far):
   return on_view
 
 
-def _save(workdir, state, signature, keep, elapsed):
-  """Checkpoint `state` (process 0 only), with the wall seconds spent so far in its meta."""
+def _save(workdir, state, signature, train_config, elapsed):
+  """Checkpoint `state` (process 0 only); its meta holds the wall seconds spent so far and the
+  schedule (a time-budget run resumes on the schedule it fitted)."""
   host_state = parallel.to_host(state)
   if parallel.is_main_process():
-    checkpoints.save(workdir, int(host_state.step), host_state, signature, keep,
-                     meta={"wall_seconds": elapsed})
+    checkpoints.save(workdir, int(host_state.step), host_state, signature,
+                     train_config.keep_checkpoints,
+                     meta={"wall_seconds": elapsed,
+                           "schedule_steps": budget.planned_steps(train_config),
+                           "warmup_steps": int(train_config.warmup_steps)})
 
 
 def _check_finite(state, workdir):

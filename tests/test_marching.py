@@ -82,7 +82,7 @@ def test_skipped_cells_are_never_queried_and_exact_where_empty():
   # A mask of the ball's cells (grid over [-1, 1]^3): outside samples are skipped, and they are
   # empty, so the image is exactly the plain one.
   field = _ball_field(5.0)
-  mask = empty_space.skip_grid(lambda p: field(None, p, None)[1], 16, 1.0, 1e-3)
+  mask = empty_space.skip_grid(lambda p: field(None, p, None)[1], 16, 1.0, 1e-3, 2)
   plain, marched, queried, occupied = _plain_and_marched(5.0, mask, 0.0)
   assert 0 < int(occupied.sum()) < 0.5 * occupied.size
   assert queried < 0.5 * NUM_RAYS * NUM_SAMPLES
@@ -175,9 +175,9 @@ def test_marching_skips_most_samples_of_a_trained_model(trained_fast):
   marcher = image_renderer._Marcher(exp.model, config)  # pylint: disable=protected-access
   mask = marcher.skip_grid(params)
   rays = exp.rays(exp.test_ds.poses[0]).reshape(-1)
-  t, points, occupied, rank = marcher.plan(mask, rays)
-  _, _, queried = empty_space.march(marcher.query_round, params, t, points, rays.viewdirs,
-                                 occupied, rank, np.ones(t.shape[0], bool),
+  _, t_world, points, occupied, rank = marcher.plan(mask, rays)
+  _, _, queried = empty_space.march(marcher.query_round, params, t_world, points, rays.viewdirs,
+                                 occupied, rank, np.ones(t_world.shape[0], bool),
                                  config.render.march_group, config.render.min_transmittance)
   assert 0.0 < float(jnp.mean(mask)) < 0.5  # the trained toy field: about 12% non-empty
   assert queried < 0.4 * occupied.size

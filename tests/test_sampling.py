@@ -144,3 +144,18 @@ def test_merge_edges_and_midpoints():
   merged = sampling.merge_edges(t, np.array([3.0, 0.5], np.float32))
   np.testing.assert_array_equal(merged, [0.0, 0.5, 1.0, 2.0, 3.0, 4.0])
   np.testing.assert_array_equal(sampling.midpoints(t), [0.5, 1.5, 3.0])
+
+
+@pytest.mark.parametrize("batch", [(), (3,), (2, 4)])
+def test_sample_pdf_with_a_single_interval_is_uniform_in_it(batch):
+  # One coarse interval [t0, t1]: the pdf is uniform there, so quantile u lands at t0 + u·(t1 - t0).
+  t0 = jnp.broadcast_to(jnp.linspace(1.0, 2.0, max(1, int(np.prod(batch)))).reshape(batch), batch)
+  t = jnp.stack([t0, t0 + 4.0], axis=-1)
+  weights = jnp.full((*batch, 1), 0.3)
+  got = sampling.sample_pdf(t, weights, 5)
+  u = (np.arange(5) + 0.5) / 5
+  np.testing.assert_allclose(got, np.asarray(t0)[..., None] + 4.0 * u, rtol=1e-6)
+  jittered = np.asarray(sampling.sample_pdf(t, weights, 5, jax.random.PRNGKey(0)))
+  assert jittered.shape == (*batch, 5)
+  start = np.asarray(t0)[..., None]
+  assert np.all(jittered >= start) and np.all(jittered <= start + 4.0)

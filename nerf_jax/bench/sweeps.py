@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import ml_collections
 
-from nerf_jax import config_lib, scenes
+from nerf_jax import budget, config_lib, scenes
 
 
 class Entry(NamedTuple):
@@ -160,11 +160,7 @@ def make_config(entry, scene, overrides=None, base="default", image_size=None):
   return config
 
 
-def fit_schedule(train_config, num_steps):
-  """Stretch the config's schedule to `num_steps` steps: warm-up keeps its share of the run."""
-  share = train_config.warmup_steps / max(train_config.max_steps, 1)
-  train_config.warmup_steps = int(round(share * num_steps))
-  train_config.max_steps = int(num_steps)
+fit_schedule = budget.fit_schedule  # stretch the schedule to a number of steps
 
 
 def as_config(config_json):

@@ -20,7 +20,7 @@ import traceback
 import jax
 import numpy as np
 
-from nerf_jax import background, experiment, image_renderer, outputs, train_lib
+from nerf_jax import background, budget, experiment, image_renderer, outputs, train_lib
 from nerf_jax.bench import measure, sweeps
 
 SEGMENT_SECONDS = 0.25  # steps between host syncs: about this long (bounds budget overshoot)
@@ -109,7 +109,7 @@ def run_config(config, options):
   data = train_lib.make_train_data(exp)
   key = jax.random.PRNGKey(config.seed + 1)  # as train_lib.train_and_evaluate
   tc = config.train
-  max_steps = tc.max_steps
+  max_steps = budget.planned_steps(tc)
   if tc.max_seconds > 0 and options.fit_schedule:
     # The schedule spans the steps expected to fit in the budget; the clock alone ends the run.
     step_seconds, compile_seconds = calibrate(exp, data, key)
@@ -165,7 +165,7 @@ def run_config(config, options):
                         for x in jax.tree_util.tree_leaves(net))),  # trained weights only
       "peak_rss_mb": measure.peak_rss_mb(), "device_peak_mb": measure.device_peak_mb(),
       "eval_seconds": eval_seconds, "diverged_at_step": bad + 1 if bad >= 0 else None,
-      "schedule_steps": tc.max_steps, "config": json.loads(config.to_json()), **setup}
+      "schedule_steps": budget.planned_steps(tc), "config": json.loads(config.to_json()), **setup}
 
 
 def worker(spec_path):

@@ -27,6 +27,9 @@ class Dataset:
     unknown.
   forward_facing: bool, all cameras look roughly down world -z at content beyond z = -near
     (LLFF captures, the 'forward' scene): the case for NDC rays (`nerf_jax.ndc`).
+  pixel_center: float, where in its pixel each image was sampled (`nerf_jax.rays`): 0.5 (pixel
+    centres: rendered or photographed images, the default), 0 (pixel corners: tiny_nerf's .npz
+    as the Keras reference reads it).
   """
   images: np.ndarray
   poses: np.ndarray
@@ -38,6 +41,7 @@ class Dataset:
   name: str = ""
   background: tuple = (0.0, 0.0, 0.0)
   forward_facing: bool = False
+  pixel_center: float = 0.5
 
   @property
   def height(self):

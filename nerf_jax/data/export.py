@@ -25,12 +25,14 @@ from nerf_jax.data.llff import export_llff
 
 
 def export_npz(dataset, path, rgb_only=False):
-  """tiny_nerf arrays (images, poses, focal) plus near, far, background and any ground-truth
-  depths, accs; with rgb_only, just the three arrays of the reference's tiny_nerf_data.npz (a
-  loader then knows nothing of opacity or background, as with captured RGB images)."""
+  """tiny_nerf arrays (images, poses, focal) plus near, far, background, pixel_center and any
+  ground-truth depths, accs; with rgb_only, just the three arrays of the reference's
+  tiny_nerf_data.npz (a loader then knows nothing of opacity, background or pixel centres, as
+  with captured RGB images, and reads it through pixel corners as the reference does)."""
   arrays = {"images": dataset.images, "poses": dataset.poses, "focal": dataset.pinhole_focal()}
   if not rgb_only:
     arrays.update(near=dataset.near, far=dataset.far, background=np.asarray(dataset.background),
+                  pixel_center=dataset.pixel_center,
                   **{k: getattr(dataset, k) for k in ("depths", "accs")
                      if getattr(dataset, k) is not None})
   np.savez(path, **arrays)
@@ -78,7 +80,8 @@ def main(argv=None):
   parser.add_argument("--num_views", type=int, default=100)
   parser.add_argument("--image_size", type=int, default=None,
                       help="height = width in pixels (default: the scene's, 100 or 400)")
-  parser.add_argument("--pixel_center", type=float, default=0.0)
+  parser.add_argument("--pixel_center", type=float, default=0.5,
+                      help="0.5: rays through pixel centres (what Blender and LLFF data assume)")
   parser.add_argument("--seed", type=int, default=0)
   parser.add_argument("--alpha", action="store_true", help="Blender: alpha = opacity")
   parser.add_argument("--rgb_only", action="store_true",

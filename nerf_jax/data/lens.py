@@ -9,7 +9,8 @@ Names and conventions:
     y' = y (1 + k1 r² + k2 r⁴ + k3 r⁶) + p1 (r² + 2 y²) + 2 p2 x y,   r² = x² + y².
 `nerf_jax.rays` casts the ray of pixel (i, j) through (i + pixel_center - cx, ...) / f, so a
 Dataset built from COLMAP-convention intrinsics stores (fx, fy, cx - 0.5, cy - 0.5): with the
-default pixel_center = 0 its rays pass through pixel centres (`dataset_intrinsics`).
+pixel_center = 0 (what such a Dataset records) its rays pass through pixel centres
+(`dataset_intrinsics`).
 """
 
 import numpy as np

@@ -21,7 +21,8 @@ from nerf_jax.data.validate import composite, parse_background
 
 def load_npz(path, background=(0.0, 0.0, 0.0)):
   """The tiny_nerf format: `images` [N, H, W, 3|4], `poses` [N, 4|3, 4], `focal`; optional
-  `near`, `far` (default 2, 6), ground-truth `depths`, `accs` and the RGB `background` of RGB
+  `near`, `far` (default 2, 6), `pixel_center` (default 0: pixel corners, as the Keras reference
+  reads tiny_nerf_data.npz), ground-truth `depths`, `accs` and the RGB `background` of RGB
   images (default unknown: (0, 0, 0)). RGBA is composited on `background` (see
   `parse_background`) and its alpha becomes `accs`. Returns a Dataset."""
   if not os.path.isfile(path):
@@ -52,7 +53,9 @@ def load_npz(path, background=(0.0, 0.0, 0.0)):
   return Dataset(composite(images, bg), poses, (focal, focal, width * 0.5, height * 0.5),
                  near=validate.scalar(data.get("near", 2.0), f"{path}: 'near'"),
                  far=validate.scalar(data.get("far", 6.0), f"{path}: 'far'"), name=path,
-                 background=tuple(bg.tolist()), **extra)
+                 background=tuple(bg.tolist()),
+                 pixel_center=validate.scalar(data.get("pixel_center", 0.0),
+                                              f"{path}: 'pixel_center'"), **extra)
 
 
 def _read_json(path):
@@ -99,7 +102,7 @@ def load_blender(path, background=(0.0, 0.0, 0.0), half_res=False, split="train"
   """A NeRF-synthetic folder: `transforms_{split}.json` with `camera_angle_x` and `frames`
   (`file_path` relative to `path`, with or without '.png'; `transform_matrix` 4x4), optional
   `near`/`far` (default 2, 6). RGBA PNGs are composited on `background`; `accs` is their alpha
-  (1 for RGB PNGs). Returns a Dataset."""
+  (1 for RGB PNGs). Rendered images: pixel_center 0.5. Returns a Dataset."""
   meta_path = os.path.join(path, f"transforms_{split}.json")
   meta = _read_json(meta_path)
   angle = validate.scalar(_field(meta, "camera_angle_x", meta_path),
@@ -129,8 +132,8 @@ def load_dataset(config):
   """(train, test) Datasets from a `data` ConfigDict or dict (fields it lacks take the defaults
   of configs/default.py, which documents every field).
 
-  path '' = the built-in `scene` (image_size, num_views and pixel_center apply; focal keeps
-  tiny_nerf's field of view); background and half_res apply to .npz and Blender; factor,
+  path '' = the built-in `scene` (image_size, num_views and pixel_center apply, -1 = 0.5; focal
+  keeps tiny_nerf's field of view); background and half_res apply to .npz and Blender; factor,
   bd_factor (0 = keep the file's units) and recenter to LLFF, see `load_llff`: the defaults are
   the original NeRF's LLFF pipeline, which NDC rays (near plane 1, world -z forward) rely on.
   holdout_from: views[holdout_from:] are the test views; -1 = the default split of the format:
@@ -149,7 +152,8 @@ def load_dataset(config):
       raise DataError(f"data.scene: unknown scene {name!r} (valid: {', '.join(scenes.SCENES)})")
     dataset = scenes.make_dataset(
         name, num_views=config.num_views, height=size, width=size,
-        focal=scenes.TINY_NERF_FOCAL * size / 100, pixel_center=config.pixel_center)
+        focal=scenes.TINY_NERF_FOCAL * size / 100,
+        pixel_center=0.5 if config.pixel_center == -1 else config.pixel_center)
     return dataset.split(holdout_from)
   if not os.path.exists(path):
     raise DataError(f"{path}: no such file or directory")

@@ -176,7 +176,8 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1):
   dataset = Dataset(composite(rgba, bg), poses.astype(np.float32),
                     lens.dataset_intrinsics(intrinsics), near=near, far=far, name=root,
                     accs=rgba[..., 3].astype(np.float32) if has_alpha else None,  # RGB: unknown
-                    background=tuple(bg.tolist()))
+                    background=tuple(bg.tolist()),
+                    pixel_center=0.0)  # the intrinsics hold cx - 0.5: rays through centres
   return dataset, names, _test_names(meta, names)
 
 

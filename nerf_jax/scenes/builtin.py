@@ -114,14 +114,16 @@ def forward_poses(num_views, extent=0.3, seed=0):
 
 
 def make_dataset(name, num_views=100, height=None, width=None, focal=None, radius=4.0,
-                 pixel_center=0.0, seed=0, near=None, far=None):
+                 pixel_center=0.5, seed=0, near=None, far=None):
   """Ground-truth `Dataset` of a built-in scene (with `depths` and `accs`).
 
   The cameras follow the scene's rig: `random_poses(num_views, radius, seed)` or
   `forward_poses(num_views, seed=seed)` (radius is ignored). height, width: int or None (= the
   scene's `image_size`). focal: float or None (= tiny_nerf's field of view at this width).
-  near, far: float or None (= the scene's bounds). A scene with `supersample > 1` is rendered by
-  `tracer` (s x s rays per pixel), through the disk `cache` when large.
+  near, far: float or None (= the scene's bounds). pixel_center: where in each pixel its ray
+  passes (0.5 centres, as a renderer samples; 0 corners), recorded in the Dataset. A scene with
+  `supersample > 1` is rendered by `tracer` (s x s rays per pixel), through the disk `cache`
+  when large.
   """
   scene = get_scene(name)
   near = scene.near if near is None else near
@@ -146,4 +148,4 @@ def make_dataset(name, num_views=100, height=None, width=None, focal=None, radiu
       depths=out["depth"].reshape(shape).astype(np.float32),
       accs=out["acc"].reshape(shape).astype(np.float32), name=name,
       background=tuple(float(c) for c in scene.background),
-      forward_facing=scene.camera_rig == "forward")
+      forward_facing=scene.camera_rig == "forward", pixel_center=float(pixel_center))

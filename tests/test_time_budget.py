@@ -1,0 +1,80 @@
+"""A time budget means the time: train.max_seconds alone sets the run's length, its step budget
+and its learning-rate schedule; an explicit train.max_steps still caps it; a resumed run keeps
+the schedule it fitted."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from nerf_jax import budget, checkpoints, config_lib, experiment, train_lib
+from tests.conftest import tiny_config
+
+
+def _saved_train(workdir):
+  return config_lib.load_saved(str(workdir)).train
+
+
+def test_the_schedule_spans_the_planned_steps_and_stays_at_lr_final():
+  tc = tiny_config(lr=1e-2, lr_final=1e-4, warmup_steps=10).train
+  assert tc.max_steps == 0 and budget.planned_steps(tc) == tc.default_steps == 20
+  budget.fit_schedule(tc, 200)  # warm-up keeps its half of the run
+  assert (tc.max_steps, tc.warmup_steps) == (200, 100)
+  schedule = experiment.make_schedule(tc)
+  np.testing.assert_allclose([schedule(50), schedule(100), schedule(200), schedule(400)],
+                             [5e-3, 1e-2, 1e-4, 1e-4], rtol=1e-5)
+
+
+def _warm(config, tmp_path):
+  """Train `config` once in a throwaway workdir: the step is compiled (and cached for an equal
+  config in this process), so the measured run's clock is not mostly compilation on a loaded
+  CPU (which a budget of seconds cannot absorb)."""
+  train_lib.train_and_evaluate(config, str(tmp_path / "warm"))
+
+
+def test_max_seconds_alone_trains_for_that_long(tmp_path):
+  seconds = 4.0
+  _warm(tiny_config(max_seconds=seconds), tmp_path)
+  result = train_lib.train_and_evaluate(tiny_config(max_seconds=seconds), str(tmp_path / "run"))
+  assert seconds <= result["train_seconds"] < seconds + 3.0  # one step and the last checkpoint
+  fitted = _saved_train(tmp_path / "run")
+  assert fitted.max_steps > 0 and fitted.max_seconds == seconds  # the schedule it used
+  assert result["steps"] > fitted.default_steps  # the config's fallback did not cap it
+  assert 0.3 < result["steps"] / fitted.max_steps < 3.0  # the schedule spans about the run
+
+
+def test_an_explicit_max_steps_still_caps_a_time_budget(tmp_path):
+  result = train_lib.train_and_evaluate(tiny_config(max_steps=5, max_seconds=60.0),
+                                        str(tmp_path / "capped"))
+  assert result["steps"] == 5 and result["train_seconds"] < 60.0
+  result = train_lib.train_and_evaluate(tiny_config(default_steps=7), str(tmp_path / "steps"))
+  assert result["steps"] == 7 and _saved_train(tmp_path / "steps").max_steps == 0
+
+
+def test_a_resumed_time_budget_run_keeps_its_schedule(tmp_path, monkeypatch):
+  config = lambda: tiny_config(max_seconds=4.0, checkpoint_every=5, log_every=1000)
+  _warm(config(), tmp_path)
+  workdir = str(tmp_path / "run")
+  first = train_lib.train_and_evaluate(config(), workdir)
+  fitted = _saved_train(workdir).max_steps
+  steps = checkpoints.list_steps(workdir)
+  assert steps[-1] == first["steps"] and len(steps) == 2
+  os.remove(checkpoints.latest_path(workdir))  # "killed" after steps[0]
+
+  def no_calibration(*args):
+    raise AssertionError("a resumed run must not fit a new schedule")
+  monkeypatch.setattr(budget, "calibrate", no_calibration)
+  resumed = train_lib.train_and_evaluate(config(), workdir)
+  assert resumed["steps"] > steps[0]
+  assert _saved_train(workdir).max_steps == fitted
+  _, _, meta = experiment.restore(workdir, with_meta=True)
+  assert meta["schedule_steps"] == fitted and meta["wall_seconds"] >= 4.0
+  with open(os.path.join(workdir, "metrics.json")) as f:
+    assert json.load(f)["steps"] == resumed["steps"]
+
+
+@pytest.mark.parametrize("name", ["default", "fast", "keras_seed", "tiny_nerf", "mlp64"])
+def test_no_shipped_config_pins_max_steps(name):
+  # Otherwise --config.train.max_seconds alone would be capped by the config's step count.
+  assert config_lib.load(name).train.max_steps == 0
