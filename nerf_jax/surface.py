@@ -98,7 +98,7 @@ def extract(model, params, config, resolution=128, threshold=50.0, bound=0.0, ch
 
   threshold: density (1 / scene unit) of the surface. bound: half-size of the box (0 = default).
   """
-  if config.data.get("ndc", False):
+  if config.data.ndc:
     raise ValueError("mesh export needs world-space rays: this run uses NDC (config.data.ndc), "
                      "whose density lives in a warped space")
   if resolution < 2:

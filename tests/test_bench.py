@@ -192,9 +192,12 @@ def _documented_commands():
 
 def test_every_documented_command_parses(tmp_path, monkeypatch, capsys):
   monkeypatch.chdir(tmp_path)
+  known = {"nerf_jax.bench", "nerf_jax.bench.render", "nerf_jax.bench.profile"}
   commands = _documented_commands()
-  assert {module for _, module, _ in commands} == {
-      "nerf_jax.bench", "nerf_jax.bench.render", "nerf_jax.bench.profile"}
+  assert known <= {module for _, module, _ in commands}
+  # The capture and hash-step measurements are scripts of their own (docs/capture.md,
+  # docs/hashgrid.md); these are the sweep, render and profile command lines.
+  commands = [c for c in commands if c[1] in known]
   for page, module, args in commands:
     for arg in args:  # dataset files the command expects to exist
       if arg.startswith("--scenes="):

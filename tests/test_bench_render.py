@@ -55,7 +55,7 @@ def test_render_bench_writes_frame_video_and_big_frame_figures(tmp_path, capsys)
   assert (height, width) == (test.height, test.width)
   np.testing.assert_allclose(intrinsics, test.intrinsics)
   origins, directions = get_rays(test.height, test.width, test.focal,
-                                 jnp.asarray(test.poses[0]))
+                                 jnp.asarray(test.poses[0]), exp.pixel_center)
   rays = Rays.create(origins, directions, exp.near, exp.far)
   ref = renderer.final(renderer.render_rays(exp.model, state.params, rays, exp.config))
   config = exp.config

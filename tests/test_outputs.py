@@ -21,9 +21,10 @@ from tests.conftest import tensorboard_scalars
 
 def _reference(exp, params, pose):
   """numpy dict rgb [H, W, 3], depth [H, W] of `pose` through the training camera, all rays in
-  one call (the debug config: pixel corners, no NDC, no scene box)."""
+  one call (the debug config: the data's pixel centres, no NDC, no scene box)."""
   ds = exp.train_ds
-  origins, directions = get_rays(ds.height, ds.width, ds.focal, jnp.asarray(pose))
+  origins, directions = get_rays(ds.height, ds.width, ds.focal, jnp.asarray(pose),
+                                 exp.pixel_center)
   rays = Rays.create(origins, directions, exp.near, exp.far)
   out = renderer.final(renderer.render_rays(exp.model, params, rays, exp.config))
   return {k: np.asarray(out[k]) for k in ("rgb", "depth")}

@@ -35,7 +35,7 @@ def _builtin_data_matches_rays(exp):
   """The built-in images are the simulator's render of exactly the rays training uses."""
   pose = exp.train_ds.poses[0]
   rays = exp.rays(pose)
-  truth = simulator.render_rays(scenes.get_scene(exp.config.data.scene),
+  truth = simulator.trace_rays(scenes.get_scene(exp.config.data.scene),
                                 np.asarray(rays.origins).reshape(-1, 3),
                                 np.asarray(rays.directions).reshape(-1, 3), exp.near, exp.far)
   np.testing.assert_allclose(truth["rgb"].reshape(exp.train_ds.images[0].shape),

@@ -35,6 +35,7 @@ class Scene:
   far: float
   scene_bound: float
   background: np.ndarray
+  pixel_center: float = 0.5
 
   @property
   def height(self):
@@ -58,7 +59,7 @@ class Scene:
     depth [H, W], acc [H, W], or None when `cancelled()` turned true."""
     intrinsics = camera.frame_intrinsics(height, width, fov)
     rays = camera_rays(height, width, intrinsics, c2w, self.near, self.far,
-                       self.config.data.pixel_center, self.config.data.ndc)
+                       self.pixel_center, self.config.data.ndc)
     return policy.render_in_chunks(draw, rays, self.chunk, self.background, cancelled)
 
 
@@ -69,7 +70,8 @@ def from_run(exp):
                poses=np.asarray(dataset.poses, np.float32), images=dataset.images,
                intrinsics=tuple(float(v) for v in dataset.intrinsics), near=float(exp.near),
                far=float(exp.far), scene_bound=float(config.data.scene_bound),
-               background=background.parse(config.data.background))
+               background=background.parse(config.data.background),
+               pixel_center=exp.pixel_center)
 
 
 def from_workdir(workdir):
