@@ -128,7 +128,10 @@ def render_main(argv=None):
   """`nerf-render` / render.py: render a trained workdir's newest checkpoint."""
   workdir = flags.DEFINE_string("workdir", None, "Training run directory.", required=True)
   mode = flags.DEFINE_enum("mode", "eval", list(outputs.MODES), "What to render.")
-  poses = flags.DEFINE_string("poses", "", "views mode: .npy [N,4,4] or transforms-style .json.")
+  poses = flags.DEFINE_string("poses", "", "views mode: .npy [N,4,4] or transforms-style .json; "
+                              "path mode: the key cameras (the viewer's camera_path.json).")
+  path_frames = flags.DEFINE_integer("path_frames", 30, "path mode: video frames from one key "
+                                     "camera to the next (interpolated).")
   out = flags.DEFINE_string("out", "", "Output directory (default: <workdir>/<mode>).")
   depth_npy = flags.DEFINE_bool("depth_npy", False, "video mode: also save float32 depth of "
                                 "every frame as depth_frames.npy [F, H, W] (scene units).")
@@ -143,6 +146,6 @@ def render_main(argv=None):
   def run(_):
     run_main(lambda: outputs.render(workdir.value, mode.value, poses.value, out.value,
                                     depth_npy.value, resolution.value, threshold.value,
-                                    bound.value, scale.value))
+                                    bound.value, scale.value, path_frames.value))
 
   app.run(run, argv=list(sys.argv if argv is None else argv), flags_parser=parse_flags)

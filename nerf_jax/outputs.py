@@ -136,15 +136,17 @@ def video_poses(config, dataset):
   return spiral_poses(centre, np.maximum(radii, 1e-3), focus, frames)
 
 
-def render_video(exp, params, out_dir, depth_npy=False, show_progress=True, scale=1.0):
-  """The video path (see `video_poses`) as rgb.mp4 and depth.mp4 in `out_dir`.
+def render_video(exp, params, out_dir, depth_npy=False, show_progress=True, scale=1.0,
+                 poses=None):
+  """A video as rgb.mp4 and depth.mp4 in `out_dir`: of `poses` (float32 [F, 4, 4]), or of the
+  default path (see `video_poses`).
 
   depth_npy: also save the float depth of every frame as `depth_frames.npy`, float32 [F, H, W]
   (z-depth in scene units, see the module docstring). scale: frames have `scale` times the
   training images' pixels per side (see Experiment.camera). Returns {'rgb', 'depth'[, 'depth_npy']} paths.
   """
   os.makedirs(out_dir, exist_ok=True)
-  poses = video_poses(exp.config, exp.train_ds)
+  poses = video_poses(exp.config, exp.train_ds) if poses is None else poses
   near, far = exp.near, exp.far
   rgb_frames, depth_frames, depths = [], [], []
   frames = render_frames(exp, params, poses, scale)
@@ -197,24 +199,36 @@ def render_views(exp, params, poses, out_dir, scale=1.0):
   return len(poses)
 
 
-MODES = ("eval", "video", "views", "mesh")
+MODES = ("eval", "video", "views", "path", "mesh")
+
+
+def path_poses(path, frames_per_segment, loop=False):
+  """The poses float32 [F, 4, 4] of a camera path through the key cameras in `path`: a .json
+  with 'keyframes' (what the viewer saves) or 'frames', or a .npy [K, 3|4, 4] (viewer.paths)."""
+  from nerf_jax.viewer import paths  # pylint: disable=import-outside-toplevel  (pure numpy)
+  keys = None
+  if path.endswith(".json"):
+    with open(path) as f:
+      keys = json.load(f).get("keyframes")
+  keys = load_poses(path) if not keys else np.asarray(keys, np.float32)
+  return paths.interpolate(keys, frames_per_segment, loop)
 
 
 def render(workdir, mode, poses_path="", out_dir="", depth_npy=False, resolution=128,
-           threshold=50.0, bound=0.0, scale=1.0):
+           threshold=50.0, bound=0.0, scale=1.0, path_frames=30):
   """Render `mode` (one of MODES) from the newest checkpoint of `workdir`; returns what it wrote.
 
   depth_npy: video mode also writes float depth_frames.npy. resolution, threshold, bound: mesh
   mode (see surface.extract). scale: video and views modes render `scale` times the training
-  images' pixels per side.
+  images' pixels per side. path_frames: path mode, frames from one key camera to the next.
   """
   if not os.path.isdir(workdir):
     raise FileNotFoundError(f"--workdir={workdir}: no such directory")
   if scale <= 0:
     raise ValueError(f"--scale={scale}: must be positive")
-  if mode == "views" and not poses_path:
-    raise ValueError("--mode=views needs --poses=FILE (.npy [N,4,4] or .json with frames)")
-  if mode == "views" and not os.path.exists(poses_path):
+  if mode in ("views", "path") and not poses_path:
+    raise ValueError(f"--mode={mode} needs --poses=FILE (.npy [N,4,4] or .json with frames)")
+  if mode in ("views", "path") and not os.path.exists(poses_path):
     raise FileNotFoundError(f"{poses_path}: no such poses file")
   exp, state = experiment.restore(workdir)
   params = state.params
@@ -232,8 +246,9 @@ def render(workdir, mode, poses_path="", out_dir="", depth_npy=False, resolution
     print(f"test PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.4f}, "
           f"{lpips.describe(result)} over {len(result['per_view'])} views -> {out_dir}")
     return result
-  if mode == "video":
-    paths = render_video(exp, params, out_dir, depth_npy=depth_npy, scale=scale)
+  if mode in ("video", "path"):
+    poses = path_poses(poses_path, path_frames) if mode == "path" else None
+    paths = render_video(exp, params, out_dir, depth_npy=depth_npy, scale=scale, poses=poses)
     print(f"wrote {', '.join(paths.values())}")
     return paths
   count = render_views(exp, params, load_poses(poses_path), out_dir, scale)

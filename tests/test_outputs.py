@@ -73,6 +73,21 @@ def test_video_has_the_configured_frames_and_size(restored):
     assert np.argmin(errors) == k and errors[k] < 8.0, errors  # uint8 units
 
 
+def test_path_mode_renders_a_video_through_the_key_cameras(restored, tmp_path):
+  """render.py --mode=path: the viewer's camera_path.json key cameras, interpolated."""
+  workdir, exp, params = restored
+  keys = exp.test_ds.poses[:2]
+  path = tmp_path / "camera_path.json"
+  path.write_text(json.dumps({"fps": 30, "keyframes": keys.tolist(), "frames": []}))
+  outputs.render(str(workdir), "path", str(path), str(tmp_path / "path"), path_frames=3)
+  rgb = _frames(tmp_path / "path" / "rgb.mp4")
+  assert rgb.shape == (3 + 1, exp.train_ds.height, exp.train_ds.width, 3)  # 3 per segment + end
+  # The path starts and ends at the key cameras (up to video compression).
+  for frame, key in ((rgb[0], keys[0]), (rgb[-1], keys[1])):
+    ref = outputs.to_uint8(_reference(exp, params, key)["rgb"]).astype(float)
+    assert np.mean(np.abs(frame.astype(float) - ref)) < 8.0  # uint8 units
+
+
 def test_tensorboard_scalars_equal_the_json_log(restored):
   workdir, _, _ = restored
   scalars = tensorboard_scalars(workdir)
