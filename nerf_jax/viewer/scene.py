@@ -22,28 +22,23 @@ class Scene:
 
   make_draw: fn(params) -> draw (image_renderer.make_image_renderer), draw(rays, background)
     -> numpy dict rgb [n, 3], depth [n], acc [n].
-  poses: float32 [N, 4, 4] training cameras (c2w). images: float32 [N, H, W, 3] their images.
-  intrinsics: (fx, fy, cx, cy) of the training cameras in pixels. near, far: float bounds.
-  scene_bound: float, half-size of the scene box (0 = none). background: float32 [3].
+  dataset: the training data.Dataset (its poses, images and intrinsics are the cameras shown).
+  near, far: float bounds. background: float32 [3]. pixel_center: the rays' (resolved).
   """
   config: object
   make_draw: object
-  poses: np.ndarray
-  images: np.ndarray
-  intrinsics: tuple
+  dataset: object
   near: float
   far: float
-  scene_bound: float
   background: np.ndarray
   pixel_center: float = 0.5
 
-  @property
-  def height(self):
-    return self.images.shape[1]
-
-  @property
-  def width(self):
-    return self.images.shape[2]
+  poses = property(lambda self: np.asarray(self.dataset.poses, np.float32))  # [N, 4, 4] c2w
+  images = property(lambda self: self.dataset.images)  # float32 [N, H, W, 3]
+  intrinsics = property(lambda self: tuple(float(v) for v in self.dataset.intrinsics))
+  height = property(lambda self: self.dataset.height)
+  width = property(lambda self: self.dataset.width)
+  scene_bound = property(lambda self: float(self.config.data.scene_bound))  # 0 = no box
 
   @property
   def chunk(self):
@@ -65,11 +60,9 @@ class Scene:
 
 def from_run(exp):
   """The Scene of a model being trained (or restored): an experiment.Experiment."""
-  config, dataset = exp.config, exp.train_ds
+  config = exp.config
   return Scene(config=config, make_draw=image_renderer.make_image_renderer(exp.model, config),
-               poses=np.asarray(dataset.poses, np.float32), images=dataset.images,
-               intrinsics=tuple(float(v) for v in dataset.intrinsics), near=float(exp.near),
-               far=float(exp.far), scene_bound=float(config.data.scene_bound),
+               dataset=exp.train_ds, near=float(exp.near), far=float(exp.far),
                background=background.parse(config.data.background),
                pixel_center=exp.pixel_center)
 
