@@ -53,7 +53,9 @@ def images_on_background(dataset, config):
 def make_evaluator(exp):
   """fn(params, max_views=None, out_dir=None, on_view=None) -> {'psnr', 'ssim', 'lpips',
   'per_view'}; without LPIPS (the `lpips` extra missing, or images under 31 px a side) the
-  'lpips' keys are absent and 'lpips_skipped' says why in one line.
+  'lpips' keys are absent and 'lpips_skipped' says why in one line. Where the data has true
+  opacity (and depth) the view means of `geometry_errors` come too: 'empty_opacity',
+  'floaters' (and 'depth_error').
 
   Evaluates the test views of `exp` (an experiment.Experiment). With `out_dir`, writes per view
   a PNG of [prediction | depth | ground truth] and depth `.npy`. on_view(index, out, truth) is
@@ -76,7 +78,8 @@ def make_evaluator(exp):
       out = draw(exp.rays(test_ds.poses[i], camera), bg)
       truth = truths[i]
       view = {"view": i, "psnr": float(metrics.psnr(out["rgb"], truth)),
-              "ssim": float(metrics.ssim(out["rgb"], truth))}
+              "ssim": float(metrics.ssim(out["rgb"], truth)),
+              **geometry_errors(out, test_ds, i)}
       if lpips_skipped is None:
         view["lpips"] = float(lpips.lpips(out["rgb"], truth))
       per_view.append(view)
@@ -84,11 +87,9 @@ def make_evaluator(exp):
         on_view(i, out, truth)
       if out_dir:
         _write_eval_view(out_dir, i, out, truth, exp.near, exp.far)
-    result = {"psnr": float(np.mean([v["psnr"] for v in per_view])),
-              "ssim": float(np.mean([v["ssim"] for v in per_view]))}
-    if lpips_skipped is None:
-      result["lpips"] = float(np.mean([v["lpips"] for v in per_view]))
-    else:
+    names = dict.fromkeys(name for v in per_view for name in v if name != "view")
+    result = {name: float(np.mean([v[name] for v in per_view if name in v])) for name in names}
+    if lpips_skipped is not None:
       result["lpips_skipped"] = lpips_skipped
     result["per_view"] = per_view
     if out_dir:
@@ -97,6 +98,32 @@ def make_evaluator(exp):
     return result
 
   return evaluate
+
+
+OPAQUE, EMPTY = 0.99, 0.01  # true opacity of pixels scored for depth, and of empty pixels
+FLOATER_ACC = 0.1  # rendered opacity from which an empty pixel counts as showing a floater
+
+
+def geometry_errors(out, dataset, index):
+  """Geometry scores of one rendered view where the data has them, {} otherwise.
+
+  depth_error: median |depth - true depth| over pixels the truth covers (opacity > OPAQUE), in
+  scene units (needs `dataset.depths`). empty_opacity: the mean rendered opacity over pixels
+  the truth leaves empty (opacity < EMPTY); floaters: the fraction of those that render with
+  opacity > FLOATER_ACC (need `dataset.accs`). out: the render's numpy dict (depth, acc [H, W]).
+  """
+  scores = {}
+  if dataset.accs is None:
+    return scores
+  true_acc = dataset.accs[index]
+  empty = true_acc < EMPTY
+  if np.any(empty):
+    scores["empty_opacity"] = float(np.mean(out["acc"][empty]))
+    scores["floaters"] = float(np.mean(out["acc"][empty] > FLOATER_ACC))
+  opaque = true_acc > OPAQUE
+  if dataset.depths is not None and np.any(opaque):
+    scores["depth_error"] = float(np.median(np.abs(out["depth"] - dataset.depths[index])[opaque]))
+  return scores
 
 
 def _write_eval_view(out_dir, index, out, truth, near, far):

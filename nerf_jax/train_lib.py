@@ -24,7 +24,7 @@ import numpy as np
 import optax
 
 from nerf_jax import (background, budget, checkpoints, experiment, lpips, metrics, occupancy,
-                      outputs, parallel, progress, renderer, summary)
+                      outputs, parallel, progress, regularizers, renderer, summary)
 from nerf_jax.experiment import TrainingError, TrainState  # noqa: F401  (re-exported)
 from nerf_jax.rays import Rays
 from nerf_jax.viewer import training as live_viewer
@@ -114,6 +114,10 @@ def make_train_step(exp, mesh=None):
     loss = mses["coarse"] if "fine" not in mses else (
         mses["fine"] + config.train.coarse_loss_weight * mses["coarse"])
     best = mses.get("fine", mses["coarse"])
+    if config.train.distortion_weight > 0:  # keep each ray's weight in one place: no floaters
+      last = renderer.final(outs)
+      loss = loss + config.train.distortion_weight * jnp.mean(
+          regularizers.distortion(last["t"], last["weights"]))
     return loss, {"loss": loss, "psnr": metrics.mse_to_psnr(best)}
 
   def refresh_occupancy(params, step, run_key):

@@ -164,10 +164,19 @@ def shown_times(records):
   return [t for t in times if t <= longest] or times[:1]
 
 
+# Columns shown when a run has them: LPIPS, and the geometry scores of data with true opacity
+# and depth (outputs.geometry_errors).
+OPTIONAL_COLUMNS = (("test_lpips", "LPIPS"), ("test_depth_error", "depth err"),
+                    ("test_empty_opacity", "empty opacity"), ("test_floaters", "floaters"))
+
+
 def table_lines(records):
   """Markdown table lines, one row per record."""
   times = shown_times(records)
-  head = (["scene", "config", "test PSNR", "SSIM"] + [f"PSNR@{t:g}s" for t in times] +
+  extra = [(key, label) for key, label in OPTIONAL_COLUMNS if any(r.get(key) is not None
+                                                                  for r in records)]
+  head = (["scene", "config", "test PSNR", "SSIM"] + [label for _, label in extra] +
+          [f"PSNR@{t:g}s" for t in times] +
           ["steps", "train s (incl. compile)", "compile s", "step ms", "rays/s",
            "MLP GFLOP/s (% peak)", "render ms/frame", "params", "peak RSS MB"])
   lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -177,6 +186,7 @@ def table_lines(records):
       lines.append(f"| {r['scene']} | {name} | failed: {r['error']} |")
       continue
     cells = [r["scene"], name, _fmt(r["test_psnr"], ".2f"), _fmt(r["test_ssim"], ".3f")]
+    cells += [_fmt(r.get(key), ".3f") for key, _ in extra]
     cells += [_fmt(r["psnr_at"].get(f"{t:g}"), ".2f") for t in times]
     cells += [str(r["steps"]), _fmt(r["train_seconds"], ".1f"), _fmt(r["compile_seconds"], ".1f"),
               _fmt(r["step_ms"], ".1f"), _fmt(r["rays_per_second"], ",.0f"),

@@ -23,6 +23,7 @@ class Entry(NamedTuple):
 
 
 _NO_SKIP = {"model.skip_layers": ()}  # a 4-layer MLP has no layer 4 to skip after
+_VIEW = {"model.view_dependent": True}  # the view branch (glossy parts)
 
 SWEEPS = {
     "quick": [
@@ -84,6 +85,17 @@ SWEEPS = {
         Entry("samples=48 remat rays=512 lr=5e-3", {"num_samples": 48, "train.remat_chunk": 128,
                                                     "train.batch_rays": 512, "train.lr": 5e-3}),
     ],
+    # Fine detail at 400 px (scene `detail`, --image_size=400): the encodings, and what keeps
+    # empty space empty, on the fast config with the view branch the glossy spheres need.
+    "detail": [
+        Entry("grid", _VIEW, base="fast"),
+        Entry("grid random-bg", {**_VIEW, "data.background": "random"}, base="fast"),
+        Entry("grid distortion", {**_VIEW, "train.distortion_weight": 0.003}, base="fast"),
+        Entry("grid occupancy", {**_VIEW, "occupancy.enabled": True}, base="fast"),
+        Entry("hash", {**_VIEW, "model.hash_dtype": "float16"}, base="hash"),
+        Entry("hash occupancy", {**_VIEW, "model.hash_dtype": "float16",
+                                 "occupancy.enabled": True}, base="hash"),
+    ],
     # Step time against the work per step (rays x samples); run with --steps (equal steps).
     "scaling": [Entry(f"rays={n}", {"train.batch_rays": n}) for n in (128, 512, 2048, 8192, 32768)]
     + [Entry(f"rays=2048 samples={s}", {"train.batch_rays": 2048, "num_samples": s})
@@ -92,7 +104,8 @@ SWEEPS = {
 
 # Scenes a sweep runs on unless --scenes says otherwise; the effects need scenes that call for
 # them (glossy: view dependence, fog: a soft medium, white: the background) and one that doesn't.
-SCENES = {"effects": ("diffuse", "glossy", "fog", "white"), "occupancy": ("diffuse", "glossy")}
+SCENES = {"effects": ("diffuse", "glossy", "fog", "white"), "occupancy": ("diffuse", "glossy"),
+          "detail": ("detail",)}
 DEFAULT_SCENES = ("diffuse",)
 
 
@@ -117,10 +130,10 @@ class Request:
 
 
 def sweep_names(spec):
-  """Sweep names from a comma list; 'all' = every sweep except 'quick' and 'default_tuning'."""
+  """Sweep names from a comma list; 'all' = every sweep except 'quick', 'default_tuning' and 'detail'."""
   names = [n.strip() for n in spec.split(",") if n.strip()]
   if names == ["all"]:
-    return [n for n in SWEEPS if n not in ("quick", "default_tuning")]
+    return [n for n in SWEEPS if n not in ("quick", "default_tuning", "detail")]
   unknown = [n for n in names if n not in SWEEPS]
   if unknown:
     raise ValueError(f"--sweep: unknown sweep(s) {', '.join(unknown)} "
