@@ -170,7 +170,8 @@ def render_video(exp, params, out_dir, depth_npy=False, show_progress=True, scal
 
   depth_npy: also save the float depth of every frame as `depth_frames.npy`, float32 [F, H, W]
   (z-depth in scene units, see the module docstring). scale: frames have `scale` times the
-  training images' pixels per side (see Experiment.camera). Returns {'rgb', 'depth'[, 'depth_npy']} paths.
+  training images' pixels per side (see Experiment.camera). Returns the paths:
+  {'rgb', 'depth'[, 'depth_npy']}.
   """
   os.makedirs(out_dir, exist_ok=True)
   poses = video_poses(exp.config, exp.train_ds) if poses is None else poses

@@ -27,7 +27,7 @@ def _reference(exp, params, pose):
                                  exp.pixel_center)
   rays = Rays.create(origins, directions, exp.near, exp.far)
   out = renderer.final(renderer.render_rays(exp.model, params, rays, exp.config))
-  return {k: np.asarray(out[k]) for k in ("rgb", "depth")}
+  return {k: np.asarray(out[k]) for k in ("rgb", "depth", "acc")}
 
 
 @pytest.fixture(scope="module")
@@ -51,6 +51,23 @@ def test_eval_depth_npy_and_panels_hold_the_rendered_views(restored):
     assert diff.max() <= 1
     truth = outputs.images_on_background(exp.test_ds, exp.config)[1][i]
     assert np.abs(panel[:, 2 * width:].astype(int) - outputs.to_uint8(truth)).max() == 0
+
+
+def test_eval_geometry_scores_match_the_truth(restored):
+  """metrics.json's depth error, empty-pixel opacity and floater fraction, recomputed per view
+  from the independent render and the scene's exact depth and opacity."""
+  workdir, exp, params = restored
+  per_view = json.loads((workdir / "eval" / "metrics.json").read_text())["per_view"]
+  for i, pose in enumerate(exp.test_ds.poses):
+    ref = _reference(exp, params, pose)
+    true_acc, true_depth = exp.test_ds.accs[i], exp.test_ds.depths[i]
+    hit, empty = true_acc > 0.99, true_acc < 0.01
+    assert hit.sum() > 20 and empty.sum() > 20  # the views score both kinds of pixel
+    np.testing.assert_allclose(per_view[i]["depth_error"],
+                               np.median(np.abs(ref["depth"] - true_depth)[hit]), atol=1e-4)
+    np.testing.assert_allclose(per_view[i]["empty_opacity"], ref["acc"][empty].mean(), atol=1e-4)
+    floaters = np.mean(ref["acc"][empty] > 0.1)
+    assert abs(per_view[i]["floaters"] - floaters) <= 2 / empty.sum()  # a pixel at the edge
 
 
 def _frames(path):

@@ -130,7 +130,7 @@ class Request:
 
 
 def sweep_names(spec):
-  """Sweep names from a comma list; 'all' = every sweep except 'quick', 'default_tuning' and 'detail'."""
+  """Sweep names from a comma list; 'all' = every sweep but 'quick', 'default_tuning', 'detail'."""
   names = [n.strip() for n in spec.split(",") if n.strip()]
   if names == ["all"]:
     return [n for n in SWEEPS if n not in ("quick", "default_tuning", "detail")]

@@ -1,0 +1,64 @@
+"""The distortion loss against its O(S^2) definition, its analytic values, and its place in the
+training loss."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from nerf_jax import experiment, regularizers, train_lib
+from tests.conftest import tiny_config
+
+
+def brute_force(t, w):
+  """mip-NeRF 360's eq. 15 as written: every pair of intervals, float64."""
+  t, w = np.asarray(t, np.float64), np.asarray(w, np.float64)
+  mids = 0.5 * (t[..., 1:] + t[..., :-1])
+  pairs = np.abs(mids[..., :, None] - mids[..., None, :])
+  return (np.einsum("...i,...j,...ij->...", w, w, pairs)
+          + np.sum(w ** 2 * (t[..., 1:] - t[..., :-1]), axis=-1) / 3)
+
+
+def test_distortion_matches_the_pairwise_definition():
+  rng = np.random.default_rng(0)
+  t = np.sort(rng.uniform(2.0, 6.0, (4, 7, 33)), axis=-1).astype(np.float32)
+  t[..., 5] = t[..., 4]  # a zero-width interval, as occupancy sampling's gaps
+  w = rng.uniform(0.0, 0.1, (4, 7, 32)).astype(np.float32)
+  w[..., 10:14] = 0.0
+  got = np.asarray(regularizers.distortion(jnp.asarray(t), jnp.asarray(w)))
+  np.testing.assert_allclose(got, brute_force(t, w), rtol=2e-5, atol=1e-6)
+
+
+def test_distortion_analytic_values():
+  t = jnp.array([2.0, 2.5, 3.0, 5.0, 5.5])
+  one = jnp.array([0.0, 0.8, 0.0, 0.0])  # all weight in one interval of length 0.5
+  np.testing.assert_allclose(regularizers.distortion(t, one), 0.8 ** 2 * 0.5 / 3, rtol=1e-6)
+  # Half of it on a floater at midpoint 2.25, half on the surface at midpoint 5.25: the pair
+  # term 2 · 0.4 · 0.4 · 3.0 dominates; the spread ray costs far more than the compact one.
+  split = jnp.array([0.4, 0.0, 0.0, 0.4])
+  expected = 2 * 0.4 * 0.4 * 3.0 + (0.4 ** 2 * 0.5 + 0.4 ** 2 * 0.5) / 3
+  np.testing.assert_allclose(regularizers.distortion(t, split), expected, rtol=1e-6)
+
+
+def test_distortion_gradient_is_finite_and_analytic():
+  t = jnp.linspace(2.0, 6.0, 17)
+  w = jnp.zeros(16).at[3].set(0.2).at[12].set(0.7)  # zeros elsewhere: no NaN from them
+  grad = np.asarray(jax.grad(lambda w: regularizers.distortion(t, w))(w))
+  # dL/dw_i = 2 sum_j w_j |m_i - m_j| + 2/3 w_i (t_{i+1} - t_i)
+  mids = np.asarray(0.5 * (t[1:] + t[:-1]))
+  w = np.asarray(w)
+  expected = 2 * np.abs(mids[:, None] - mids[None, :]) @ w + 2 / 3 * w * 0.25
+  np.testing.assert_allclose(grad, expected, rtol=1e-5, atol=1e-6)
+  # The smaller, far-away floater's weight costs more than the surface's.
+  assert grad[3] > grad[12]
+
+
+def test_the_train_loss_adds_the_weighted_distortion_and_nothing_else():
+  stats = {}
+  for weight in (0.0, 0.5):
+    exp = experiment.setup(tiny_config(distortion_weight=weight))
+    step = train_lib.make_train_step(exp)
+    _, stats[weight] = step(experiment.init_state(exp), train_lib.make_train_data(exp),
+                            jax.random.PRNGKey(3))
+  # Same render, same photometric error: only the loss grows, by a positive amount.
+  np.testing.assert_allclose(stats[0.5]["psnr"], stats[0.0]["psnr"], rtol=1e-6)
+  assert float(stats[0.5]["loss"]) > float(stats[0.0]["loss"]) * 1.001
