@@ -10,13 +10,10 @@ from the built-in scene of configs/fast.py (its batch of 2048 rays x 64 samples)
 figures: docs/hashgrid.md.
 """
 
-import time
-
-import jax
-import numpy as np
 from absl import app, flags
 
-from nerf_jax import cli, experiment, train_lib
+from nerf_jax import cli
+from nerf_jax.bench.step_time import step_times
 from nerf_jax.configs import fast
 from nerf_jax.configs import hash as hash_config
 
@@ -31,31 +28,6 @@ def variants(log2_sizes, float16):
       config.model.hash_dtype = dtype
       out.append((f"hash 2^{log2}" + (" f16" if dtype == "float16" else ""), config))
   return out
-
-
-def num_params(params):
-  return sum(int(np.prod(x.shape)) for x in jax.tree_util.tree_leaves(params))
-
-
-def step_times(named_configs, steps, num_views):
-  """{name: (median ms, params)} of each config's train step, timed in interleaved rounds."""
-  runs = {}
-  for name, config in named_configs:
-    config.data.num_views = num_views
-    exp = experiment.setup(config)
-    state = experiment.init_state(exp)
-    data = train_lib.make_train_data(exp)
-    step = train_lib.make_train_step(exp)
-    key = jax.random.PRNGKey(0)
-    state, _ = jax.block_until_ready(step(state, data, key))  # compile + one warm-up step
-    runs[name] = [step, state, data, key, [], num_params(state.params)]
-  for _ in range(steps):
-    for run in runs.values():
-      step, state, data, key, times, _ = run
-      start = time.perf_counter()
-      run[1], _ = jax.block_until_ready(step(state, data, key))
-      times.append(time.perf_counter() - start)
-  return {name: (1e3 * float(np.median(run[4])), run[5]) for name, run in runs.items()}
 
 
 def main(argv=None):
