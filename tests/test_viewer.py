@@ -216,6 +216,7 @@ def _tiny_fast_config():
   config.num_samples = 16
   config.model.grid_resolutions, config.model.width = (8, 16), 16
   config.render.chunk = 128
+  config.render.march_grid = 16  # the skip grid: 16^3 cells × 64 probes, not 48^3 (seconds)
   return config
 
 
@@ -224,7 +225,8 @@ def tiny_run():
   """(experiment, its viewer Scene, random params) of a tiny marching fast-config model."""
   config = _tiny_fast_config()
   exp = experiment.setup(config)
-  return exp, scene.from_run(exp), field.init_params(exp.model, config, jax.random.PRNGKey(3))
+  init = jax.jit(lambda key: field.init_params(exp.model, config, key))  # one compile, not one
+  return exp, scene.from_run(exp), init(jax.random.PRNGKey(3))  # per eager operation
 
 
 def test_viewer_camera_at_a_training_pose_renders_what_render_py_does(tmp_path, tiny_run):
@@ -314,7 +316,7 @@ def test_after_each_compile_step_frames_of_the_ready_size_compile_nothing(tiny_r
   assert readies == [0, 64, math.inf]
   assert "jit(query_round)" in compiled and "jit(plan)" in compiled
   frames = lambda: [view.render(draw, pose, h, w, fov)
-                    for h, w in [(16, 27), (23, 41), (20, 20), (64, 107), (100, 37)]]
+                    for h, w in [(16, 27), (23, 41), (20, 20), (7, 60), (48, 13)]]
   assert _compiled(caplog, frames) == []  # any size, any aspect: nothing new
 
 
@@ -369,7 +371,6 @@ def test_server_sends_frames_of_ready_heights_before_the_warm_up_ends(tiny_run, 
     assert (moving2, h2, w2) == (False, *camera.frame_size(64, aspect))
     assert client.frames[0].shape == (h1, w1, 3) and client.frames[1].shape == (h2, w2, 3)
     gate.set()
-    assert viewer.warmed.wait(60) and viewer.ready_rays == math.inf
-    assert viewer.meter.rays_per_second != policy.RateMeter().rays_per_second  # seeded
+    assert viewer.warmed.wait(60) and viewer.ready_rays == math.inf and viewer.warm_s > 0
   finally:
     viewer.close()
