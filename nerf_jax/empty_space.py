@@ -85,6 +85,15 @@ def buffers(count):
   return out
 
 
+def buffer_sizes(max_count):
+  """The sizes, ascending, of every buffer `buffers` gives rounds of at most `max_count`
+  samples (what to compile so that no such round compiles anything)."""
+  sizes = [SMALL_BUFFER]
+  while sizes[-1] < min(max_count, LARGE_BUFFER):
+    sizes.append(2 * sizes[-1])
+  return sizes
+
+
 def make_query_round(field_fn):
   """A jitted fn(params, t, points, viewdirs, index, sigma, rgb) -> (sigma, rgb, optical_depth)
   querying the samples at flat indices `index` and scattering the results back.

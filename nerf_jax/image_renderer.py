@@ -7,12 +7,14 @@ a numpy dict rgb float32 [..., 3], depth float32 [...], acc float32 [...].
 """
 
 import functools
+import math
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from nerf_jax import compositing, empty_space, field, occupancy, renderer, sampling
+from nerf_jax.rays import Rays
 
 
 def make_chunk_renderer(model, config):
@@ -72,9 +74,24 @@ def marches(config):
               and not config.data.ndc)
 
 
+class Draw:
+  """A draw function: draw(rays, background=(0, 0, 0)) -> numpy dict rgb [..., 3], depth [...],
+  acc [...] of Rays [...]; and what it compiles.
+
+  draw.compile_steps() -> iterator: compiles the shapes a call may need, one at a time,
+  smallest first, yielding after each the most rays a call may now hold without compiling
+  anything (math.inf after the last step).
+  """
+
+  def __init__(self, draw, compile_steps):
+    self._draw, self.compile_steps = draw, compile_steps
+
+  def __call__(self, rays, background=(0.0, 0.0, 0.0)):
+    return self._draw(rays, background)
+
+
 def make_image_renderer(model, config):
-  """fn(params) -> draw(rays, background=(0, 0, 0)) -> numpy dict rgb [..., 3], depth [...],
-  acc [...], rendering Rays [...] in chunks of `config.render.chunk`.
+  """fn(params) -> Draw, rendering Rays [...] in chunks of `config.render.chunk`.
 
   The plain path (`make_chunk_renderer` + `render_image`) or, where `marches(config)`, the
   marching one (empty_space.py: the same samples, the field queried only where they matter);
@@ -82,10 +99,25 @@ def make_image_renderer(model, config):
   """
   if not marches(config):
     render_chunk = make_chunk_renderer(model, config)
-    # Parameters go to the device once, not with every chunk (restored ones are numpy arrays).
-    return lambda params: functools.partial(render_image, render_chunk, jax.device_put(params),
-                                            chunk=config.render.chunk)
+
+    def bind(params):
+      # Parameters go to the device once, not with every chunk (restored ones are numpy).
+      draw = functools.partial(render_image, render_chunk, jax.device_put(params),
+                               chunk=config.render.chunk)
+
+      def compile_steps():  # every call is padded to one chunk: one shape
+        draw(_probe_ray())
+        yield math.inf
+      return Draw(draw, compile_steps)
+    return bind
   return _Marcher(model, config).bind
+
+
+def _probe_ray():
+  """One ray, Rays [1] (numpy), to compile with: its values do not matter, only its kind."""
+  ones = np.ones((1,), np.float32)
+  direction = np.array([[0.0, 0.0, -1.0]], np.float32)
+  return Rays(np.zeros((1, 3), np.float32), direction, direction, ones, 2.0 * ones)
 
 
 class _Marcher:
@@ -126,10 +158,32 @@ class _Marcher:
     self.plan, self.finish = plan, finish
 
   def bind(self, params):
-    """The draw function of `make_image_renderer` for `params`."""
+    """The Draw of `make_image_renderer` for `params`."""
     params = jax.device_put(params)  # once, not with every query
     mask = self.skip_grid(params)
-    return functools.partial(self.draw, params, mask)
+    return Draw(functools.partial(self.draw, params, mask),
+                functools.partial(self.compile_steps, params, mask))
+
+  def compile_steps(self, params, mask):
+    """Draw.compile_steps: the per-chunk functions, then the query round at every buffer size,
+    called as `draw` calls them. A call of n rays selects at most min(n, chunk)·g samples per
+    round (g samples of each ray: the group, or all S when fewer)."""
+    rc, chunk = self.config.render, self.config.render.chunk
+    _, part = _padded(_probe_ray(), chunk)
+    t, t_world, points, occupied, rank = self.plan(mask, part)
+    sigma = jnp.zeros(occupied.shape, jnp.float32)
+    rgb = jnp.zeros((*occupied.shape, 3), jnp.float32)
+    depth = jnp.zeros(occupied.shape[:1], jnp.float32)
+    empty_space.select_round(occupied, rank, depth, np.arange(chunk) < 1, 0,
+                             empty_space.max_optical_depth(rc.min_transmittance), rc.march_group)
+    self.finish(sigma, rgb, t, part, jnp.asarray(np.zeros(3), jnp.float32))
+    group = min(rc.march_group, occupied.shape[1])
+    sizes = empty_space.buffer_sizes(chunk * group)
+    for size in sizes:
+      index = np.full(size, sigma.size, np.int32)  # all padding: nothing is written
+      sigma, rgb, depth = self.query_round(params, t_world, points, part.viewdirs, index, sigma,
+                                           rgb)
+      yield math.inf if size == sizes[-1] else size // group
 
   def draw(self, params, mask, rays, background=(0.0, 0.0, 0.0)):
     rc, chunk = self.config.render, self.config.render.chunk

@@ -75,6 +75,11 @@ def pixel_directions(height, width, fx, fy, cx, cy, pixel_center=0.0):
   """
   i, j = jnp.meshgrid(jnp.arange(width, dtype=jnp.float32),
                       jnp.arange(height, dtype=jnp.float32), indexing="xy")
+  return _directions(i, j, fx, fy, cx, cy, pixel_center)
+
+
+def _directions(i, j, fx, fy, cx, cy, pixel_center):
+  """Camera-space directions float32 [..., 3] (z = -1) of pixels at column i, row j [...]."""
   x = (i + pixel_center - cx) / fx
   y = -(j + pixel_center - cy) / fy
   return jnp.stack([x, y, -jnp.ones_like(x)], axis=-1)
@@ -117,10 +122,22 @@ def camera_rays(height, width, intrinsics, c2w, near, far, pixel_center=0.5, use
   the reference camera's focal is this camera's, and near/far should then be 0 and 1).
   Returns Rays with batch shape [height, width]; viewdirs are the unit world directions.
   """
-  origins, directions = get_rays_intrinsics(height, width, intrinsics, c2w, pixel_center)
+  i, j = jnp.meshgrid(jnp.arange(width, dtype=jnp.float32),
+                      jnp.arange(height, dtype=jnp.float32), indexing="xy")
+  return pixel_rays(i, j, height, width, intrinsics, c2w, near, far, pixel_center, use_ndc)
+
+
+def pixel_rays(i, j, height, width, intrinsics, c2w, near, far, pixel_center=0.5,
+               use_ndc=False):
+  """`camera_rays` of the pixels at column i, row j (float32 [...]) of a height×width camera.
+
+  The batch shape is that of i and j, not the image's, so a jitted caller working through an
+  image in fixed-size pieces compiles once for every image size. height, width: int (NDC only).
+  """
+  fx, fy, cx, cy = intrinsics
+  origins, directions = to_world(_directions(i, j, fx, fy, cx, cy, pixel_center), c2w)
   viewdirs = safe_normalize(directions)
   if use_ndc:
-    fx, fy = intrinsics[0], intrinsics[1]
     origins, directions = ndc.ndc_rays(origins, directions, fx, width, height, near=1.0,
                                        focal_y=fy)
   return Rays.create(origins, directions, near, far, viewdirs)

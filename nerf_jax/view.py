@@ -18,10 +18,13 @@ def serve(workdir, host, port, fps, still_height, out_dir):
   server.import_viser()  # the missing-extra error before the model loads
   server.check_port(host, port)
   loaded, params, step = scene.from_workdir(workdir)
+  print(f"restored step {step} from {workdir}", flush=True)
   viewer = server.Viewer(loaded, params, host=host, port=port, step=step, target_fps=fps,
                          still_height=still_height or None, out_dir=out_dir or workdir)
   print(f"viewer: open {viewer.url} (Ctrl-C stops)", flush=True)
   try:
+    viewer.warmed.wait()
+    print(f"viewer: every frame size compiled ({viewer.warm_s:.1f} s)", flush=True)
     while True:
       time.sleep(1.0)
   finally:

@@ -105,6 +105,15 @@ def test_buffers_cover_every_selected_sample_once():
   assert empty_space.buffers(2 * large + 1) == [(0, large), (large, large), (2 * large, small)]
 
 
+@pytest.mark.parametrize("small,large", [(16, 128), (16, 100)])
+def test_buffer_sizes_are_every_size_buffers_uses(monkeypatch, small, large):
+  monkeypatch.setattr(empty_space, "SMALL_BUFFER", small)
+  monkeypatch.setattr(empty_space, "LARGE_BUFFER", large)
+  for max_count in (1, 16, 17, 100, 128, 129, 500):
+    used = {size for count in range(max_count + 1) for _, size in empty_space.buffers(count)}
+    assert empty_space.buffer_sizes(max_count) == sorted(used)
+
+
 def test_a_round_bigger_than_a_buffer_is_queried_in_several(monkeypatch):
   monkeypatch.setattr(empty_space, "SMALL_BUFFER", 16)
   monkeypatch.setattr(empty_space, "LARGE_BUFFER", 100)  # a round of 64 rays needs several

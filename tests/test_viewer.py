@@ -1,16 +1,20 @@
 """The viewer's plain functions: camera conversion, resolution policy, cancellation, paths, and
 a viewer camera at a training pose rendering what render.py renders (no browser needed)."""
 
+import dataclasses
+import logging
 import math
 import socket
 import sys
+import threading
+import time
 
 import imageio.v2 as imageio
 import jax
 import numpy as np
 import pytest
 
-from nerf_jax import config_lib, experiment, field, outputs
+from nerf_jax import config_lib, experiment, field, image_renderer, outputs
 from nerf_jax.configs import fast
 from nerf_jax.rays import Rays, pose_spherical, project
 from nerf_jax.viewer import camera, paths, policy, scene, server, training
@@ -69,20 +73,36 @@ def test_frame_intrinsics_invert_vertical_fov():
   assert camera.frame_size(48, 16 / 9) == (48, 85)
 
 
-def _brute_height(rate, aspect, fps, overhead, max_height):
-  ok = [h for h in policy.MOVING_HEIGHTS if (max_height is None or h <= max_height)
-        and h * max(1, round(h * aspect)) <= (1 / fps - overhead) * rate]
-  return max(ok) if ok else policy.MOVING_HEIGHTS[0]
+def _brute_height(rate, aspect, fps, overhead, max_height, ready=None):
+  allowed = [h for h in policy.MOVING_HEIGHTS if (max_height is None or h <= max_height)
+             and (ready is None or h in ready)]
+  ok = [h for h in allowed if np.prod(camera.frame_size(h, aspect)) <= (1 / fps - overhead) * rate]
+  return max(ok) if ok else min(allowed, default=policy.MOVING_HEIGHTS[0])
+
+
+READY_SETS = [None, set(), {16}, {16, 24, 32, 48}, {24, 256}, set(policy.MOVING_HEIGHTS)]
 
 
 @pytest.mark.parametrize("rate", [1e3, 5e4, 2.3e5, 1e6, 1e8])
 @pytest.mark.parametrize("aspect,overhead,max_height", [(1.0, 0.0, None), (16 / 9, 0.02, 100)])
-def test_moving_height_is_the_largest_that_keeps_the_frame_rate(rate, aspect, overhead,
-                                                                max_height):
-  h = policy.moving_height(rate, aspect, 10.0, overhead, max_height)
-  assert h == _brute_height(rate, aspect, 10.0, overhead, max_height)
-  if h != policy.MOVING_HEIGHTS[0]:
-    assert h * round(h * aspect) / rate + overhead <= 0.1
+def test_moving_height_is_the_largest_ready_one_that_keeps_the_frame_rate(rate, aspect, overhead,
+                                                                          max_height):
+  for ready in READY_SETS:
+    h = policy.moving_height(rate, aspect, 10.0, overhead, max_height, ready=ready)
+    assert h == _brute_height(rate, aspect, 10.0, overhead, max_height, ready), ready
+    if ready:
+      assert h in ready or h > (max_height or math.inf)
+    if h != min(ready or policy.MOVING_HEIGHTS):
+      assert h * round(h * aspect) / rate + overhead <= 0.1
+
+
+@pytest.mark.parametrize("aspect", [0.5, 1.0, 1000 / 600, 3.0])
+def test_ready_heights_are_those_whose_frames_hold_few_enough_rays(aspect):
+  for ready_rays in [0, 255, 256, 448, 1032, 30000, math.inf]:
+    ready = policy.ready_heights(ready_rays, aspect)
+    for h in policy.MOVING_HEIGHTS:
+      height, width = camera.frame_size(h, aspect)
+      assert (h in ready) == (height * width <= ready_rays)
 
 
 def test_rate_meter_converges_to_a_steady_rate():
@@ -196,18 +216,25 @@ def _tiny_fast_config():
   config.num_samples = 16
   config.model.grid_resolutions, config.model.width = (8, 16), 16
   config.render.chunk = 128
+  config.render.march_grid = 16  # the skip grid: 16^3 cells × 64 probes, not 48^3 (seconds)
   return config
 
 
-def test_viewer_camera_at_a_training_pose_renders_what_render_py_does(tmp_path):
+@pytest.fixture(scope="module")
+def tiny_run():
+  """(experiment, its viewer Scene, random params) of a tiny marching fast-config model."""
   config = _tiny_fast_config()
   exp = experiment.setup(config)
+  init = jax.jit(lambda key: field.init_params(exp.model, config, key))  # one compile, not one
+  return exp, scene.from_run(exp), init(jax.random.PRNGKey(3))  # per eager operation
+
+
+def test_viewer_camera_at_a_training_pose_renders_what_render_py_does(tmp_path, tiny_run):
+  exp, view, params = tiny_run
   train_ds = exp.train_ds
-  params = field.init_params(exp.model, config, jax.random.PRNGKey(3))
   pose = train_ds.poses[1]
   outputs.render_views(exp, params, pose[None], str(tmp_path))
 
-  view = scene.from_run(exp)
   wxyz, position = camera.c2w_to_viewer(pose, 2.0)  # what the browser's camera holds
   out = view.render(view.make_draw(params), camera.viewer_to_c2w(wxyz, position, 2.0),
                     train_ds.height, train_ds.width, view.fov())
@@ -255,3 +282,95 @@ def test_scene_box_edges_are_the_cube_edges():
   np.testing.assert_allclose(np.sort(delta, axis=1), np.broadcast_to([0, 0, 3.0], (12, 3)))
   assert np.all(np.abs(edges) == 1.5)
   assert len({tuple(sorted(map(tuple, e))) for e in edges}) == 12  # no edge twice
+
+
+def _compiled(caplog, fn):
+  """The names of the functions XLA compiled while fn() ran (jax.log_compiles' records)."""
+  caplog.clear()
+  with caplog.at_level(logging.WARNING), jax.log_compiles():
+    fn()
+  return [r.getMessage().split()[1] for r in caplog.records
+          if r.getMessage().startswith("Compiling ")]
+
+
+def test_after_each_compile_step_frames_of_the_ready_size_compile_nothing(tiny_run, caplog):
+  exp, view, params = tiny_run
+  config = _tiny_fast_config()
+  config.render.march_threshold = 0.0  # every cell kept: rounds select all the samples they can
+  view = dataclasses.replace(view, config=config,  # and a renderer of its own, nothing compiled
+                             make_draw=image_renderer.make_image_renderer(exp.model, config))
+  draw = view.make_draw(params)
+  # Inside a narrow view of the box every sample of every ray is in it (see sample_bounds).
+  pose, fov = np.eye(4, dtype=np.float32), 0.3
+  pose[2, 3] = 3.4
+  frame = lambda h, w: lambda: view.render(draw, pose, h, w, fov)
+  readies, compiled, steps = [], [], view.compile_steps(draw)
+  while True:
+    compiled += _compiled(caplog, lambda: readies.append(next(steps, None)))
+    if readies[-1] is None:
+      break
+    if readies[-1] == 64:  # the 1024-sample buffer: rounds of 64 rays × 16 samples
+      assert _compiled(caplog, frame(8, 8)) == []
+      assert "jit(query_round)" in _compiled(caplog, frame(5, 13))  # 65 rays need the next
+  readies.pop()
+  assert readies == [0, 64, math.inf]
+  assert "jit(query_round)" in compiled and "jit(plan)" in compiled
+  frames = lambda: [view.render(draw, pose, h, w, fov)
+                    for h, w in [(16, 27), (23, 41), (20, 20), (7, 60), (48, 13)]]
+  assert _compiled(caplog, frames) == []  # any size, any aspect: nothing new
+
+
+class _FakeClient:
+  """A browser for the server: a camera (wxyz, position, fov, canvas size) and the frames it
+  was sent."""
+
+  def __init__(self, pose, fov, width=1000, height=600):
+    cam = type("Camera", (), {"on_update": lambda self, fn: None})()
+    cam.wxyz, cam.position = camera.c2w_to_viewer(pose)
+    cam.fov, cam.image_width, cam.image_height = fov, width, height
+    self.frames = []
+    sink = lambda image, **_: self.frames.append(image)
+    self.camera, self.client_id = cam, 1
+    self.scene = type("Scene", (), {"set_background_image": staticmethod(sink)})()
+
+
+def _until(condition, seconds, what):
+  end = time.time() + seconds
+  while not condition():
+    assert time.time() < end, f"timed out after {seconds} s waiting for {what}"
+    time.sleep(0.02)
+
+
+def test_server_sends_frames_of_ready_heights_before_the_warm_up_ends(tiny_run, monkeypatch):
+  _, view, params = tiny_run
+  aspect, real_steps, gate, waited = 1000 / 600, view.compile_steps, threading.Event(), []
+  ready_rays = int(np.prod(camera.frame_size(24, aspect)))  # 16 and 24 px frames are ready
+
+  def slow_steps(draw):  # a warm-up stuck at heights <= 24 until the gate opens
+    while not gate.is_set():
+      time.sleep(0.05)
+      waited.append(1)
+      yield ready_rays
+    yield from real_steps(draw)
+  monkeypatch.setattr(view, "compile_steps", slow_steps)
+  with socket.socket() as s:
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+  viewer = server.Viewer(view, params, port=port, still_height=64)
+  try:  # Viewer() returned (the command prints the address now) with the warm-up running
+    assert not viewer.warmed.is_set()
+    _until(lambda: viewer.ready_rays == ready_rays, 30, "the first warm-up step")
+    client = _FakeClient(view.poses[0], view.fov())
+    viewer._connect(client)  # pylint: disable=protected-access
+    _until(lambda: len(client.frames) >= 2, 60, "a moving and a still frame")
+    assert not viewer.warmed.is_set() and waited
+    (_, w1, h1, moving1, _), (_, w2, h2, moving2, _) = viewer.frame_log[:2]
+    # The policy would pick a larger height at the meter's initial rate; 24 is the largest ready.
+    assert policy.moving_height(viewer.meter.rays_per_second, aspect, 10.0, 0.01, 64) > 24
+    assert (moving1, h1, w1) == (True, *camera.frame_size(24, aspect))
+    assert (moving2, h2, w2) == (False, *camera.frame_size(64, aspect))
+    assert client.frames[0].shape == (h1, w1, 3) and client.frames[1].shape == (h2, w2, 3)
+    gate.set()
+    assert viewer.warmed.wait(60) and viewer.ready_rays == math.inf and viewer.warm_s > 0
+  finally:
+    viewer.close()

@@ -2,9 +2,11 @@
 
 While the camera moves the viewer renders the largest of a few fixed frame heights
 (`MOVING_HEIGHTS`) that the measured render rate draws within 1 / target_fps seconds (as
-nerfstudio's viewer does); when it stops, one still frame at full resolution, in chunks, checking
-between chunks whether the camera has moved again. The renderer pads every call to a fixed
-chunk of rays, so no frame size compiles anything new.
+nerfstudio's viewer does) among those whose frames compile nothing (`ready_heights`); when it
+stops, one still frame at full resolution, in chunks, checking between chunks whether the
+camera has moved again. Rays are made and rendered in chunks of one fixed size, so the
+compiled shapes do not depend on the frame size, only on how many rays a chunk holds (the
+marcher's query buffers, see image_renderer.Draw.compile_steps).
 """
 
 import jax
@@ -14,20 +16,34 @@ import numpy as np
 MOVING_HEIGHTS = (16, 24, 32, 48, 64, 80, 96, 128, 160, 192, 256)
 
 
+def _num_rays(height, aspect):
+  """Pixels of a frame `height` pixels tall at width / height `aspect` (camera.frame_size)."""
+  return height * max(1, round(height * aspect))
+
+
+def ready_heights(ready_rays, aspect, heights=MOVING_HEIGHTS):
+  """The set of `heights` whose frames at `aspect` hold at most `ready_rays` rays (float: the
+  most rays a frame may hold and compile nothing; math.inf once everything is compiled)."""
+  return {h for h in heights if _num_rays(h, aspect) <= ready_rays}
+
+
 def moving_height(rays_per_second, aspect, target_fps, overhead_s=0.0, max_height=None,
-                  heights=MOVING_HEIGHTS):
-  """The largest of `heights` (at most `max_height`) whose frame renders at `target_fps`.
+                  heights=MOVING_HEIGHTS, ready=None):
+  """The largest of `heights` in `ready` (at most `max_height`) whose frame renders at
+  `target_fps`.
 
   rays_per_second: float, the measured render rate. aspect: float, width / height.
   overhead_s: float, seconds per frame besides rendering (encoding, sending).
-  Returns an int height; the smallest height when even that misses the target.
+  ready: set of heights that render without compiling (None: all of them).
+  Returns an int height: the smallest candidate when even that misses the target, the
+  smallest of `heights` when no height is ready (it compiles the least).
   """
   budget = 1.0 / target_fps - overhead_s
-  best = heights[0]
-  for h in heights:
-    if max_height is not None and h > max_height:
-      break
-    if h * max(1, round(h * aspect)) <= budget * rays_per_second:
+  candidates = [h for h in heights if (ready is None or h in ready)
+                and (max_height is None or h <= max_height)]
+  best = candidates[0] if candidates else heights[0]
+  for h in candidates:
+    if _num_rays(h, aspect) <= budget * rays_per_second:
       best = h
   return best
 

@@ -7,21 +7,25 @@ image rendering, colour maps); re-point it here when those move.
 import dataclasses
 import os
 
+import jax
 import numpy as np
 
-from nerf_jax import background, experiment, image_renderer, outputs
-from nerf_jax.rays import camera_rays
+from nerf_jax import background, experiment, image_renderer, outputs, rays
 from nerf_jax.viewer import camera, policy
 
 colorize, to_uint8 = outputs.colorize, outputs.to_uint8
+
+# One chunk of pixels' rays; compiled once for every frame size (rays.camera_rays's eager
+# operations would compile for each new size, ~0.5 s).
+_pixel_rays = jax.jit(rays.pixel_rays, static_argnames=("pixel_center", "use_ndc"))
 
 
 @dataclasses.dataclass
 class Scene:
   """A model ready to draw and the training cameras to show.
 
-  make_draw: fn(params) -> draw (image_renderer.make_image_renderer), draw(rays, background)
-    -> numpy dict rgb [n, 3], depth [n], acc [n].
+  make_draw: fn(params) -> image_renderer.Draw, draw(rays, background) -> numpy dict
+    rgb [n, 3], depth [n], acc [n].
   dataset: the training data.Dataset (its poses, images and intrinsics are the cameras shown).
   near, far: float bounds. background: float32 [3]. pixel_center: the rays' (resolved).
   """
@@ -48,14 +52,33 @@ class Scene:
     """Vertical field of view (radians) of the training cameras."""
     return camera.vertical_fov(self.height, self.intrinsics[1])
 
+  def frame_rays(self, c2w, height, width, fov):
+    """rays.Rays [height, width] (numpy) of camera `c2w` float [4, 4] with vertical `fov`
+    (radians), as rays.camera_rays makes them, one chunk of pixels at a time."""
+    intrinsics = camera.frame_intrinsics(height, width, fov)
+    num, chunk = height * width, self.chunk
+    rows, columns = np.divmod(np.arange(-(-num // chunk) * chunk), width)
+    rows, columns = rows.astype(np.float32), columns.astype(np.float32)
+    pieces = [jax.tree_util.tree_map(np.asarray, _pixel_rays(
+        columns[i:i + chunk], rows[i:i + chunk], height, width, intrinsics, c2w, self.near,
+        self.far, pixel_center=self.pixel_center, use_ndc=self.config.data.ndc))
+              for i in range(0, len(rows), chunk)]
+    return jax.tree_util.tree_map(
+        lambda *a: np.concatenate(a)[:num].reshape(height, width, *a[0].shape[1:]), *pieces)
+
+  def compile_steps(self, draw):
+    """image_renderer.Draw.compile_steps of `draw`, after compiling the frame rays (yielding 0:
+    no frame is ready yet)."""
+    self.frame_rays(np.eye(4, dtype=np.float32), 1, 1, self.fov())
+    yield 0
+    yield from draw.compile_steps()
+
   def render(self, draw, c2w, height, width, fov, cancelled=None):
     """Render a `height`×`width` frame of camera `c2w` float [4, 4] with vertical `fov`
     (radians), in chunks (see policy.render_in_chunks). Returns numpy dict rgb [H, W, 3],
     depth [H, W], acc [H, W], or None when `cancelled()` turned true."""
-    intrinsics = camera.frame_intrinsics(height, width, fov)
-    rays = camera_rays(height, width, intrinsics, c2w, self.near, self.far,
-                       self.pixel_center, self.config.data.ndc)
-    return policy.render_in_chunks(draw, rays, self.chunk, self.background, cancelled)
+    return policy.render_in_chunks(draw, self.frame_rays(c2w, height, width, fov), self.chunk,
+                                   self.background, cancelled)
 
 
 def from_run(exp):

@@ -5,8 +5,14 @@ height `policy.moving_height` picks for `target_fps`; once it stops, one still f
 `still_height` (default: the training images' height), cancelled between chunks by the next
 camera move. Frames go to the page as its background image, under the training cameras'
 frustums (click one to jump to it) and the scene box.
+
+The page is served at once; a second thread compiles the renderer's shapes meanwhile
+(Scene.compile_steps, smallest first, whenever no frame is due), and until it is done moving
+frames only take the heights whose frames compile nothing (`ready_rays`). One lock lets one
+render or one compile step run at a time.
 """
 
+import math
 import os
 import socket
 import threading
@@ -106,9 +112,9 @@ class Viewer:
 
   target_fps: frames per second to hold while the camera moves. still_height: pixels of the
   full-resolution frame (None = the training images'). out_dir: where 'Save path' writes.
-  scale: the viewer's world is ours times `scale`. warm_up: compile and time the renderer on
-  the first training camera before serving (off while training: it would take time from the
-  steps).
+  scale: the viewer's world is ours times `scale`. warm_up: compile the renderer in the
+  background, then time it on the first training camera (off while training: it would take
+  time from the steps; frames then compile what they need when they need it).
   """
 
   def __init__(self, scene, params, host="127.0.0.1", port=7007, step=None, target_fps=10.0,
@@ -125,18 +131,29 @@ class Viewer:
     self.meter = policy.RateMeter()
     self.frames_sent, self.last_frame, self.last_info = 0, None, ""
     self.frame_log = []  # (time sent, width, height, moving, seconds) of every frame
-    self._lock = threading.Lock()
+    self._lock = threading.Lock()  # the params, and the render loop's idle state
+    self._render_lock = threading.Lock()  # one render or compile step at a time
     self._params, self._step, self._params_version, self._bound = params, step, 0, (-1, None)
     self._views, self._keyframes = {}, []
     self._wake, self._closing = threading.Event(), False
+    self._idle = threading.Event()  # no frame is due: the warm-up may compile
+    self._idle.set()
+    # Frames of at most this many rays compile nothing (see policy.ready_heights).
+    self.ready_rays = 0 if warm_up else math.inf
+    self.warmed = threading.Event()  # every frame size compiled and the meter seeded
+    self.warm_s = None  # seconds from the start of the warm-up to `warmed`
     self._add_scene()
     self._add_gui()
-    if warm_up:
-      self.warm_up()
     self.server.on_client_connect(self._connect)
     self.server.on_client_disconnect(self._disconnect)
-    self._thread = threading.Thread(target=self._loop, name="viewer-render", daemon=True)
-    self._thread.start()
+    self._threads = [threading.Thread(target=self._loop, name="viewer-render", daemon=True)]
+    if warm_up:
+      self._threads.append(threading.Thread(target=self._warm_up, name="viewer-warm-up",
+                                            daemon=True))
+    else:
+      self.warmed.set()
+    for thread in self._threads:
+      thread.start()
 
   @property
   def url(self):
@@ -157,7 +174,9 @@ class Viewer:
   def close(self):
     self._closing = True
     self._wake.set()
-    self._thread.join(timeout=10)
+    self._idle.set()
+    for thread in self._threads:
+      thread.join(timeout=10)
     self.server.stop()
 
   # The page.
@@ -244,24 +263,32 @@ class Viewer:
     view = _View(client)
     client.camera.on_update(lambda _: self._moved(view))
     self._views[client.client_id] = view
-    self._wake.set()
+    self._frame_due()
 
   def _disconnect(self, client):
     self._views.pop(client.client_id, None)
+    self._wake.set()
 
   def _moved(self, view):
     view.version += 1
-    self._wake.set()
+    self._frame_due()
 
   def _redraw(self):
     for view in list(self._views.values()):
       view.still = False
-    self._wake.set()
+    self._frame_due()
+
+  def _frame_due(self):
+    """Wake the render loop; the warm-up waits until it has drawn what is due."""
+    with self._lock:
+      self._idle.clear()
+      self._wake.set()
 
   # Rendering.
 
   def _draw(self):
-    """The draw function of the newest params (bound again when they change)."""
+    """The draw function of the newest params (bound again when they change; call it holding
+    the render lock: binding computes the skip grid)."""
     with self._lock:
       version, params, step = self._params_version, self._params, self._step
     if self._bound[0] != version:
@@ -271,25 +298,47 @@ class Viewer:
         self._redraw()
     return self._bound[1]
 
-  def warm_up(self):
-    """Render the first training camera a few times (compiling, then timing it) to seed the
-    render-rate meter."""
-    draw, pose, fov = self._draw(), self.scene.poses[0], self.scene.fov()
-    # Every frame height at a wide canvas's aspect: the marcher compiles a query buffer size
-    # (renderer.py, empty_space.py) the first time a frame needs it, ~1 s each.
-    heights = [h for h in policy.MOVING_HEIGHTS if h < self.still_height]
-    for height, aspect in [(h, 16 / 9) for h in heights] + [(self.still_height, 1.0)] * 2:
-      height, width = camera.frame_size(height, aspect)
-      start = time.perf_counter()
-      self.scene.render(draw, pose, height, width, fov)
-      seconds = time.perf_counter() - start
-    self.meter.rays_per_second = height * width / seconds
+  def _warm_up(self):
+    """Compile what frames need, a step at a time while no frame is due, raising `ready_rays`
+    after each; then seed the render-rate meter."""
+    start, steps, ready = time.perf_counter(), None, 0
+    try:
+      while not self._closing and ready is not None:
+        if not self._idle.wait(timeout=0.5):
+          continue  # frames first
+        with self._render_lock:
+          draw = self._draw()
+          if draw is not None:
+            steps = steps or self.scene.compile_steps(draw)
+            ready = next(steps, None)
+        if draw is None:
+          time.sleep(0.5)  # no params yet
+        elif ready is not None:
+          self.ready_rays = ready
+      self._seed_meter()
+    finally:
+      self.ready_rays = math.inf  # if a step failed, frames compile what they need
+      self.warm_s = time.perf_counter() - start
+      self.warmed.set()
+
+  def _seed_meter(self):
+    """Time a still frame of the first training camera, once no frame is due."""
+    while not (self._closing or self._idle.wait(timeout=0.5)):
+      pass
+    if self._closing:
+      return
+    height, width = camera.frame_size(self.still_height, self.scene.width / self.scene.height)
+    with self._render_lock:
+      draw, start = self._draw(), time.perf_counter()
+      self.scene.render(draw, self.scene.poses[0], height, width, self.scene.fov())
+      self.meter.rays_per_second = height * width / (time.perf_counter() - start)
 
   def _loop(self):
     while not self._closing:
       self._wake.wait(timeout=0.5)
       self._wake.clear()
-      draw = self._draw()
+      with self._render_lock:
+        draw = self._draw()
       for view in list(self._views.values()) if draw is not None else ():
         if self._closing:
           break
@@ -304,28 +353,35 @@ class Viewer:
           view.still = done
           if not done:
             self._wake.set()
+      with self._lock:
+        if not self._wake.is_set():  # everything due is drawn
+          self._idle.set()
 
   def frame_height(self, moving, aspect):
     """Pixels per column of the next frame (see policy.moving_height)."""
     if not moving:
       return self.still_height
     return policy.moving_height(self.meter.rays_per_second, aspect, self.target_fps,
-                                self.meter.overhead_s, max_height=self.still_height)
+                                self.meter.overhead_s, max_height=self.still_height,
+                                ready=policy.ready_heights(self.ready_rays, aspect))
 
   def _show(self, view, draw, cam, moving, cancelled=None):
     """Render and send one frame; False when cancelled."""
     wxyz, position, fov, aspect = cam
     height, width = camera.frame_size(self.frame_height(moving, aspect), aspect)
-    start = time.perf_counter()
-    out = self.scene.render(draw, camera.viewer_to_c2w(wxyz, position, self.scale), height,
-                            width, fov, cancelled)
+    compiled = height * width <= self.ready_rays  # else it may compile: not a rate to keep
+    with self._render_lock:
+      start = time.perf_counter()
+      out = self.scene.render(draw, camera.viewer_to_c2w(wxyz, position, self.scale), height,
+                              width, fov, cancelled)
     if out is None:
       return False
     rendered = time.perf_counter()
     image, caption = output_image(out, self.gui_output.value, self.scene.near, self.scene.far)
     view.client.scene.set_background_image(image, format="jpeg", jpeg_quality=90)
     done = time.perf_counter()
-    self.meter.add(height * width, rendered - start, done - start)
+    if compiled:
+      self.meter.add(height * width, rendered - start, done - start)
     self.frames_sent += 1
     self.frame_log.append((done, width, height, moving, done - start))
     self.last_frame = image
