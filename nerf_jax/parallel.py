@@ -3,13 +3,16 @@
 The training arrays and the parameters are replicated on every device; each step's ray batch is
 split over the devices (`shard_batch`), so every device renders B / D rays and XLA all-reduces
 the gradients. With one device everything here is a no-op. Several hosts (processes) join one
-mesh through `jax.distributed.initialize` (see `initialize_distributed` and the README).
+mesh through `jax.distributed.initialize` (see `initialize_distributed` and docs/usage.md); every
+process runs the same steps, so whatever decides a step (the start state, when to stop) must be
+the same in all of them.
 """
 
 import os
 
 import jax
 import numpy as np
+from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
 AXIS = "data"
@@ -20,7 +23,9 @@ def initialize_distributed():
 
   JAX_COORDINATOR_ADDRESS (host:port of process 0) with JAX_NUM_PROCESSES and JAX_PROCESS_ID
   start it explicitly; under SLURM or Open MPI with more than one task JAX reads them itself.
-  Must run before anything touches a device.
+  Must run before anything touches a device. CPU processes exchange gradients through Gloo,
+  jax's default CPU collectives (config jax_cpu_collectives_implementation), so nothing else is
+  needed to try it on one machine.
   """
   if os.environ.get("JAX_COORDINATOR_ADDRESS"):
     num = os.environ.get("JAX_NUM_PROCESSES")
@@ -82,6 +87,14 @@ def to_host(tree):
   return jax.tree_util.tree_map(get, tree)
 
 
+def from_main(tree):
+  """Process 0's values of a pytree of host arrays (same shapes in every process), on every
+  process; `tree` itself with one process. For what only process 0 reads (the workdir)."""
+  if jax.process_count() == 1:
+    return tree
+  return multihost_utils.broadcast_one_to_all(tree)
+
+
 def is_main_process():
   """Process 0 writes checkpoints, logs and images; the others only compute."""
   return jax.process_index() == 0
@@ -93,3 +106,13 @@ def check_batch(rays_per_step, mesh):
     raise ValueError(f"config.train.batch_rays: {rays_per_step} rays per step do not split over "
                      f"{mesh.size} devices; use a multiple of {mesh.size} or set "
                      "config.train.data_parallel=False")
+
+
+def check_time_budget(train_config):
+  """A ValueError for a time budget (train.max_seconds) with several processes: each process's
+  clock would end its calibration and its run at a different step, and the collectives of the
+  others would then wait for ever."""
+  if train_config.max_seconds > 0 and jax.process_count() > 1:
+    raise ValueError(f"config.train.max_seconds: a time budget needs one process, this run has "
+                     f"{jax.process_count()}; set config.train.max_steps and "
+                     "config.train.max_seconds=0")

@@ -4,7 +4,7 @@ Training data live on the device as flat per-pixel arrays (see `TrainData`); eve
 own batch inside the jitted step from a key folded with the step number, so there is no host
 work or host-device transfer per step and a resumed run draws exactly the batches it would have.
 With several devices each batch is split over them (see parallel.py); the parameters are
-replicated and only process 0 writes files.
+replicated. With several processes only process 0 reads and writes the workdir.
 """
 
 import collections
@@ -213,19 +213,14 @@ def train_and_evaluate(config, workdir):
   config.json holds the schedule it used.
   """
   main = parallel.is_main_process()
-  os.makedirs(workdir, exist_ok=True)
+  parallel.check_time_budget(config.train)
+  if main:
+    os.makedirs(workdir, exist_ok=True)
   exp = experiment.setup(config)
   near, far = exp.near, exp.far
   signature = experiment.model_signature(config)
-  ckpt = checkpoints.latest_path(workdir)
-  elapsed, meta = 0.0, {}
-  if not ckpt:
-    state = experiment.init_state(exp)
-  else:
-    state, meta = checkpoints.restore_with_meta(ckpt, experiment.state_template(exp), signature)
-    elapsed = float(meta.get("wall_seconds", 0.0))
-    if main:
-      print(f"resuming from {ckpt} at step {int(state.step)}", flush=True)
+  state, meta = _start_state(exp, workdir, signature)
+  elapsed = float(meta.get("wall_seconds", 0.0))
   t_start = time.perf_counter() - elapsed  # a time budget's calibration counts against it
 
   mesh = parallel.make_mesh(config.train.data_parallel)
@@ -329,6 +324,19 @@ def train_and_evaluate(config, workdir):
   if config.render.after_training:
     outputs.render_video(exp, params, os.path.join(workdir, "video"))
   return result
+
+
+def _start_state(exp, workdir, signature):
+  """(TrainState, checkpoint meta): the newest checkpoint's in `workdir`, else a fresh state and
+  {}. Only process 0 reads the workdir; the others take its state (so they agree whether or not
+  they see its files) and get meta {}, which only process 0 uses."""
+  ckpt = checkpoints.latest_path(workdir) if parallel.is_main_process() else None
+  if not ckpt:
+    state, meta = experiment.init_state(exp), {}
+  else:
+    state, meta = checkpoints.restore_with_meta(ckpt, experiment.state_template(exp), signature)
+    print(f"resuming from {ckpt} at step {int(state.step)}", flush=True)
+  return parallel.from_main(state), meta
 
 
 def _fit_to_time(exp, train_step, data, key, mesh, meta, t_start):

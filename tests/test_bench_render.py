@@ -12,15 +12,13 @@ from absl import flags
 from nerf_jax import cli, experiment, renderer, train_lib
 from nerf_jax.bench import cli as bench_cli
 from nerf_jax.bench import render
-from nerf_jax.configs import debug
 from nerf_jax.rays import Rays, get_rays
+from tests.conftest import tiny_config
 
 
 def _trained_workdir(tmp_path):
-  config = debug.get_config()
-  config.train.max_steps = 2
+  config = tiny_config(max_steps=2)
   config.data.scene_bound = 1.5  # a scene box: the model renders by marching
-  config.render.after_training = False
   workdir = str(tmp_path / "run")
   train_lib.train_and_evaluate(config, workdir)
   return workdir

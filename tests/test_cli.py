@@ -22,15 +22,14 @@ from ml_collections import config_flags
 from nerf_jax import checkpoints, cli, config_lib, experiment, outputs
 from nerf_jax.configs import debug, default
 from nerf_jax.data import DataError
+from tests.conftest import tiny_config
 from tests.helpers import blender_folder as _blender
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def _config(path="", **data):
-  config = debug.get_config()
-  config.render.after_training = False
-  config.train.max_steps = 2
+  config = tiny_config(max_steps=2)
   config.data.path = path
   for k, v in data.items():
     config.data[k] = v

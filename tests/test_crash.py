@@ -14,9 +14,8 @@ import jax
 import numpy as np
 import pytest
 
-from nerf_jax.configs import debug
 from nerf_jax import checkpoints, cli, train_lib
-from tests.conftest import params_equal, restored_params
+from tests.conftest import params_equal, restored_params, tiny_config
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 STEPS, EVERY = 120, 10
@@ -24,13 +23,7 @@ SEED = 15  # draws the kill moment: a failure reproduces with the same delay
 
 
 def _config():
-  config = debug.get_config()
-  config.train.max_steps = STEPS
-  config.train.checkpoint_every = EVERY
-  config.train.log_every = 50
-  config.train.keep_checkpoints = 3
-  config.render.after_training = False
-  return config
+  return tiny_config(max_steps=STEPS, checkpoint_every=EVERY, log_every=50, keep_checkpoints=3)
 
 
 def _start(workdir):

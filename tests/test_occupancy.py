@@ -12,7 +12,7 @@ from nerf_jax.configs import debug
 from nerf_jax import checkpoints, grid, occupancy, renderer, train_lib
 from nerf_jax import rays as rays_lib
 from nerf_jax.rays import Rays
-from tests.conftest import params_equal, restored_params
+from tests.conftest import params_equal, restored_params, tiny_config
 
 BOUND = 1.5
 
@@ -145,7 +145,7 @@ def test_rendering_through_the_grid_matches_dense_sampling():
 
 
 def _train_config(max_steps):
-  config = debug.get_config()
+  config = tiny_config(lr=1e-2, max_steps=max_steps)
   config.model.encoding = "grid"
   config.model.grid_resolutions = (8, 16)
   config.model.grid_features = 2
@@ -156,9 +156,6 @@ def _train_config(max_steps):
   config.occupancy.resolution = 12
   config.occupancy.candidates = 64
   config.occupancy.update_every = 5
-  config.train.lr = 1e-2
-  config.train.max_steps = max_steps
-  config.render.after_training = False
   return config
 
 

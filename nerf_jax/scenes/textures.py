@@ -24,7 +24,8 @@ _FONT = (
     "100100100100111", "111101111100100", "110101110101101", "111010010010010",
     "101101101101111", "101101010101101", "101101010010010", "111001010100111",
     "001001001101111", "110101101101110")
-GLYPHS = jnp.array([[int(b) for b in g] for g in _FONT], jnp.float32).reshape(-1, 5, 3)
+# numpy: a jnp array made at import would start the XLA backend before jax.distributed joins.
+GLYPHS = np.array([[int(b) for b in g] for g in _FONT], np.float32).reshape(-1, 5, 3)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -113,8 +114,9 @@ def glyph_ink(uv, line_height, seed, face):
   inside = (du >= 0.0) & (du < 3.0) & (dv >= 0.0) & (dv < 5.0)
   pick = hash01(row, col, face, seed)
   glyph = jnp.minimum((pick * 1.25 * len(_FONT)).astype(jnp.int32), len(_FONT))  # == len: space
-  bit = GLYPHS[jnp.minimum(glyph, len(_FONT) - 1),
-               jnp.clip(dv, 0, 4).astype(jnp.int32), jnp.clip(du, 0, 2).astype(jnp.int32)]
+  bit = jnp.asarray(GLYPHS)[jnp.minimum(glyph, len(_FONT) - 1),
+                            jnp.clip(dv, 0, 4).astype(jnp.int32),
+                            jnp.clip(du, 0, 2).astype(jnp.int32)]
   return jnp.where(inside & (glyph < len(_FONT)), bit, 0.0)
 
 
