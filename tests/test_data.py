@@ -2,6 +2,7 @@
 
 import json
 import os
+import tracemalloc
 
 import imageio.v3 as iio
 import ml_collections
@@ -81,6 +82,24 @@ def test_blender_alpha_export_recomposites(fog, tmp_path):
   recomposited = on_black.images + (1 - on_black.accs[..., None]) * (
       np.float32(1.0) - np.asarray(on_black.background, np.float32))  # Dataset's documented rule
   np.testing.assert_allclose(recomposited, on_white.images, atol=1e-6)
+
+
+def test_blender_loading_peaks_near_the_size_of_what_it_returns(tmp_path):
+  """800 x 800 NeRF-synthetic folders must load in little more than their float32 arrays: the
+  frames are converted one at a time (stacking float64 copies of all of them peaked at ~9x)."""
+  views = scenes.make_dataset("diffuse", num_views=14, height=48, width=48, focal=66.6)
+  export.export_blender(views, str(tmp_path), split_at=12)  # 12 training views
+  tracemalloc.start()  # numpy reports its buffers to tracemalloc
+  try:
+    dataset = load_blender(str(tmp_path))
+    peak = tracemalloc.get_traced_memory()[1]
+  finally:
+    tracemalloc.stop()
+  returned = dataset.images.nbytes + dataset.accs.nbytes
+  assert returned == 12 * 48 * 48 * 4 * 4
+  frame_float64 = 48 * 48 * 4 * 8  # one decoded RGBA frame
+  # Beyond the returned arrays: a few float64 copies of one frame, not of all twelve.
+  assert peak - returned < 6 * frame_float64, (peak, returned)
 
 
 def test_opaque_blender_export_has_unit_accs(fog, tmp_path):

@@ -92,6 +92,8 @@ SWEEPS = {
         Entry("grid random-bg", {**_VIEW, "data.background": "random"}, base="fast"),
         Entry("grid distortion", {**_VIEW, "train.distortion_weight": 0.003}, base="fast"),
         Entry("grid occupancy", {**_VIEW, "occupancy.enabled": True}, base="fast"),
+        Entry("grid 256", {**_VIEW, "model.grid_resolutions": (64, 128, 256),
+                           "model.grid_features": 2}, base="fast"),
         Entry("hash", {**_VIEW, "model.hash_dtype": "float16"}, base="hash"),
         Entry("hash occupancy", {**_VIEW, "model.hash_dtype": "float16",
                                  "occupancy.enabled": True}, base="hash"),

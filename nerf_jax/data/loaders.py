@@ -110,22 +110,32 @@ def load_blender(path, background=(0.0, 0.0, 0.0), half_res=False, split="train"
   frames = _field(meta, "frames", meta_path)
   if not isinstance(frames, list) or not frames:
     raise DataError(f"{meta_path}: 'frames' must be a non-empty list")
-  images, poses = zip(*(_read_frame(path, meta_path, k, f) for k, f in enumerate(frames)))
-  shapes = {im.shape[:2] for im in images}
-  if len(shapes) > 1:
-    raise DataError(f"{meta_path}: images have different sizes {sorted(shapes)}")
-  width = images[0].shape[1]
-  focal = 0.5 * width / math.tan(0.5 * angle)
-  rgba = np.stack([im if im.shape[-1] == 4 else np.concatenate(
-      [im, np.ones_like(im[..., :1])], -1) for im in images])
-  if half_res:
-    rgba, focal = _half_res(rgba), 0.5 * focal
-  height, width = rgba.shape[1:3]
   bg = parse_background(background)
-  return Dataset(composite(rgba, bg), np.stack(poses), (focal, focal, width * 0.5, height * 0.5),
+  images, accs, poses, size = None, None, [], None
+  # One frame at a time into float32 arrays: the float64 copies of a frame live only while it
+  # is converted, so 100 frames of 800 x 800 need ~1 GB, not several.
+  for k, frame in enumerate(frames):
+    image, pose = _read_frame(path, meta_path, k, frame)
+    if size is None:
+      size = image.shape[:2]
+      width = image.shape[1]
+    elif image.shape[:2] != size:
+      raise DataError(f"{meta_path}: images have different sizes {sorted({size, image.shape[:2]})}")
+    rgba = image if image.shape[-1] == 4 else np.concatenate([image, np.ones_like(image[..., :1])],
+                                                             -1)
+    if half_res:
+      rgba = _half_res(rgba[None])[0]
+    if images is None:
+      images = np.empty((len(frames), *rgba.shape[:2], 3), np.float32)
+      accs = np.empty((len(frames), *rgba.shape[:2]), np.float32)
+    images[k], accs[k] = composite(rgba, bg), rgba[..., 3]
+    poses.append(pose)
+  focal = 0.5 * width / math.tan(0.5 * angle) * (0.5 if half_res else 1.0)
+  height, width = images.shape[1:3]
+  return Dataset(images, np.stack(poses), (focal, focal, width * 0.5, height * 0.5),
                  near=validate.scalar(meta.get("near", 2.0), f"{meta_path}: 'near'"),
                  far=validate.scalar(meta.get("far", 6.0), f"{meta_path}: 'far'"), name=path,
-                 accs=rgba[..., 3].astype(np.float32), background=tuple(bg.tolist()))
+                 accs=accs, background=tuple(bg.tolist()))
 
 
 def load_dataset(config):
