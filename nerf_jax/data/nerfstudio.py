@@ -154,7 +154,7 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1):
     poses.append(validate.poses(np.asarray(frame["transform_matrix"], np.float64)[None],
                                 f"{where}.transform_matrix")[0])
     cameras.append(_camera(frame, meta, image.shape[:2], full_size, where))
-    images.append(image)
+    images.append(image.astype(np.float32))  # float64 for all frames would be 2x the memory
     names.append(frame["file_path"])
   shapes = sorted({im.shape[:2] for im in images})
   if len(shapes) > 1:
@@ -170,12 +170,17 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1):
   near = validate.scalar(near if near is not None else 2.0, f"{meta_path}: 'near'")
   far = validate.scalar(far if far is not None else 6.0, f"{meta_path}: 'far'")
   has_alpha = any(im.shape[-1] == 4 for im in images)
-  rgba = np.stack([im if im.shape[-1] == 4 else np.concatenate([im, np.ones_like(im[..., :1])],
-                                                               -1) for im in images])
   bg = parse_background(background)
-  dataset = Dataset(composite(rgba, bg), poses.astype(np.float32),
+  rgb = np.empty((len(images), *images[0].shape[:2], 3), np.float32)
+  accs = np.ones(rgb.shape[:-1], np.float32)
+  for k, image in enumerate(images):  # frame by frame: no stacked float64 copy of them all
+    rgb[k] = composite(image, bg)
+    if image.shape[-1] == 4:
+      accs[k] = image[..., 3]
+    images[k] = None
+  dataset = Dataset(rgb, poses.astype(np.float32),
                     lens.dataset_intrinsics(intrinsics), near=near, far=far, name=root,
-                    accs=rgba[..., 3].astype(np.float32) if has_alpha else None,  # RGB: unknown
+                    accs=accs if has_alpha else None,  # RGB: unknown
                     background=tuple(bg.tolist()),
                     pixel_center=0.0)  # the intrinsics hold cx - 0.5: rays through centres
   return dataset, names, _test_names(meta, names)
@@ -192,14 +197,15 @@ def _points(root, meta, meta_path):
 
 
 def _undistort(images, cameras):
-  """Images resampled into one pinhole camera: (list of float64 [H, W, C], COLMAP-convention
+  """Images resampled into one pinhole camera: (list of float32 [H, W, C], COLMAP-convention
   (fx, fy, cx, cy))."""
   target = tuple(float(v) for v in np.mean([c[0] for c in cameras], axis=0))
   size = images[0].shape[:2]
   out = []
   for image, (intrinsics, dist) in zip(images, cameras):
     exact = not any(dist) and np.allclose(intrinsics, target, rtol=0, atol=1e-6)
-    out.append(image if exact else lens.resample(image, intrinsics, dist, target, size))
+    out.append(image if exact else
+               lens.resample(image, intrinsics, dist, target, size).astype(np.float32))
   return out, target
 
 
