@@ -78,6 +78,7 @@ def get_config():
   train.remat_chunk = 128  # rays per cache-sized, recomputed field chunk in a step (0 = off)
   train.coarse_loss_weight = 1.0  # weight of the coarse pass loss when a fine pass exists
   train.distortion_weight = 0.0  # mip-NeRF 360's distortion loss on the final pass (0 = off)
+  train.random_background = False  # data with opacity: composite on random colours (no floaters)
   train.log_every = 100  # steps between progress lines and metrics.jsonl records
   train.eval_every = 0  # steps between test-view evaluations (0 = only at the end)
   train.eval_views = 2  # test views rendered for periodic evaluations (the final one uses all)

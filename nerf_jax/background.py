@@ -1,8 +1,9 @@
 """Backgrounds: the one table of named colours, and swapping an image's background.
 
-`config.data.background` is 'black', 'white', 'random' or an RGB triple in [0, 1]. 'random'
-draws a fresh colour per ray while training (so the field cannot paint the background into its
-density) and renders on black.
+`config.data.background` is 'black', 'white', 'random' or an RGB triple in [0, 1]: the colour
+the model renders and is scored on. Training on a fresh random colour per ray (so the field
+cannot paint the background into its density: no floaters) is `config.train.random_background`
+on data with opacity; 'random' is the older spelling of black + random training.
 """
 
 import numpy as np
@@ -30,6 +31,13 @@ def parse(value, where="config.data.background"):
 def is_random(value):
   """Whether the background is drawn per ray while training."""
   return isinstance(value, str) and value == "random"
+
+
+def trains_on_random(config, has_opacity):
+  """Whether training composites each ray on a fresh random colour: data.background='random',
+  or train.random_background on data with per-pixel opacity (RGBA, built-in scenes; without
+  opacity the target cannot be moved to another background, so the switch does nothing)."""
+  return is_random(config.data.background) or (config.train.random_background and has_opacity)
 
 
 def recomposite(rgb, acc, old, new):

@@ -100,7 +100,7 @@ def make_train_step(exp, mesh=None):
   """
   model, tx, config = exp.model, exp.tx, exp.config
   fixed_background = jnp.asarray(background.parse(config.data.background))
-  random_background = background.is_random(config.data.background)
+  random_background = background.trains_on_random(config, exp.train_ds.accs is not None)
 
   def loss_fn(params, batch, key):
     render_key, bg_key = jax.random.split(key)

@@ -9,8 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import (compositing, encoding, experiment, field, outputs, renderer, scenes,
-                      train_lib)
+from nerf_jax import (background, compositing, encoding, experiment, field, outputs, renderer,
+                      scenes, train_lib)
 from nerf_jax.rays import Rays
 from nerf_jax.scenes import simulator
 from tests.conftest import assert_beats_trivial, tiny_config
@@ -102,16 +102,20 @@ def test_flipping_a_switch_changes_the_spied_step(monkeypatch):
   assert [d for _, d in calls["encode"]] == [config.pos_encode_dims, config.dir_encode_dims] * 2
 
 
-def _loss(monkeypatch, rendered, acc, pixel=0.3):
-  """The train loss of one step with background 'random', every target pixel `pixel` with
-  opacity `acc`, and a field whose render is `rendered(background)`."""
+RANDOM_SPELLINGS = {"random": ("random", False), "white + train.random_background": ("white", True)}
+
+
+def _loss(monkeypatch, rendered, acc, pixel=0.3, spelling="random"):
+  """The train loss of one step on random backgrounds (`spelling`: a key of RANDOM_SPELLINGS),
+  every target pixel `pixel` (on the configured background) with opacity `acc`, and a field
+  whose render is `rendered(background)`."""
   def fake_render(model, params, rays, config, key=None, background=None):
     del model, params, config, key
     rgb = jnp.broadcast_to(rendered(background), (*rays.shape, 3))
     return {"coarse": {"rgb": rgb}}
   monkeypatch.setattr(renderer, "render_rays", fake_render)
   config = tiny_config()
-  config.data.background = "random"
+  config.data.background, config.train.random_background = RANDOM_SPELLINGS[spelling]
   exp = experiment.setup(config)
   data = train_lib.make_train_data(exp)
   data = data.replace(rgb=jnp.full_like(data.rgb, pixel), acc=jnp.full_like(data.acc, acc))
@@ -120,19 +124,32 @@ def _loss(monkeypatch, rendered, acc, pixel=0.3):
   return float(stats["loss"])
 
 
+@pytest.mark.parametrize("spelling", RANDOM_SPELLINGS)
 def test_random_background_target_is_the_background_where_empty_and_the_pixel_where_opaque(
-    monkeypatch):
+    monkeypatch, spelling):
   transparent = lambda background: background  # renders exactly the background it is given
   black = lambda background: jnp.zeros(3)  # an opaque black object
-  # Opacity 0 (the pixel is the data's black background): the target is the per-ray
-  # background, the transparent field's render exactly.
-  assert _loss(monkeypatch, transparent, acc=0.0, pixel=0.0) == 0.0
+  empty = 0.0 if spelling == "random" else 1.0  # an empty pixel: the configured background
+  # Opacity 0 (the pixel is the data's background): the target is the per-ray background, the
+  # transparent field's render exactly.
+  assert _loss(monkeypatch, transparent, acc=0.0, pixel=empty, spelling=spelling) == 0.0
   # Opacity 1: the target is the pixel, whatever the background.
-  assert _loss(monkeypatch, black, acc=1.0) == pytest.approx(0.09, rel=1e-6)
+  assert _loss(monkeypatch, black, acc=1.0, spelling=spelling) == pytest.approx(0.09, rel=1e-6)
   # ... and the background is random per ray, uniform in [0, 1]: E[(U - 0.3)^2] = 0.1233.
-  assert _loss(monkeypatch, transparent, acc=1.0) == pytest.approx(1 / 3 - 0.3 + 0.09, abs=0.02)
-  # Opacity 0 against a black render: E[U^2] = 1/3.
-  assert _loss(monkeypatch, black, acc=0.0, pixel=0.0) == pytest.approx(1 / 3, abs=0.03)
+  assert _loss(monkeypatch, transparent, acc=1.0, spelling=spelling) == pytest.approx(
+      1 / 3 - 0.3 + 0.09, abs=0.02)
+  # Opacity 0 against a black render: E[U^2] = 1/3 (on a fixed white background it would be 1).
+  assert _loss(monkeypatch, black, acc=0.0, pixel=empty, spelling=spelling) == pytest.approx(
+      1 / 3, abs=0.03)
+
+
+def test_the_random_background_switch_needs_opacity_to_act():
+  config = tiny_config()
+  config.train.random_background = True
+  assert background.trains_on_random(config, has_opacity=True)
+  assert not background.trains_on_random(config, has_opacity=False)  # RGB data: a no-op
+  config.train.random_background = False
+  assert not background.trains_on_random(config, has_opacity=True)
 
 
 def _briefly_trained(tmp_path_factory, name, **model):
