@@ -23,6 +23,7 @@ def get_config():
   config.train.lr_final = 5e-4  # decayed to this at max_steps
   config.train.warmup_steps = 20  # short warm-up
   config.train.remat_chunk = 0  # the grid model's step is not MLP-bound
+  config.train.random_background = True  # RGBA data: no floaters (docs/detail_scene.md)
   config.train.default_steps = 1500  # step budget without max_steps or max_seconds
   config.train.checkpoint_every = 500  # steps between checkpoints
   config.render.chunk = 2048  # rays per render call: marching's arrays stay in cache
