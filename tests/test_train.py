@@ -243,3 +243,24 @@ def test_evaluation_scores_against_truth_on_the_configured_background():
   assert empty.any() and np.all(seen[0][empty] == 1.0)
   np.testing.assert_allclose(seen[0][~empty], outputs.images_on_background(
       test_ds, config)[1][0][~empty])
+
+
+@pytest.mark.parametrize("batching,ndc", [("rays", False), ("images", False), ("rays", True)])
+def test_rays_made_per_step_equal_every_pixels_stored_ray(batching, ndc):
+  """make_train_data stores no rays; the rays a step draws are the stored-rays path's (every
+  pixel's Experiment.rays, stacked) for the same pixels."""
+  config = _config()
+  config.train.batching = batching
+  if ndc:
+    config.data.scene, config.data.ndc = "forward", True
+  exp = experiment.setup(config)
+  data = train_lib.make_train_data(exp)
+  assert data.rays is None and data.poses.shape == (len(exp.train_ds), 4, 4)
+  per_image = [exp.rays(pose).reshape(-1) for pose in exp.train_ds.poses]
+  stored = data.replace(rays=jax.tree_util.tree_map(lambda *a: jnp.stack(a), *per_image))
+  key = jax.random.PRNGKey(5)
+  made, reference = (train_lib.draw_batch(d, config, key) for d in (data, stored))
+  np.testing.assert_array_equal(made.rgb, reference.rgb)
+  for field in ("origins", "directions", "viewdirs", "near", "far"):
+    np.testing.assert_allclose(getattr(made.rays, field), getattr(reference.rays, field),
+                               rtol=1e-6, atol=1e-6, err_msg=field)

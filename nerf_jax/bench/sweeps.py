@@ -86,10 +86,11 @@ SWEEPS = {
                                                     "train.batch_rays": 512, "train.lr": 5e-3}),
     ],
     # Fine detail at 400 px (scene `detail`, --image_size=400): the encodings, and what keeps
-    # empty space empty, on the fast config with the view branch the glossy spheres need.
+    # empty space empty, with the view branch the glossy spheres need.
     "detail": [
-        Entry("grid", _VIEW, base="fast"),
-        Entry("grid random-bg", {**_VIEW, "data.background": "random"}, base="fast"),
+        Entry("mlp", {**_VIEW, "data.scene_bound": 1.5}),
+        Entry("grid", _VIEW, base="fast"),  # trains on random backgrounds (fast.py's default)
+        Entry("grid fixed-bg", {**_VIEW, "train.random_background": False}, base="fast"),
         Entry("grid distortion", {**_VIEW, "train.distortion_weight": 0.003}, base="fast"),
         Entry("grid occupancy", {**_VIEW, "occupancy.enabled": True}, base="fast"),
         Entry("grid 256", {**_VIEW, "model.grid_resolutions": (64, 128, 256),
