@@ -63,7 +63,8 @@ def run_sweep(request, options, out, command, in_process=False, dry_run=False):
   bar.update(0)  # the rate counts from now: every run, the first too, is a full run
   for i, (sweep, entry, scene, config) in enumerate(runs):
     bar.write(f"[{i + 1}/{len(runs)}] {sweep}/{entry.label} on {scene}")
-    record = run(config, options)
+    slug = "".join(c if c.isalnum() else "_" for c in f"{sweeps.scene_label(scene)}-{entry.label}")
+    record = run(config, dataclasses.replace(options, eval_dir=os.path.join(out, "eval", slug)))
     record.update(sweep=sweep, label=entry.label, base=entry.base, overrides=entry.overrides,
                   scene=sweeps.scene_label(scene), mode=sweeps.mode(request), machine=machine,
                   command=command, eval_times=list(options.eval_times))

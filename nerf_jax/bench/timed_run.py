@@ -38,6 +38,7 @@ class Options:
   render_repeats: int = 5  # timed renders of a frame, after one warm-up
   matmul_repeats: int = 10  # timed matmuls per shape for the machine's peak
   fit_schedule: bool = True  # budget mode: stretch the lr schedule to the steps that fit
+  eval_dir: str = ""  # write the final test views here ([prediction | depth | truth] PNGs)
 
 
 def train_loop(step_fn, state, max_steps, max_seconds, probe_times, probe, clock):
@@ -142,7 +143,7 @@ def run_config(config, options):
     probes.append({"seconds": train_seconds, "step": steps, "psnr": probe(state)})
 
   start = time.perf_counter()
-  final = evaluate(state.params)
+  final = evaluate(state.params, out_dir=options.eval_dir or None)
   eval_seconds = time.perf_counter() - start
   render_times, render_size = frame_seconds(exp, state.params, options.render_repeats)
   step_seconds = measure.median_step_seconds(segments)
