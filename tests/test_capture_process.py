@@ -1,6 +1,9 @@
 """nerf-process on a small rendered capture: poses, focal and the conventions of what it writes
-(against pycolmap's own projection), and one line for every bad input."""
+(against pycolmap's own projection), one line for every bad input; and the capture benchmark's
+fair comparison: true poses mapped into the processed frame, the folder that differs only in them,
+scoring a run at given poses."""
 
+import dataclasses
 import json
 import os
 import re
@@ -11,10 +14,14 @@ import imageio.v3 as iio
 import numpy as np
 import pycolmap
 import pytest
+import scipy.optimize
+import scipy.spatial.transform
 
 from nerf_jax.scenes import capture as capture_scene
 from helpers import assert_data_error
+from nerf_jax import experiment
 from nerf_jax import rays as rays_lib
+from nerf_jax.bench import capture as capture_bench
 from nerf_jax.data import lens, nerfstudio, pointcloud, process, sfm
 
 NUM_VIEWS, SIZE, FOCAL = 24, 128, 160.0
@@ -67,6 +74,9 @@ def test_recovers_the_cameras(processed):
   # here on 128-pixel photos; the worst camera within a few times that.
   assert np.median(angles) < 0.5 and np.median(centre_err) < 0.01, (angles, centre_err)
   assert np.max(angles) < 3.0 and np.max(centre_err) < 0.05, (angles, centre_err)
+  bench_angles, bench_centre_err = capture_bench.pose_errors(poses, true)  # what the bench says
+  np.testing.assert_allclose(bench_angles, angles, atol=1e-6)
+  np.testing.assert_allclose(bench_centre_err, centre_err, atol=1e-9)
   assert abs(meta["fl_x"] / FOCAL - 1) < 0.02 and abs(meta["fl_y"] / FOCAL - 1) < 0.02
   assert meta["w"] == SIZE and meta["h"] == SIZE and meta["camera_model"] == "OPENCV"
   # Upright and in the box: the cameras' ring is horizontal, the scene centred at the origin.
@@ -200,3 +210,93 @@ def test_video_in_posed_dataset_out(tmp_path):
   assert summary["num_images"] == 24 and summary["num_registered"] >= 20
   train, test = nerfstudio.load_split(str(tmp_path / "out"))
   assert len(train) + len(test) == summary["num_registered"] and len(test) >= 3
+
+
+def _random_poses(rng, num):
+  """float64 [num, 4, 4] camera-to-world: random rotations, centres in a 4-unit box."""
+  poses = np.tile(np.eye(4), (num, 1, 1))
+  poses[:, :3, :3] = scipy.spatial.transform.Rotation.random(num, random_state=rng).as_matrix()
+  poses[:, :3, 3] = rng.uniform(-2, 2, (num, 3))
+  return poses
+
+
+def _map(scale, rot, trans, poses):
+  """Poses moved by x -> scale rot x + trans, the brute-force way: the 4x4 matrix product, then
+  the rotation columns divided by the scale."""
+  matrix = np.eye(4)
+  matrix[:3, :3], matrix[:3, 3] = scale * rot, trans
+  moved = matrix @ poses
+  moved[:, :3, :3] /= scale
+  return moved
+
+
+def test_true_in_frame_inverts_the_alignment():
+  """The true poses land in the SfM frame: exactly for an SfM frame that is a known similarity
+  of the truth; with noisy SfM centres, by the inverse of the least-squares similarity SfM ->
+  truth that a generic optimiser finds."""
+  rng = np.random.default_rng(3)
+  true = _random_poses(rng, 12)
+  for scale, trans in ((0.37, [1.0, -2.0, 0.5]), (5.0, [0.0, 0.0, 0.0])):
+    rot = scipy.spatial.transform.Rotation.random(random_state=rng).as_matrix()
+    sfm_poses = _map(scale, rot, np.array(trans), true)  # SfM's frame: a similarity of the truth
+    np.testing.assert_allclose(capture_bench.true_in_frame(sfm_poses, true), sfm_poses,
+                               atol=1e-5 * max(scale, 1))
+    rot_err, centre_err = capture_bench.pose_errors(sfm_poses, true)
+    assert rot_err.max() < 1e-4 and centre_err.max() < 1e-9
+  noisy = sfm_poses.copy()
+  noisy[:, :3, 3] += rng.normal(0, 0.1, (12, 3))
+
+  def residuals(x):  # SfM -> truth: scale exp(x[0]), rotation vector x[1:4], translation x[4:]
+    r = scipy.spatial.transform.Rotation.from_rotvec(x[1:4]).as_matrix()
+    return (np.exp(x[0]) * noisy[:, :3, 3] @ r.T + x[4:] - true[:, :3, 3]).ravel()
+
+  fit = scipy.optimize.least_squares(residuals, np.zeros(7), xtol=1e-14, ftol=1e-14, gtol=1e-14)
+  r = scipy.spatial.transform.Rotation.from_rotvec(fit.x[1:4]).as_matrix()
+  s = np.exp(fit.x[0])
+  want = _map(1 / s, r.T, -r.T @ fit.x[4:] / s, true)  # the inverse similarity, by hand
+  np.testing.assert_allclose(capture_bench.true_in_frame(noisy, true), want, atol=2e-5)
+  assert 0.02 < np.abs(want[:, :3, 3] - noisy[:, :3, 3]).max() < 0.5  # near SfM, not on it
+
+
+def test_true_folder_differs_from_the_processed_one_only_in_poses(processed, tmp_path):
+  """The true-pose folder loads the same images (resampled alike), camera, near/far and split as
+  the processed one, at the true poses in the processed frame; with the true camera, the photos
+  as they are."""
+  root, truth, _ = processed
+  out = str(root / "out")
+  meta = json.loads((root / "out" / "transforms.json").read_text())
+  true = truth[[int(f["file_path"][-6:-4]) for f in meta["frames"]]]
+  written = capture_bench.write_true_folder(str(tmp_path / "true"), out, true)
+  sfm_train, sfm_test = nerfstudio.load_split(out)
+  true_train, true_test = nerfstudio.load_split(str(tmp_path / "true"))
+  for a, b in ((sfm_train, true_train), (sfm_test, true_test)):
+    np.testing.assert_array_equal(a.images, b.images)
+    assert (a.intrinsics, a.near, a.far) == (b.intrinsics, b.near, b.far)
+  sfm_poses = np.array([f["transform_matrix"] for f in meta["frames"]])  # file order = load order
+  every_8th = np.arange(len(written)) % 8 == 0
+  np.testing.assert_allclose(true_train.poses, written[~every_8th], atol=1e-6)
+  np.testing.assert_allclose(true_test.poses, written[every_8th], atol=1e-6)
+  distance = np.linalg.norm(sfm_poses[:, :3, 3], axis=-1)  # in the processed frame's units
+  assert np.median(np.linalg.norm(written[:, :3, 3] - sfm_poses[:, :3, 3], axis=-1)
+                   / distance) < 0.01
+  cos = (np.einsum("nij,nij->n", written[:, :3, :3], sfm_poses[:, :3, :3]) - 1) / 2
+  assert np.median(np.degrees(np.arccos(np.clip(cos, -1, 1)))) < 0.5
+  camera = {"fl_x": FOCAL, "fl_y": FOCAL, "cx": SIZE / 2, "cy": SIZE / 2}
+  capture_bench.write_true_folder(str(tmp_path / "cam"), out, true, camera)
+  cam_ds, names, _ = nerfstudio.load(str(tmp_path / "cam"))
+  assert cam_ds.intrinsics == lens.dataset_intrinsics((FOCAL, FOCAL, SIZE / 2, SIZE / 2))
+  np.testing.assert_allclose(cam_ds.images[3], iio.imread(root / "out" / names[3]) / 255.0,
+                             atol=1e-6)
+
+
+def test_evaluate_at_scores_the_given_poses(trained_run):
+  """At the run's own test views the score is the run's; with each camera tilted by 10° it
+  drops."""
+  workdir, result = trained_run
+  test_ds = experiment.restore(str(workdir))[0].test_ds
+  same = capture_bench.evaluate_at(str(workdir), test_ds)
+  np.testing.assert_allclose(same["psnr"], result["psnr"], atol=1e-3)
+  turn = np.eye(4, dtype=np.float32)
+  turn[:3, :3] = scipy.spatial.transform.Rotation.from_euler("x", 10, degrees=True).as_matrix()
+  moved = dataclasses.replace(test_ds, poses=test_ds.poses @ turn)  # about the camera's x axis
+  assert capture_bench.evaluate_at(str(workdir), moved)["psnr"] < result["psnr"] - 1.0
