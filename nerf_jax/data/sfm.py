@@ -103,6 +103,7 @@ def reconstruct(image_dir, work_dir, matcher="exhaustive", camera_model="SIMPLE_
     raise SfmError(f"--camera_model={camera_model}: expected one of "
                    f"{', '.join(lens.COLMAP_PARAMS)}")
   pycolmap.logging.minloglevel = 2  # COLMAP's INFO and WARNING lines; we print our own progress
+  pycolmap.set_random_seed(0)  # RANSAC draws the same samples: a run can be repeated
   database = f"{work_dir}/database.db"
   reader = pycolmap.ImageReaderOptions()
   reader.camera_model = camera_model
