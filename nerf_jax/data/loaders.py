@@ -111,26 +111,25 @@ def load_blender(path, background=(0.0, 0.0, 0.0), half_res=False, split="train"
   if not isinstance(frames, list) or not frames:
     raise DataError(f"{meta_path}: 'frames' must be a non-empty list")
   bg = parse_background(background)
-  images, accs, poses, size = None, None, [], None
+  poses, size = [], None
   # One frame at a time into float32 arrays: the float64 copies of a frame live only while it
   # is converted, so 100 frames of 800 x 800 need ~1 GB, not several.
   for k, frame in enumerate(frames):
     image, pose = _read_frame(path, meta_path, k, frame)
     if size is None:
       size = image.shape[:2]
-      width = image.shape[1]
+      focal = 0.5 * size[1] / math.tan(0.5 * angle) * (0.5 if half_res else 1.0)
     elif image.shape[:2] != size:
       raise DataError(f"{meta_path}: images have different sizes {sorted({size, image.shape[:2]})}")
     rgba = image if image.shape[-1] == 4 else np.concatenate([image, np.ones_like(image[..., :1])],
                                                              -1)
     if half_res:
       rgba = _half_res(rgba[None])[0]
-    if images is None:
+    if k == 0:
       images = np.empty((len(frames), *rgba.shape[:2], 3), np.float32)
       accs = np.empty((len(frames), *rgba.shape[:2]), np.float32)
     images[k], accs[k] = composite(rgba, bg), rgba[..., 3]
     poses.append(pose)
-  focal = 0.5 * width / math.tan(0.5 * angle) * (0.5 if half_res else 1.0)
   height, width = images.shape[1:3]
   return Dataset(images, np.stack(poses), (focal, focal, width * 0.5, height * 0.5),
                  near=validate.scalar(meta.get("near", 2.0), f"{meta_path}: 'near'"),
