@@ -102,6 +102,7 @@ def make_evaluator(exp):
 
 OPAQUE, EMPTY = 0.99, 0.01  # true opacity of pixels scored for depth, and of empty pixels
 FLOATER_ACC = 0.1  # rendered opacity from which an empty pixel counts as showing a floater
+GEOMETRY_SCORES = ("depth_error", "empty_opacity", "floaters")  # what geometry_errors gives
 
 
 def geometry_errors(out, dataset, index):

@@ -26,7 +26,6 @@ from nerf_jax.bench import measure, sweeps
 SEGMENT_SECONDS = 0.25  # steps between host syncs: about this long (bounds budget overshoot)
 MAX_SEGMENT_STEPS = 64
 CALIBRATION_SECONDS = 3.0  # budget mode: time a throwaway run this long to fit the schedule
-GEOMETRY = ("depth_error", "empty_opacity", "floaters")  # outputs.geometry_errors, if known
 RENDER_PIXELS = 100 * 100  # render time is reported per frame of this many pixels
 
 
@@ -152,7 +151,8 @@ def run_config(config, options):
   bad = int(state.bad_step)
   return {
       "test_psnr": final["psnr"], "test_ssim": final["ssim"], "test_lpips": final.get("lpips"),
-      **{f"test_{name}": final[name] for name in GEOMETRY if name in final},
+      **{f"test_{name}": final[name] for name in outputs.GEOMETRY_SCORES
+         if name in final},
       "test_views": len(exp.test_ds),
       "psnr_at": {f"{t:g}": v for t, v in zip(options.eval_times,
                                               measure.psnr_at_times(probes, options.eval_times))},
