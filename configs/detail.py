@@ -1,0 +1,24 @@
+"""Fine detail at 400-800 px (NeRF-synthetic-like RGBA objects): configs/fast.py with the view
+branch and samples placed by an occupancy grid, chosen by measurement on the built-in `detail`
+scene (docs/detail_scene.md): 32 samples in occupied cells instead of 64 across the whole box pay
+for twice the rays per step, and the larger step size converges faster in a 10-minute budget.
+Renders with the occupancy sampler (no marching: its plain 64 samples do not match training's).
+
+  python train.py --config=configs/detail.py --config.data.path=DIR --workdir=runs/mine
+"""
+
+from nerf_jax.configs import fast
+
+
+def get_config():
+  config = fast.get_config()
+  config.model.view_dependent = True  # glossy and specular parts
+  config.dir_encode_dims = 4  # the paper's 4 bands for directions
+  config.num_samples = 32  # samples per ray, all in occupied cells of the box
+  config.occupancy.enabled = True  # sample where the occupancy grid says there is something
+  config.occupancy.resolution = 64  # 64^3 cells of 3/64 units over the scene box
+  config.occupancy.probes = 1  # one jittered probe per cell per refresh (they accumulate)
+  config.train.batch_rays = 4096  # twice fast.py's rays: the samples per step stay the same
+  config.train.lr = 2e-2  # twice fast.py's step: more progress in a short budget (measured)
+  config.train.max_seconds = 600.0  # ten minutes; the step budget and schedule follow from it
+  return config
