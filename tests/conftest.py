@@ -19,6 +19,18 @@ from nerf_jax.configs import debug
 TRIVIAL_MARGIN_DB = 3.0
 
 
+def shipped_configs():
+  """Every config name shipped under configs/ ('fast', 'scenes/fog', ...): tests that should hold
+  for all configs use this list, so a new config file is checked without editing them."""
+  import nerf_jax.configs as package
+  root = os.path.dirname(package.__file__)
+  names = []
+  for sub in ("", "scenes/"):
+    names += sorted(sub + f[:-3] for f in os.listdir(os.path.join(root, sub))
+                    if f.endswith(".py") and f != "__init__.py")
+  return names
+
+
 def tiny_config(**train):
   """configs/debug.py (24×24 views, a small MLP, 20 steps) with no rendering after training;
   `train` overrides config.train fields."""

@@ -6,7 +6,6 @@ Most cases run in-process (`cli.run_main` around `cli.train` / `outputs.render`,
 """
 
 import copy
-import importlib
 import json
 import os
 import shutil
@@ -22,7 +21,7 @@ from ml_collections import config_flags
 from nerf_jax import checkpoints, cli, config_lib, experiment, outputs
 from nerf_jax.configs import debug, default
 from nerf_jax.data import DataError
-from tests.conftest import tiny_config
+from tests.conftest import shipped_configs, tiny_config
 from tests.helpers import blender_folder as _blender
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -309,11 +308,10 @@ def test_verbosity_asks_for_the_traceback(monkeypatch, tmp_path):
     logging.set_verbosity(previous)
 
 
-@pytest.mark.parametrize("name", ["debug", "fast", "hash", "keras_seed", "mlp64", "tiny_nerf"])
+@pytest.mark.parametrize("name", shipped_configs())
 def test_every_config_sets_only_fields_the_default_has(name):
   # ConfigDict accepts new attributes, so a misspelt field would silently do nothing.
   flat = lambda c, p="": {k for key, v in c.items()
                           for k in (flat(v, f"{p}{key}.") if hasattr(v, "items")
                                     else [f"{p}{key}"])}
-  config = importlib.import_module(f"nerf_jax.configs.{name}").get_config()
-  assert flat(config) == flat(default.get_config())
+  assert flat(config_lib.load(name)) == flat(default.get_config())

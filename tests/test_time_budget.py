@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from nerf_jax import budget, checkpoints, config_lib, experiment, train_lib
-from tests.conftest import tiny_config
+from tests.conftest import shipped_configs, tiny_config
 
 
 def _saved_train(workdir):
@@ -74,7 +74,7 @@ def test_a_resumed_time_budget_run_keeps_its_schedule(tmp_path, monkeypatch):
     assert json.load(f)["steps"] == resumed["steps"]
 
 
-@pytest.mark.parametrize("name", ["default", "fast", "keras_seed", "tiny_nerf", "mlp64"])
+@pytest.mark.parametrize("name", shipped_configs())
 def test_no_shipped_config_pins_max_steps(name):
   # Otherwise --config.train.max_seconds alone would be capped by the config's step count.
   assert config_lib.load(name).train.max_steps == 0
