@@ -18,7 +18,10 @@ from tests.conftest import assert_beats_trivial, trivial_psnrs
 # standard deviation of 0.26). Measured: median |error| 0.19, almost all of it a bias (the
 # learned surface lies 0.19 behind the true one after 600 steps; 0.09 without the bias), and a
 # correlation of 0.76 with the true depth (0.59 once rays went through pixel centres and density
-# became per world length), which no constant depth answer has.
+# became per world length), which no constant depth answer has. The bias is the tiny model's,
+# not a convention or a sampling error: it does not follow the sample spacing (16 samples over
+# [2, 6]: 0.197; 64: 0.191), the simulator's depth and the renderer's are both E[t] along the
+# un-normalised ray (z-depth), and the 400 px `detail` runs have a 0.020 median depth error.
 DEPTH_MEDIAN_BOUND = 0.3
 DEPTH_MIN_CORRELATION = 0.5
 
