@@ -78,15 +78,6 @@ def alignment(poses, true):
   return transform
 
 
-def inverse_similarity(transform):
-  """The inverse of x -> s R x + t (float [4, 4]): x -> R^T (x - t) / s, float64 [4, 4]."""
-  scale = np.cbrt(np.linalg.det(transform[:3, :3]))
-  rot_t = np.asarray(transform, np.float64)[:3, :3].T / scale
-  inverse = np.eye(4)
-  inverse[:3, :3], inverse[:3, 3] = rot_t / scale, -rot_t @ transform[:3, 3] / scale
-  return inverse
-
-
 def pose_errors(poses, true):
   """(rotation errors in degrees, centre errors / distance of the true camera to the origin),
   each float64 [N], after aligning `poses` to `true` (float [N, 4, 4]) by `alignment`."""
@@ -105,7 +96,7 @@ def true_in_frame(poses, true):
   """The true cameras in the frame of `poses`: float32 [N, 4, 4], `true` mapped by the inverse
   of `alignment(poses, true)` (the similarity `pose_errors` measures with). poses, true: float
   [N, 4, 4] camera-to-world, the same cameras in the same order."""
-  return orient.apply(inverse_similarity(alignment(poses, true)), true)[0]
+  return orient.apply(np.linalg.inv(alignment(poses, true)), true)[0]  # a similarity's inverse
 
 
 def write_true_folder(folder, processed, true, camera=None):
