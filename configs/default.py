@@ -35,15 +35,17 @@ def get_config():
 
   config.model = model = ml_collections.ConfigDict()
   model.encoding = "posenc"  # 'posenc' (NeRF MLP), 'grid' (dense grids, configs/fast.py), 'hash'
-  model.grid_resolutions = (32, 64, 128)  # grid encoding: lattice points per side of each level
-  model.grid_features = 4  # grid encoding: features per lattice point
   model.grid_bound = 1.5  # grid and hash encodings: the grids cover [-bound, bound]^3
-  model.hash_levels = 16  # hash encoding: resolution levels (configs/hash.py)
-  model.hash_log2_size = 19  # hash encoding: log2 of the rows of each level's table
-  model.hash_features = 2  # hash encoding: features per row
-  model.hash_base_resolution = 16  # hash encoding: lattice points per side of the coarsest level
-  model.hash_max_resolution = 2048  # hash encoding: lattice points per side of the finest level
-  model.hash_dtype = "float32"  # hash encoding: dtype of the gathered rows (table stays float32)
+  model.grid = grid = ml_collections.ConfigDict()  # the grid encoding (model.GridNeRF)
+  grid.resolutions = (32, 64, 128)  # lattice points per side of each level
+  grid.features = 4  # features per lattice point
+  model.hash = hashing = ml_collections.ConfigDict()  # the hash encoding (model.HashNeRF)
+  hashing.levels = 16  # resolution levels (configs/hash.py)
+  hashing.log2_size = 19  # log2 of the rows of each level's table
+  hashing.features = 2  # features per row
+  hashing.base_resolution = 16  # lattice points per side of the coarsest level
+  hashing.max_resolution = 2048  # lattice points per side of the finest level
+  hashing.gather_dtype = "float32"  # dtype of the gathered rows (the table stays float32)
   model.depth = 8  # hidden layers
   model.width = 64  # units per hidden layer (reference 64, paper 256)
   model.skip_layers = (4,)  # re-inject the input after these layers (0-based)

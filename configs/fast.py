@@ -13,8 +13,8 @@ def get_config():
   config.num_samples = 64  # samples inside the scene box (denser than 64 over [near, far])
   config.data.scene_bound = 1.5  # half-size of the box holding the scene: sample only inside it
   config.model.encoding = "grid"  # dense multiresolution grids instead of positional encoding
-  config.model.grid_resolutions = (32, 64, 128)  # lattice points per side of each grid
-  config.model.grid_features = 4  # features per lattice point
+  config.model.grid.resolutions = (32, 64, 128)  # lattice points per side of each grid
+  config.model.grid.features = 4  # features per lattice point
   config.model.grid_bound = 1.5  # the grids cover [-1.5, 1.5]^3
   config.model.width = 64  # the hidden layer over the grid features
   config.model.density_activation = "softplus"  # smooth and never dead, unlike relu on a grid

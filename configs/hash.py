@@ -12,10 +12,10 @@ from nerf_jax.configs import fast
 def get_config():
   config = fast.get_config()
   config.model.encoding = "hash"  # multiresolution hash grid (nerf_jax/hashgrid.py)
-  config.model.hash_levels = 16  # instant-ngp's 16 levels
-  config.model.hash_log2_size = 17  # 2^17 rows per hashed level: 3.4M table parameters
-  config.model.hash_features = 2  # 2 features per row: 32 inputs to the MLP
-  config.model.hash_base_resolution = 16  # coarsest level: 16^3, indexed densely
-  config.model.hash_max_resolution = 2048  # finest level: cells of 3/2047 ≈ 0.0015 units
-  config.model.hash_dtype = "float32"  # float16 steps ~25% faster (docs/hashgrid.md), untried
+  config.model.hash.levels = 16  # instant-ngp's 16 levels
+  config.model.hash.log2_size = 17  # 2^17 rows per hashed level: 3.4M table parameters
+  config.model.hash.features = 2  # 2 features per row: 32 inputs to the MLP
+  config.model.hash.base_resolution = 16  # coarsest level: 16^3, indexed densely
+  config.model.hash.max_resolution = 2048  # finest level: cells of 3/2047 ≈ 0.0015 units
+  config.model.hash.gather_dtype = "float32"  # float16 steps ~25% faster (docs/hashgrid.md), untried
   return config

@@ -1,22 +1,22 @@
 """Backgrounds: the one table of named colours, and swapping an image's background.
 
-`config.data.background` is 'black', 'white', 'random' or an RGB triple in [0, 1]: the colour
-the model renders and is scored on. Training on a fresh random colour per ray (so the field
-cannot paint the background into its density: no floaters) is `config.train.random_background`
-on data with opacity; 'random' is the older spelling of black + random training.
+`config.data.background` is 'black', 'white' or an RGB triple in [0, 1]: the colour the model
+renders and is scored on. Training on a fresh random colour per ray (so the field cannot paint
+the background into its density: no floaters) is `config.train.random_background` on data with
+opacity; data.background='random', its old spelling, is read as black + that switch
+(config_lib.upgrade).
 """
 
 import numpy as np
 
-NAMED = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0),
-         "random": (0.0, 0.0, 0.0)}  # 'random': the colour it renders and scores on
+NAMED = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0)}
 
 
 def parse(value, where="config.data.background"):
   """float32 [3] for a background name or RGB triple; ValueError naming `where` otherwise."""
   if isinstance(value, str):
     if value not in NAMED:
-      raise ValueError(f"{where}: unknown name {value!r} (valid: black, white, random, or an RGB "
+      raise ValueError(f"{where}: unknown name {value!r} (valid: black, white or an RGB "
                        "triple)")
     return np.array(NAMED[value], np.float32)
   try:
@@ -28,16 +28,12 @@ def parse(value, where="config.data.background"):
   return rgb.astype(np.float32)
 
 
-def is_random(value):
-  """Whether the background is drawn per ray while training."""
-  return isinstance(value, str) and value == "random"
-
-
-def trains_on_random(config, has_opacity):
-  """Whether training composites each ray on a fresh random colour: data.background='random',
-  or train.random_background on data with per-pixel opacity (RGBA, built-in scenes; without
-  opacity the target cannot be moved to another background, so the switch does nothing)."""
-  return is_random(config.data.background) or (config.train.random_background and has_opacity)
+def trains_on_random(random_background, has_opacity):
+  """Whether training composites each ray on a fresh random colour: the switch
+  `random_background` (train.random_background) on data with per-pixel opacity (RGBA, built-in
+  scenes; without opacity the target cannot be moved to another background, so the switch does
+  nothing)."""
+  return bool(random_background and has_opacity)
 
 
 def recomposite(rgb, acc, old, new):

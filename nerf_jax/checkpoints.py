@@ -84,8 +84,11 @@ def restore(path, template, signature):
   return restore_with_meta(path, template, signature)[0]
 
 
-def restore_with_meta(path, template, signature):
-  """(state, meta) saved at `path`; see `restore`. meta is {} for checkpoints without one."""
+def restore_with_meta(path, template, signature, upgrade=None):
+  """(state, meta) saved at `path`; see `restore`. meta is {} for checkpoints without one.
+
+  upgrade: None, or fn(saved state dict) -> state dict in today's structure (older
+  checkpoints)."""
   try:
     with open(path, "rb") as f:
       payload = serialization.msgpack_restore(f.read())
@@ -99,7 +102,8 @@ def restore_with_meta(path, template, signature):
     raise CheckpointError(f"{path} was made with an incompatible config ({'; '.join(diffs)}); "
                           "use a new --workdir or the original config")
   try:
-    state = serialization.from_state_dict(template, payload["state"])
+    saved_state = payload["state"] if upgrade is None else upgrade(payload["state"])
+    state = serialization.from_state_dict(template, saved_state)
   except (ValueError, KeyError, TypeError) as e:
     first = str(e).splitlines()[0] if str(e) else type(e).__name__
     raise CheckpointError(f"{path} does not match the current config's training state "

@@ -55,13 +55,26 @@ def resolve_config_argv(argv):
     if _wants_traceback(argv):
       raise
     _fail(str(e))
-  for arg in argv[1:]:
+  out = []
+  for arg in argv:
     if arg.startswith("--config."):
+      arg = _current_spelling(arg)
       problem = config_lib.unknown_override(config, arg[len("--config."):].split("=", 1)[0])
       if problem:
         _fail(problem)
-  out = [arg for arg in argv if not arg.startswith(("--config=", "-config="))]
+    if not arg.startswith(("--config=", "-config=")):
+      out.append(arg)
   return [out[0], f"--config={path}", *out[1:]], spec
+
+
+def _current_spelling(arg):
+  """A `--config.FIELD=VALUE` argument with a renamed FIELD spelled as it is now (one
+  deprecation line; config_lib.RENAMED)."""
+  field, equals, value = arg[len("--config."):].partition("=")
+  if config_lib.renamed(field) == field:
+    return arg
+  print(config_lib.deprecation(field, config_lib.renamed(field)), flush=True)
+  return f"--config.{config_lib.renamed(field)}{equals}{value}"
 
 
 def parse_flags(argv, flag_values=flags.FLAGS):

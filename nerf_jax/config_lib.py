@@ -78,11 +78,75 @@ def default():
   return _default.get_config()
 
 
+# Fields that moved: old dotted name -> new one. A config, override or config.json using the
+# old name keeps working (`upgrade` moves it, with one deprecation line).
+RENAMED = {
+    "model.grid_resolutions": "model.grid.resolutions",
+    "model.grid_features": "model.grid.features",
+    "model.hash_levels": "model.hash.levels",
+    "model.hash_log2_size": "model.hash.log2_size",
+    "model.hash_features": "model.hash.features",
+    "model.hash_base_resolution": "model.hash.base_resolution",
+    "model.hash_max_resolution": "model.hash.max_resolution",
+    "model.hash_dtype": "model.hash.gather_dtype",
+}
+
+
+def renamed(field):
+  """The current dotted name of `field` (itself unless it is in RENAMED)."""
+  return RENAMED.get(field, field)
+
+
+def deprecation(old, new):
+  """The one line printed when an old spelling is used."""
+  return f"note: config.{old} is deprecated; use config.{new}"
+
+
+def _upgraded_dict(values, quiet=False):
+  """`values` (a nested dict) with every RENAMED field moved to its new name, and the old
+  data.background='random' turned into 'black' + train.random_background=True."""
+  values = json.loads(json.dumps(values))  # a copy: the caller's dict is left as it is
+  for old, new in RENAMED.items():
+    *old_path, old_name = old.split(".")
+    parent = values
+    for part in old_path:
+      parent = parent.get(part) if isinstance(parent, dict) else None
+    if not isinstance(parent, dict) or old_name not in parent:
+      continue
+    value = parent.pop(old_name)
+    *new_path, new_name = new.split(".")
+    node = values
+    for part in new_path:
+      node = node.setdefault(part, {})
+    node[new_name] = value
+    if not quiet:
+      print(deprecation(old, new), flush=True)
+  data = values.get("data", {})
+  if data.get("background") == "random":
+    data["background"] = "black"  # the colour 'random' rendered and was scored on
+    values.setdefault("train", {})["random_background"] = True
+    if not quiet:
+      print(deprecation("data.background='random'", "train.random_background=True (on the "
+                        "data.background it is scored on)"), flush=True)
+  return values
+
+
+def upgrade(config):
+  """`config` (a ConfigDict) with old spellings moved to the current fields (RENAMED, the
+  random background), one deprecation line each; `config` itself if it has none."""
+  values = config.to_dict()
+  upgraded = _upgraded_dict(values)
+  if upgraded == json.loads(json.dumps(values)):
+    return config
+  return complete(upgraded)
+
+
 def complete(saved):
   """A ConfigDict of `saved` (a dict, e.g. a run's config.json) with the default's value for
   every field it lacks; tuples come back as tuples (JSON stores lists). Fields the default does
-  not have are kept as they are."""
-  return ml_collections.ConfigDict(_merge(default().to_dict(), saved))
+  not have are kept as they are; old spellings are moved (`upgrade`) without a word."""
+  return ml_collections.ConfigDict(_merge(default().to_dict(), _upgraded_dict(saved,
+                                                                               quiet=True)))
 
 
 def _merge(base, saved):

@@ -4,7 +4,6 @@ train state and its checkpoint signature; and restoring all of it from a workdir
 """
 
 import dataclasses
-from typing import Any
 
 import flax.struct
 import jax
@@ -12,11 +11,14 @@ import jax.numpy as jnp
 import ml_collections
 import optax
 
-from nerf_jax import budget, checkpoints, config_lib, field, occupancy
+from nerf_jax import budget, checkpoints, config_lib, model, occupancy
 from nerf_jax.data import loaders
 from nerf_jax.data.dataset import Dataset
-from nerf_jax.model import make_model
+from nerf_jax.field import Field
+from nerf_jax.image_renderer import ImageSettings
 from nerf_jax.rays import camera_rays
+from nerf_jax.renderer import RayRenderer
+from nerf_jax.sampler import Sampler
 
 
 class TrainingError(RuntimeError):
@@ -26,16 +28,24 @@ class TrainingError(RuntimeError):
 @flax.struct.dataclass
 class TrainState:
   step: jnp.ndarray  # int32 [], steps taken
-  params: dict  # {'coarse': ..., ['fine': ...], ['occupancy': ...]}
+  params: dict  # trained: {'coarse': ..., ['fine': ...]}
   opt_state: optax.OptState
   bad_step: jnp.ndarray  # int32 [], first step whose loss or gradient was non-finite, -1 if none
+  buffers: dict = flax.struct.field(default_factory=dict)  # not trained: {['occupancy': grid]}
+
+  @property
+  def variables(self):
+    """What the renderers take: {'params': ..., **buffers} (renderer.py)."""
+    return {"params": self.params, **self.buffers}
 
 
 @dataclasses.dataclass
 class Experiment:
-  """A config and what it builds. near, far: the ray bounds (z-depth; [0, 1] in NDC)."""
+  """A config and what it builds. near, far: the ray bounds (z-depth; [0, 1] in NDC).
+  renderer: the RayRenderer (field + sampler); image: how whole images are rendered."""
   config: ml_collections.ConfigDict
-  model: Any
+  renderer: RayRenderer
+  image: ImageSettings
   tx: optax.GradientTransformation
   train_ds: Dataset
   test_ds: Dataset
@@ -65,12 +75,70 @@ class Experiment:
 
 
 def setup(config):
-  """The Experiment of `config`: loads the data, builds the model and the optimiser."""
+  """The Experiment of `config`: loads the data, builds the renderer and the optimiser."""
+  config = config_lib.upgrade(config)
+  renderer = make_ray_renderer(config)  # a bad model or sampler setting fails before the data
   train_ds, test_ds = loaders.load_dataset(config.data)
   pixel_center(config, train_ds)  # a bad value fails here, naming the field
   near, far = bounds(config, train_ds)
-  return Experiment(config, make_model(config.model), make_optimizer(config.train), train_ds,
-                    test_ds, near, far)
+  return Experiment(config, renderer, image_settings(config), make_optimizer(config.train),
+                    train_ds, test_ds, near, far)
+
+
+ENCODINGS = ("posenc", "grid", "hash")
+
+
+def make_field(config):
+  """The Field of `config.model` (and the top-level encoding bands): the network of
+  `model.encoding`, built from the encoding's own subsection (model.grid, model.hash) and the
+  head's fields."""
+  m = config.model
+  if m.encoding not in ENCODINGS:
+    raise ValueError(f"config.model.encoding must be 'posenc', 'grid' or 'hash', got "
+                     f"{m.encoding!r}")
+  head = dict(view_dependent=m.view_dependent, view_width=m.view_width, dtype=m.dtype)
+  if m.encoding == "posenc":
+    network = model.NerfMLP(depth=m.depth, width=m.width, skip_layers=tuple(m.skip_layers),
+                            **head)
+  else:
+    grids = model.GridNeRF if m.encoding == "grid" else model.HashNeRF
+    network = grids(**m[m.encoding], bound=m.grid_bound, hidden=m.width, **head)
+  return Field(network, config.pos_encode_dims if m.encoding == "posenc" else None,
+               config.dir_encode_dims, m.view_dependent, m.density_activation, m.density_noise)
+
+
+def make_sampler(config):
+  """The Sampler of `config` (samples, scene box, spacing, occupancy); ValueError naming the
+  field when occupancy sampling cannot work with the rest."""
+  oc = config.occupancy
+  if oc.enabled:
+    if config.data.scene_bound <= 0:
+      raise ValueError("config.occupancy.enabled needs config.data.scene_bound > 0 (the grid "
+                       "covers that box)")
+    if config.num_fine_samples > 0:
+      raise ValueError("config.occupancy.enabled and config.num_fine_samples > 0 cannot be "
+                       "combined: the occupancy grid already places the samples; set one of "
+                       "them")
+    if config.data.ndc:
+      raise ValueError("config.occupancy.enabled does not work with config.data.ndc")
+  settings = occupancy.OccupancySettings(**{k: v for k, v in oc.items() if k != "enabled"})
+  return Sampler(config.num_samples, config.data.scene_bound, config.data.lindisp,
+                 settings if oc.enabled else None)
+
+
+def make_ray_renderer(config):
+  """The RayRenderer of `config`: its field, its sampler and the fine pass."""
+  return RayRenderer(make_field(config), make_sampler(config), config.num_fine_samples,
+                     config.model.shared_fine)
+
+
+def image_settings(config):
+  """ImageSettings of `config.render` (no marching in NDC: the skip grid is in world space)."""
+  rc = config.render
+  return ImageSettings(chunk=rc.chunk, march=rc.march and not config.data.ndc,
+                       march_grid=rc.march_grid, march_threshold=rc.march_threshold,
+                       march_probes=rc.march_probes, march_group=rc.march_group,
+                       min_transmittance=rc.min_transmittance)
 
 
 def pixel_center(config, dataset):
@@ -125,30 +193,60 @@ def make_optimizer(train_config, planned_steps=None):
   return adam
 
 
+# Encoding fields that do not fix the parameters' shapes or meaning (left out of the signature).
+_NOT_IN_SIGNATURE = ("gather_dtype",)
+
+
 def model_signature(config):
-  """Config fields that fix the parameter shapes; a checkpoint only restores under the same."""
+  """Config fields that fix the parameter shapes; a checkpoint only restores under the same.
+
+  Keys keep the flat names checkpoints have always stored (grid_resolutions, hash_levels...), so
+  checkpoints of earlier versions still restore.
+  """
   m = config.model
   signature = {"pos_encode_dims": config.pos_encode_dims,
                "dir_encode_dims": config.dir_encode_dims, "depth": m.depth, "width": m.width,
                "skip_layers": list(m.skip_layers), "view_dependent": m.view_dependent,
-               "view_width": m.view_width, "networks": list(field.network_names(config))}
+               "view_width": m.view_width,
+               "networks": list(make_ray_renderer(config).networks)}
+  flat = lambda section: {f"{section}_{k}": list(v) if isinstance(v, tuple) else v
+                          for k, v in m[section].items() if k not in _NOT_IN_SIGNATURE}
   if m.encoding != "posenc":  # only then, so older checkpoints stay valid
-    signature.update(encoding=m.encoding, grid_resolutions=list(m.grid_resolutions),
-                     grid_features=m.grid_features)
+    signature.update(encoding=m.encoding, **flat("grid"))
   if m.encoding == "hash":  # the table's shape and the meaning of its rows
-    signature.update(hash_levels=m.hash_levels, hash_log2_size=m.hash_log2_size,
-                     hash_features=m.hash_features, hash_base_resolution=m.hash_base_resolution,
-                     hash_max_resolution=m.hash_max_resolution)
-  if occupancy.enabled(config):
+    signature.update(flat("hash"))
+  if config.occupancy.enabled:
     signature.update(occupancy_resolution=config.occupancy.resolution)
   return signature
 
 
 def init_state(exp):
   """A fresh TrainState of `exp` (parameters from config.seed)."""
-  params = field.init_params(exp.model, exp.config, jax.random.PRNGKey(exp.config.seed))
+  buffers = exp.renderer.init(jax.random.PRNGKey(exp.config.seed))
+  params = buffers.pop("params")
   return TrainState(step=jnp.array(0, jnp.int32), params=params, opt_state=exp.tx.init(params),
-                    bad_step=jnp.array(-1, jnp.int32))
+                    bad_step=jnp.array(-1, jnp.int32), buffers=buffers)
+
+
+def upgrade_state_dict(state):
+  """A saved TrainState dict (checkpoints.py) of an earlier version made current: the
+  occupancy grid once lived in params['occupancy'] (with Adam moments that stayed zero); it
+  now lives in buffers."""
+  if "buffers" in state:
+    return state
+  state = dict(state, params=dict(state["params"]), buffers={})
+  if "occupancy" in state["params"]:
+    state["buffers"]["occupancy"] = state["params"].pop("occupancy")
+  state["opt_state"] = _without_occupancy(state["opt_state"])
+  return state
+
+
+def _without_occupancy(tree):
+  """`tree` (nested dicts) without the 'occupancy' entry of any dict that holds 'coarse'."""
+  if not isinstance(tree, dict):
+    return tree
+  return {k: _without_occupancy(v) for k, v in tree.items()
+          if not (k == "occupancy" and "coarse" in tree)}
 
 
 def state_template(exp):
@@ -166,5 +264,6 @@ def restore(workdir, with_meta=False):
     raise TrainingError(f"no checkpoint in {checkpoints.checkpoint_dir(workdir)}: "
                         "train first (python train.py --workdir=...)")
   exp = setup(config)
-  state, meta = checkpoints.restore_with_meta(path, state_template(exp), model_signature(config))
+  state, meta = checkpoints.restore_with_meta(path, state_template(exp), model_signature(config),
+                                              upgrade_state_dict)
   return (exp, state, meta) if with_meta else (exp, state)

@@ -6,6 +6,7 @@ A draw function takes `rays.Rays` with any batch shape `...` and a background RG
 a numpy dict rgb float32 [..., 3], depth float32 [...], acc float32 [...].
 """
 
+import dataclasses
 import functools
 import math
 
@@ -13,30 +14,41 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax import compositing, empty_space, field, occupancy, renderer, sampling
+from nerf_jax import compositing, empty_space, renderer, sampler, sampling
 from nerf_jax.rays import Rays
 
 
-def make_chunk_renderer(model, config):
+@dataclasses.dataclass(frozen=True)
+class ImageSettings:
+  """How whole images are rendered (config.render; the march_* fields: empty_space.py)."""
+  chunk: int = 4096  # rays per jitted render call
+  march: bool = True  # skip empty space and stop at opaque surfaces where the model allows
+  march_grid: int = 48  # cells per side of the skip grid computed from the trained density
+  march_threshold: float = 0.1  # density (per scene unit) below which a cell is skipped
+  march_probes: int = 4  # skip-grid probes per cell side
+  march_group: int = 16  # samples per ray offered in each marching round
+  min_transmittance: float = 1e-4  # a ray stops once less light than this gets through
+
+
+def make_chunk_renderer(ray_renderer):
   """A jitted deterministic renderer for one fixed-size chunk of rays.
 
-  Returns fn(params, rays: Rays [C], background float32 [3]) -> dict of rgb [C, 3], depth [C],
-  acc [C].
+  ray_renderer: renderer.RayRenderer. Returns fn(variables, rays: Rays [C], background float32
+  [3]) -> dict of rgb [C, 3], depth [C], acc [C] (variables: see renderer.py).
   """
   @jax.jit
-  def render_chunk(params, rays, background):
-    out = renderer.final(renderer.render_rays(model, params, rays, config, key=None,
-                                              background=background))
+  def render_chunk(variables, rays, background):
+    out = renderer.final(ray_renderer.render(variables, rays, key=None, background=background))
     return {k: out[k] for k in ("rgb", "depth", "acc")}
   return render_chunk
 
 
-def render_image(render_chunk, params, rays, background=(0.0, 0.0, 0.0), chunk=4096):
+def render_image(render_chunk, variables, rays, background=(0.0, 0.0, 0.0), chunk=4096):
   """Render `rays` (Rays [...]) with `render_chunk` (from `make_chunk_renderer`) in chunks of
   `chunk` rays. background: RGB. Returns numpy dict rgb [..., 3], depth [...], acc [...]."""
   num_rays, flat = _padded(rays, chunk)
   background = jnp.asarray(background, jnp.float32)
-  pieces = [render_chunk(params, _rows(flat, i, chunk), background)
+  pieces = [render_chunk(variables, _rows(flat, i, chunk), background)
             for i in range(0, len(flat.origins), chunk)]
   return _joined(pieces, num_rays, rays.shape)
 
@@ -63,15 +75,15 @@ def _joined(pieces, num_rays, batch_shape):
   return {k: v.reshape(*batch_shape, *v.shape[1:]) for k, v in out.items()}
 
 
-def marches(config):
-  """Whether rendering `config`'s model skips empty space and stops at opaque surfaces.
+def marches(ray_renderer, settings):
+  """Whether rendering skips empty space and stops at opaque surfaces.
 
-  `config.render.march` applies to single-pass models sampling a scene box (data.scene_bound >
-  0) with plain stratified samples; any other model renders on the plain path.
+  `settings.march` applies to single-pass renderers sampling a scene box (scene_bound > 0) with
+  plain stratified samples; any other renderer renders on the plain path.
   """
-  return bool(config.render.march and config.data.scene_bound > 0
-              and config.num_fine_samples == 0 and not occupancy.enabled(config)
-              and not config.data.ndc)
+  rs = ray_renderer.sampler
+  return bool(settings.march and rs.scene_bound > 0 and ray_renderer.num_fine_samples == 0
+              and rs.occupancy is None)
 
 
 class Draw:
@@ -90,27 +102,28 @@ class Draw:
     return self._draw(rays, background)
 
 
-def make_image_renderer(model, config):
-  """fn(params) -> Draw, rendering Rays [...] in chunks of `config.render.chunk`.
+def make_image_renderer(ray_renderer, settings):
+  """fn(variables) -> Draw, rendering Rays [...] in chunks of `settings.chunk` rays.
 
-  The plain path (`make_chunk_renderer` + `render_image`) or, where `marches(config)`, the
-  marching one (empty_space.py: the same samples, the field queried only where they matter);
-  the skip grid of the marching path is computed once per call with new params.
+  ray_renderer: renderer.RayRenderer. settings: ImageSettings. The plain path
+  (`make_chunk_renderer` + `render_image`) or, where `marches`, the marching one
+  (empty_space.py: the same samples, the field queried only where they matter); the skip grid
+  of the marching path is computed once per call with new variables.
   """
-  if not marches(config):
-    render_chunk = make_chunk_renderer(model, config)
+  if not marches(ray_renderer, settings):
+    render_chunk = make_chunk_renderer(ray_renderer)
 
-    def bind(params):
+    def bind(variables):
       # Parameters go to the device once, not with every chunk (restored ones are numpy).
-      draw = functools.partial(render_image, render_chunk, jax.device_put(params),
-                               chunk=config.render.chunk)
+      draw = functools.partial(render_image, render_chunk, jax.device_put(variables),
+                               chunk=settings.chunk)
 
       def compile_steps():  # every call is padded to one chunk: one shape
         draw(_probe_ray())
         yield math.inf
       return Draw(draw, compile_steps)
     return bind
-  return _Marcher(model, config).bind
+  return _Marcher(ray_renderer, settings).bind
 
 
 def _probe_ray():
@@ -121,45 +134,38 @@ def _probe_ray():
 
 
 class _Marcher:
-  """The jitted pieces of empty_space.py for one model and config (compiled once, reused)."""
+  """The jitted pieces of empty_space.py for one renderer and settings (compiled once)."""
 
-  def __init__(self, model, config):
-    self.config = config
-    rc, box = config.render, config.data.scene_bound
-
-    def query(params, points, viewdirs):  # [B, 3], [B, 3] -> rgb [B, 3], sigma [B]
-      rgb, sigma = field.query(model, params["coarse"], points[:, None, :], viewdirs, config)
-      return rgb[:, 0], sigma[:, 0]
-
+  def __init__(self, ray_renderer, settings):
+    self.settings = settings
+    rs, field = ray_renderer.sampler, ray_renderer.field
+    query = lambda params, points, viewdirs: field.at_points(params["coarse"], points, viewdirs)
     self.skip_grid = jax.jit(lambda params: empty_space.skip_grid(
-        field.coarse_density(model, params, config), rc.march_grid, box, rc.march_threshold,
-        rc.march_probes))
+        field.density(params["coarse"]), settings.march_grid, rs.scene_bound,
+        settings.march_threshold, settings.march_probes))
     self.query_round = empty_space.make_query_round(query)
 
     @jax.jit
     def plan(mask, rays):
       """(t, t_world, points, occupied, rank): the plain path's edges t (z-depth) and the same
-      edges in world length (t·|d|, for the stop test), float32 [C, S + 1]; the rest as in
+      edges in world length (for the stop test), float32 [C, S + 1]; the rest as in
       empty_space.occupied_ranks."""
-      t_near, t_far = renderer.sample_bounds(rays, config)
-      t = sampling.stratified(t_near, t_far, config.num_samples, rays.shape, None,
-                              lindisp=config.data.lindisp)
-      points = (rays.origins[:, None, :]
-                + rays.directions[:, None, :] * sampling.midpoints(t)[..., None])
-      t_world = t * jnp.linalg.norm(rays.directions, axis=-1)[:, None]
-      return (t, t_world, points, *empty_space.occupied_ranks(mask, points, box))
+      t = rs.stratified(rays)
+      points = sampler.points(rays, sampling.midpoints(t))
+      return (t, sampler.world_t(t, rays),
+              points, *empty_space.occupied_ranks(mask, points, rs.scene_bound))
 
     @jax.jit
     def finish(sigma, rgb, t, rays, background):
-      out = compositing.composite(rgb, renderer.per_unit_t(sigma, rays), t, background)
+      out = compositing.composite(rgb, sampler.per_unit_t(sigma, rays), t, background)
       return {"rgb": out["rgb"], "depth": renderer.empty_depth_is_far(out, rays.far),
               "acc": out["acc"]}
 
     self.plan, self.finish = plan, finish
 
-  def bind(self, params):
-    """The Draw of `make_image_renderer` for `params`."""
-    params = jax.device_put(params)  # once, not with every query
+  def bind(self, variables):
+    """The Draw of `make_image_renderer` for `variables`."""
+    params = jax.device_put(variables["params"])  # once, not with every query
     mask = self.skip_grid(params)
     return Draw(functools.partial(self.draw, params, mask),
                 functools.partial(self.compile_steps, params, mask))
@@ -168,7 +174,7 @@ class _Marcher:
     """Draw.compile_steps: the per-chunk functions, then the query round at every buffer size,
     called as `draw` calls them. A call of n rays selects at most min(n, chunk)·g samples per
     round (g samples of each ray: the group, or all S when fewer)."""
-    rc, chunk = self.config.render, self.config.render.chunk
+    rc, chunk = self.settings, self.settings.chunk
     _, part = _padded(_probe_ray(), chunk)
     t, t_world, points, occupied, rank = self.plan(mask, part)
     sigma = jnp.zeros(occupied.shape, jnp.float32)
@@ -186,7 +192,7 @@ class _Marcher:
       yield math.inf if size == sizes[-1] else size // group
 
   def draw(self, params, mask, rays, background=(0.0, 0.0, 0.0)):
-    rc, chunk = self.config.render, self.config.render.chunk
+    rc, chunk = self.settings, self.settings.chunk
     num_rays, flat = _padded(rays, chunk)
     live = np.arange(len(flat.origins)) < num_rays  # padding rays query nothing
     background = jnp.asarray(background, jnp.float32)

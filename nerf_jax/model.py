@@ -3,6 +3,8 @@
 Inputs are already encoded (see encoding.py):
   pos_features: float32 [..., Dp]  encoded sample positions
   dir_features: float32 [..., Dd]  encoded unit viewing directions (only if view_dependent)
+The networks are built from config.model by experiment.make_field: its encoding's subsection
+(model.grid or model.hash) unpacked into the module's fields.
 Outputs:
   rgb:       float32 [..., 3]  colour in (0, 1) (sigmoid)
   raw_sigma: float32 [...]     density before its activation (renderer.py adds noise, activates)
@@ -106,14 +108,14 @@ class HashNeRF(_GridHead):
   The same inputs, outputs, head and out-of-box density as GridNeRF; the table holds the
   `levels` levels' rows, initialised uniform in ±1e-4 as in instant-ngp (the MLP starts from a
   nearly constant field, and no level dominates before training).
-  hash_dtype: dtype of the gathered corner rows (the table stays float32, see hashgrid.encode).
+  gather_dtype: dtype of the gathered corner rows (the table stays float32, see hashgrid.encode).
   """
   levels: int = 16
   log2_size: int = 19
   features: int = 2
   base_resolution: int = 16
   max_resolution: int = 2048
-  hash_dtype: str = "float32"
+  gather_dtype: str = "float32"
   bound: float = 1.5
 
   @nn.compact
@@ -124,27 +126,5 @@ class HashNeRF(_GridHead):
     init = lambda key, shape: jax.random.uniform(key, shape, jnp.float32, -1e-4, 1e-4)
     table = self.param("hash_table", init, (rows, self.features))
     unit = grid.to_unit_cube(points.astype(jnp.float32), self.bound)
-    h = hashgrid.encode(table, unit, resolutions, self.log2_size, self.hash_dtype)
+    h = hashgrid.encode(table, unit, resolutions, self.log2_size, self.gather_dtype)
     return self._head(h.astype(jnp.dtype(self.dtype)), unit, dir_features)
-
-
-def make_model(model_config):
-  """The field described by `config.model` (a ConfigDict): NerfMLP, GridNeRF or HashNeRF."""
-  encoding = model_config.encoding
-  if encoding not in ("posenc", "grid", "hash"):
-    raise ValueError(f"config.model.encoding must be 'posenc', 'grid' or 'hash', got {encoding!r}")
-  if encoding == "hash":
-    m = model_config
-    return HashNeRF(levels=m.hash_levels, log2_size=m.hash_log2_size, features=m.hash_features,
-                    base_resolution=m.hash_base_resolution, max_resolution=m.hash_max_resolution,
-                    hash_dtype=m.hash_dtype, bound=m.grid_bound, hidden=m.width,
-                    view_dependent=m.view_dependent, view_width=m.view_width, dtype=m.dtype)
-  if encoding == "grid":
-    return GridNeRF(resolutions=tuple(model_config.grid_resolutions),
-                    features=model_config.grid_features, bound=model_config.grid_bound,
-                    hidden=model_config.width, view_dependent=model_config.view_dependent,
-                    view_width=model_config.view_width, dtype=model_config.dtype)
-  return NerfMLP(depth=model_config.depth, width=model_config.width,
-                 skip_layers=tuple(model_config.skip_layers),
-                 view_dependent=model_config.view_dependent,
-                 view_width=model_config.view_width, dtype=model_config.dtype)

@@ -1,13 +1,13 @@
 """Empty-space skipping: an occupancy grid over the scene box, and sampling only where it is full.
 
-The grid (`config.occupancy`) is float32 [R, R, R]: the largest density σ found in each cell of the
+The grid (`OccupancySettings`, config.occupancy) is float32 [R, R, R]: the largest density σ found in each cell of the
 box [-bound, bound]^3 by probes on a sub-cell lattice, max-pooled over the neighbouring cells so
 structure thinner than a cell is not lost (`density_grid` says how thin). Every `update_every`
 steps training probes the density field again at jittered positions (a key folded from the step)
 and keeps max(decay·old, new) (Instant-NGP's update, `accumulate`): probes add up across refreshes
-and density that has gone is forgotten. The grid lives in the parameters as params['occupancy']
-(it gets no gradient, so Adam never moves it, and it is checkpointed and restored with them, so a
-resumed run uses exactly the grid it would have).
+and density that has gone is forgotten. The grid is not trained: it lives beside the parameters,
+as the train state's buffers['occupancy'] (checkpointed and restored with them, so a resumed run
+uses exactly the grid it would have).
 
 Sampling with static shapes: each ray's segment inside the box is cut into M candidate intervals
 of width Δ = segment / M; the occupied candidates, in order, are dealt into K = num_samples
@@ -22,28 +22,25 @@ A cell is occupied when its σ >= min(threshold, mean σ of the grid) (Instant-N
 untrained, uniformly faint field counts as occupied everywhere instead of empty everywhere.
 """
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 
 
+@dataclasses.dataclass(frozen=True)
+class OccupancySettings:
+  """An occupancy grid over the scene box and how training keeps it (module docstring)."""
+  resolution: int = 32  # cells per side of the box
+  candidates: int = 256  # candidate intervals per ray; the occupied ones share the samples
+  update_every: int = 16  # train steps between probing the density field again
+  probes: int = 2  # probes per cell side at each refresh, at jittered positions
+  decay: float = 0.95  # each refresh keeps max(decay·old, new)
+  threshold: float = 1.0  # density (per scene unit) from which a cell counts as occupied
 
-def enabled(config):
-  """Whether `config` samples through an occupancy grid while training."""
-  return bool(config.occupancy.enabled)
-
-
-def check_config(config):
-  """ValueError naming the field when `config.occupancy.enabled` cannot work with the rest."""
-  if not enabled(config):
-    return
-  if config.data.scene_bound <= 0:
-    raise ValueError("config.occupancy.enabled needs config.data.scene_bound > 0 (the grid "
-                     "covers that box)")
-  if config.num_fine_samples > 0:
-    raise ValueError("config.occupancy.enabled and config.num_fine_samples > 0 cannot be "
-                     "combined: the occupancy grid already places the samples; set one of them")
-  if config.data.ndc:
-    raise ValueError("config.occupancy.enabled does not work with config.data.ndc")
+  def empty_grid(self):
+    """float32 [R, R, R] zeros: the grid before the first refresh (occupied everywhere)."""
+    return jnp.zeros((self.resolution,) * 3, jnp.float32)
 
 
 def cell_centres(resolution, bound):

@@ -51,8 +51,8 @@ def images_on_background(dataset, config):
 
 
 def make_evaluator(exp):
-  """fn(params, max_views=None, out_dir=None, on_view=None) -> {'psnr', 'ssim', 'lpips',
-  'per_view'}; without LPIPS (the `lpips` extra missing, or images under 31 px a side) the
+  """fn(variables, max_views=None, out_dir=None, on_view=None) -> {'psnr', 'ssim', 'lpips',
+  'per_view'} (variables: a TrainState's, renderer.py); without LPIPS (the `lpips` extra missing, or images under 31 px a side) the
   'lpips' keys are absent and 'lpips_skipped' says why in one line. Where the data has true
   opacity (and depth) the view means of `geometry_errors` come too: 'empty_opacity',
   'floaters' (and 'depth_error').
@@ -63,17 +63,17 @@ def make_evaluator(exp):
   and the true image float32 [H, W, 3] on the configured background (see
   `images_on_background`; the trainer sends the first one to TensorBoard).
   """
-  make_draw = image_renderer.make_image_renderer(exp.model, exp.config)
+  make_draw = image_renderer.make_image_renderer(exp.renderer, exp.image)
   bg = background.parse(exp.config.data.background)
   test_ds = exp.test_ds
   camera = (test_ds.height, test_ds.width, test_ds.intrinsics)
   truths = images_on_background(test_ds, exp.config)[1]
   lpips_skipped = lpips.unavailable_reason(test_ds.height, test_ds.width)  # None: LPIPS runs
 
-  def evaluate(params, max_views=None, out_dir=None, on_view=None):
+  def evaluate(variables, max_views=None, out_dir=None, on_view=None):
     count = len(test_ds) if max_views is None else min(max_views, len(test_ds))
     per_view = []
-    draw = make_draw(params)
+    draw = make_draw(variables)
     for i in range(count):
       out = draw(exp.rays(test_ds.poses[i], camera), bg)
       truth = truths[i]
@@ -135,10 +135,10 @@ def _write_eval_view(out_dir, index, out, truth, near, far):
   np.save(os.path.join(out_dir, f"depth_{index:03d}.npy"), out["depth"].astype(np.float32))
 
 
-def render_frames(exp, params, poses, scale=1.0):
+def render_frames(exp, variables, poses, scale=1.0):
   """Render `poses` (float32 [F, 4, 4]) through the training camera with `scale` times its pixels
   per side: yields numpy dicts rgb [H, W, 3], depth [H, W], acc [H, W]."""
-  draw = image_renderer.make_image_renderer(exp.model, exp.config)(params)
+  draw = image_renderer.make_image_renderer(exp.renderer, exp.image)(variables)
   bg = background.parse(exp.config.data.background)
   camera = exp.camera(scale)
   for pose in poses:
@@ -164,7 +164,7 @@ def video_poses(config, dataset):
   return spiral_poses(centre, np.maximum(radii, 1e-3), focus, frames)
 
 
-def render_video(exp, params, out_dir, depth_npy=False, show_progress=True, scale=1.0,
+def render_video(exp, variables, out_dir, depth_npy=False, show_progress=True, scale=1.0,
                  poses=None):
   """A video as rgb.mp4 and depth.mp4 in `out_dir`: of `poses` (float32 [F, 4, 4]), or of the
   default path (see `video_poses`).
@@ -178,7 +178,7 @@ def render_video(exp, params, out_dir, depth_npy=False, show_progress=True, scal
   poses = video_poses(exp.config, exp.train_ds) if poses is None else poses
   near, far = exp.near, exp.far
   rgb_frames, depth_frames, depths = [], [], []
-  frames = render_frames(exp, params, poses, scale)
+  frames = render_frames(exp, variables, poses, scale)
   if show_progress:
     frames = progress.track(frames, total=len(poses), desc="video")
   for out in frames:
@@ -214,14 +214,14 @@ def load_poses(path):
   return poses
 
 
-def render_views(exp, params, poses, out_dir, scale=1.0):
+def render_views(exp, variables, poses, out_dir, scale=1.0):
   """Render `poses` to `out_dir/view_XXX.png` (+ depth PNG and .npy). Returns the count.
 
   scale: images have `scale` times the training images' pixels per side.
   """
   os.makedirs(out_dir, exist_ok=True)
   near, far = exp.near, exp.far
-  for i, out in enumerate(render_frames(exp, params, poses, scale)):
+  for i, out in enumerate(render_frames(exp, variables, poses, scale)):
     imageio.imwrite(os.path.join(out_dir, f"view_{i:03d}.png"), to_uint8(out["rgb"]))
     imageio.imwrite(os.path.join(out_dir, f"depth_{i:03d}.png"), colorize(out["depth"], near, far))
     np.save(os.path.join(out_dir, f"depth_{i:03d}.npy"), out["depth"].astype(np.float32))
@@ -229,6 +229,26 @@ def render_views(exp, params, poses, out_dir, scale=1.0):
 
 
 MODES = ("eval", "video", "views", "path", "mesh")
+
+
+def mesh_bound(config):
+  """Half-size of the mesh export box: the scene box, else the grid's box, else 1.5 (the 360°
+  built-in scenes fit in a ball of radius 1.2)."""
+  if config.data.scene_bound > 0:
+    return float(config.data.scene_bound)
+  if config.model.encoding in ("grid", "hash"):
+    return float(config.model.grid_bound)
+  return 1.5
+
+
+def export_mesh(exp, variables, resolution=128, threshold=50.0, bound=0.0):
+  """The coloured surface (surface.extract) of the final network of a trained `exp`; bound 0 =
+  `mesh_bound`. ValueError for NDC runs."""
+  if exp.config.data.ndc:
+    raise ValueError("mesh export needs world-space rays: this run uses NDC (config.data.ndc), "
+                     "whose density lives in a warped space")
+  return surface.extract(exp.renderer.field, exp.renderer.final_params(variables),
+                         bound or mesh_bound(exp.config), resolution, threshold)
 
 
 def path_poses(path, frames_per_segment, loop=False):
@@ -260,26 +280,26 @@ def render(workdir, mode, poses_path="", out_dir="", depth_npy=False, resolution
   if mode in ("views", "path") and not os.path.exists(poses_path):
     raise FileNotFoundError(f"{poses_path}: no such poses file")
   exp, state = experiment.restore(workdir)
-  params = state.params
+  variables = state.variables
   print(f"restored step {int(state.step)} from {workdir}", flush=True)
   out_dir = out_dir or os.path.join(workdir, mode)
   if mode == "mesh":
-    mesh = surface.extract(exp.model, params, exp.config, resolution, threshold, bound)
+    mesh = export_mesh(exp, variables, resolution, threshold, bound)
     os.makedirs(out_dir, exist_ok=True)
     path = os.path.join(out_dir, "mesh.ply")
     surface.write_ply(path, mesh["vertices"], mesh["faces"], mesh["colors"])
     print(f"wrote {len(mesh['vertices'])} vertices and {len(mesh['faces'])} faces to {path}")
     return path
   if mode == "eval":
-    result = make_evaluator(exp)(params, out_dir=out_dir)
+    result = make_evaluator(exp)(variables, out_dir=out_dir)
     print(f"test PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.4f}, "
           f"{lpips.describe(result)} over {len(result['per_view'])} views -> {out_dir}")
     return result
   if mode in ("video", "path"):
     poses = path_poses(poses_path, path_frames) if mode == "path" else None
-    paths = render_video(exp, params, out_dir, depth_npy=depth_npy, scale=scale, poses=poses)
+    paths = render_video(exp, variables, out_dir, depth_npy=depth_npy, scale=scale, poses=poses)
     print(f"wrote {', '.join(paths.values())}")
     return paths
-  count = render_views(exp, params, load_poses(poses_path), out_dir, scale)
+  count = render_views(exp, variables, load_poses(poses_path), out_dir, scale)
   print(f"wrote {count} views to {out_dir}")
   return out_dir

@@ -10,11 +10,8 @@ surface is the iso-surface sigma = threshold. Names:
 """
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from skimage import measure
-
-from nerf_jax import field
 
 
 def sample_grid(fn, bound, resolution, chunk=65536):
@@ -53,24 +50,16 @@ def marching_cubes(density, threshold, bound):
           normals.astype(np.float32))
 
 
-def field_functions(model, params, config):
-  """Jitted (density_fn, color_fn) of the final network ('fine' if there is one).
+def field_functions(field, params):
+  """Jitted (density_fn, color_fn) of a network's `params` in `field` (field.Field).
 
   density_fn(points float32 [C, 3]) -> sigma float32 [C].
   color_fn(points float32 [C, 3], viewdirs float32 [C, 3] unit) -> rgb float32 [C, 3].
   """
-  net = jax.device_put(params[field.network_names(config)[-1]])  # an argument, not a constant
-
-  @jax.jit
-  def density(net, points):
-    viewdirs = jnp.broadcast_to(jnp.array([0.0, 0.0, -1.0]), points.shape)  # density ignores it
-    return field.query(model, net, points[:, None, :], viewdirs, config)[1][:, 0]
-
-  @jax.jit
-  def color(net, points, viewdirs):
-    return field.query(model, net, points[:, None, :], viewdirs, config)[0][:, 0]
-
-  return (lambda points: density(net, points)), (lambda p, d: color(net, p, d))
+  params = jax.device_put(params)  # an argument, not a constant
+  density = jax.jit(lambda params, points: field.density(params)(points))
+  color = jax.jit(lambda params, points, viewdirs: field.at_points(params, points, viewdirs)[0])
+  return (lambda points: density(params, points)), (lambda p, d: color(params, p, d))
 
 
 def vertex_colors(color_fn, vertices, normals, chunk=65536):
@@ -83,28 +72,15 @@ def vertex_colors(color_fn, vertices, normals, chunk=65536):
   return (np.clip(colors, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
-def default_bound(config):
-  """Half-size of the export box: the scene box, else the grid's box, else 1.5 (the 360° built-in
-  scenes fit in a ball of radius 1.2)."""
-  if config.data.scene_bound > 0:
-    return float(config.data.scene_bound)
-  if config.model.encoding in ("grid", "hash"):
-    return float(config.model.grid_bound)
-  return 1.5
+def extract(field, params, bound, resolution=128, threshold=50.0, chunk=65536):
+  """The coloured surface of a trained network `params` of `field` (field.Field): dict
+  vertices, faces, normals, colors (see the module docstring).
 
-
-def extract(model, params, config, resolution=128, threshold=50.0, bound=0.0, chunk=65536):
-  """The coloured surface of a trained field: dict vertices, faces, normals, colors (module).
-
-  threshold: density (1 / scene unit) of the surface. bound: half-size of the box (0 = default).
+  bound: half-size of the box. threshold: density (1 / scene unit) of the surface.
   """
-  if config.data.ndc:
-    raise ValueError("mesh export needs world-space rays: this run uses NDC (config.data.ndc), "
-                     "whose density lives in a warped space")
   if resolution < 2:
     raise ValueError(f"--resolution={resolution}: need at least 2 lattice points per side")
-  bound = bound or default_bound(config)
-  density_fn, color_fn = field_functions(model, params, config)
+  density_fn, color_fn = field_functions(field, params)
   density = sample_grid(density_fn, bound, resolution, chunk)
   vertices, faces, normals = marching_cubes(density, threshold, bound)
   return {"vertices": vertices, "faces": faces, "normals": normals,

@@ -23,8 +23,8 @@ import ml_collections
 import numpy as np
 import optax
 
-from nerf_jax import (background, budget, checkpoints, experiment, lpips, metrics, occupancy,
-                      outputs, parallel, progress, regularizers, renderer, summary)
+from nerf_jax import (background, budget, checkpoints, config_lib, experiment, lpips, metrics,
+                      occupancy, outputs, parallel, progress, regularizers, renderer, summary)
 from nerf_jax.experiment import TrainingError, TrainState  # noqa: F401  (re-exported)
 from nerf_jax.rays import Rays, pixel_rays
 from nerf_jax.viewer import training as live_viewer
@@ -76,10 +76,7 @@ def _pixel_rays(data, image, pixel):
 
 def _targets(exp):
   """(acc [N, H, W], rgb [N, H, W, 3]): targets on the configured background (see
-  outputs.images_on_background); 'random' is refused without per-pixel opacity."""
-  if exp.train_ds.accs is None and background.is_random(exp.config.data.background):
-    raise TrainingError("config.data.background='random' needs per-pixel opacity (Blender "
-                        "RGBA or built-in scenes); this dataset has none")
+  outputs.images_on_background)."""
   return outputs.images_on_background(exp.train_ds, exp.config)
 
 
@@ -124,18 +121,21 @@ def make_train_step(exp, mesh=None):
   mesh: a `parallel.make_mesh` Mesh to split each batch over its devices (data and state
   replicated on it), or None for one device.
   """
-  model, tx, config = exp.model, exp.tx, exp.config
+  ray_renderer, tx, config = exp.renderer, exp.tx, exp.config
+  oc = ray_renderer.sampler.occupancy
   fixed_background = jnp.asarray(background.parse(config.data.background))
-  random_background = background.trains_on_random(config, exp.train_ds.accs is not None)
+  random_background = background.trains_on_random(config.train.random_background,
+                                                  exp.train_ds.accs is not None)
 
-  def loss_fn(params, batch, key):
+  def loss_fn(params, buffers, batch, key):
     render_key, bg_key = jax.random.split(key)
     bg, target = fixed_background, batch.rgb
     if random_background:
       # A fresh background per ray: the field cannot bake the background into density.
       bg = jax.random.uniform(bg_key, batch.rgb.shape)
       target = background.recomposite(batch.rgb, batch.acc, fixed_background, bg)
-    outs = renderer.render_rays(model, params, batch.rays, config, render_key, bg)
+    outs = ray_renderer.render({"params": params, **buffers}, batch.rays, render_key, bg,
+                               config.train.remat_chunk)
     mses = {name: jnp.mean((out["rgb"] - target) ** 2) for name, out in outs.items()}
     loss = mses["coarse"] if "fine" not in mses else (
         mses["fine"] + config.train.coarse_loss_weight * mses["coarse"])
@@ -146,38 +146,38 @@ def make_train_step(exp, mesh=None):
           regularizers.distortion(last["t"], last["weights"]))
     return loss, {"loss": loss, "psnr": metrics.mse_to_psnr(best)}
 
-  def refresh_occupancy(params, step, run_key):
+  def refresh_occupancy(state, run_key):
     """Every `update_every` steps, probe the density field at jittered positions (drawn from the
     step: a resumed run probes where the uninterrupted one did) and accumulate them into the
-    occupancy grid with decay (occupancy.accumulate)."""
-    if not occupancy.enabled(config):
-      return params
-    oc = config.occupancy
+    occupancy grid with decay (occupancy.accumulate). Returns the buffers."""
+    if oc is None:
+      return state.buffers
     # A stream of its own: fold_in(run_key, n) is step n's key, and step 2^32 - 1 never comes.
-    key = jax.random.fold_in(jax.random.fold_in(run_key, 0xFFFFFFFF), step)
-    refresh = lambda p: occupancy.accumulate(
-        p["occupancy"], renderer.occupancy_grid(model, p, config, key), oc.decay)
-    grid = jax.lax.cond(step % oc.update_every == 0, refresh, lambda p: p["occupancy"], params)
-    return {**params, "occupancy": grid}
+    key = jax.random.fold_in(jax.random.fold_in(run_key, 0xFFFFFFFF), state.step)
+    refresh = lambda s: occupancy.accumulate(
+        s.buffers["occupancy"], ray_renderer.occupancy_grid(s.variables, key), oc.decay)
+    grid = jax.lax.cond(state.step % oc.update_every == 0, refresh,
+                        lambda s: s.buffers["occupancy"], state)
+    return {**state.buffers, "occupancy": grid}
 
   def step(state, data, run_key, planned_steps=None):
     key = jax.random.fold_in(run_key, state.step)
     batch_key, render_key = jax.random.split(key)
     batch = parallel.shard_batch(draw_batch(data, config, batch_key, state.step, run_key), mesh)
-    params = refresh_occupancy(state.params, state.step, run_key)
-    grads, stats = jax.grad(loss_fn, has_aux=True)(params, batch, render_key)
+    buffers = refresh_occupancy(state, run_key)
+    grads, stats = jax.grad(loss_fn, has_aux=True)(state.params, buffers, batch, render_key)
     finite = jnp.isfinite(stats["loss"]) & jnp.all(jnp.array(
         [jnp.all(jnp.isfinite(g)) for g in jax.tree_util.tree_leaves(grads)]))
-    # The occupancy grid gets a zero gradient, so Adam leaves it as refreshed above.
     step_tx = tx if planned_steps is None else experiment.make_optimizer(config.train,
                                                                          planned_steps)
-    updates, opt_state = step_tx.update(grads, state.opt_state, params)
-    params = optax.apply_updates(params, updates)
+    updates, opt_state = step_tx.update(grads, state.opt_state, state.params)
+    params = optax.apply_updates(state.params, updates)
     # A non-finite step is not applied (the state stays the last good one) and is reported.
     keep = lambda new, old: jax.tree_util.tree_map(lambda n, o: jnp.where(finite, n, o), new, old)
     bad_step = jnp.where((state.bad_step < 0) & ~finite, state.step, state.bad_step)
     new_state = TrainState(step=state.step + 1, params=keep(params, state.params),
-                           opt_state=keep(opt_state, state.opt_state), bad_step=bad_step)
+                           opt_state=keep(opt_state, state.opt_state), bad_step=bad_step,
+                           buffers=keep(buffers, state.buffers))
     return parallel.replicated_constraint(new_state, mesh), stats
 
   return jax.jit(step, donate_argnums=0)
@@ -239,6 +239,7 @@ def train_and_evaluate(config, workdir):
   config.json holds the schedule it used.
   """
   main = parallel.is_main_process()
+  config = config_lib.upgrade(config)
   parallel.check_time_budget(config.train)
   if main:
     os.makedirs(workdir, exist_ok=True)
@@ -280,7 +281,7 @@ def train_and_evaluate(config, workdir):
     while step < last_step:
       state, stats = train_step(state, data, key)
       step += 1
-      viewer.after_step(step, lambda: _one_device(state.params, mesh))
+      viewer.after_step(step, lambda: _one_device(state.variables, mesh))
       budget_over = tc.max_seconds > 0 and time.perf_counter() - t_start >= tc.max_seconds
       log_now = step % tc.log_every == 0 or step == last_step or budget_over or stop.signum
       if log_now:
@@ -295,7 +296,7 @@ def train_and_evaluate(config, workdir):
         if tc.eval_every and step % tc.eval_every == 0:
           images = {}
           record["eval_psnr"] = float(evaluate(
-              _one_device(state.params, mesh), max_views=tc.eval_views,
+              _one_device(state.variables, mesh), max_views=tc.eval_views,
               on_view=_first_view_into(images, near, far))["psnr"])
           writer.images(step, images)
         if main:
@@ -328,9 +329,9 @@ def train_and_evaluate(config, workdir):
   viewer.close()
   train_seconds = time.perf_counter() - t_start
   _check_finite(state, workdir)
-  params = _one_device(state.params, mesh)
+  variables = _one_device(state.variables, mesh)
   images = {}
-  result = evaluate(params, out_dir=os.path.join(workdir, "eval")
+  result = evaluate(variables, out_dir=os.path.join(workdir, "eval")
                     if config.render.after_training and main else None,
                     on_view=_first_view_into(images, near, far))
   writer.images(step, images)
@@ -348,7 +349,7 @@ def train_and_evaluate(config, workdir):
         f"over {len(result['per_view'])} views after {step} steps ({train_seconds:.0f} s)",
         flush=True)
   if config.render.after_training:
-    outputs.render_video(exp, params, os.path.join(workdir, "video"))
+    outputs.render_video(exp, variables, os.path.join(workdir, "video"))
   return result
 
 
@@ -360,7 +361,8 @@ def _start_state(exp, workdir, signature):
   if not ckpt:
     state, meta = experiment.init_state(exp), {}
   else:
-    state, meta = checkpoints.restore_with_meta(ckpt, experiment.state_template(exp), signature)
+    state, meta = checkpoints.restore_with_meta(ckpt, experiment.state_template(exp), signature,
+                                                experiment.upgrade_state_dict)
     print(f"resuming from {ckpt} at step {int(state.step)}", flush=True)
   return parallel.from_main(state), meta
 

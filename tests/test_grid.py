@@ -81,7 +81,7 @@ def test_ray_box_bounds_axis_parallel_and_zero_directions_are_finite():
 def _grid_config():
   config = debug.get_config()
   config.model.encoding = "grid"
-  config.model.grid_resolutions = (8, 16)
+  config.model.grid.resolutions = (8, 16)
   config.model.grid_bound = 1.5
   config.model.density_activation = "softplus"
   return config

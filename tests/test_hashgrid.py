@@ -189,8 +189,8 @@ def test_adam_fits_a_3d_function_through_the_encoding_and_a_linear_layer():
 def _hash_debug_config():
   config = debug.get_config()
   config.model.encoding = "hash"
-  config.model.hash_levels, config.model.hash_log2_size = 4, 10
-  config.model.hash_base_resolution, config.model.hash_max_resolution = 4, 64
+  config.model.hash.levels, config.model.hash.log2_size = 4, 10
+  config.model.hash.base_resolution, config.model.hash.max_resolution = 4, 64
   config.model.density_activation = "softplus"
   config.data.scene_bound = 1.5
   return config
@@ -227,10 +227,10 @@ def test_config_signature_and_errors():
   config = hash_config.get_config()
   assert not field.encodes_positions(config)
   signature = experiment.model_signature(config)
-  assert signature["hash_log2_size"] == config.model.hash_log2_size
-  assert signature["hash_max_resolution"] == config.model.hash_max_resolution
+  assert signature["hash_log2_size"] == config.model.hash.log2_size
+  assert signature["hash_max_resolution"] == config.model.hash.max_resolution
   model = make_model(config.model)
-  assert model.max_resolution == 2048 and model.log2_size == config.model.hash_log2_size
+  assert model.max_resolution == 2048 and model.log2_size == config.model.hash.log2_size
   points = jnp.array([[0.0, 0.0, 0.0], [1.2, 0.0, 0.0]])  # inside, outside the box (bound 1)
   small = _small_model()
   _, raw_sigma = small.apply({"params": small.init(jax.random.PRNGKey(0), points)["params"]},

@@ -141,7 +141,7 @@ def trained_fast(tmp_path_factory):
   config.data.num_views = 24
   config.data.image_size = 32
   config.data.holdout_from = 20
-  config.model.grid_resolutions = (16, 32)
+  config.model.grid.resolutions = (16, 32)
   config.num_samples = 48
   config.train.batch_rays = 1024
   config.train.max_steps = 200

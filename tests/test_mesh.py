@@ -102,8 +102,8 @@ def _sphere_field_workdir(workdir):
   sigmoid(4, -4, -4) everywhere (the grid holds the signed distance; the MLP passes it on)."""
   config = debug.get_config()
   config.model.encoding = "grid"
-  config.model.grid_resolutions = (33,)
-  config.model.grid_features = 1
+  config.model.grid.resolutions = (33,)
+  config.model.grid.features = 1
   config.model.grid_bound = 1.0
   config.model.width = 4
   config.model.density_activation = "relu"

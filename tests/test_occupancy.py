@@ -147,8 +147,8 @@ def test_rendering_through_the_grid_matches_dense_sampling():
 def _train_config(max_steps):
   config = tiny_config(lr=1e-2, max_steps=max_steps)
   config.model.encoding = "grid"
-  config.model.grid_resolutions = (8, 16)
-  config.model.grid_features = 2
+  config.model.grid.resolutions = (8, 16)
+  config.model.grid.features = 2
   config.model.density_activation = "softplus"
   config.data.scene_bound = BOUND
   config.model.grid_bound = BOUND

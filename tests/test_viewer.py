@@ -214,7 +214,7 @@ def _tiny_fast_config():
   config = fast.get_config()
   config.data.image_size, config.data.num_views, config.data.holdout_from = 20, 4, 3
   config.num_samples = 16
-  config.model.grid_resolutions, config.model.width = (8, 16), 16
+  config.model.grid.resolutions, config.model.width = (8, 16), 16
   config.render.chunk = 128
   config.render.march_grid = 16  # the skip grid: 16^3 cells × 64 probes, not 48^3 (seconds)
   return config

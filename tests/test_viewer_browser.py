@@ -39,7 +39,7 @@ def _tiny_config():
   config = fast.get_config()
   config.data.image_size, config.data.num_views, config.data.holdout_from = 32, 8, 7
   config.num_samples = 32
-  config.model.grid_resolutions, config.model.width = (16, 32), 32
+  config.model.grid.resolutions, config.model.width = (16, 32), 32
   config.train.max_steps = config.train.checkpoint_every = 40
   config.train.batch_rays, config.train.log_every = 512, 40
   config.train.tensorboard = False

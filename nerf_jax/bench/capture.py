@@ -146,7 +146,7 @@ def evaluate_at(workdir, test_ds):
   world frame, at its image size): outputs.make_evaluator's {'psnr', 'ssim', ...}."""
   from nerf_jax import experiment, outputs  # pylint: disable=import-outside-toplevel
   exp, state = experiment.restore(workdir)
-  return outputs.make_evaluator(dataclasses.replace(exp, test_ds=test_ds))(state.params)
+  return outputs.make_evaluator(dataclasses.replace(exp, test_ds=test_ds))(state.variables)
 
 
 def _scores(metrics):

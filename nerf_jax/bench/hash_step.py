@@ -24,8 +24,8 @@ def variants(log2_sizes, float16):
   for log2 in log2_sizes:
     for dtype in ("float32", "float16") if float16 else ("float32",):
       config = hash_config.get_config()
-      config.model.hash_log2_size = log2
-      config.model.hash_dtype = dtype
+      config.model.hash.log2_size = log2
+      config.model.hash.gather_dtype = dtype
       out.append((f"hash 2^{log2}" + (" f16" if dtype == "float16" else ""), config))
   return out
 

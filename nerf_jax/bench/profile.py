@@ -19,8 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax import (compositing, encoding, experiment, field, renderer, sampling,
-                      train_lib)
+from nerf_jax import compositing, encoding, experiment, sampler, train_lib
 from nerf_jax.bench import measure
 
 
@@ -57,14 +56,11 @@ def profile(config, repeats=10):
   rows.append(("draw batch (gathers)", median_ms(
       lambda k: train_lib.draw_batch(data, config, k), key, repeats=repeats), ""))
 
+  field = exp.renderer.field
+
   def sample_encode(batch, k):
-    t_near, t_far = renderer.sample_bounds(batch, config)
-    t = sampling.stratified(t_near, t_far, samples, batch.shape, k, lindisp=config.data.lindisp)
-    points = (batch.origins[..., None, :]
-              + batch.directions[..., None, :] * sampling.midpoints(t)[..., None])
-    if not field.encodes_positions(config):
-      return points  # the grids are the encoding
-    return encoding.positional_encoding(points, config.pos_encode_dims)
+    placed = exp.renderer.sampler.place(batch, k, state.buffers.get("occupancy"))
+    return field.encode_positions(sampler.points(batch, placed.distances))
   features = sample_encode(batch, key)
   rows.append(("sample + encode (fwd)", median_ms(sample_encode, batch, key, repeats=repeats),
                f"{features.shape}"))
@@ -73,8 +69,8 @@ def profile(config, repeats=10):
   dirs = None
   if config.model.view_dependent:
     dirs = jnp.zeros((*features.shape[:-1], encoding.encoded_width(3, config.dir_encode_dims)))
-  field_sum = lambda p, x: jnp.sum(sum(jnp.sum(o) for o in exp.model.apply({"params": p}, x,
-                                                                             dirs)))
+  field_sum = lambda p, x: jnp.sum(sum(jnp.sum(o) for o in field.network.apply({"params": p}, x,
+                                                                                 dirs)))
   rows.append(("field fwd+bwd", median_ms(jax.grad(field_sum), params, features,
                                           repeats=repeats),
                f"{len(_kernels(params))} dense layers"))

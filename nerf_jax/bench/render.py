@@ -30,19 +30,16 @@ from nerf_jax import background, experiment, image_renderer, outputs
 from nerf_jax.bench import measure
 
 
-def frame_renderer(exp, params, size, march=None):
+def frame_renderer(exp, variables, size, march=None):
   """A blocking function rendering the first test view's pose at `size` pixels on the longer
   side of the training camera; it returns the numpy dict rgb [H, W, 3], depth, acc.
 
   march: None = the config's renderer; False = the plain path whatever the config says.
   """
-  config = exp.config
   if march is not None:
-    config = config.copy_and_resolve_references()
-    config.render.march = march
-    exp = dataclasses.replace(exp, config=config)
-  draw = image_renderer.make_image_renderer(exp.model, config)(params)
-  bg = background.parse(config.data.background)
+    exp = dataclasses.replace(exp, image=dataclasses.replace(exp.image, march=march))
+  draw = image_renderer.make_image_renderer(exp.renderer, exp.image)(variables)
+  bg = background.parse(exp.config.data.background)
   camera = exp.camera(size / max(exp.train_ds.height, exp.train_ds.width))
   pose = exp.test_ds.poses[0]
   return lambda: draw(exp.rays(pose, camera), bg)
@@ -52,7 +49,7 @@ def big_frame_rss(workdir, size):
   """Run in a subprocess: {'size', 'rss_before_mb', 'peak_rss_mb', 'seconds', 'finite'}."""
   exp, state = experiment.restore(workdir)
   before = measure.peak_rss_mb()
-  render = frame_renderer(exp, state.params, size)
+  render = frame_renderer(exp, state.variables, size)
   start = time.perf_counter()
   out = render()
   return {"size": size, "rss_before_mb": before, "peak_rss_mb": measure.peak_rss_mb(),
@@ -62,18 +59,18 @@ def big_frame_rss(workdir, size):
 def measure_workdir(workdir, frame_size=100, repeats=10, frames=120, sizes=(800,)):
   """The record: frame ms, video seconds and big-frame RSS of `workdir`'s model."""
   exp, state = experiment.restore(workdir)
-  params, config = state.params, exp.config
-  frame_ms = [1e3 * s for s in measure.sample_seconds(frame_renderer(exp, params, frame_size),
+  variables, config = state.variables, exp.config
+  frame_ms = [1e3 * s for s in measure.sample_seconds(frame_renderer(exp, variables, frame_size),
                                                       repeats)]
   plain = {}
-  if image_renderer.marches(config):  # the plain path side by side, for the ratio
+  if image_renderer.marches(exp.renderer, exp.image):  # the plain path side by side, for the ratio
     plain_ms = [1e3 * s for s in measure.sample_seconds(
-        frame_renderer(exp, params, frame_size, march=False), repeats)]
+        frame_renderer(exp, variables, frame_size, march=False), repeats)]
     plain = {"plain_frame_ms": plain_ms, "plain_frame_ms_median": float(np.median(plain_ms))}
   config.render.video_frames = frames
   with tempfile.TemporaryDirectory() as out_dir:
     start = time.perf_counter()
-    outputs.render_video(exp, params, out_dir, show_progress=False)
+    outputs.render_video(exp, variables, out_dir, show_progress=False)
     video_seconds = time.perf_counter() - start
   big = [_subprocess_frame(workdir, size) for size in sizes]
   return {"workdir": workdir, "encoding": config.model.encoding,

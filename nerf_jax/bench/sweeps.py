@@ -95,10 +95,10 @@ SWEEPS = {
         Entry("grid occupancy", {**_VIEW, "occupancy.enabled": True}, base="fast"),
         # configs/detail.py: occupancy 64^3, 32 samples x 4096 rays, lr 2e-2 (chosen on `detail`)
         Entry("detail", base="detail"),
-        Entry("grid 256", {**_VIEW, "model.grid_resolutions": (64, 128, 256),
-                           "model.grid_features": 2}, base="fast"),
-        Entry("hash", {**_VIEW, "model.hash_dtype": "float16"}, base="hash"),
-        Entry("hash occupancy", {**_VIEW, "model.hash_dtype": "float16",
+        Entry("grid 256", {**_VIEW, "model.grid.resolutions": (64, 128, 256),
+                           "model.grid.features": 2}, base="fast"),
+        Entry("hash", {**_VIEW, "model.hash.gather_dtype": "float16"}, base="hash"),
+        Entry("hash occupancy", {**_VIEW, "model.hash.gather_dtype": "float16",
                                  "occupancy.enabled": True}, base="hash"),
     ],
     # Step time against the work per step (rays x samples); run with --steps (equal steps).

@@ -91,13 +91,13 @@ def calibrate(exp, data, key):
   return measure.median_step_seconds(segments[1:] or segments), compile_seconds
 
 
-def frame_seconds(exp, params, repeats):
+def frame_seconds(exp, variables, repeats):
   """([seconds per frame], (height, width)): renders of test view 0's pose, from pose to pixels,
   through the training camera scaled to about RENDER_PIXELS pixels (Experiment.camera: same
   field of view and aspect), after one warm-up render that compiles."""
   scale = math.sqrt(RENDER_PIXELS / (exp.train_ds.height * exp.train_ds.width))
   camera = exp.camera(scale)
-  draw = image_renderer.make_image_renderer(exp.model, exp.config)(params)
+  draw = image_renderer.make_image_renderer(exp.renderer, exp.image)(variables)
   bg = background.parse(exp.config.data.background)
   pose = exp.test_ds.poses[0]
   return measure.sample_seconds(lambda: draw(exp.rays(pose, camera), bg), repeats), camera[:2]
@@ -122,7 +122,7 @@ def run_config(config, options):
   clock = measure.Clock()
 
   def probe(state):
-    psnr = evaluate(state.params, max_views=options.eval_views)["psnr"]
+    psnr = evaluate(state.variables, max_views=options.eval_views)["psnr"]
     print(f"  {clock.seconds():7.1f} s  step {int(state.step):6d}  probe PSNR {psnr:.2f}",
           flush=True)
     return psnr
@@ -142,9 +142,9 @@ def run_config(config, options):
     probes.append({"seconds": train_seconds, "step": steps, "psnr": probe(state)})
 
   start = time.perf_counter()
-  final = evaluate(state.params, out_dir=options.eval_dir or None)
+  final = evaluate(state.variables, out_dir=options.eval_dir or None)
   eval_seconds = time.perf_counter() - start
-  render_times, render_size = frame_seconds(exp, state.params, options.render_repeats)
+  render_times, render_size = frame_seconds(exp, state.variables, options.render_repeats)
   step_seconds = measure.median_step_seconds(segments)
   rays = train_lib.rays_per_step(config, exp.train_ds)
   flops = measure.mlp_flops_per_step(state.params, config, rays)
@@ -164,8 +164,7 @@ def run_config(config, options):
       "peak_fraction": flops / step_seconds / 1e9 / peak,
       "render_ms": 1e3 * float(np.median(render_times)),
       "render_ms_samples": [1e3 * t for t in render_times], "render_size": list(render_size),
-      "params": int(sum(x.size for name, net in state.params.items() if name != "occupancy"
-                        for x in jax.tree_util.tree_leaves(net))),  # trained weights only
+      "params": int(sum(x.size for x in jax.tree_util.tree_leaves(state.params))),
       "peak_rss_mb": measure.peak_rss_mb(), "device_peak_mb": measure.device_peak_mb(),
       "eval_seconds": eval_seconds, "diverged_at_step": bad + 1 if bad >= 0 else None,
       "schedule_steps": budget.planned_steps(tc), "config": json.loads(config.to_json()), **setup}

@@ -24,7 +24,7 @@ _pixel_rays = jax.jit(rays.pixel_rays, static_argnames=("pixel_center", "use_ndc
 class Scene:
   """A model ready to draw and the training cameras to show.
 
-  make_draw: fn(params) -> image_renderer.Draw, draw(rays, background) -> numpy dict
+  make_draw: fn(variables) -> image_renderer.Draw, draw(rays, background) -> numpy dict
     rgb [n, 3], depth [n], acc [n].
   dataset: the training data.Dataset (its poses, images and intrinsics are the cameras shown).
   near, far: float bounds. background: float32 [3]. pixel_center: the rays' (resolved).
@@ -84,18 +84,18 @@ class Scene:
 def from_run(exp):
   """The Scene of a model being trained (or restored): an experiment.Experiment."""
   config = exp.config
-  return Scene(config=config, make_draw=image_renderer.make_image_renderer(exp.model, config),
+  return Scene(config=config, make_draw=image_renderer.make_image_renderer(exp.renderer, exp.image),
                dataset=exp.train_ds, near=float(exp.near), far=float(exp.far),
                background=background.parse(config.data.background),
                pixel_center=exp.pixel_center)
 
 
 def from_workdir(workdir):
-  """(Scene, params, step) of the newest checkpoint in `workdir`.
+  """(Scene, variables, step) of the newest checkpoint in `workdir` (variables: renderer.py).
 
   Raises FileNotFoundError or experiment.TrainingError (one line) when there is none.
   """
   if not os.path.isdir(workdir):
     raise FileNotFoundError(f"--workdir={workdir}: no such directory")
   exp, state = experiment.restore(workdir)
-  return from_run(exp), state.params, int(state.step)
+  return from_run(exp), state.variables, int(state.step)
