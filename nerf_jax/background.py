@@ -45,3 +45,17 @@ def recomposite(rgb, acc, old, new):
   Works on numpy and jax arrays alike.
   """
   return rgb + (1.0 - acc)[..., None] * (new - old)
+
+
+def images_on_background(dataset, new):
+  """(acc float32 [N, H, W], rgb float32 [N, H, W, 3]): the dataset's images re-composited on
+  the background `new` (float32 [3], see `parse`), what the model is trained and scored
+  against.
+
+  With known opacity the background is swapped exactly (background.recomposite); without it
+  the images are used as they are (acc = ones).
+  """
+  if dataset.accs is None:
+    return np.ones(dataset.images.shape[:-1], np.float32), dataset.images
+  old = np.asarray(dataset.background, np.float32)
+  return dataset.accs, recomposite(dataset.images, dataset.accs, old, new).astype(np.float32)

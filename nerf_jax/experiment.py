@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import ml_collections
 import optax
 
-from nerf_jax import budget, checkpoints, config_lib, model, occupancy
+from nerf_jax import checkpoints, config_lib, model, occupancy
 from nerf_jax.data import loaders
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.field import Field
@@ -160,17 +160,22 @@ def bounds(config, dataset):
   return (float(config.data.near or dataset.near), float(config.data.far or dataset.far))
 
 
+def schedule_steps(train_config):
+  """The steps the schedule spans: max_steps if set, else default_steps."""
+  return int(train_config.max_steps or train_config.default_steps)
+
+
 def make_schedule(train_config, planned_steps=None):
   """count -> learning rate: linear warm-up from 0 to `lr` over `warmup_steps`, then exponential
   decay reaching `lr_final` at the planned steps and staying there (a time-budget run may take a
   few more).
 
-  planned_steps: None for `budget.planned_steps` of the config, or an int32 [] (possibly traced:
-  a time budget's fitted length, see budget.py, so one compiled step serves any length), over
-  which warm-up keeps its share of the config's planned steps (as `budget.fit_schedule`).
+  planned_steps: None for `schedule_steps(train_config)`, or an int32 [] (possibly traced: a
+  time budget's fitted length, see budget.py, so one compiled step serves any length), over
+  which warm-up keeps its share of the config's planned steps (as train_lib.fit_schedule).
   """
   tc = train_config
-  planned, warmup = budget.planned_steps(tc), tc.warmup_steps
+  planned, warmup = schedule_steps(tc), tc.warmup_steps
   if planned_steps is not None:
     warmup = jnp.round(tc.warmup_steps / max(planned, 1) * planned_steps)
     planned = planned_steps

@@ -143,10 +143,10 @@ def held_out(workdir, folder):
 
 def evaluate_at(workdir, test_ds):
   """The newest checkpoint of `workdir` scored on the views of `test_ds` (a Dataset in the run's
-  world frame, at its image size): outputs.make_evaluator's {'psnr', 'ssim', ...}."""
-  from nerf_jax import experiment, outputs  # pylint: disable=import-outside-toplevel
+  world frame, at its image size): evaluation.make_evaluator's {'psnr', 'ssim', ...}."""
+  from nerf_jax import evaluation, experiment  # pylint: disable=import-outside-toplevel
   exp, state = experiment.restore(workdir)
-  return outputs.make_evaluator(dataclasses.replace(exp, test_ds=test_ds))(state.variables)
+  return evaluation.make_evaluator(dataclasses.replace(exp, test_ds=test_ds))(state.variables)
 
 
 def _scores(metrics):

@@ -4,7 +4,7 @@
   python -m nerf_jax.bench.profile --config=fast --config.train.batch_rays=2048
 
 Stages (each jitted on its own, median of --repeats calls after a warm-up): the library's whole
-train step (train_lib.make_train_step); drawing the batch; sampling + encoding (forward only:
+train step (train_step.make_train_step); drawing the batch; sampling + encoding (forward only:
 nothing upstream needs a gradient); the field's forward + backward on pre-encoded inputs;
 compositing forward + backward; and plain matmuls with the MLP's shapes, [rays·samples, in] ×
 [in, out], forward only. The stages do not add up exactly (XLA fuses across them in the real
@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax import compositing, encoding, experiment, sampler, train_lib
+from nerf_jax import compositing, encoding, experiment, sampler, train_batches, train_step
 from nerf_jax.bench import measure
 
 
@@ -39,10 +39,10 @@ def profile(config, repeats=10):
   """[(stage, ms, note)] for one train step of `config` on its dataset."""
   exp = experiment.setup(config)
   state = experiment.init_state(exp)
-  data = train_lib.make_train_data(exp)
+  data = train_batches.make_train_data(exp)
   key = jax.random.PRNGKey(0)
-  rays, samples = train_lib.rays_per_step(config, exp.train_ds), config.num_samples
-  step = train_lib.make_train_step(exp)
+  rays, samples = train_batches.rays_per_step(config, exp.train_ds), config.num_samples
+  step = train_step.make_train_step(exp)
   compiled = step.lower(state, data, key).compile()
   times = []
   for _ in range(repeats + 1):
@@ -52,9 +52,9 @@ def profile(config, repeats=10):
     times.append(time.perf_counter() - start)
   rows = [("train step (all)", 1e3 * float(np.median(times[1:])), f"{rays} rays × {samples}")]
 
-  batch = train_lib.draw_batch(data, config, key).rays
+  batch = train_batches.draw_batch(data, config, key).rays
   rows.append(("draw batch (gathers)", median_ms(
-      lambda k: train_lib.draw_batch(data, config, k), key, repeats=repeats), ""))
+      lambda k: train_batches.draw_batch(data, config, k), key, repeats=repeats), ""))
 
   field = exp.renderer.field
 

@@ -165,7 +165,7 @@ def shown_times(records):
 
 
 # Columns shown when a run has them: LPIPS, and the geometry scores of data with true opacity
-# and depth (outputs.geometry_errors).
+# and depth (evaluation.geometry_errors).
 OPTIONAL_COLUMNS = (("test_lpips", "LPIPS"), ("test_depth_error", "depth err"),
                     ("test_empty_opacity", "empty opacity"), ("test_floaters", "floaters"))
 

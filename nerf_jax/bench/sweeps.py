@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import ml_collections
 
-from nerf_jax import budget, config_lib, scenes
+from nerf_jax import config_lib, scenes, train_lib
 
 
 class Entry(NamedTuple):
@@ -178,7 +178,7 @@ def make_config(entry, scene, overrides=None, base="default", image_size=None):
   return config
 
 
-fit_schedule = budget.fit_schedule  # stretch the schedule to a number of steps
+fit_schedule = train_lib.fit_schedule  # stretch the schedule to a number of steps
 
 
 def as_config(config_json):

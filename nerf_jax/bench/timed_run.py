@@ -1,7 +1,8 @@
 """One configuration trained under the benchmark's clock and measured: its record.
 
 The run is built and stepped by the library (experiment.setup / init_state,
-train_lib.make_train_data / make_train_step, outputs.make_evaluator, Experiment.camera); only
+train_batches.make_train_data, train_step.make_train_step, evaluation.make_evaluator,
+Experiment.camera; the time budget fitted by train_lib.fit_to_time, as for training); only
 the loop around the step is the bench's own: it syncs once per segment of steps, times the
 segments, and probes PSNR with the clock paused (see measure.py for the time words), which is
 not what train_lib.train_and_evaluate measures.
@@ -20,12 +21,12 @@ import traceback
 import jax
 import numpy as np
 
-from nerf_jax import background, budget, experiment, image_renderer, outputs, train_lib
+from nerf_jax import (background, evaluation, experiment, image_renderer, train_batches, train_lib,
+                      train_step)
 from nerf_jax.bench import measure, sweeps
 
 SEGMENT_SECONDS = 0.25  # steps between host syncs: about this long (bounds budget overshoot)
 MAX_SEGMENT_STEPS = 64
-CALIBRATION_SECONDS = 3.0  # budget mode: time a throwaway run this long to fit the schedule
 RENDER_PIXELS = 100 * 100  # render time is reported per frame of this many pixels
 
 
@@ -76,19 +77,7 @@ def _build(exp):
   so every loop needs a state of its own."""
   # One compiled init instead of dozens of eagerly compiled small ops: same values, less setup.
   state = jax.jit(lambda: experiment.init_state(exp))()
-  return train_lib.make_train_step(exp), state
-
-
-def calibrate(exp, data, key):
-  """(seconds per step, compile seconds) of a throwaway run of CALIBRATION_SECONDS, timed in
-  segments as the real run is; the first step is left out."""
-  jitted, state = _build(exp)
-  compiled, compile_seconds = measure.compile_jitted(jitted, state, data, key)
-  clock = measure.Clock()
-  clock.start()
-  _, _, segments, _ = train_loop(lambda s: compiled(s, data, key)[0], state, sys.maxsize,
-                                 CALIBRATION_SECONDS, [], None, clock)
-  return measure.median_step_seconds(segments[1:] or segments), compile_seconds
+  return train_step.make_train_step(exp), state
 
 
 def frame_seconds(exp, variables, repeats):
@@ -107,18 +96,20 @@ def run_config(config, options):
   """Train `config` under its budget in this process and measure it. Returns the record."""
   start = time.perf_counter()
   exp = experiment.setup(config)
-  data = train_lib.make_train_data(exp)
+  data = train_batches.make_train_data(exp)
   key = jax.random.PRNGKey(config.seed + 1)  # as train_lib.train_and_evaluate
   tc = config.train
-  max_steps = budget.planned_steps(tc)
+  max_steps = experiment.schedule_steps(tc)
   if tc.max_seconds > 0 and options.fit_schedule:
-    # The schedule spans the steps expected to fit in the budget; the clock alone ends the run.
-    step_seconds, compile_seconds = calibrate(exp, data, key)
-    sweeps.fit_schedule(tc, max(1, int((tc.max_seconds - compile_seconds) / step_seconds)))
-    exp = dataclasses.replace(exp, tx=experiment.make_optimizer(tc))  # on the fitted schedule
+    # The schedule spans the steps expected to fit in the budget (the benchmark's clock counts
+    # the compile, not the calibration); the clock alone ends the run.
+    config = train_lib.fit_to_time(exp, train_step.make_train_step(exp), data, key,
+                                   lambda compile_seconds: tc.max_seconds - compile_seconds)
+    tc = config.train
+    exp = dataclasses.replace(exp, config=config, tx=experiment.make_optimizer(tc))
     max_steps = sys.maxsize
   jitted, state = _build(exp)
-  evaluate = outputs.make_evaluator(exp)
+  evaluate = evaluation.make_evaluator(exp)
   clock = measure.Clock()
 
   def probe(state):
@@ -146,12 +137,12 @@ def run_config(config, options):
   eval_seconds = time.perf_counter() - start
   render_times, render_size = frame_seconds(exp, state.variables, options.render_repeats)
   step_seconds = measure.median_step_seconds(segments)
-  rays = train_lib.rays_per_step(config, exp.train_ds)
+  rays = train_batches.rays_per_step(config, exp.train_ds)
   flops = measure.mlp_flops_per_step(state.params, config, rays)
   bad = int(state.bad_step)
   return {
       "test_psnr": final["psnr"], "test_ssim": final["ssim"], "test_lpips": final.get("lpips"),
-      **{f"test_{name}": final[name] for name in outputs.GEOMETRY_SCORES
+      **{f"test_{name}": final[name] for name in evaluation.GEOMETRY_SCORES
          if name in final},
       "test_views": len(exp.test_ds),
       "psnr_at": {f"{t:g}": v for t, v in zip(options.eval_times,
@@ -167,7 +158,7 @@ def run_config(config, options):
       "params": int(sum(x.size for x in jax.tree_util.tree_leaves(state.params))),
       "peak_rss_mb": measure.peak_rss_mb(), "device_peak_mb": measure.device_peak_mb(),
       "eval_seconds": eval_seconds, "diverged_at_step": bad + 1 if bad >= 0 else None,
-      "schedule_steps": budget.planned_steps(tc), "config": json.loads(config.to_json()), **setup}
+      "schedule_steps": experiment.schedule_steps(tc), "config": json.loads(config.to_json()), **setup}
 
 
 def worker(spec_path):

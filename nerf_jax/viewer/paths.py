@@ -69,7 +69,7 @@ def interpolate(keyframes, frames_per_segment, loop=False):
 
 def save_path(path, keyframes, poses, fps):
   """Write a camera path: `.json` {'fps', 'keyframes': [...], 'frames': [{'transform_matrix'}]}
-  (what outputs.load_poses reads), and the poses float32 [F, 4, 4] as `.npy` beside it.
+  (what camera_paths.load_poses reads), and the poses float32 [F, 4, 4] as `.npy` beside it.
 
   Returns the paths written.
   """

@@ -10,10 +10,10 @@ import os
 import jax
 import numpy as np
 
-from nerf_jax import background, experiment, image_renderer, outputs, rays
+from nerf_jax import background, experiment, image_renderer, rays, visuals
 from nerf_jax.viewer import camera, policy
 
-colorize, to_uint8 = outputs.colorize, outputs.to_uint8
+colorize, to_uint8 = visuals.colorize, visuals.to_uint8
 
 # One chunk of pixels' rays; compiled once for every frame size (rays.camera_rays's eager
 # operations would compile for each new size, ~0.5 s).

@@ -1,0 +1,102 @@
+"""The jitted train step: draw a batch, refresh the occupancy grid, render, take a gradient
+step of Adam; a non-finite step is not applied and is reported.
+
+With several devices each batch is split over them (see parallel.py); the parameters are
+replicated.
+"""
+
+import collections
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from nerf_jax import (background, experiment, metrics, occupancy, parallel, regularizers,
+                      renderer, train_batches)
+from nerf_jax.experiment import TrainState
+
+
+def make_train_step(exp, mesh=None):
+  """The jitted train step: (state, data, key[, planned_steps]) -> (state, stats). `state` is
+  donated. planned_steps: int32 [], the length of a time budget's fitted schedule (see
+  experiment.make_schedule; one compiled step for any length), or absent for the config's.
+
+  mesh: a `parallel.make_mesh` Mesh to split each batch over its devices (data and state
+  replicated on it), or None for one device.
+  """
+  ray_renderer, tx, config = exp.renderer, exp.tx, exp.config
+  oc = ray_renderer.sampler.occupancy
+  fixed_background = jnp.asarray(background.parse(config.data.background))
+  random_background = background.trains_on_random(config.train.random_background,
+                                                  exp.train_ds.accs is not None)
+
+  def loss_fn(params, buffers, batch, key):
+    render_key, bg_key = jax.random.split(key)
+    bg, target = fixed_background, batch.rgb
+    if random_background:
+      # A fresh background per ray: the field cannot bake the background into density.
+      bg = jax.random.uniform(bg_key, batch.rgb.shape)
+      target = background.recomposite(batch.rgb, batch.acc, fixed_background, bg)
+    outs = ray_renderer.render({"params": params, **buffers}, batch.rays, render_key, bg,
+                               config.train.remat_chunk)
+    mses = {name: jnp.mean((out["rgb"] - target) ** 2) for name, out in outs.items()}
+    loss = mses["coarse"] if "fine" not in mses else (
+        mses["fine"] + config.train.coarse_loss_weight * mses["coarse"])
+    best = mses.get("fine", mses["coarse"])
+    if config.train.distortion_weight > 0:  # keep each ray's weight in one place: no floaters
+      last = renderer.final(outs)
+      loss = loss + config.train.distortion_weight * jnp.mean(
+          regularizers.distortion(last["t"], last["weights"]))
+    return loss, {"loss": loss, "psnr": metrics.mse_to_psnr(best)}
+
+  def refresh_occupancy(state, run_key):
+    """Every `update_every` steps, probe the density field at jittered positions (drawn from the
+    step: a resumed run probes where the uninterrupted one did) and accumulate them into the
+    occupancy grid with decay (occupancy.accumulate). Returns the buffers."""
+    if oc is None:
+      return state.buffers
+    # A stream of its own: fold_in(run_key, n) is step n's key, and step 2^32 - 1 never comes.
+    key = jax.random.fold_in(jax.random.fold_in(run_key, 0xFFFFFFFF), state.step)
+    refresh = lambda s: occupancy.accumulate(
+        s.buffers["occupancy"], ray_renderer.occupancy_grid(s.variables, key), oc.decay)
+    grid = jax.lax.cond(state.step % oc.update_every == 0, refresh,
+                        lambda s: s.buffers["occupancy"], state)
+    return {**state.buffers, "occupancy": grid}
+
+  def step(state, data, run_key, planned_steps=None):
+    key = jax.random.fold_in(run_key, state.step)
+    batch_key, render_key = jax.random.split(key)
+    batch = parallel.shard_batch(
+        train_batches.draw_batch(data, config, batch_key, state.step, run_key), mesh)
+    buffers = refresh_occupancy(state, run_key)
+    grads, stats = jax.grad(loss_fn, has_aux=True)(state.params, buffers, batch, render_key)
+    finite = jnp.isfinite(stats["loss"]) & jnp.all(jnp.array(
+        [jnp.all(jnp.isfinite(g)) for g in jax.tree_util.tree_leaves(grads)]))
+    step_tx = tx if planned_steps is None else experiment.make_optimizer(config.train,
+                                                                         planned_steps)
+    updates, opt_state = step_tx.update(grads, state.opt_state, state.params)
+    params = optax.apply_updates(state.params, updates)
+    # A non-finite step is not applied (the state stays the last good one) and is reported.
+    keep = lambda new, old: jax.tree_util.tree_map(lambda n, o: jnp.where(finite, n, o), new, old)
+    bad_step = jnp.where((state.bad_step < 0) & ~finite, state.step, state.bad_step)
+    new_state = TrainState(step=state.step + 1, params=keep(params, state.params),
+                           opt_state=keep(opt_state, state.opt_state), bad_step=bad_step,
+                           buffers=keep(buffers, state.buffers))
+    return parallel.replicated_constraint(new_state, mesh), stats
+
+  return jax.jit(step, donate_argnums=0)
+
+
+_STEPS = collections.OrderedDict()  # the few most recent train steps, see `_cached_train_step`
+
+
+def cached_train_step(exp, mesh=None):
+  """`make_train_step`, reused for an equal config in the same process (tests, sweeps and
+  resumed runs then compile it once): the step depends on nothing else."""
+  key = (exp.config.to_json(), exp.near, exp.far, mesh)
+  if key not in _STEPS:
+    _STEPS[key] = make_train_step(exp, mesh)
+    while len(_STEPS) > 4:
+      _STEPS.popitem(last=False)
+  _STEPS.move_to_end(key)
+  return _STEPS[key]
