@@ -92,7 +92,10 @@ def train_and_evaluate(config, workdir):
   last_log, last_log_step = time.perf_counter(), start_step
   step = start_step
   planned = experiment.schedule_steps(tc)
-  bar = progress.Progress(planned, "train", start=start_step,
+  clocked = last_step == sys.maxsize  # a time budget: the clock, not a step count, is the total
+  position = lambda: int(time.perf_counter() - t_start) if clocked else step
+  bar = progress.Progress(int(tc.max_seconds) if clocked else planned,
+                          "train (seconds)" if clocked else "train", start=position(),
                           stream=None if main else io.StringIO())
   viewer = live_viewer.start(exp, workdir, enabled=main)
   with _StopRequest() as stop:
@@ -127,13 +130,15 @@ def train_and_evaluate(config, workdir):
         eta = max(planned - step, 0) * wall / max(step - start_step, 1)
         if tc.max_seconds > 0:
           eta = max(min(eta, tc.max_seconds - wall), 0.0)
-        bar.update(step, info=f"loss {record['loss']:.5f} psnr {record['train_psnr']:.2f}")
-        bar.write(f"step {step}/{planned} loss {record['loss']:.5f} "
+        of = f" of {progress.format_seconds(tc.max_seconds)}" if clocked else ""
+        bar.update(position(), info=f"loss {record['loss']:.5f} psnr {record['train_psnr']:.2f}")
+        bar.write(f"step {step}{'' if clocked else f'/{planned}'} loss {record['loss']:.5f} "
                   f"psnr {record['train_psnr']:.2f} {rays_s:,.0f} rays/s "
-                  f"elapsed {progress.format_seconds(wall)} eta {progress.format_seconds(eta)}")
+                  f"elapsed {progress.format_seconds(wall)}{of} "
+                  f"eta {progress.format_seconds(eta)}")
       elif bar.due():
         jax.block_until_ready(state.step)  # show steps done, not steps queued (a scalar sync)
-        bar.update(step)
+        bar.update(position())
       if step % tc.checkpoint_every == 0 or step == last_step or budget_over or stop.signum:
         _check_finite(state, workdir)  # never checkpoint a state that has seen a bad step
         _save(workdir, state, signature, tc, time.perf_counter() - t_start)
