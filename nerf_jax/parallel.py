@@ -108,11 +108,11 @@ def check_batch(rays_per_step, mesh):
                      "config.train.data_parallel=False")
 
 
-def check_time_budget(train_config):
-  """A ValueError for a time budget (train.max_seconds) with several processes: each process's
-  clock would end its calibration and its run at a different step, and the collectives of the
-  others would then wait for ever."""
-  if train_config.max_seconds > 0 and jax.process_count() > 1:
+def check_time_budget(max_seconds):
+  """A ValueError for a time budget (train.max_seconds > 0) with several processes: each
+  process's clock would end its calibration and its run at a different step, and the
+  collectives of the others would then wait for ever."""
+  if max_seconds > 0 and jax.process_count() > 1:
     raise ValueError(f"config.train.max_seconds: a time budget needs one process, this run has "
                      f"{jax.process_count()}; set config.train.max_steps and "
                      "config.train.max_seconds=0")

@@ -58,7 +58,7 @@ def train_and_evaluate(config, workdir):
   """
   main = parallel.is_main_process()
   config = config_lib.upgrade(config)
-  parallel.check_time_budget(config.train)
+  parallel.check_time_budget(config.train.max_seconds)
   if main:
     os.makedirs(workdir, exist_ok=True)
   exp = experiment.setup(config)
