@@ -8,9 +8,14 @@ Fields read (top level for one camera, or per frame for several; a frame's own v
   p1, p2; fisheye and equirectangular models are refused);
   frames[].file_path (relative to the folder), frames[].transform_matrix (camera-to-world,
   OpenGL axes, as `nerf_jax.rays`);
+  frames[].sharpness (optional, instant-ngp's colmap2nerf: the variance of the Laplacian),
+    read when `min_sharpness` > 0 (`sharp_frames`);
   train_filenames / test_filenames (optional split, nerfstudio's names);
   ply_file_path (optional sparse points, used to centre and scale);
   near, far, nerf_jax_normalized (written by `nerf-process`).
+
+Frames whose image is missing are skipped, with one printed line, as instant-ngp does; more than
+half missing is an error (the wrong folder or factor).
 
 Lens distortion is removed once, at load: every image is resampled (bilinear) into one shared
 pinhole camera — the mean of the frames' intrinsics — so the rest of the code sees a Dataset
@@ -32,6 +37,8 @@ from nerf_jax.data.validate import composite, parse_background
 FILENAME = "transforms.json"
 _UNSUPPORTED_MODELS = ("OPENCV_FISHEYE", "EQUIRECTANGULAR", "FISHEYE")
 _DIST_KEYS = ("k1", "k2", "p1", "p2", "k3")
+SHARPNESS_WINDOW = 3  # neighbours on each side whose mean sharpness a frame is judged against
+_LISTED = 5  # missing file names printed before "…"
 
 
 def write(out_dir, frames, camera, extra):
@@ -114,40 +121,120 @@ def _downscale(image, factor):
   return blocks.reshape(height, factor, width, factor, -1).mean((1, 3))
 
 
-def _image_path(root, file_path, factor, where):
-  """The frame's image, from `images_{factor}/` when nerfstudio wrote downscaled copies."""
-  path = os.path.join(root, file_path)
+def _scaled_path(root, file_path, factor):
+  """Where nerfstudio keeps the frame downscaled by `factor`: images/a.png -> images_4/a.png."""
   parts = os.path.normpath(file_path).split(os.sep)
   if factor > 1 and len(parts) > 1:
-    scaled = os.path.join(root, f"{parts[0]}_{factor}", *parts[1:])
-    if os.path.isfile(scaled):
-      return scaled, True
-  if not os.path.isfile(path):
-    raise DataError(f"{where}.file_path: image {path} not found")
-  return path, False
+    return os.path.join(root, f"{parts[0]}_{factor}", *parts[1:])
+  return None
 
 
-def load(path, background=(0.0, 0.0, 0.0), factor=1):
-  """All frames of a transforms.json folder (or the file itself), sorted by file_path.
+def _image_path(root, file_path, factor):
+  """(path, prescaled) of the frame's image, from `images_{factor}/` when nerfstudio wrote
+  downscaled copies; (None, False) when neither it nor the full image exists."""
+  scaled = _scaled_path(root, file_path, factor)
+  if scaled and os.path.isfile(scaled):
+    return scaled, True
+  path = os.path.join(root, file_path)
+  return (path, False) if os.path.isfile(path) else (None, False)
+
+
+def _folders(root, file_paths, factor):
+  """The folders the images of `file_paths` were looked for in (images_{factor}/ where it
+  exists), as one string for messages."""
+  folders = []
+  for file_path in file_paths:
+    scaled = _scaled_path(root, file_path, factor)
+    full = os.path.dirname(os.path.normpath(os.path.join(root, file_path)))
+    for folder in [full] + ([os.path.dirname(scaled)] if scaled else []):
+      if folder not in folders and (folder == full or os.path.isdir(folder)):
+        folders.append(folder)
+  return " or ".join(folders)
+
+
+def _found_frames(root, meta_path, frames, factor):
+  """The frames whose image exists, as (k, frame, image path, prescaled); prints which were
+  skipped. frames: list of (k, frame dict) in file order."""
+  found = [(k, frame, *_image_path(root, frame["file_path"], factor)) for k, frame in frames]
+  missing = [frame["file_path"] for _, frame, path, _ in found if path is None]
+  if not missing:
+    return found
+  folder = _folders(root, missing, factor)
+  if len(missing) == len(frames):
+    raise DataError(f"{meta_path}: none of the {len(frames)} frames' images is in {folder}")
+  if 2 * len(missing) > len(frames):
+    raise DataError(f"{meta_path}: {len(missing)} of {len(frames)} frames' images are missing "
+                    f"from {folder} (the wrong folder or data.factor?)")
+  names = [os.path.basename(p) for p in missing[:_LISTED]] + ["…"] * (len(missing) > _LISTED)
+  print(f"{meta_path}: skipped {len(missing)} of {len(frames)} frames whose image is not in "
+        f"{folder}: {', '.join(names)}", flush=True)
+  return [f for f in found if f[2] is not None]
+
+
+def sharp_frames(sharpness, min_sharpness):
+  """Which frames are sharp enough: bool [N].
+
+  sharpness: float64 [N], each frame's sharpness in file order (NaN: none given, kept).
+  A rated frame is dropped when its sharpness < min_sharpness x the mean sharpness of the rated
+  frames within SHARPNESS_WINDOW places of it (itself included; fewer at the ends).
+  min_sharpness <= 0 keeps every frame.
+  This is instant-ngp's rule (src/nerf_loader.cu, the file's `sharpness_discard_threshold`,
+  kept when sharpness > threshold x mean) with a symmetric window: its window runs from 3 before
+  to 2 after (the end of its loop stops one short); its frames with missing images count
+  towards the mean, ours (skipped before) do not.
+  """
+  sharpness = np.asarray(sharpness, np.float64)
+  keep = np.ones(len(sharpness), bool)
+  if min_sharpness <= 0:
+    return keep
+  rated = np.flatnonzero(~np.isnan(sharpness))
+  values = sharpness[rated]
+  for j, k in enumerate(rated):
+    window = values[max(0, j - SHARPNESS_WINDOW):j + SHARPNESS_WINDOW + 1]
+    keep[k] = values[j] >= min_sharpness * window.mean()
+  return keep
+
+
+def _drop_blurry(found, min_sharpness, meta_path):
+  """`found` (see `_found_frames`) less the frames `sharp_frames` drops; prints how many."""
+  if min_sharpness <= 0 or not any("sharpness" in frame for _, frame, _, _ in found):
+    return found
+  sharpness = [validate.scalar(frame["sharpness"], f"{meta_path}: frames[{k}].sharpness")
+               if "sharpness" in frame else np.nan for k, frame, _, _ in found]
+  keep = sharp_frames(sharpness, min_sharpness)
+  if not keep.any():
+    raise DataError(f"{meta_path}: min_sharpness={min_sharpness:g} drops all {len(keep)} frames")
+  print(f"{meta_path}: dropped {int((~keep).sum())} of {len(keep)} frames less sharp than "
+        f"{min_sharpness:g}x their neighbours' mean sharpness", flush=True)
+  return [f for f, kept in zip(found, keep) if kept]
+
+
+def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
+  """All frames of a transforms.json folder (or the file itself) whose image exists, sorted by
+  file_path.
 
   factor: int, downscale the images by this factor (nerfstudio's `images_{factor}/` copies when
-  present, else a block average). Returns (Dataset, names, test_names): names, the frames'
-  file_path values in the Dataset's order; test_names, the set of them the file names as test
-  (or val) images, or None.
+  present, else a block average). min_sharpness: float, drop blurry frames (`sharp_frames`;
+  0 = keep all). Returns (Dataset, names, test_names): names, the frames' file_path values in
+  the Dataset's order; test_names, the set of them the file names as test (or val) images, or
+  None.
   """
   meta_path = path if path.endswith(".json") else os.path.join(path, FILENAME)
   root = os.path.dirname(meta_path)
   meta = _read_meta(meta_path)
   factor = int(factor) if factor else 1
   order = sorted(range(len(meta["frames"])), key=lambda k: str(meta["frames"][k].get("file_path")))
-  images, poses, cameras, names = [], [], [], []
   for k in order:
     frame, where = meta["frames"][k], f"{meta_path}: frames[{k}]"
     if not isinstance(frame, dict) or "file_path" not in frame:
       raise DataError(f"{where}: missing key 'file_path'")
     if "transform_matrix" not in frame:
       raise DataError(f"{where}: missing key 'transform_matrix'")
-    image_path, prescaled = _image_path(root, frame["file_path"], factor, where)
+  found = _found_frames(root, meta_path, [(k, meta["frames"][k]) for k in order], factor)
+  found = _drop_blurry(found, min_sharpness, meta_path)
+  images, poses, cameras, names = [], [], [], []
+  for k, frame, image_path, prescaled in found:
+    where = f"{meta_path}: frames[{k}]"
     image = validate.read_image(image_path)
     full_size = tuple(n * (factor if prescaled else 1) for n in image.shape[:2])
     image = image if prescaled else _downscale(image, factor)
@@ -218,10 +305,10 @@ def _test_names(meta, names):
   return None
 
 
-def load_split(path, background=(0.0, 0.0, 0.0), factor=1, holdout_from=-1):
-  """(train, test) Datasets: the file's test_filenames, else every 8th frame (0, 8, 16, ...
-  of the sorted file paths); holdout_from >= 1 overrides both (`Dataset.split`)."""
-  dataset, names, test_names = load(path, background, factor)
+def load_split(path, background=(0.0, 0.0, 0.0), factor=1, holdout_from=-1, min_sharpness=0.0):
+  """(train, test) Datasets of `load`: the file's test_filenames, else every 8th frame (0, 8,
+  16, ... of the sorted file paths); holdout_from >= 1 overrides both (`Dataset.split`)."""
+  dataset, names, test_names = load(path, background, factor, min_sharpness)
   if holdout_from != -1:
     return dataset.split(holdout_from)
   if test_names is None:
