@@ -1,6 +1,7 @@
 """The transforms.json loader (nerf_jax.data.nerfstudio): intrinsics, distortion, splits,
 re-orientation, one-line errors. Photos come from nerf_jax.scenes.capture's own ray tracer."""
 
+import itertools
 import json
 
 import imageio.v3 as iio
@@ -248,6 +249,51 @@ def test_min_sharpness_drops_frames_at_load(tmp_path, capsys):
   assert len(out) == 1 and "dropped 1 of 7" in out[0], out
 
 
+def _corners(box):
+  return np.array(list(itertools.product(*np.asarray(box, np.float64).T)))
+
+
+def _similarity(before, after):
+  """The similarity x -> s R x + t that took the poses `before` to `after` (float [N, 4, 4]),
+  recovered from two cameras: float64 [4, 4]."""
+  before, after = np.asarray(before, np.float64), np.asarray(after, np.float64)
+  rot = after[0, :3, :3] @ before[0, :3, :3].T
+  step = lambda p: np.linalg.norm(p[1, :3, 3] - p[0, :3, 3])
+  transform = np.eye(4)
+  transform[:3, :3] = step(after) / step(before) * rot
+  transform[:3, 3] = after[0, :3, 3] - transform[:3, :3] @ before[0, :3, 3]
+  return transform
+
+
+def test_aabb_from_aabb_scale_by_hand(tmp_path):
+  # instant-ngp: ngp = 0.33 x + 0.5, box [0.5 - k/2, 0.5 + k/2]^3 -> x in +-(k/2) / 0.33.
+  (tmp_path / "a").mkdir()
+  path = _numbered(tmp_path / "a", 2, {"aabb_scale": 4})  # nerf_jax_normalized: no transform
+  np.testing.assert_allclose(nerfstudio.load(path)[0].aabb, [[-2 / 0.33] * 3, [2 / 0.33] * 3],
+                             rtol=1e-6)
+  # The file's scale and offset: x = (ngp - offset) / scale, ngp in [-0.5, 1.5].
+  (tmp_path / "b").mkdir()
+  path = _numbered(tmp_path / "b", 2, {"aabb_scale": 2, "scale": 0.5, "offset": [0.5, 0.4, 0.6]})
+  np.testing.assert_allclose(nerfstudio.load(path)[0].aabb,
+                             [[-2.0, -1.8, -2.2], [2.0, 2.2, 1.8]], rtol=1e-6)
+  # An un-normalised folder is moved and scaled: the box goes with the poses, and is the
+  # axis-aligned box of its eight moved corners; every split keeps it.
+  (tmp_path / "c").mkdir()
+  poses = capture_scene.ring_poses(8, seed=2)
+  poses[:, :3, 3] = poses[:, :3, 3] * 1.7 + [0.4, -0.3, 1.0]
+  path = _write(tmp_path / "c", [(p, {}) for p in poses],
+                {"fl_x": 5.0, "aabb_scale": 1, "nerf_jax_normalized": None},
+                [np.zeros((4, 4, 3), np.uint8)] * 8)
+  dataset = nerfstudio.load(path)[0]
+  transform = _similarity(poses, dataset.poses)
+  moved = _corners([[-0.5 / 0.33] * 3, [0.5 / 0.33] * 3]) @ transform[:3, :3].T + transform[:3, 3]
+  np.testing.assert_allclose(dataset.aabb, [moved.min(0), moved.max(0)], atol=1e-4)
+  assert dataset.aabb.dtype == np.float32 and dataset.aabb.shape == (2, 3)
+  train, test = nerfstudio.load_split(path)
+  np.testing.assert_array_equal(train.aabb, dataset.aabb)
+  np.testing.assert_array_equal(test.aabb, dataset.aabb)
+
+
 def test_images_n_preferred_over_downscaling(tmp_path):
   photos = [np.full((8, 12, 3), 90, np.uint8), np.full((8, 12, 3), 30, np.uint8)]
   path = _write(tmp_path, [(np.eye(4), {}), (np.eye(4), {})],
@@ -261,3 +307,37 @@ def test_images_n_preferred_over_downscaling(tmp_path):
   (tmp_path / "images" / "f_00.png").unlink()  # only in images_4/: not missing
   np.testing.assert_allclose(nerfstudio.load(path, factor=4)[0].images[:, 0, 0, 0] * 255,
                              [200, 30], atol=1e-4)
+
+
+def test_ns_process_data_folder_loads(tmp_path):
+  """What nerfstudio's ns-process-data writes: OPENCV camera, w/h of the full images,
+  images/frame_%05d.png with masks and images_2/ copies, applied_transform, sparse_pc.ply
+  (already in the poses' frame), no near/far. The scene box comes from the points."""
+  poses = capture_scene.ring_poses(6, seed=4)
+  points = np.random.default_rng(1).normal(0.0, 0.4, (400, 3))
+  pointcloud.write_ply(tmp_path / "sparse_pc.ply", points, np.zeros((400, 3), np.uint8))
+  for folder in ("images", "images_2", "masks"):
+    (tmp_path / folder).mkdir()
+  frames = []
+  for k, pose in enumerate(poses):
+    name = f"frame_{k + 1:05d}.png"
+    iio.imwrite(tmp_path / "images" / name, np.full((8, 12, 3), 40 * k, np.uint8))
+    iio.imwrite(tmp_path / "images_2" / name, np.full((4, 6, 3), 40 * k + 1, np.uint8))
+    iio.imwrite(tmp_path / "masks" / name, np.full((8, 12), 255, np.uint8))
+    frames.append({"file_path": f"images/{name}", "mask_path": f"masks/{name}",
+                   "transform_matrix": pose.tolist(), "colmap_im_id": k + 1})
+  meta = {"w": 12, "h": 8, "fl_x": 11.0, "fl_y": 11.0, "cx": 6.0, "cy": 4.0, "k1": 0.0,
+          "k2": 0.0, "p1": 0.0, "p2": 0.0, "camera_model": "OPENCV", "frames": frames,
+          "applied_transform": [[0, 1, 0, 0], [1, 0, 0, 0], [0, 0, -1, 0]],
+          "ply_file_path": "sparse_pc.ply"}
+  (tmp_path / "transforms.json").write_text(json.dumps(meta))
+  train, test = loaders.load_dataset({"path": str(tmp_path), "factor": 2})
+  assert (len(train), len(test)) == (5, 1) and (train.height, train.width) == (4, 6)
+  np.testing.assert_allclose(test.images[0, 0, 0, 0] * 255, 1, atol=1e-4)  # images_2/
+  np.testing.assert_allclose(train.intrinsics, (5.5, 5.5, 2.5, 1.5), atol=1e-9)
+  # aabb: the points carried with the poses, their 1-99 percentile box padded by 10 %.
+  transform = _similarity(poses[1:], train.poses)
+  moved = points @ transform[:3, :3].T + transform[:3, 3]
+  lo, hi = np.percentile(moved, [1, 99], axis=0)
+  np.testing.assert_allclose(train.aabb, [lo - 0.1 * (hi - lo), hi + 0.1 * (hi - lo)], atol=1e-4)
+  np.testing.assert_array_equal(test.aabb, train.aabb)

@@ -11,8 +11,11 @@ Fields read (top level for one camera, or per frame for several; a frame's own v
   frames[].sharpness (optional, instant-ngp's colmap2nerf: the variance of the Laplacian),
     read when `min_sharpness` > 0 (`sharp_frames`);
   train_filenames / test_filenames (optional split, nerfstudio's names);
-  ply_file_path (optional sparse points, used to centre and scale);
+  ply_file_path (optional sparse points, used to centre and scale, and for `Dataset.aabb`);
+  aabb_scale, scale, offset (optional, instant-ngp's scene box, `ngp_box`);
   near, far, nerf_jax_normalized (written by `nerf-process`).
+Ignored: applied_transform (nerfstudio's record of the rotation it already applied to the poses
+and to the points of ply_file_path), frames[].mask_path.
 
 Frames whose image is missing are skipped, with one printed line, as instant-ngp does; more than
 half missing is an error (the wrong folder or factor).
@@ -38,6 +41,7 @@ FILENAME = "transforms.json"
 _UNSUPPORTED_MODELS = ("OPENCV_FISHEYE", "EQUIRECTANGULAR", "FISHEYE")
 _DIST_KEYS = ("k1", "k2", "p1", "p2", "k3")
 SHARPNESS_WINDOW = 3  # neighbours on each side whose mean sharpness a frame is judged against
+NGP_SCALE, NGP_OFFSET = 0.33, 0.5  # instant-ngp's default world -> ngp-space map (NERF_SCALE)
 _LISTED = 5  # missing file names printed before "…"
 
 
@@ -209,6 +213,29 @@ def _drop_blurry(found, min_sharpness, meta_path):
   return [f for f, kept in zip(found, keep) if kept]
 
 
+def ngp_box(meta, meta_path):
+  """The scene box instant-ngp's `aabb_scale` gives, in the file's world coordinates: float64
+  [2, 3] (min and max corner), or None without aabb_scale.
+
+  instant-ngp (src/nerf_loader.cu, nerf_matrix_to_ngp) maps a world point x to ngp space as
+  x * scale + offset (then cycles the axes; defaults scale 0.33, offset (0.5, 0.5, 0.5), the
+  file's "scale" and "offset" override them); src/testbed_nerf.cu makes the box
+  [0.5 - k/2, 0.5 + k/2]^3 there, k = aabb_scale (a cube: the axis cycle does not change it).
+  Its "aabb" and "from_mitsuba" fields are not read.
+  """
+  if meta.get("aabb_scale") is None:
+    return None
+  k = validate.scalar(meta["aabb_scale"], f"{meta_path}: 'aabb_scale'")
+  scale = validate.scalar(meta.get("scale", NGP_SCALE), f"{meta_path}: 'scale'")
+  offset = validate.floats(meta.get("offset", NGP_OFFSET), f"{meta_path}: 'offset'")
+  if not (k > 0 and scale > 0):
+    raise DataError(f"{meta_path}: aabb_scale={k:g} and scale={scale:g} must be positive")
+  if offset.shape not in ((), (3,)) or not np.isfinite(offset).all():
+    raise DataError(f"{meta_path}: 'offset' must be one number or three, got {offset.tolist()}")
+  corners = np.array([[0.5 - 0.5 * k], [0.5 + 0.5 * k]])
+  return (corners - np.broadcast_to(offset, (3,))) / scale
+
+
 def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
   """All frames of a transforms.json folder (or the file itself) whose image exists, sorted by
   file_path.
@@ -217,7 +244,8 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
   present, else a block average). min_sharpness: float, drop blurry frames (`sharp_frames`;
   0 = keep all). Returns (Dataset, names, test_names): names, the frames' file_path values in
   the Dataset's order; test_names, the set of them the file names as test (or val) images, or
-  None.
+  None. Dataset.aabb: `ngp_box` where the file has aabb_scale, else `orient.points_box` of
+  ply_file_path's points, else None; carried with the poses into the Dataset's frame.
   """
   meta_path = path if path.endswith(".json") else os.path.join(path, FILENAME)
   root = os.path.dirname(meta_path)
@@ -249,13 +277,15 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
   images, intrinsics = _undistort(images, cameras)
   poses = np.stack(poses)
   near, far = meta.get("near"), meta.get("far")
+  points, transform = _points(root, meta, meta_path), np.eye(4)
   if not meta.get("nerf_jax_normalized", False):
-    points = _points(root, meta, meta_path)
     transform = orient.normalize(poses, points)
     poses, points = orient.apply(transform, poses, points)
     near, far = orient.depth_bounds(poses, points)
   near = validate.scalar(near if near is not None else 2.0, f"{meta_path}: 'near'")
   far = validate.scalar(far if far is not None else 6.0, f"{meta_path}: 'far'")
+  box = ngp_box(meta, meta_path)
+  aabb = orient.points_box(points) if box is None else orient.carry_box(transform, box)
   has_alpha = any(im.shape[-1] == 4 for im in images)
   bg = parse_background(background)
   rgb = np.empty((len(images), *images[0].shape[:2], 3), np.float32)
@@ -269,7 +299,8 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
                     lens.dataset_intrinsics(intrinsics), near=near, far=far, name=root,
                     accs=accs if has_alpha else None,  # RGB: unknown
                     background=tuple(bg.tolist()),
-                    pixel_center=0.0)  # the intrinsics hold cx - 0.5: rays through centres
+                    pixel_center=0.0,  # the intrinsics hold cx - 0.5: rays through centres
+                    aabb=None if aabb is None else aabb.astype(np.float32))
   return dataset, names, _test_names(meta, names)
 
 
