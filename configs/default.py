@@ -27,6 +27,7 @@ def get_config():
   data.factor = 1  # LLFF and transforms.json data: downsample images by this integer factor
   data.bd_factor = 0.75  # LLFF data: scale so the nearest bound is 1/bd_factor (0 = keep units)
   data.recenter = True  # LLFF data: move the mean camera pose to the origin
+  data.min_sharpness = 0.0  # transforms.json: drop frames < this x neighbours' sharpness (0 = off)
   data.lindisp = False  # sample linearly in inverse depth instead of depth
   data.ndc = False  # forward-facing scenes: rays in normalized device coordinates, t in [0, 1]
   data.near = 0.0  # near bound override (0 = the dataset's, 2 for tiny_nerf)

@@ -1,6 +1,7 @@
 """The transforms.json loader (nerf_jax.data.nerfstudio): intrinsics, distortion, splits,
 re-orientation, one-line errors. Photos come from nerf_jax.scenes.capture's own ray tracer."""
 
+import itertools
 import json
 
 import imageio.v3 as iio
@@ -167,9 +168,176 @@ def test_bad_files_give_one_line(tmp_path, top, frame, match):
   assert_data_error(match, nerfstudio.load, path)
 
 
-def test_missing_image_and_mixed_sizes(tmp_path):
+def test_mixed_sizes(tmp_path):
   images = [np.zeros((4, 4, 3), np.uint8), np.zeros((4, 6, 3), np.uint8)]
   path = _write(tmp_path, [(np.eye(4), {}), (np.eye(4), {})], {"fl_x": 5.0}, images)
   assert_data_error(["different sizes"], nerfstudio.load, path)
-  (tmp_path / "images" / "f_01.png").unlink()
-  assert_data_error(["frames[1].file_path", "not found"], nerfstudio.load, path)
+
+
+def _numbered(tmp_path, num, top=None, fields=None):
+  """A folder of `num` 4x4 frames, frame k all k; fields: per-frame dicts."""
+  photos = [np.full((4, 4, 3), k, np.uint8) for k in range(num)]
+  frames = [(np.eye(4), (fields or [{}] * num)[k]) for k in range(num)]
+  return _write(tmp_path, frames, {"fl_x": 5.0, **(top or {})}, photos)
+
+
+def test_frames_without_an_image_are_skipped_with_one_line(tmp_path, capsys):
+  path = _numbered(tmp_path, 12)
+  gone = [1, 2, 4, 7, 9, 10]  # half: still skipped
+  for k in gone:
+    (tmp_path / "images" / f"f_{k:02d}.png").unlink()
+  dataset, names, _ = nerfstudio.load(path)
+  kept = [k for k in range(12) if k not in gone]
+  assert names == [f"images/f_{k:02d}.png" for k in kept]
+  np.testing.assert_array_equal(dataset.images[:, 0, 0, 0] * 255, kept)
+  lines = capsys.readouterr().out.splitlines()
+  assert len(lines) == 1, lines
+  assert "skipped 6 of 12" in lines[0] and str(tmp_path / "images") in lines[0]
+  assert lines[0].endswith("f_01.png, f_02.png, f_04.png, f_07.png, f_09.png, …"), lines[0]
+
+
+def test_most_or_all_images_missing_is_one_line_naming_the_folder(tmp_path):
+  path = _numbered(tmp_path, 12)
+  for k in range(7):
+    (tmp_path / "images" / f"f_{k:02d}.png").unlink()
+  folder = str(tmp_path / "images")
+  assert_data_error(["7 of 12", folder, "factor"], nerfstudio.load, path)
+  for k in range(7, 12):
+    (tmp_path / "images" / f"f_{k:02d}.png").unlink()
+  assert_data_error(["none of the 12", folder], nerfstudio.load, path)
+
+
+def _sharp_reference(sharpness, threshold, window=3):
+  """Brute force: a rated frame is kept unless it is below threshold x the mean of the rated
+  frames at most `window` rated places away."""
+  rated = [k for k, s in enumerate(sharpness) if not np.isnan(s)]
+  keep = []
+  for k, s in enumerate(sharpness):
+    if np.isnan(s):
+      keep.append(True)
+      continue
+    near = [sharpness[j] for j in rated if abs(rated.index(j) - rated.index(k)) <= window]
+    keep.append(bool(s >= threshold * sum(near) / len(near)))
+  return keep
+
+
+def test_sharp_frames_drop_the_blurrier_than_their_neighbours():
+  # By hand: frame 4's rated neighbours are all 7 rated frames (frame 1 has no sharpness), mean
+  # 62/7 = 8.86; 2 < 0.5 x 8.86, dropped; frame 0's window (10, 10, 10, 2) has mean 8: kept.
+  sharpness = [10, np.nan, 10, 10, 2, 10, 10, 10]
+  assert nerfstudio.sharp_frames(sharpness, 0.5).tolist() == [True] * 4 + [False] + [True] * 3
+  assert nerfstudio.sharp_frames(sharpness, 0.0).all()  # 0 = off
+  rng = np.random.default_rng(0)
+  sharpness = rng.uniform(5, 40, 60)
+  sharpness[rng.choice(60, 8, replace=False)] = np.nan
+  for threshold in (0.5, 0.8, 1.0):
+    got = nerfstudio.sharp_frames(sharpness, threshold).tolist()
+    assert got == _sharp_reference(sharpness, threshold), threshold
+    assert threshold < 0.8 or not all(got)
+
+
+def test_min_sharpness_drops_frames_at_load(tmp_path, capsys):
+  values = [30.0, 31.0, 29.0, 5.0, 30.0, 32.0, 28.0]
+  fields = [{"sharpness": v} for v in values]
+  config = {"path": _numbered(tmp_path, 7, fields=fields), "holdout_from": 3}
+  train, test = loaders.load_dataset(config)  # default 0: all kept, nothing printed
+  assert len(train) + len(test) == 7 and capsys.readouterr().out == ""
+  train, test = loaders.load_dataset({**config, "min_sharpness": 0.5})
+  kept = np.concatenate([train.images, test.images])[:, 0, 0, 0] * 255
+  np.testing.assert_array_equal(kept, [0, 1, 2, 4, 5, 6])
+  out = capsys.readouterr().out.splitlines()
+  assert len(out) == 1 and "dropped 1 of 7" in out[0], out
+
+
+def _corners(box):
+  return np.array(list(itertools.product(*np.asarray(box, np.float64).T)))
+
+
+def _similarity(before, after):
+  """The similarity x -> s R x + t that took the poses `before` to `after` (float [N, 4, 4]),
+  recovered from two cameras: float64 [4, 4]."""
+  before, after = np.asarray(before, np.float64), np.asarray(after, np.float64)
+  rot = after[0, :3, :3] @ before[0, :3, :3].T
+  step = lambda p: np.linalg.norm(p[1, :3, 3] - p[0, :3, 3])
+  transform = np.eye(4)
+  transform[:3, :3] = step(after) / step(before) * rot
+  transform[:3, 3] = after[0, :3, 3] - transform[:3, :3] @ before[0, :3, 3]
+  return transform
+
+
+def test_aabb_from_aabb_scale_by_hand(tmp_path):
+  # instant-ngp: ngp = 0.33 x + 0.5, box [0.5 - k/2, 0.5 + k/2]^3 -> x in +-(k/2) / 0.33.
+  (tmp_path / "a").mkdir()
+  path = _numbered(tmp_path / "a", 2, {"aabb_scale": 4})  # nerf_jax_normalized: no transform
+  np.testing.assert_allclose(nerfstudio.load(path)[0].aabb, [[-2 / 0.33] * 3, [2 / 0.33] * 3],
+                             rtol=1e-6)
+  # The file's scale and offset: x = (ngp - offset) / scale, ngp in [-0.5, 1.5].
+  (tmp_path / "b").mkdir()
+  path = _numbered(tmp_path / "b", 2, {"aabb_scale": 2, "scale": 0.5, "offset": [0.5, 0.4, 0.6]})
+  np.testing.assert_allclose(nerfstudio.load(path)[0].aabb,
+                             [[-2.0, -1.8, -2.2], [2.0, 2.2, 1.8]], rtol=1e-6)
+  # An un-normalised folder is moved and scaled: the box goes with the poses, and is the
+  # axis-aligned box of its eight moved corners; every split keeps it.
+  (tmp_path / "c").mkdir()
+  poses = capture_scene.ring_poses(8, seed=2)
+  poses[:, :3, 3] = poses[:, :3, 3] * 1.7 + [0.4, -0.3, 1.0]
+  path = _write(tmp_path / "c", [(p, {}) for p in poses],
+                {"fl_x": 5.0, "aabb_scale": 1, "nerf_jax_normalized": None},
+                [np.zeros((4, 4, 3), np.uint8)] * 8)
+  dataset = nerfstudio.load(path)[0]
+  transform = _similarity(poses, dataset.poses)
+  moved = _corners([[-0.5 / 0.33] * 3, [0.5 / 0.33] * 3]) @ transform[:3, :3].T + transform[:3, 3]
+  np.testing.assert_allclose(dataset.aabb, [moved.min(0), moved.max(0)], atol=1e-4)
+  assert dataset.aabb.dtype == np.float32 and dataset.aabb.shape == (2, 3)
+  train, test = nerfstudio.load_split(path)
+  np.testing.assert_array_equal(train.aabb, dataset.aabb)
+  np.testing.assert_array_equal(test.aabb, dataset.aabb)
+
+
+def test_images_n_preferred_over_downscaling(tmp_path):
+  photos = [np.full((8, 12, 3), 90, np.uint8), np.full((8, 12, 3), 30, np.uint8)]
+  path = _write(tmp_path, [(np.eye(4), {}), (np.eye(4), {})],
+                {"fl_x": 10.0, "cx": 6.0, "cy": 4.0}, photos)
+  (tmp_path / "images_4").mkdir()
+  iio.imwrite(tmp_path / "images_4" / "f_00.png", np.full((2, 3, 3), 200, np.uint8))
+  dataset, _, _ = nerfstudio.load(path, factor=4)
+  # frame 0 from images_4/ (not 90, the full image's average); frame 1 block-averaged
+  np.testing.assert_allclose(dataset.images[:, 0, 0, 0] * 255, [200, 30], atol=1e-4)
+  np.testing.assert_allclose(dataset.intrinsics, (2.5, 2.5, 1.0, 0.5), atol=1e-9)
+  (tmp_path / "images" / "f_00.png").unlink()  # only in images_4/: not missing
+  np.testing.assert_allclose(nerfstudio.load(path, factor=4)[0].images[:, 0, 0, 0] * 255,
+                             [200, 30], atol=1e-4)
+
+
+def test_ns_process_data_folder_loads(tmp_path):
+  """What nerfstudio's ns-process-data writes: OPENCV camera, w/h of the full images,
+  images/frame_%05d.png with masks and images_2/ copies, applied_transform, sparse_pc.ply
+  (already in the poses' frame), no near/far. The scene box comes from the points."""
+  poses = capture_scene.ring_poses(6, seed=4)
+  points = np.random.default_rng(1).normal(0.0, 0.4, (400, 3))
+  pointcloud.write_ply(tmp_path / "sparse_pc.ply", points, np.zeros((400, 3), np.uint8))
+  for folder in ("images", "images_2", "masks"):
+    (tmp_path / folder).mkdir()
+  frames = []
+  for k, pose in enumerate(poses):
+    name = f"frame_{k + 1:05d}.png"
+    iio.imwrite(tmp_path / "images" / name, np.full((8, 12, 3), 40 * k, np.uint8))
+    iio.imwrite(tmp_path / "images_2" / name, np.full((4, 6, 3), 40 * k + 1, np.uint8))
+    iio.imwrite(tmp_path / "masks" / name, np.full((8, 12), 255, np.uint8))
+    frames.append({"file_path": f"images/{name}", "mask_path": f"masks/{name}",
+                   "transform_matrix": pose.tolist(), "colmap_im_id": k + 1})
+  meta = {"w": 12, "h": 8, "fl_x": 11.0, "fl_y": 11.0, "cx": 6.0, "cy": 4.0, "k1": 0.0,
+          "k2": 0.0, "p1": 0.0, "p2": 0.0, "camera_model": "OPENCV", "frames": frames,
+          "applied_transform": [[0, 1, 0, 0], [1, 0, 0, 0], [0, 0, -1, 0]],
+          "ply_file_path": "sparse_pc.ply"}
+  (tmp_path / "transforms.json").write_text(json.dumps(meta))
+  train, test = loaders.load_dataset({"path": str(tmp_path), "factor": 2})
+  assert (len(train), len(test)) == (5, 1) and (train.height, train.width) == (4, 6)
+  np.testing.assert_allclose(test.images[0, 0, 0, 0] * 255, 1, atol=1e-4)  # images_2/
+  np.testing.assert_allclose(train.intrinsics, (5.5, 5.5, 2.5, 1.5), atol=1e-9)
+  # aabb: the points carried with the poses, their 1-99 percentile box padded by 10 %.
+  transform = _similarity(poses[1:], train.poses)
+  moved = points @ transform[:3, :3].T + transform[:3, 3]
+  lo, hi = np.percentile(moved, [1, 99], axis=0)
+  np.testing.assert_allclose(train.aabb, [lo - 0.1 * (hi - lo), hi + 0.1 * (hi - lo)], atol=1e-4)
+  np.testing.assert_array_equal(test.aabb, train.aabb)

@@ -30,6 +30,9 @@ class Dataset:
   pixel_center: float, where in its pixel each image was sampled (`nerf_jax.rays`): 0.5 (pixel
     centres: rendered or photographed images, the default), 0 (pixel corners: tiny_nerf's .npz
     as the Keras reference reads it).
+  aabb: float32 [2, 3] or None, (min, max) corner in world units of the box the data says holds
+    the scene (transforms.json: instant-ngp's aabb_scale, else the sparse points); scene-wide,
+    so subsets keep it. None when the data does not say.
   """
   images: np.ndarray
   poses: np.ndarray
@@ -42,6 +45,7 @@ class Dataset:
   background: tuple = (0.0, 0.0, 0.0)
   forward_facing: bool = False
   pixel_center: float = 0.5
+  aabb: Optional[np.ndarray] = None
 
   @property
   def height(self):

@@ -149,7 +149,8 @@ def load_dataset(config):
   the reference's 80/20 for built-in scenes and .npz, every 8th view (0, 8, 16, ...) for LLFF
   (the original NeRF's convention) and for transforms.json folders unless the file names its
   test images (`nerfstudio.load_split`); Blender folders have their own test split and ignore it.
-  factor also downscales transforms.json folders (nerfstudio / nerf-process output).
+  factor also downscales transforms.json folders (nerfstudio / nerf-process output), and
+  min_sharpness drops their blurry frames.
   """
   saved = config.to_dict() if hasattr(config, "to_dict") else dict(config)
   config = config_lib.complete({"data": saved}).data  # a partial one gets the defaults
@@ -169,7 +170,8 @@ def load_dataset(config):
   if os.path.isfile(path) and path.endswith(".npz"):
     return load_npz(path, background).split(holdout_from)
   if path.endswith(nerfstudio.FILENAME) or os.path.isfile(os.path.join(path, nerfstudio.FILENAME)):
-    return nerfstudio.load_split(path, background, config.factor or 1, holdout_from)
+    return nerfstudio.load_split(path, background, config.factor or 1, holdout_from,
+                                 config.min_sharpness)
   if os.path.isfile(os.path.join(path, "transforms_train.json")):
     return tuple(load_blender(path, background, config.half_res, s) for s in ("train", "test"))
   if os.path.isfile(os.path.join(path, "poses_bounds.npy")):

@@ -8,9 +8,17 @@ Fields read (top level for one camera, or per frame for several; a frame's own v
   p1, p2; fisheye and equirectangular models are refused);
   frames[].file_path (relative to the folder), frames[].transform_matrix (camera-to-world,
   OpenGL axes, as `nerf_jax.rays`);
+  frames[].sharpness (optional, instant-ngp's colmap2nerf: the variance of the Laplacian),
+    read when `min_sharpness` > 0 (`sharp_frames`);
   train_filenames / test_filenames (optional split, nerfstudio's names);
-  ply_file_path (optional sparse points, used to centre and scale);
+  ply_file_path (optional sparse points, used to centre and scale, and for `Dataset.aabb`);
+  aabb_scale, scale, offset (optional, instant-ngp's scene box, `ngp_box`);
   near, far, nerf_jax_normalized (written by `nerf-process`).
+Ignored: applied_transform (nerfstudio's record of the rotation it already applied to the poses
+and to the points of ply_file_path), frames[].mask_path.
+
+Frames whose image is missing are skipped, with one printed line, as instant-ngp does; more than
+half missing is an error (the wrong folder or factor).
 
 Lens distortion is removed once, at load: every image is resampled (bilinear) into one shared
 pinhole camera — the mean of the frames' intrinsics — so the rest of the code sees a Dataset
@@ -32,6 +40,9 @@ from nerf_jax.data.validate import composite, parse_background
 FILENAME = "transforms.json"
 _UNSUPPORTED_MODELS = ("OPENCV_FISHEYE", "EQUIRECTANGULAR", "FISHEYE")
 _DIST_KEYS = ("k1", "k2", "p1", "p2", "k3")
+SHARPNESS_WINDOW = 3  # neighbours on each side whose mean sharpness a frame is judged against
+NGP_SCALE, NGP_OFFSET = 0.33, 0.5  # instant-ngp's default world -> ngp-space map (NERF_SCALE)
+_LISTED = 5  # missing file names printed before "…"
 
 
 def write(out_dir, frames, camera, extra):
@@ -114,40 +125,144 @@ def _downscale(image, factor):
   return blocks.reshape(height, factor, width, factor, -1).mean((1, 3))
 
 
-def _image_path(root, file_path, factor, where):
-  """The frame's image, from `images_{factor}/` when nerfstudio wrote downscaled copies."""
-  path = os.path.join(root, file_path)
+def _scaled_path(root, file_path, factor):
+  """Where nerfstudio keeps the frame downscaled by `factor`: images/a.png -> images_4/a.png."""
   parts = os.path.normpath(file_path).split(os.sep)
   if factor > 1 and len(parts) > 1:
-    scaled = os.path.join(root, f"{parts[0]}_{factor}", *parts[1:])
-    if os.path.isfile(scaled):
-      return scaled, True
-  if not os.path.isfile(path):
-    raise DataError(f"{where}.file_path: image {path} not found")
-  return path, False
+    return os.path.join(root, f"{parts[0]}_{factor}", *parts[1:])
+  return None
 
 
-def load(path, background=(0.0, 0.0, 0.0), factor=1):
-  """All frames of a transforms.json folder (or the file itself), sorted by file_path.
+def _image_path(root, file_path, factor):
+  """(path, prescaled) of the frame's image, from `images_{factor}/` when nerfstudio wrote
+  downscaled copies; (None, False) when neither it nor the full image exists."""
+  scaled = _scaled_path(root, file_path, factor)
+  if scaled and os.path.isfile(scaled):
+    return scaled, True
+  path = os.path.join(root, file_path)
+  return (path, False) if os.path.isfile(path) else (None, False)
+
+
+def _folders(root, file_paths, factor):
+  """The folders the images of `file_paths` were looked for in (images_{factor}/ where it
+  exists), as one string for messages."""
+  folders = []
+  for file_path in file_paths:
+    scaled = _scaled_path(root, file_path, factor)
+    full = os.path.dirname(os.path.normpath(os.path.join(root, file_path)))
+    for folder in [full] + ([os.path.dirname(scaled)] if scaled else []):
+      if folder not in folders and (folder == full or os.path.isdir(folder)):
+        folders.append(folder)
+  return " or ".join(folders)
+
+
+def _found_frames(root, meta_path, frames, factor):
+  """The frames whose image exists, as (k, frame, image path, prescaled); prints which were
+  skipped. frames: list of (k, frame dict) in file order."""
+  found = [(k, frame, *_image_path(root, frame["file_path"], factor)) for k, frame in frames]
+  missing = [frame["file_path"] for _, frame, path, _ in found if path is None]
+  if not missing:
+    return found
+  folder = _folders(root, missing, factor)
+  if len(missing) == len(frames):
+    raise DataError(f"{meta_path}: none of the {len(frames)} frames' images is in {folder}")
+  if 2 * len(missing) > len(frames):
+    raise DataError(f"{meta_path}: {len(missing)} of {len(frames)} frames' images are missing "
+                    f"from {folder} (the wrong folder or data.factor?)")
+  names = [os.path.basename(p) for p in missing[:_LISTED]] + ["…"] * (len(missing) > _LISTED)
+  print(f"{meta_path}: skipped {len(missing)} of {len(frames)} frames whose image is not in "
+        f"{folder}: {', '.join(names)}", flush=True)
+  return [f for f in found if f[2] is not None]
+
+
+def sharp_frames(sharpness, min_sharpness):
+  """Which frames are sharp enough: bool [N].
+
+  sharpness: float64 [N], each frame's sharpness in file order (NaN: none given, kept).
+  A rated frame is dropped when its sharpness < min_sharpness x the mean sharpness of the rated
+  frames within SHARPNESS_WINDOW places of it (itself included; fewer at the ends).
+  min_sharpness <= 0 keeps every frame.
+  This is instant-ngp's rule (src/nerf_loader.cu, the file's `sharpness_discard_threshold`,
+  kept when sharpness > threshold x mean) with a symmetric window: its window runs from 3 before
+  to 2 after (the end of its loop stops one short); its frames with missing images count
+  towards the mean, ours (skipped before) do not.
+  """
+  sharpness = np.asarray(sharpness, np.float64)
+  keep = np.ones(len(sharpness), bool)
+  if min_sharpness <= 0:
+    return keep
+  rated = np.flatnonzero(~np.isnan(sharpness))
+  values = sharpness[rated]
+  for j, k in enumerate(rated):
+    window = values[max(0, j - SHARPNESS_WINDOW):j + SHARPNESS_WINDOW + 1]
+    keep[k] = values[j] >= min_sharpness * window.mean()
+  return keep
+
+
+def _drop_blurry(found, min_sharpness, meta_path):
+  """`found` (see `_found_frames`) less the frames `sharp_frames` drops; prints how many."""
+  if min_sharpness <= 0 or not any("sharpness" in frame for _, frame, _, _ in found):
+    return found
+  sharpness = [validate.scalar(frame["sharpness"], f"{meta_path}: frames[{k}].sharpness")
+               if "sharpness" in frame else np.nan for k, frame, _, _ in found]
+  keep = sharp_frames(sharpness, min_sharpness)
+  if not keep.any():
+    raise DataError(f"{meta_path}: min_sharpness={min_sharpness:g} drops all {len(keep)} frames")
+  print(f"{meta_path}: dropped {int((~keep).sum())} of {len(keep)} frames less sharp than "
+        f"{min_sharpness:g}x their neighbours' mean sharpness", flush=True)
+  return [f for f, kept in zip(found, keep) if kept]
+
+
+def ngp_box(meta, meta_path):
+  """The scene box instant-ngp's `aabb_scale` gives, in the file's world coordinates: float64
+  [2, 3] (min and max corner), or None without aabb_scale.
+
+  instant-ngp (src/nerf_loader.cu, nerf_matrix_to_ngp) maps a world point x to ngp space as
+  x * scale + offset (then cycles the axes; defaults scale 0.33, offset (0.5, 0.5, 0.5), the
+  file's "scale" and "offset" override them); src/testbed_nerf.cu makes the box
+  [0.5 - k/2, 0.5 + k/2]^3 there, k = aabb_scale (a cube: the axis cycle does not change it).
+  Its "aabb" and "from_mitsuba" fields are not read.
+  """
+  if meta.get("aabb_scale") is None:
+    return None
+  k = validate.scalar(meta["aabb_scale"], f"{meta_path}: 'aabb_scale'")
+  scale = validate.scalar(meta.get("scale", NGP_SCALE), f"{meta_path}: 'scale'")
+  offset = validate.floats(meta.get("offset", NGP_OFFSET), f"{meta_path}: 'offset'")
+  if not (k > 0 and scale > 0):
+    raise DataError(f"{meta_path}: aabb_scale={k:g} and scale={scale:g} must be positive")
+  if offset.shape not in ((), (3,)) or not np.isfinite(offset).all():
+    raise DataError(f"{meta_path}: 'offset' must be one number or three, got {offset.tolist()}")
+  corners = np.array([[0.5 - 0.5 * k], [0.5 + 0.5 * k]])
+  return (corners - np.broadcast_to(offset, (3,))) / scale
+
+
+def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
+  """All frames of a transforms.json folder (or the file itself) whose image exists, sorted by
+  file_path.
 
   factor: int, downscale the images by this factor (nerfstudio's `images_{factor}/` copies when
-  present, else a block average). Returns (Dataset, names, test_names): names, the frames'
-  file_path values in the Dataset's order; test_names, the set of them the file names as test
-  (or val) images, or None.
+  present, else a block average). min_sharpness: float, drop blurry frames (`sharp_frames`;
+  0 = keep all). Returns (Dataset, names, test_names): names, the frames' file_path values in
+  the Dataset's order; test_names, the set of them the file names as test (or val) images, or
+  None. Dataset.aabb: `ngp_box` where the file has aabb_scale, else `orient.points_box` of
+  ply_file_path's points, else None; carried with the poses into the Dataset's frame.
   """
   meta_path = path if path.endswith(".json") else os.path.join(path, FILENAME)
   root = os.path.dirname(meta_path)
   meta = _read_meta(meta_path)
   factor = int(factor) if factor else 1
   order = sorted(range(len(meta["frames"])), key=lambda k: str(meta["frames"][k].get("file_path")))
-  images, poses, cameras, names = [], [], [], []
   for k in order:
     frame, where = meta["frames"][k], f"{meta_path}: frames[{k}]"
     if not isinstance(frame, dict) or "file_path" not in frame:
       raise DataError(f"{where}: missing key 'file_path'")
     if "transform_matrix" not in frame:
       raise DataError(f"{where}: missing key 'transform_matrix'")
-    image_path, prescaled = _image_path(root, frame["file_path"], factor, where)
+  found = _found_frames(root, meta_path, [(k, meta["frames"][k]) for k in order], factor)
+  found = _drop_blurry(found, min_sharpness, meta_path)
+  images, poses, cameras, names = [], [], [], []
+  for k, frame, image_path, prescaled in found:
+    where = f"{meta_path}: frames[{k}]"
     image = validate.read_image(image_path)
     full_size = tuple(n * (factor if prescaled else 1) for n in image.shape[:2])
     image = image if prescaled else _downscale(image, factor)
@@ -162,13 +277,15 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1):
   images, intrinsics = _undistort(images, cameras)
   poses = np.stack(poses)
   near, far = meta.get("near"), meta.get("far")
+  points, transform = _points(root, meta, meta_path), np.eye(4)
   if not meta.get("nerf_jax_normalized", False):
-    points = _points(root, meta, meta_path)
     transform = orient.normalize(poses, points)
     poses, points = orient.apply(transform, poses, points)
     near, far = orient.depth_bounds(poses, points)
   near = validate.scalar(near if near is not None else 2.0, f"{meta_path}: 'near'")
   far = validate.scalar(far if far is not None else 6.0, f"{meta_path}: 'far'")
+  box = ngp_box(meta, meta_path)
+  aabb = orient.points_box(points) if box is None else orient.carry_box(transform, box)
   has_alpha = any(im.shape[-1] == 4 for im in images)
   bg = parse_background(background)
   rgb = np.empty((len(images), *images[0].shape[:2], 3), np.float32)
@@ -182,7 +299,8 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1):
                     lens.dataset_intrinsics(intrinsics), near=near, far=far, name=root,
                     accs=accs if has_alpha else None,  # RGB: unknown
                     background=tuple(bg.tolist()),
-                    pixel_center=0.0)  # the intrinsics hold cx - 0.5: rays through centres
+                    pixel_center=0.0,  # the intrinsics hold cx - 0.5: rays through centres
+                    aabb=None if aabb is None else aabb.astype(np.float32))
   return dataset, names, _test_names(meta, names)
 
 
@@ -218,10 +336,10 @@ def _test_names(meta, names):
   return None
 
 
-def load_split(path, background=(0.0, 0.0, 0.0), factor=1, holdout_from=-1):
-  """(train, test) Datasets: the file's test_filenames, else every 8th frame (0, 8, 16, ...
-  of the sorted file paths); holdout_from >= 1 overrides both (`Dataset.split`)."""
-  dataset, names, test_names = load(path, background, factor)
+def load_split(path, background=(0.0, 0.0, 0.0), factor=1, holdout_from=-1, min_sharpness=0.0):
+  """(train, test) Datasets of `load`: the file's test_filenames, else every 8th frame (0, 8,
+  16, ... of the sorted file paths); holdout_from >= 1 overrides both (`Dataset.split`)."""
+  dataset, names, test_names = load(path, background, factor, min_sharpness)
   if holdout_from != -1:
     return dataset.split(holdout_from)
   if test_names is None:

@@ -17,6 +17,8 @@ import numpy as np
 
 PERCENTILE = 2.0  # the box spans the [2, 98] percentiles of the points on each axis
 CAMERA_DISTANCE = 4.0  # mean camera distance when there are no points to measure the subject
+BOX_PERCENTILE = 1.0  # `points_box` spans the [1, 99] percentiles of the points on each axis ...
+BOX_PADDING = 0.1  # ... widened by this fraction of its size on each side
 
 
 def _rotation_between(a, b):
@@ -85,6 +87,25 @@ def apply(transform, poses=None, points=None):
   new_points = None if points is None else (
       np.asarray(points, np.float64) @ transform[:3, :3].T + transform[:3, 3])
   return new_poses, new_points
+
+
+def points_box(points):
+  """A robust box around `points` (float [P, 3]): float64 [2, 3] (min, max corner), the
+  BOX_PERCENTILE-th to (100 - BOX_PERCENTILE)-th percentiles on each axis padded by BOX_PADDING
+  of its size; None for fewer than 4 points."""
+  if points is None or len(points) < 4:
+    return None
+  lo, hi = np.percentile(points, [BOX_PERCENTILE, 100 - BOX_PERCENTILE], axis=0)
+  pad = BOX_PADDING * (hi - lo)
+  return np.stack([lo - pad, hi + pad])
+
+
+def carry_box(transform, box):
+  """The axis-aligned box holding `box` (float [2, 3]) carried by `transform` (float [4, 4]):
+  float64 [2, 3]. A rotation makes it larger than the box it carries."""
+  corners = np.stack(np.meshgrid(*np.asarray(box).T, indexing="ij"), -1).reshape(-1, 3)
+  moved = corners @ transform[:3, :3].T + transform[:3, 3]
+  return np.stack([moved.min(0), moved.max(0)])
 
 
 def depth_bounds(poses, points):
