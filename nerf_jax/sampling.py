@@ -3,6 +3,9 @@
 A ray's samples are described by sorted interval edges `t: float32 [..., S + 1]`: sample i covers
 [t_i, t_{i+1}] and is evaluated at its midpoint. t is the ray parameter (z-depth, see rays.py)
 and is always float32, whatever precision the network runs in.
+`stratified` spaces edges between near and far; `stratified_unbounded` does so for rays into an
+unbounded scene (linear in t inside the contraction's inner region, linear in disparity beyond it,
+out to far = inf); `sample_pdf` draws new edges from the weights of a first pass.
 """
 
 import jax
@@ -10,6 +13,13 @@ import jax.numpy as jnp
 
 # Smallest near bound used by linear-in-disparity sampling: 1/near must stay finite.
 _MIN_NEAR_LINDISP = 1e-3
+
+# The last edge of `stratified_unbounded` for far = inf (and any far beyond it). An edge at
+# infinity would make the last interval infinite, and sigma·inf is NaN for sigma = 0 (and inf·0
+# in the backward pass). 1e10 is as good as infinity to a float32 contraction (it rounds every
+# |x| > 2^24·radius onto the outer boundary), and `compositing.composite` stays finite over such
+# an interval (tests/test_numerics.py, case 13).
+MAX_FAR = 1e10
 
 
 def midpoints(t):
@@ -32,16 +42,7 @@ def stratified(near, far, num_samples, batch_shape, key=None, lindisp=False):
   """
   near = jnp.broadcast_to(jnp.asarray(near, jnp.float32), batch_shape)[..., None]
   far = jnp.broadcast_to(jnp.asarray(far, jnp.float32), batch_shape)[..., None]
-  s = jnp.linspace(0.0, 1.0, num_samples + 1, dtype=jnp.float32)
-  s = jnp.broadcast_to(s, (*batch_shape, num_samples + 1))
-  if key is not None:
-    mids = 0.5 * (s[..., 1:] + s[..., :-1])
-    lower = jnp.concatenate([s[..., :1], mids], axis=-1)
-    upper = jnp.concatenate([mids, s[..., -1:]], axis=-1)
-    u = jax.random.uniform(key, s.shape, jnp.float32)
-    s = lower + (upper - lower) * u
-    # lower + (upper - lower)·u can round one ulp past upper; cummax keeps the edges sorted.
-    s = jax.lax.cummax(s, axis=s.ndim - 1)
+  s = _unit_strata(num_samples, batch_shape, key)
   # Both maps below are compositions of monotone roundings of s, so the edges stay sorted even
   # when near and far are a few ulps apart (near·(1 - s) + far·s is not monotone then).
   if lindisp:
@@ -52,6 +53,69 @@ def stratified(near, far, num_samples, batch_shape, key=None, lindisp=False):
     t = near + (far - near) * s
   # Clipping (monotone) undoes the near clamp above and rounding past far; then pin the ends.
   t = jnp.clip(t, near, far)
+  return t.at[..., 0].set(near[..., 0]).at[..., -1].set(far[..., 0])
+
+
+def _unit_strata(num_samples, batch_shape, key):
+  """Stratified positions in [0, 1]: float32 [*batch_shape, S + 1], sorted, exactly 0 and 1 at
+  the ends. key None: evenly spaced k/S; otherwise every interior edge is drawn uniformly between
+  the midpoints of its neighbouring strata (so the intervals' midpoints keep to their strata)."""
+  s = jnp.linspace(0.0, 1.0, num_samples + 1, dtype=jnp.float32)
+  s = jnp.broadcast_to(s, (*batch_shape, num_samples + 1))
+  if key is not None:
+    mids = 0.5 * (s[..., 1:] + s[..., :-1])
+    lower = jnp.concatenate([s[..., :1], mids], axis=-1)
+    upper = jnp.concatenate([mids, s[..., -1:]], axis=-1)
+    u = jax.random.uniform(key, s.shape, jnp.float32)
+    s = lower + (upper - lower) * u
+    # lower + (upper - lower)·u can round one ulp past upper; cummax keeps the edges sorted.
+    s = jax.lax.cummax(s, axis=s.ndim - 1)
+  return s
+
+
+def stratified_unbounded(near, t_inner, far, num_samples, batch_shape, key=None,
+                         inner_fraction=0.5):
+  """Stratified edges for rays into an unbounded scene: linear in t, then linear in disparity.
+
+  Inside the contraction's inner region (`nerf_jax.contraction`) space is not squeezed and the
+  edges are evenly spaced in t; beyond it, where contracted space shrinks like 1/t, they are
+  evenly spaced in disparity 1/t (nerfstudio's piecewise uniform / linear-in-disparity sampler
+  with a per-ray split). With f the ray's inner share (below), the edges are t(s) for
+  stratified s in [0, 1] (`stratified`'s strata and jitter, in s):
+    s in [0, f]:  t = near + (t_inner - near)·s/f                      (linear in t),
+    s in [f, 1]:  1/t = 1/t_inner + (1/far - 1/t_inner)·(s - f)/(1 - f)  (linear in 1/t).
+
+  near: float or float32 broadcastable to batch_shape, >= 0. t_inner: float or float32
+  broadcastable to batch_shape, where the ray leaves the inner region (`contraction.inner_exit`);
+  clamped into [near, far]. far: float or float32 broadcastable to batch_shape, may be huge or inf:
+  replaced by min(far, MAX_FAR = 1e10), so the last edge is finite. num_samples: int S.
+  batch_shape: tuple. key: PRNG key, or None for evenly spaced s. inner_fraction: float in
+  [0, 1] (or float32 broadcastable to batch_shape), the share f of s given to [near, t_inner].
+  Returns t: float32 [*batch_shape, S + 1], sorted and finite, t_0 = near and
+  t_S = min(far, 1e10) exactly.
+
+  Per ray, f = inner_fraction where near < t_inner < far; f = 0 (all samples in disparity from
+  near) where t_inner <= near, i.e. the ray starts outside the region or misses it; f = 1 (all
+  linear, as `stratified`) where t_inner >= far. The disparity part starts at max(t_inner, 1e-3)
+  inside the formula (1/0 = inf, as `stratified`'s lindisp) and is clipped to [t_inner, far].
+  """
+  shape = lambda a: jnp.broadcast_to(jnp.asarray(a, jnp.float32), batch_shape)[..., None]
+  near = shape(near)
+  far = jnp.minimum(shape(far), MAX_FAR)
+  t_in = jnp.clip(shape(t_inner), near, far)
+  f = jnp.where(t_in <= near, 0.0, jnp.where(t_in >= far, 1.0, shape(inner_fraction)))
+  s = _unit_strata(num_samples, batch_shape, key)
+  # Each branch is a composition of monotone roundings of s, clipped to its own range, and the
+  # ranges [near, t_in] and [t_in, far] meet at t_in: the edges stay sorted. The safe divisors
+  # are only used where their branch is discarded (f = 0: s <= f only at s = 0; f = 1: no s > f).
+  linear = near + (t_in - near) * (s / jnp.where(f > 0.0, f, 1.0))
+  linear = jnp.clip(linear, near, t_in)
+  v = (s - f) / jnp.where(f < 1.0, 1.0 - f, 1.0)
+  inv_start = 1.0 / jnp.maximum(t_in, _MIN_NEAR_LINDISP)
+  inv_far = 1.0 / jnp.maximum(far, _MIN_NEAR_LINDISP)
+  # v <= 1 keeps the denominator >= inv_far > 0; v < 0 (the discarded branch) makes it larger.
+  disparity = jnp.clip(1.0 / (inv_start + (inv_far - inv_start) * v), t_in, far)
+  t = jnp.where(s <= f, linear, disparity)
   return t.at[..., 0].set(near[..., 0]).at[..., -1].set(far[..., 0])
 
 

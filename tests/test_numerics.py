@@ -666,3 +666,44 @@ def test_case12_train_step_from_degenerate_start(start):
   # Opaque: the first sample's colour gets a gradient, so the step moves the weights. Transparent
   # with relu: every weight is 0 and the background is black, so every gradient is exactly 0.
   assert any(moved) == (start == "opaque")
+
+
+# --- 13. Edges out to 1e10: rays into an unbounded scene ---------------------------------------
+
+_stratified_unbounded = jax.jit(sampling.stratified_unbounded, static_argnums=(3, 4))
+
+
+@pytest.mark.parametrize("far", [1e10, np.inf])
+@pytest.mark.parametrize("use_key", [False, True])
+def test_case13_edges_out_to_1e10(far, use_key):
+  num = 16
+  sigma = np.zeros((8, num), np.float32)  # ray 0: empty
+  sigma[1] = 1e-12  # thin everywhere: the far interval alone has tau = 1e-2
+  sigma[2] = np.exp(np.random.default_rng(13).normal(0.0, 3.0, num))  # log-normal
+  sigma[3, -1] = 1e-8  # a sky: empty until the last interval, opaque over it (tau = 100)
+  sigma[4, -1] = rendering.MAX_DENSITY  # tau = 1e30·1e10 = inf in float32
+  sigma[5] = rendering.MAX_DENSITY  # opaque everywhere
+  sigma[6, num // 2] = 1e3  # a surface just outside the inner region
+  sigma[7] = np.inf  # an overflowing activation (clamped at MAX_DENSITY)
+  key = jax.random.PRNGKey(13) if use_key else None
+  t = _stratified_unbounded(0.5, 2.5, far, num, (8,), key, 0.5)
+  assert float(t[0, -1]) == np.float32(1e10)  # far = inf: the last edge is 1e10
+  rgb = np.random.default_rng(14).uniform(size=(8, num, 3)).astype(np.float32)
+  out, grads, grad_acc = _numpy(_composite_and_grads(rgb, sigma, t, BACKGROUND))
+  _assert_finite(out, grads, grad_acc)
+  t = np.asarray(t)
+  assert np.all(out["weights"] >= 0) and np.all((out["acc"] >= 0) & (out["acc"] <= 1))
+  assert np.all((out["depth"] >= t[:, 0]) & (out["depth"] <= t[:, -1]))
+  for r in range(8):
+    weights, colour, trans, depth = _reference_composite(rgb[r], np.minimum(sigma[r], 1e30),
+                                                         t[r], BACKGROUND)
+    np.testing.assert_allclose(out["weights"][r], weights, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(out["rgb"][r], colour, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(out["acc"][r], 1.0 - trans, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(out["depth"][r], depth, rtol=1e-5)
+  assert out["depth"][3] > 1e9  # the sky's depth: in its interval, not at the inner region
+
+  # Naive: an edge at far = inf makes the last interval infinite, and an empty sample over it is
+  # 0·inf = NaN.
+  with pytest.raises(FloatingPointError):
+    jnp.asarray(0.0, jnp.float32) * (jnp.asarray(np.inf, jnp.float32) - t[0, -2])

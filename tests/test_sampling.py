@@ -159,3 +159,116 @@ def test_sample_pdf_with_a_single_interval_is_uniform_in_it(batch):
   assert jittered.shape == (*batch, 5)
   start = np.asarray(t0)[..., None]
   assert np.all(jittered >= start) and np.all(jittered <= start + 4.0)
+
+
+# --- stratified_unbounded -----------------------------------------------------------------------
+
+stratified_unbounded = jax.jit(sampling.stratified_unbounded, static_argnums=(3, 4))
+# Rays: in then out of the inner region; starting outside it (t_inner < near); leaving it exactly
+# at near; never leaving it before far; near = 0 with a miss (t_inner = 0); far = inf; near = far.
+U_NEAR = np.array([0.5, 2.0, 1.0, 0.5, 0.0, 0.2, 3.0], np.float32)
+U_INNER = np.array([2.5, 1.0, 1.0, 8.0, 0.0, 1.7, 3.0], np.float32)
+U_FAR = np.array([1e10, np.inf, 1e4, 6.0, np.inf, 50.0, 3.0], np.float32)
+U_RAYS = len(U_NEAR)
+
+
+def _unbounded(key=None, fraction=0.5, near=U_NEAR, t_inner=U_INNER, far=U_FAR):
+  return np.asarray(stratified_unbounded(near, t_inner, far, S, (len(near),), key, fraction))
+
+
+def _reference_strata(key):
+  """The stratified positions s in float64 [U_RAYS, S + 1] (`stratified`'s strata and jitter)."""
+  s = np.broadcast_to(np.linspace(0.0, 1.0, S + 1), (U_RAYS, S + 1))
+  if key is None:
+    return s
+  mids = 0.5 * (s[:, 1:] + s[:, :-1])
+  lower = np.concatenate([s[:, :1], mids], -1)
+  upper = np.concatenate([mids, s[:, -1:]], -1)
+  return lower + (upper - lower) * np.asarray(jax.random.uniform(key, s.shape), np.float64)
+
+
+def _ray_split(near, t_inner, far, fraction):
+  """(far, t_inner, f) of one ray as documented: far capped at 1e10, t_inner clamped into
+  [near, far], the inner share f = 0 for a ray starting outside, 1 for one never leaving."""
+  far = min(float(far), float(np.float32(1e10)))
+  t_in = min(max(float(t_inner), float(near)), far)
+  f = 0.0 if t_in <= near else 1.0 if t_in >= far else fraction
+  return far, t_in, f
+
+
+def _reference_unbounded(near, t_inner, far, s, fraction):
+  """Brute force, float64, one edge at a time: linear in t on s <= f, linear in 1/t beyond."""
+  far, t_in, f = _ray_split(near, t_inner, far, fraction)
+  start = max(t_in, 1e-3)  # the documented clamp: 1/0 = inf
+  edges = []
+  for x in s:
+    if x <= f:
+      edges.append(near + (t_in - near) * (x / f if f > 0 else 0.0))
+    else:
+      v = (x - f) / (1.0 - f)
+      edges.append(min(max(1.0 / (1.0 / start + (1.0 / far - 1.0 / start) * v), t_in), far))
+  edges[0], edges[-1] = near, far
+  return np.array(edges)
+
+
+def _to_s(near, t_inner, far, t, fraction):
+  """The inverse map t -> s of one ray (float64): where in [0, 1] each edge sits."""
+  far, t_in, f = _ray_split(near, t_inner, far, fraction)
+  start = max(t_in, 1e-3)
+  t = np.asarray(t, np.float64)
+  linear = f * (t - near) / (t_in - near) if t_in > near else np.zeros_like(t)
+  span = 1.0 / start - 1.0 / far  # 0 where the ray never leaves the region (f = 1: no beyond)
+  beyond = f + (1.0 - f) * (1.0 / start - 1.0 / np.maximum(t, start)) / (span if span else 1.0)
+  return np.where(t <= t_in, linear, beyond)
+
+
+@pytest.mark.parametrize("fraction", [0.5, 0.25])
+def test_unbounded_matches_brute_force(fraction):
+  t = _unbounded(fraction=fraction)
+  s = _reference_strata(None)
+  for r in range(U_RAYS):
+    expected = _reference_unbounded(U_NEAR[r], U_INNER[r], U_FAR[r], s[r], fraction)
+    np.testing.assert_allclose(t[r], expected, rtol=2e-6, err_msg=f"ray {r}")
+
+
+@pytest.mark.parametrize("fraction", [0.5, 0.25])
+def test_unbounded_jitter_matches_brute_force_in_s(fraction):
+  # Jittered in s as `stratified` is; compared where float32 rounding is uniform: in s, where an
+  # edge's rounding of 6e-8·t (or of the disparity formula) is at most ~1e-7.
+  key = jax.random.PRNGKey(4)
+  t = _unbounded(key, fraction)
+  s = _reference_strata(key)
+  for r in range(U_RAYS - 1):  # the last ray (near = far) has no s to recover
+    got = _to_s(U_NEAR[r], U_INNER[r], U_FAR[r], t[r], fraction)
+    np.testing.assert_allclose(got[1:-1], s[r, 1:-1], rtol=0, atol=1e-6, err_msg=f"ray {r}")
+  # The jitter moves the edges off the even grid.
+  assert not np.allclose(t[0], _unbounded(fraction=fraction)[0])
+
+
+@pytest.mark.parametrize("use_key", [False, True])
+def test_unbounded_edges_sorted_finite_and_pinned(use_key):
+  for seed in range(5):
+    key = jax.random.PRNGKey(seed) if use_key else None
+    t = _unbounded(key)
+    assert t.shape == (U_RAYS, S + 1) and t.dtype == np.float32
+    assert np.all(np.isfinite(t)) and np.all(np.diff(t, axis=-1) >= 0)
+    np.testing.assert_array_equal(t[:, 0], U_NEAR)
+    np.testing.assert_array_equal(t[:, -1], np.minimum(U_FAR, np.float32(1e10)))
+
+
+def test_unbounded_share_and_edge_cases():
+  t = _unbounded().astype(np.float64)
+  # In then out: half the intervals in [near, t_inner], evenly spaced in t; the other half
+  # evenly spaced in disparity out to far (1e10).
+  np.testing.assert_allclose(t[0, :9], np.linspace(0.5, 2.5, 9), rtol=1e-6)
+  np.testing.assert_allclose(np.diff(1.0 / t[0, 8:]), (1e-10 - 1 / 2.5) / 8, rtol=1e-5)
+  # Starting outside (t_inner < near) or leaving at near: all in disparity from near (far = inf
+  # and 1e4).
+  for r, far in ((1, 1e10), (2, 1e4)):
+    np.testing.assert_allclose(np.diff(1.0 / t[r]), (1 / far - 1 / U_NEAR[r]) / S, rtol=1e-5)
+  # Never leaving before far: `stratified` between near and far.
+  np.testing.assert_allclose(t[3], _strata(near=np.array([0.5] * RAYS, np.float32),
+                                           far=np.array([6.0] * RAYS, np.float32))[0], rtol=1e-6)
+  # near = 0, a miss: in disparity from 1e-3 (the clamp); near = far: all edges at near.
+  assert t[4, 0] == 0.0 and 1e-3 <= t[4, 1] <= 1.1e-3
+  np.testing.assert_array_equal(t[6], 3.0)

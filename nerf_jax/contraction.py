@@ -1,0 +1,169 @@
+"""Scene contractions: all of space mapped into a bounded box, and back (pure jax.numpy).
+
+An unbounded scene (a real capture: a room, a garden, the sky) has content at any distance. A
+contraction keeps an inner region about the origin as it is and squeezes everything outside it
+into a shell, so that a bounded field (an MLP, a feature grid) can hold the whole scene:
+
+  contract(x) = x                         if |x| <= 1,
+                (2 - 1/|x|) x / |x|       otherwise,
+
+applied to x / radius and scaled back by radius. Two norms |.|:
+  'l2'   — mip-NeRF 360's: the inner ball of radius `radius` stays, the rest of space goes into
+           the ball of radius 2·radius;
+  'linf' — nerfacto's scene contraction with the L-infinity norm max_k |x_k|: the inner cube
+           [-radius, radius]^3 stays, the rest goes into the cube [-2·radius, 2·radius]^3, which
+           a grid over +-2·radius covers with no wasted corners.
+Both are continuous, with a continuous first derivative across |x| = 1 in the radial direction
+(d/dr (2 - 1/r) = 1 at r = 1), and map each ray from the origin to itself, monotonically.
+
+Names and axes:
+  points:     float32 [..., 3]  world positions (any magnitude, +-inf allowed)
+  contracted: float32 [..., 3]  positions in the contracted space, |contracted| <= 2·radius
+  radius:     float > 0         half-size of the inner region (ball or cube)
+  kind:       'l2' or 'linf'
+
+Numerics (float32):
+  * x = 0: the L2 norm's derivative x/|x| is 0/0 there. The norm is only ever evaluated on the
+    branch that uses it, through the 'double where' (a safe argument inside, the choice outside),
+    so neither the value nor the gradient of the discarded branch is NaN.
+  * large |x|: |x|^2 overflows float32 above |x| ~ 1.8e19; the L2 norm is computed as
+    m·|x/m| with m = max_k |x_k| (the L-infinity norm, exact), which never overflows. At |x| =
+    1e10 the value is the outer boundary to rounding (2 - 1e-10 rounds to 2) and the Jacobian is
+    finite and small (~2/|x| across the ray, ~1/|x|^2 along it).
+  * infinite coordinates: a point with an infinite coordinate is the point at infinity in the
+    direction of its infinite coordinates (their signs; finite coordinates count as 0), and it
+    maps onto the outer boundary, e.g. (inf, 5, -inf) -> 2·radius·(1, 0, -1)/|(1, 0, -1)|. Its
+    gradient is 0 (no finite change of x moves it).
+  * the inverse: 1/(2 - |c|) is infinite on the outer boundary; `uncontract` clamps |c| at
+    MAX_CONTRACTED = 2 - 2^-22 (two float32 ulps below 2), so it is finite everywhere and returns
+    points of norm at most radius·2^22 ~ 4.2e6·radius for boundary points (and beyond: clamped
+    onto the boundary first). Float32 cannot invert better: contract rounds every |x| >
+    ~2^24·radius onto the boundary, and a round trip at norm r loses ~r·1.2e-7 relative.
+"""
+
+import jax.numpy as jnp
+
+KINDS = ("l2", "linf")
+
+# Half-size of the contracted space in units of `radius`: every output lies within 2·radius.
+OUTER = 2.0
+
+# The largest contracted norm `uncontract` inverts (2 - 2^-22 is exact in float32): the inverse
+# 1/(2 - |c|) is infinite at |c| = 2, so norms are clamped here; it gives |x| = 2^22·radius.
+MAX_CONTRACTED = 2.0 - 2.0 ** -22
+
+
+def _check(kind):
+  if kind not in KINDS:
+    raise ValueError(f"contraction kind {kind!r} is not one of {', '.join(KINDS)}")
+
+
+def _at_infinity(x):
+  """Replace points with an infinite coordinate by their direction at infinity.
+
+  x: float32 [..., 3]. Returns (x, infinite): float32 [..., 3], finite where x has no NaN (a point
+  with an infinite coordinate becomes the signs of its infinite coordinates, 0 elsewhere); and
+  bool [...], which points were at infinity. The where's other branch is the input itself, so no
+  arithmetic on inf reaches the backward pass (its gradient there is 0).
+  """
+  is_inf = jnp.isinf(x)
+  infinite = jnp.any(is_inf, axis=-1)
+  x = jnp.where(infinite[..., None], jnp.where(is_inf, jnp.sign(x), 0.0), x)
+  return x, infinite
+
+
+def _norm_and_direction(x, kind):
+  """Norm (of `kind`) and unit direction of finite points, safe at 0 and for huge |x|.
+
+  x: float32 [..., 3], finite. Returns (norm: float32 [...] >= 0; direction: float32 [..., 3],
+  x / norm, or 0 where x = 0).
+  """
+  m = jnp.max(jnp.abs(x), axis=-1)  # the L-infinity norm, exact
+  # XLA on CPU flushes subnormal numbers to 0, and divides as x·(1/m): for m > 8.5e37, 1/m is
+  # subnormal and x/m would be 0. Scaling such points by 2^-64 (exact) keeps 1/m normal.
+  scale = jnp.where(m > 2.0 ** 64, 2.0 ** -64, 1.0)
+  m = m * scale
+  # Double where: at x = 0, divide by 1 instead of 0 (the result is 0 either way, but 0/0 in the
+  # discarded branch would give a NaN gradient).
+  nonzero = m > 0.0
+  safe_m = jnp.where(nonzero, m, 1.0)
+  u = x * scale[..., None] / safe_m[..., None]  # max_k |u_k| = 1 (or u = 0): no overflow below
+  if kind == "linf":
+    return m / scale, u
+  s = jnp.sum(u * u, axis=-1)
+  # s >= 1 wherever x != 0; the safe value keeps sqrt away from 0, whose derivative is infinite.
+  length = jnp.sqrt(jnp.where(nonzero, s, 1.0))
+  # May overflow to inf for |x| > 3.4e38 / sqrt(3): then 1/norm = 0, the outer boundary.
+  return m * length / scale, u / length[..., None]
+
+
+def contract(points, radius=1.0, kind="l2"):
+  """Contract all of space into the ball ('l2') or cube ('linf') of half-size 2·radius.
+
+  points: float32 [..., 3], world positions (+-inf allowed: see the module doc).
+  radius: float > 0, half-size of the inner region, which is left unchanged. kind: 'l2' or 'linf'.
+  Returns float32 [..., 3], of norm <= 2·radius (of `kind`); inside the inner region the points
+  themselves, outside it (2 - 1/n)·radius·x/n with n = |x|/radius.
+  """
+  _check(kind)
+  points = jnp.asarray(points, jnp.float32)
+  x, infinite = _at_infinity(points / radius)
+  norm, direction = _norm_and_direction(x, kind)
+  outside = infinite | (norm > 1.0)
+  # Double where: 1/norm only where norm > 1 (1/0 at the origin would poison the gradient). At
+  # infinity 1/norm is 0: the point lands on the outer boundary.
+  inv_norm = jnp.where(infinite, 0.0, 1.0 / jnp.where(outside, norm, 1.0))
+  squeezed = radius * (OUTER - inv_norm)[..., None] * direction
+  # Inside, the points themselves: x·radius would round them (x is points / radius).
+  return jnp.where(outside[..., None], squeezed, points)
+
+
+def uncontract(contracted, radius=1.0, kind="l2"):
+  """The inverse of `contract`: contracted positions back to world positions.
+
+  contracted: float32 [..., 3], of norm (of `kind`) at most 2·radius; norms beyond
+  MAX_CONTRACTED·radius (the outer boundary, and anything outside it) are clamped to it.
+  radius: float > 0. kind: 'l2' or 'linf'.
+  Returns float32 [..., 3], finite, of norm at most 2^22·radius; exact inverse (to rounding) of
+  `contract` for norms below MAX_CONTRACTED·radius.
+  """
+  _check(kind)
+  contracted = jnp.asarray(contracted, jnp.float32)
+  norm, direction = _norm_and_direction(contracted / radius, kind)
+  outside = norm > 1.0
+  # Clamped below 2 so that 2 - norm > 0 (exact subtraction near 2): the inverse stays finite.
+  norm = jnp.minimum(norm, MAX_CONTRACTED)
+  # Double where: the division only sees norms in (1, MAX_CONTRACTED] (2 - 1 = 1 elsewhere).
+  world_norm = 1.0 / (OUTER - jnp.where(outside, norm, 1.0))
+  return jnp.where(outside[..., None], radius * world_norm[..., None] * direction, contracted)
+
+
+def inner_exit(origins, directions, radius=1.0, kind="l2"):
+  """Where each ray leaves the inner region (the ball or cube of half-size `radius`).
+
+  origins, directions: float32 [..., 3] (directions un-normalised, so t is in their units: z-depth
+  for camera rays). radius: float > 0. kind: 'l2' (ball) or 'linf' (cube).
+  Returns t_exit: float32 [...], the ray parameter at which the line leaves the region (it may be
+  negative: behind the origin), or 0 for a line that misses the region.
+  `sampling.stratified_unbounded` clamps it into [near, far].
+  """
+  _check(kind)
+  o = jnp.asarray(origins, jnp.float32)
+  d = jnp.asarray(directions, jnp.float32)
+  if kind == "linf":
+    # Slab method; a zero component divides by a tiny signed number (the slab bounds become
+    # +-huge, as for a ray parallel to that slab) instead of 0.
+    safe = jnp.where(jnp.abs(d) < 1e-12, jnp.where(d < 0, -1e-12, 1e-12), d)
+    t1, t2 = (-radius - o) / safe, (radius - o) / safe
+    t_enter = jnp.max(jnp.minimum(t1, t2), axis=-1)
+    t_exit = jnp.min(jnp.maximum(t1, t2), axis=-1)
+    return jnp.where(t_enter <= t_exit, t_exit, 0.0)
+  # About the point of closest approach q = o + t0 d: the textbook quadratic b^2 - ac cancels
+  # when the ray passes far from the ball's centre (as in scenes/raycast.py).
+  dd = jnp.sum(d * d, axis=-1)
+  safe_dd = jnp.where(dd > 0.0, dd, 1.0)  # a zero direction never leaves: treated as a miss
+  t0 = -jnp.sum(o * d, axis=-1) / safe_dd
+  q = o + t0[..., None] * d
+  half2 = (radius ** 2 - jnp.sum(q * q, axis=-1)) / safe_dd
+  hit = (half2 >= 0.0) & (dd > 0.0)
+  return jnp.where(hit, t0 + jnp.sqrt(jnp.where(hit, half2, 0.0)), 0.0)
