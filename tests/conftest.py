@@ -1,4 +1,4 @@
-"""Shared test scaffolding: the shrunk config, one trained workdir per test session, the scores
+"""Shared test scaffolding: the configs shipped, one trained workdir per test session, the scores
 of trivial answers, restoring a run's parameters, comparing them, reading TensorBoard events.
 
 Markers: `slow` (a test that trains or spawns processes for more than ~10 s). The README's test
@@ -11,8 +11,9 @@ import jax
 import numpy as np
 import pytest
 
-from nerf_jax import background, experiment, metrics, outputs, train_lib
+from nerf_jax import background, experiment, metrics, train_lib
 from nerf_jax.configs import debug
+from tests.helpers import small_config
 
 # The margin (dB) a trained model must keep above the better trivial answer on the same views.
 # Measured: the shared run scores 24.6 dB where the mean training image scores 20.2 (+4.4 dB).
@@ -30,28 +31,13 @@ def shipped_configs():
   return names
 
 
-def tiny_config(**train):
-  """configs/debug.py (24×24 views, a small MLP, 20 steps) with no rendering after training;
-  `train` overrides config.train fields."""
-  config = debug.get_config()
-  config.render.after_training = False
-  for k, v in train.items():
-    config.train[k] = v
-  return config
-
-
-def shared_config():
-  """The config of the shared trained run: debug.py's model on 24 views (20 train, 4 test) of
-  32×32 of the `diffuse` scene, 600 steps of 512 rays, evaluating at step 300 and at the end,
-  rendering the test views and a 4-frame video after training."""
-  config = debug.get_config()
-  config.data.num_views, config.data.image_size, config.data.holdout_from = 24, 32, 20
-  config.train.max_steps = 600
-  config.train.batch_rays = 512
-  config.train.log_every = config.train.eval_every = 300
-  config.train.checkpoint_every = 600
-  config.render.video_frames = 4
-  return config
+# The shared trained run: debug.py's model on 24 views (20 train, 4 test) of 32×32 of the
+# `diffuse` scene, 600 steps of 512 rays, evaluating at step 300 and at the end, rendering the
+# test views and a 4-frame video after training.
+SHARED_RUN = {"data.num_views": 24, "data.image_size": 32, "data.holdout_from": 20,
+              "train.max_steps": 600, "train.batch_rays": 512, "train.log_every": 300,
+              "train.eval_every": 300, "train.checkpoint_every": 600,
+              "render.video_frames": 4, "render.after_training": True}
 
 
 @pytest.fixture(scope="session")
@@ -59,16 +45,16 @@ def trained_run(tmp_path_factory):
   """The shared trained run, built once per test session (about 15-30 s on 2 cores); tests only
   read it. (workdir: pathlib.Path, result: the metrics train_and_evaluate returned)."""
   workdir = tmp_path_factory.mktemp("shared") / "run"
-  result = train_lib.train_and_evaluate(shared_config(), str(workdir))
+  result = train_lib.train_and_evaluate(small_config(SHARED_RUN), str(workdir))
   return workdir, result
 
 
 def trivial_psnrs(exp):
   """PSNR (dB, mean over `exp`'s test views) of two answers that learn nothing: the background
   alone ('background': all black on black data) and the mean training image ('mean')."""
-  train = outputs.images_on_background(exp.train_ds, exp.config)[1]
-  test = outputs.images_on_background(exp.test_ds, exp.config)[1]
   bg = background.parse(exp.config.data.background)
+  train = background.images_on_background(exp.train_ds, bg)[1]
+  test = background.images_on_background(exp.test_ds, bg)[1]
   mean = train.mean(axis=0)
   score = lambda guess: float(np.mean([metrics.psnr(np.broadcast_to(guess, t.shape), t)
                                        for t in test]))
@@ -81,9 +67,10 @@ def assert_beats_trivial(psnr, exp, margin=TRIVIAL_MARGIN_DB):
   assert psnr > max(trivial.values()) + margin, (psnr, trivial)
 
 
-def restored_params(workdir):
-  """The parameters of the newest checkpoint in `workdir`."""
-  return experiment.restore(str(workdir))[1].params
+def restored_variables(workdir):
+  """The variables of the newest checkpoint in `workdir`: {'params': ..., **buffers} (the
+  trained parameters and the occupancy grid, if any)."""
+  return experiment.restore(str(workdir))[1].variables
 
 
 def params_equal(a, b):
@@ -113,5 +100,5 @@ def tensorboard_scalars(workdir):
 
 @pytest.fixture
 def config():
-  """A fresh `tiny_config()` for each test."""
-  return tiny_config()
+  """A fresh `small_config()` (configs/debug.py, no rendering after training) for each test."""
+  return small_config()

@@ -1,12 +1,49 @@
-"""Shared test helpers: one-line data errors and a minimal Blender folder."""
+"""Shared test helpers: small configs with dotted overrides, a renderer around a stand-in
+network, one-line data errors and a minimal Blender folder."""
 
+import dataclasses
 import json
 
 import imageio.v3 as iio
 import numpy as np
 import pytest
 
+from nerf_jax import config_lib, experiment
 from nerf_jax.data import DataError
+
+
+def small_config(overrides=None, /, base="debug", **fields):
+  """A config for a test: configs/<base>.py (a name under configs/: 'debug', 'fast', 'hash',
+  'scenes/fog'), with no rendering after training (render.after_training = False), then each
+  dotted field of `overrides` (a dict) and of `fields` set to its value, in that order:
+
+    small_config({"model.grid.resolutions": (8, 16), "train.max_steps": 5}, base="fast")
+    small_config(num_samples=8, **{"model.shared_fine": True})
+
+  A field the config lacks raises KeyError with config_lib.unknown_override's line (the one the
+  command line gives for a bad --config.FIELD)."""
+  config = config_lib.load(base)
+  config.render.after_training = False
+  for name, value in {**(overrides or {}), **fields}.items():
+    problem = config_lib.unknown_override(config, name)
+    if problem:
+      raise KeyError(problem)
+    *path, last = name.split(".")
+    node = config
+    for part in path:
+      node = node[part]
+    node[last] = value
+  return config
+
+
+def ray_renderer(config, network=None):
+  """The RayRenderer of `config` (experiment.make_ray_renderer); with `network`, a stand-in
+  for the Flax module (an object with apply(variables, positions, dir_features) -> (rgb,
+  sigma)) queried through the config's Field."""
+  renderer = experiment.make_ray_renderer(config)
+  if network is None:
+    return renderer
+  return dataclasses.replace(renderer, field=dataclasses.replace(renderer.field, network=network))
 
 
 def assert_data_error(match, fn, *args, **kw):

@@ -1,27 +1,23 @@
 """The per-ray pipeline and chunked image rendering."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax.configs import debug
 from nerf_jax import field, image_renderer, renderer
-from nerf_jax.model import make_model
 from nerf_jax.rays import Rays, get_rays, pose_spherical
+from tests.helpers import ray_renderer, small_config
 
 
-def _setup(**overrides):
-  config = debug.get_config()
-  for key, value in overrides.items():
-    node = config
-    *path, last = key.split(".")
-    for p in path:
-      node = node[p]
-    node[last] = value
-  model = make_model(config.model)
-  params = field.init_params(model, config, jax.random.PRNGKey(0))
-  return config, model, params
+def _init(**overrides):
+  """(config, its RayRenderer, variables from PRNGKey(0)) of the debug config with `overrides`
+  (dotted fields, see helpers.small_config)."""
+  config = small_config(**overrides)
+  rr = ray_renderer(config)
+  return config, rr, rr.init(jax.random.PRNGKey(0))
 
 
 def _rays(n=37):
@@ -31,80 +27,78 @@ def _rays(n=37):
 
 @pytest.mark.parametrize("fine", [0, 8])
 def test_render_image_in_chunks_equals_one_call(fine):
-  config, model, params = _setup(num_fine_samples=fine)
+  _, rr, variables = _init(num_fine_samples=fine)
   origins, directions = _rays()
   rays = Rays.create(origins, directions, 2.0, 6.0)
-  whole = renderer.final(renderer.render_rays(model, params, rays, config))
-  chunked = image_renderer.render_image(image_renderer.make_chunk_renderer(model, config), params,
-                                        rays, chunk=16)
+  whole = renderer.final(rr.render(variables, rays))
+  chunked = image_renderer.render_image(image_renderer.make_chunk_renderer(rr), variables, rays,
+                                        chunk=16)
   for k in ("rgb", "depth", "acc"):
     np.testing.assert_allclose(chunked[k], whole[k], rtol=1e-5, atol=1e-6)
 
 
 def test_render_image_does_not_recompile_across_images():
-  config, model, params = _setup()
-  render_chunk = image_renderer.make_chunk_renderer(model, config)
+  _, rr, variables = _init()
+  render_chunk = image_renderer.make_chunk_renderer(rr)
   for n in (37, 20, 64):
     origins, directions = _rays(n)
-    out = image_renderer.render_image(render_chunk, params,
+    out = image_renderer.render_image(render_chunk, variables,
                                       Rays.create(origins, directions, 2.0, 6.0), chunk=16)
     assert out["rgb"].shape == (n, 3)
   assert render_chunk._cache_size() == 1
 
 
 def test_hierarchical_pass_uses_union_of_edges():
-  config, model, params = _setup(num_fine_samples=8)
+  config, rr, variables = _init(num_fine_samples=8)
   origins, directions = _rays(5)
-  out = renderer.render_rays(model, params, Rays.create(origins, directions, 2.0, 6.0), config,
-                             key=jax.random.PRNGKey(1))
+  out = rr.render(variables, Rays.create(origins, directions, 2.0, 6.0), key=jax.random.PRNGKey(1))
   t_coarse, t_fine = out["coarse"]["t"], out["fine"]["t"]
   assert t_fine.shape == (5, config.num_samples + 8 + 1)
   assert np.all(np.diff(t_fine, axis=-1) >= 0)
   for row_c, row_f in zip(np.asarray(t_coarse), np.asarray(t_fine)):
     assert np.all(np.isin(row_c, row_f))  # every coarse edge is kept
-  assert set(params) == {"coarse", "fine"}
+  assert set(variables["params"]) == {"coarse", "fine"} == set(rr.networks)
 
 
 def test_shared_fine_network_has_one_parameter_set():
-  config, _, params = _setup(num_fine_samples=8, **{"model.shared_fine": True})
-  assert set(params) == {"coarse"}
+  _, rr, variables = _init(num_fine_samples=8, **{"model.shared_fine": True})
+  assert set(variables["params"]) == {"coarse"} == set(rr.networks)
 
 
 def test_deterministic_without_key_and_random_with_key():
-  config, model, params = _setup()
+  _, rr, variables = _init()
   rays = Rays.create(*_rays(9), 2.0, 6.0)
-  render = lambda key: renderer.final(renderer.render_rays(model, params, rays, config,
-                                                           key=key))["rgb"]
+  render = lambda key: renderer.final(rr.render(variables, rays, key=key))["rgb"]
   np.testing.assert_array_equal(render(None), render(None))
   np.testing.assert_array_equal(render(jax.random.PRNGKey(3)), render(jax.random.PRNGKey(3)))
   assert np.max(np.abs(render(jax.random.PRNGKey(3)) - render(jax.random.PRNGKey(4)))) > 0
 
 
 def test_density_noise_only_with_a_key():
-  config, model, params = _setup(**{"model.density_noise": 1.0})
+  _, rr, variables = _init(**{"model.density_noise": 1.0})
   rays = Rays.create(*_rays(9), 2.0, 6.0)
   t = jnp.broadcast_to(jnp.linspace(2.0, 6.0, 5), (9, 5))
   points = rays.origins[:, None] + rays.directions[:, None] * t[..., None]
-  _, s0 = field.query(model, params["coarse"], points, rays.viewdirs, config)
-  _, s1 = field.query(model, params["coarse"], points, rays.viewdirs, config)
-  _, s2 = field.query(model, params["coarse"], points, rays.viewdirs, config,
-                               key=jax.random.PRNGKey(0))
+  params = variables["params"]["coarse"]
+  _, s0 = rr.field.query(params, points, rays.viewdirs)
+  _, s1 = rr.field.query(params, points, rays.viewdirs)
+  _, s2 = rr.field.query(params, points, rays.viewdirs, key=jax.random.PRNGKey(0))
   np.testing.assert_array_equal(s0, s1)
   assert np.all(s2 >= 0) and np.max(np.abs(s2 - s0)) > 0
 
 
 @pytest.mark.parametrize("view_dependent", [False, True])
 def test_remat_chunks_match_one_call_in_values_and_gradients(view_dependent):
-  config, model, params = _setup(**{"model.view_dependent": view_dependent})
+  _, rr, variables = _init(**{"model.view_dependent": view_dependent})
   origins, directions = _rays(36)
   rays = Rays.create(origins, directions, 2.0, 6.0)
   key = jax.random.PRNGKey(3)
 
   def loss(p, chunk):
-    config.train.remat_chunk = chunk
-    out = renderer.render_rays(model, p, rays, config, key=key)["coarse"]
+    out = rr.render({"params": p}, rays, key=key, remat_chunk=chunk)["coarse"]
     return jnp.sum(out["rgb"] ** 2) + jnp.sum(out["depth"]), out["rgb"]
 
+  params = variables["params"]
   (plain, rgb_plain), g_plain = jax.value_and_grad(loss, has_aux=True)(params, 0)
   (chunked, rgb_chunked), g_chunked = jax.value_and_grad(loss, has_aux=True)(params, 12)
   np.testing.assert_allclose(rgb_chunked, rgb_plain, rtol=1e-5, atol=1e-6)
@@ -112,8 +106,7 @@ def test_remat_chunks_match_one_call_in_values_and_gradients(view_dependent):
   for a, b in zip(jax.tree_util.tree_leaves(g_chunked), jax.tree_util.tree_leaves(g_plain)):
     np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)
   # A chunk size that does not divide the batch falls back to one call.
-  config.train.remat_chunk = 10
-  odd = renderer.render_rays(model, params, rays, config, key=key)["coarse"]["rgb"]
+  odd = rr.render(variables, rays, key=key, remat_chunk=10)["coarse"]["rgb"]
   np.testing.assert_array_equal(odd, rgb_plain)
 
 
@@ -122,18 +115,24 @@ def test_remat_chunks_match_one_call_in_values_and_gradients(view_dependent):
 COARSE, FINE = 16, 32
 
 
-def _analytic(monkeypatch, sigma_rgb, fine=FINE, coarse=COARSE):
-  """A config and params rendering the analytic field `sigma_rgb(points float32 [..., 3]) ->
-  (sigma [...], rgb [..., 3])` in place of the network (field.query is replaced)."""
-  def query(model, params, points, viewdirs, config, key=None):
-    del model, params, viewdirs, config, key
-    sigma, rgb = sigma_rgb(points)
+@dataclasses.dataclass(frozen=True)
+class _AnalyticField(field.Field):
+  """The analytic field `sigma_rgb(points float32 [..., 3]) -> (sigma [...], rgb [..., 3])` in
+  place of the network."""
+  sigma_rgb: object = None
+
+  def query(self, params, points, viewdirs, key=None):
+    del params, viewdirs, key
+    sigma, rgb = self.sigma_rgb(points)
     return rgb, sigma
-  monkeypatch.setattr(field, "query", query)
-  config = debug.get_config()
-  config.num_samples, config.num_fine_samples = coarse, fine
-  config.train.remat_chunk = 0
-  return config, {"coarse": None, "fine": None}
+
+
+def _analytic(sigma_rgb, fine=FINE, coarse=COARSE):
+  """The debug config's RayRenderer with `coarse` + `fine` samples, rendering `sigma_rgb` (see
+  _AnalyticField), and its variables."""
+  rr = ray_renderer(small_config(num_samples=coarse, num_fine_samples=fine))
+  return (dataclasses.replace(rr, field=_AnalyticField(None, sigma_rgb=sigma_rgb)),
+          {"params": {"coarse": None, "fine": None}})
 
 
 def _ball(points, radius=0.5, density=20.0):
@@ -158,23 +157,22 @@ def _down_rays(n=24):
   return Rays.create(jnp.asarray(origins), jnp.asarray(directions), 1.0, 5.0)
 
 
-def _errors(monkeypatch, sigma_rgb):
+def _errors(sigma_rgb):
   """{pass: (mean |rgb error|, mean |depth error|)} against a dense 4096-sample render, for the
   coarse and fine passes and a single uniform pass with as many samples as coarse + fine."""
   rays = _down_rays()
-  render = lambda fine, coarse: renderer.render_rays(
-      None, params, rays, _analytic(monkeypatch, sigma_rgb, fine, coarse)[0])
-  _, params = _analytic(monkeypatch, sigma_rgb)
+  render = lambda fine, coarse: _analytic(sigma_rgb, fine, coarse)[0].render(variables, rays)
+  _, variables = _analytic(sigma_rgb)
   outs = render(FINE, COARSE)
   dense, uniform = render(0, 4096)["coarse"], render(0, COARSE + FINE)["coarse"]
   err = lambda out: tuple(float(jnp.mean(jnp.abs(out[k] - dense[k]))) for k in ("rgb", "depth"))
   return {"coarse": err(outs["coarse"]), "fine": err(outs["fine"]), "uniform": err(uniform)}
 
 
-def test_fine_samples_concentrate_where_the_coarse_weights_are(monkeypatch):
+def test_fine_samples_concentrate_where_the_coarse_weights_are():
   rays = _down_rays()
-  config, params = _analytic(monkeypatch, _ball)
-  outs = renderer.render_rays(None, params, rays, config)
+  rr, variables = _analytic(_ball)
+  outs = rr.render(variables, rays)
   t_coarse, t_fine = np.asarray(outs["coarse"]["t"]), np.asarray(outs["fine"]["t"])
   r2 = np.sum(np.asarray(rays.origins)[:, :2] ** 2, -1)
   half = np.sqrt(0.25 - r2)  # the ball spans t in [3 - half, 3 + half] on each ray
@@ -189,15 +187,15 @@ def test_fine_samples_concentrate_where_the_coarse_weights_are(monkeypatch):
 
 
 @pytest.mark.parametrize("scene", ["ball", "fog"])
-def test_fine_render_is_closer_to_a_dense_render_than_coarse(monkeypatch, scene):
-  errors = _errors(monkeypatch, {"ball": _ball, "fog": _fog}[scene])
+def test_fine_render_is_closer_to_a_dense_render_than_coarse(scene):
+  errors = _errors({"ball": _ball, "fog": _fog}[scene])
   for k in (0, 1):  # rgb, depth
     assert errors["fine"][k] < 0.5 * errors["coarse"][k], errors
 
 
-def test_fine_pass_in_fog_finds_the_surface_behind_it(monkeypatch):
+def test_fine_pass_in_fog_finds_the_surface_behind_it():
   """In fog the coarse weights are spread along the medium and spike at the slab behind it: the
   fine samples go there, so the depth is three times closer to the dense render's than with the
   same number of uniform samples (measured: 0.006 vs 0.019)."""
-  errors = _errors(monkeypatch, _fog)
+  errors = _errors(_fog)
   assert errors["fine"][1] < 0.5 * errors["uniform"][1], errors
