@@ -9,6 +9,7 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 import ml_collections
+import numpy as np
 import optax
 
 from nerf_jax import checkpoints, config_lib, model, occupancy
@@ -16,7 +17,7 @@ from nerf_jax.data import loaders
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.field import Field
 from nerf_jax.image_renderer import ImageSettings
-from nerf_jax.rays import camera_rays
+from nerf_jax.rays import camera_rays, pixel_rays
 from nerf_jax.renderer import RayRenderer
 from nerf_jax.sampler import Sampler
 
@@ -77,12 +78,59 @@ class Experiment:
 def setup(config):
   """The Experiment of `config`: loads the data, builds the renderer and the optimiser."""
   config = config_lib.upgrade(config)
-  renderer = make_ray_renderer(config)  # a bad model or sampler setting fails before the data
+  make_ray_renderer(config)  # a bad model or sampler setting fails before the data loads
   train_ds, test_ds = loaders.load_dataset(config.data)
   pixel_center(config, train_ds)  # a bad value fails here, naming the field
   near, far = bounds(config, train_ds)
-  return Experiment(config, renderer, image_settings(config), make_optimizer(config.train),
-                    train_ds, test_ds, near, far)
+  config = with_scene_extent(config, train_ds)
+  exp = Experiment(config, make_ray_renderer(config), image_settings(config),
+                   make_optimizer(config.train), train_ds, test_ds, near, far)
+  warn_if_cut(exp)
+  return exp
+
+
+def with_scene_extent(config, dataset):
+  """`config` with data.scene_bound = -1 (auto) resolved from the data, one line saying how:
+  in an unbounded scene (data.contraction) the inner box holds the cameras (as mip-NeRF 360 and
+  nerfacto normalise); else it is the data's own box (Dataset.aabb: instant-ngp's aabb_scale
+  or the sparse points), else the cameras' box. The value is recorded in config.json."""
+  if config.data.scene_bound != -1:
+    return config
+  cameras = float(np.max(np.abs(dataset.poses[:, :3, 3])))
+  if config.data.contraction or dataset.aabb is None:
+    bound, why = cameras, "the cameras' box"
+  else:
+    bound, why = float(np.max(np.abs(dataset.aabb))), "the data's box (aabb)"
+  config = ml_collections.ConfigDict(config.to_dict())
+  config.data.scene_bound = round(bound, 4)
+  beyond = f", contracted ({config.data.contraction}) beyond" if config.data.contraction else ""
+  print(f"scene extent: box ±{bound:.3g} from {why}{beyond} (data.scene_bound)", flush=True)
+  return config
+
+
+CUT_SHARE = 0.25  # a run warns when more training rays than this leave the box before far
+
+
+def warn_if_cut(exp, num_rays=1024):
+  """One line when many training rays leave the scene box before their far bound: what lies
+  beyond is cut from the model (a bounded box on a real capture)."""
+  sampler = exp.renderer.sampler
+  if sampler.scene_bound <= 0 or sampler.contraction or exp.config.data.ndc:
+    return
+  ds, rng = exp.train_ds, np.random.default_rng(0)
+  height, width, intrinsics = exp.camera()
+  one = lambda i, j, c2w: pixel_rays(i, j, height, width, intrinsics, c2w, exp.near, exp.far,
+                                     exp.pixel_center, False)
+  rays = jax.vmap(one)(jnp.asarray(rng.integers(width, size=num_rays), jnp.float32),
+                       jnp.asarray(rng.integers(height, size=num_rays), jnp.float32),
+                       jnp.asarray(ds.poses[rng.integers(len(ds), size=num_rays)]))
+  _, t_exit = sampler.bounds(rays)
+  share = float(np.mean(np.asarray(t_exit) < 0.95 * np.asarray(rays.far)))
+  if share > CUT_SHARE:
+    print(f"note: {100 * share:.0f}% of training rays leave the scene box "
+          f"(±{sampler.scene_bound:g}) before their far bound ({exp.far:.3g}): what lies "
+          "beyond is not modelled; for a room or a garden set data.contraction='linf' "
+          "(configs/capture.py) or a larger data.scene_bound", flush=True)
 
 
 ENCODINGS = ("posenc", "grid", "hash")
@@ -101,10 +149,13 @@ def make_field(config):
     network = model.NerfMLP(depth=m.depth, width=m.width, skip_layers=tuple(m.skip_layers),
                             **head)
   else:
+    # In an unbounded scene the grids cover the whole contracted space, twice the inner box.
+    bound = 2.0 * config.data.scene_bound if config.data.contraction else m.grid_bound
     grids = model.GridNeRF if m.encoding == "grid" else model.HashNeRF
-    network = grids(**m[m.encoding], bound=m.grid_bound, hidden=m.width, **head)
+    network = grids(**m[m.encoding], bound=bound, hidden=m.width, **head)
   return Field(network, config.pos_encode_dims if m.encoding == "posenc" else None,
-               config.dir_encode_dims, m.view_dependent, m.density_activation, m.density_noise)
+               config.dir_encode_dims, m.view_dependent, m.density_activation, m.density_noise,
+               config.data.contraction, max(config.data.scene_bound, 1e-6))
 
 
 def make_sampler(config):
@@ -122,8 +173,16 @@ def make_sampler(config):
     if config.data.ndc:
       raise ValueError("config.occupancy.enabled does not work with config.data.ndc")
   settings = occupancy.OccupancySettings(**{k: v for k, v in oc.items() if k != "enabled"})
+  if config.data.contraction:
+    if config.data.scene_bound <= 0 and config.data.scene_bound != -1:
+      raise ValueError("config.data.contraction needs config.data.scene_bound > 0 or -1 "
+                       "(auto): the inner region's half-size")
+    if oc.enabled or config.data.ndc or config.num_fine_samples > 0:
+      raise ValueError("config.data.contraction does not work with config.occupancy.enabled, "
+                       "config.data.ndc or config.num_fine_samples > 0 yet")
   return Sampler(config.num_samples, config.data.scene_bound, config.data.lindisp,
-                 settings if oc.enabled else None)
+                 settings if oc.enabled else None, config.data.contraction,
+                 config.data.inner_fraction)
 
 
 def make_ray_renderer(config):

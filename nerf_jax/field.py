@@ -14,7 +14,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from nerf_jax import activations, encoding
+from nerf_jax import activations, contraction, encoding
 
 
 @dataclasses.dataclass(frozen=True)
@@ -27,6 +27,9 @@ class Field:
   view_dependent: colour takes the encoded viewing direction.
   density_activation: 'relu', 'softplus' or 'exp' (activations.py). density_noise: std of the
     noise added to raw density when a query has a key (training only).
+  contraction: '' (world positions), or 'l2' / 'linf': positions are contracted about the inner
+    region of half-size `inner_radius` first (contraction.py), so the network sees all of space
+    inside [-2·inner_radius, 2·inner_radius]^3.
   """
   network: Any
   pos_encode_dims: Any = None
@@ -34,6 +37,8 @@ class Field:
   view_dependent: bool = False
   density_activation: str = "relu"
   density_noise: float = 0.0
+  contraction: str = ""
+  inner_radius: float = 1.0
 
   def init(self, key):
     """The network's parameters, from PRNG key `key`."""
@@ -44,7 +49,10 @@ class Field:
     return self.network.init(key, pos, dirs)["params"]
 
   def encode_positions(self, points):
-    """The network's position input for points float32 [..., 3]: encoded, or the points."""
+    """The network's position input for points float32 [..., 3]: encoded, or the points
+    (contracted first in an unbounded scene)."""
+    if self.contraction:
+      points = contraction.contract(points, self.inner_radius, self.contraction)
     if self.pos_encode_dims is None:
       return points  # the grids are the encoding
     return encoding.positional_encoding(points, self.pos_encode_dims)

@@ -83,7 +83,7 @@ def marches(ray_renderer, settings):
   """
   rs = ray_renderer.sampler
   return bool(settings.march and rs.scene_bound > 0 and ray_renderer.num_fine_samples == 0
-              and rs.occupancy is None)
+              and rs.occupancy is None and not rs.contraction)
 
 
 class Draw:

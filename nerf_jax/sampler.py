@@ -21,7 +21,7 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 
-from nerf_jax import occupancy, sampling
+from nerf_jax import contraction, occupancy, sampling
 from nerf_jax.occupancy import OccupancySettings
 from nerf_jax.rays import ray_box_bounds
 
@@ -81,14 +81,23 @@ class Sampler:
   samples only inside it (0 = the whole of [near, far]). lindisp: space stratified samples
   linearly in 1/t. occupancy: where set, samples go only to occupied cells of an occupancy grid
   over the scene box (occupancy.py), passed to `place` as `grid`.
+  contraction: '' (bounded), or 'l2' / 'linf' for an unbounded scene (contraction.py): the box
+  of half-size scene_bound is the inner region, sampled linearly in t; beyond it samples are
+  linear in disparity out to far = infinity (sampling.stratified_unbounded), `inner_fraction`
+  of them inside.
   """
   num_samples: int
   scene_bound: float = 0.0
   lindisp: bool = False
   occupancy: Optional[OccupancySettings] = None
+  contraction: str = ""
+  inner_fraction: float = 0.5
 
   def bounds(self, rays):
-    """(t_near, t_far) float32 [...]: the rays' [near, far], cut to the scene box if any."""
+    """(t_near, t_far) float32 [...]: the rays' [near, far], cut to the scene box if any (an
+    unbounded scene's rays run from near to infinity)."""
+    if self.contraction:
+      return rays.near, jnp.full_like(rays.far, jnp.inf)
     if self.scene_bound > 0:  # sample only the part of each ray inside the scene box
       return ray_box_bounds(rays.origins, rays.directions, self.scene_bound, rays.near,
                             rays.far)
@@ -97,6 +106,11 @@ class Sampler:
   def stratified(self, rays, key=None):
     """Edges t float32 [..., S + 1] of stratified samples over `bounds` (key None: even)."""
     t_near, t_far = self.bounds(rays)
+    if self.contraction:
+      t_inner = contraction.inner_exit(rays.origins, rays.directions, self.scene_bound,
+                                       self.contraction)
+      return sampling.stratified_unbounded(t_near, t_inner, t_far, self.num_samples, rays.shape,
+                                           key, self.inner_fraction)
     return sampling.stratified(t_near, t_far, self.num_samples, rays.shape, key,
                                lindisp=self.lindisp)
 
