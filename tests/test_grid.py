@@ -7,11 +7,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax.configs import debug
-from nerf_jax import field, grid, renderer
+from nerf_jax import grid, renderer
 from nerf_jax import rays as rays_lib
-from nerf_jax.model import make_model
 from nerf_jax.rays import Rays, get_rays, pose_spherical
+from tests.helpers import ray_renderer, small_config
 
 
 def _trilinear_brute(g, u):
@@ -78,30 +77,23 @@ def test_ray_box_bounds_axis_parallel_and_zero_directions_are_finite():
   assert t1[1] == t0[1]  # parallel to the box, outside it: empty segment
 
 
-def _grid_config():
-  config = debug.get_config()
-  config.model.encoding = "grid"
-  config.model.grid.resolutions = (8, 16)
-  config.model.grid_bound = 1.5
-  config.model.density_activation = "softplus"
-  return config
+GRID = {"model.encoding": "grid", "model.grid.resolutions": (8, 16), "model.grid_bound": 1.5,
+        "model.density_activation": "softplus"}
 
 
 def test_box_restricted_sampling_renders_the_plain_image():
   """Sampling only inside the box changes cost, not the image: the field is empty outside."""
-  config = _grid_config()
-  model = make_model(config.model)
-  params = field.init_params(model, config, jax.random.PRNGKey(0))
+  fast_rr = ray_renderer(small_config(GRID, num_samples=256, **{"data.scene_bound": 1.5}))
+  plain_rr = ray_renderer(small_config(GRID, num_samples=1024, **{"data.scene_bound": 0.0}))
+  variables = fast_rr.init(jax.random.PRNGKey(0))
+  params = variables["params"]
   # A "trained toy model": a dense blob in the middle of the box.
   level = params["coarse"]["grid_16"]
   params["coarse"]["grid_16"] = level.at[5:11, 5:11, 5:11].set(3.0)
   origins, directions = get_rays(12, 12, 15.0, pose_spherical(10.0, -30.0, 4.0))
   rays = Rays.create(origins.reshape(-1, 3), directions.reshape(-1, 3), 2.0, 6.0)
-  fast_cfg, plain_cfg = _grid_config(), _grid_config()
-  fast_cfg.num_samples, fast_cfg.data.scene_bound = 256, 1.5
-  plain_cfg.num_samples, plain_cfg.data.scene_bound = 1024, 0.0
-  fast = renderer.final(renderer.render_rays(model, params, rays, fast_cfg))
-  plain = renderer.final(renderer.render_rays(model, params, rays, plain_cfg))
+  fast = renderer.final(fast_rr.render(variables, rays))
+  plain = renderer.final(plain_rr.render(variables, rays))
   assert float(jnp.max(fast["acc"])) > 0.5  # the blob is visible
   np.testing.assert_allclose(fast["rgb"], plain["rgb"], atol=2e-2)
   np.testing.assert_allclose(fast["acc"], plain["acc"], atol=2e-2)

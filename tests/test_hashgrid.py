@@ -10,11 +10,10 @@ import numpy as np
 import optax
 import pytest
 
-from nerf_jax import experiment, field, grid, hashgrid, renderer
-from nerf_jax.configs import debug
-from nerf_jax.configs import hash as hash_config
-from nerf_jax.model import HashNeRF, make_model
+from nerf_jax import experiment, grid, hashgrid, renderer
+from nerf_jax.model import HashNeRF
 from nerf_jax.rays import Rays, get_rays, pose_spherical
+from tests.helpers import ray_renderer, small_config
 
 P1, P2 = 2654435761, 805459861
 
@@ -141,7 +140,7 @@ def test_float16_rows_give_finite_values_and_gradients_close_to_float32():
   params["hash_table"] = 0.1 * jax.random.normal(jax.random.PRNGKey(6), table_shape)
   grads = {}
   for dtype in ("float32", "float16"):
-    model = _small_model(hash_dtype=dtype)
+    model = _small_model(gather_dtype=dtype)
     rgb, sigma = jax.jit(model.apply)({"params": params}, points)
     assert rgb.dtype == jnp.float32 and bool(jnp.all(jnp.isfinite(rgb)))
     assert bool(jnp.all(jnp.isfinite(sigma)))
@@ -186,21 +185,15 @@ def test_adam_fits_a_3d_function_through_the_encoding_and_a_linear_layer():
   assert rmse < 0.05, rmse
 
 
-def _hash_debug_config():
-  config = debug.get_config()
-  config.model.encoding = "hash"
-  config.model.hash.levels, config.model.hash.log2_size = 4, 10
-  config.model.hash.base_resolution, config.model.hash.max_resolution = 4, 64
-  config.model.density_activation = "softplus"
-  config.data.scene_bound = 1.5
-  return config
+HASH_DEBUG = {"model.encoding": "hash", "model.hash.levels": 4, "model.hash.log2_size": 10,
+              "model.hash.base_resolution": 4, "model.hash.max_resolution": 64,
+              "model.density_activation": "softplus", "data.scene_bound": 1.5}
 
 
-def test_hash_model_trains_one_step_through_render_rays():
-  config = _hash_debug_config()
-  model = make_model(config.model)
-  assert isinstance(model, HashNeRF)
-  params = field.init_params(model, config, jax.random.PRNGKey(0))
+def test_hash_model_trains_one_step_through_the_ray_renderer():
+  rr = ray_renderer(small_config(HASH_DEBUG))
+  assert isinstance(rr.field.network, HashNeRF)
+  params = rr.init(jax.random.PRNGKey(0))["params"]
   table = params["coarse"]["hash_table"]
   assert table.shape == (4 ** 3 + 10 ** 3 + 2 * 2 ** 10, 2)  # 4, 10 dense; 25, 64 hashed
   assert float(jnp.max(jnp.abs(table))) <= 1e-4  # instant-ngp's initial scale
@@ -209,7 +202,7 @@ def test_hash_model_trains_one_step_through_render_rays():
   target = jnp.full((64, 3), 0.3)
 
   def loss_fn(p):
-    out = renderer.final(renderer.render_rays(model, p, rays, config, jax.random.PRNGKey(1)))
+    out = renderer.final(rr.render({"params": p}, rays, jax.random.PRNGKey(1)))
     return jnp.mean((out["rgb"] - target) ** 2)
 
   tx = optax.adam(1e-2)
@@ -224,12 +217,12 @@ def test_hash_model_trains_one_step_through_render_rays():
 
 
 def test_config_signature_and_errors():
-  config = hash_config.get_config()
-  assert not field.encodes_positions(config)
+  config = small_config(base="hash")
+  assert experiment.make_field(config).pos_encode_dims is None  # the grids are the encoding
   signature = experiment.model_signature(config)
   assert signature["hash_log2_size"] == config.model.hash.log2_size
   assert signature["hash_max_resolution"] == config.model.hash.max_resolution
-  model = make_model(config.model)
+  model = experiment.make_field(config).network
   assert model.max_resolution == 2048 and model.log2_size == config.model.hash.log2_size
   points = jnp.array([[0.0, 0.0, 0.0], [1.2, 0.0, 0.0]])  # inside, outside the box (bound 1)
   small = _small_model()
@@ -238,6 +231,6 @@ def test_config_signature_and_errors():
   assert float(raw_sigma[0]) > -1e4 and float(raw_sigma[1]) == -1e5
   config.model.encoding = "hashgrid"
   with pytest.raises(ValueError, match="config.model.encoding"):
-    make_model(config.model)
+    experiment.make_field(config)
   with pytest.raises(ValueError, match="hash_dtype"):
     hashgrid.encode(jnp.zeros((64, 1)), jnp.zeros((1, 3)), (4,), 6, "float64")

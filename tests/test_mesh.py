@@ -9,10 +9,9 @@ import jax
 import numpy as np
 import pytest
 
-from nerf_jax.configs import debug
 from nerf_jax import checkpoints, experiment, scenes, surface
-from nerf_jax.model import make_model
 from nerf_jax.scenes.geometry import Box, Cylinder, Sphere
+from tests.helpers import small_config
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -100,13 +99,9 @@ RADIUS, RED = 0.6, np.array([250, 5, 5])
 def _sphere_field_workdir(workdir):
   """A workdir whose checkpoint is a grid field with density 1000·relu(RADIUS - |x|) and colour
   sigmoid(4, -4, -4) everywhere (the grid holds the signed distance; the MLP passes it on)."""
-  config = debug.get_config()
-  config.model.encoding = "grid"
-  config.model.grid.resolutions = (33,)
-  config.model.grid.features = 1
-  config.model.grid_bound = 1.0
-  config.model.width = 4
-  config.model.density_activation = "relu"
+  config = small_config({"model.encoding": "grid", "model.grid.resolutions": (33,),
+                         "model.grid.features": 1, "model.grid_bound": 1.0, "model.width": 4,
+                         "model.density_activation": "relu"})
   state = jax.tree_util.tree_map(lambda s: np.zeros(s.shape, s.dtype),
                                  experiment.state_template(experiment.setup(config)))
   params = state.params
