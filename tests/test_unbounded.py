@@ -1,0 +1,82 @@
+"""Unbounded scenes end to end: the sampler's placement, the field's contraction, the scene
+extent found from the data, and the one line when rays leave a bounded box."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from nerf_jax import config_lib, contraction, experiment, model, sampler, sampling
+from nerf_jax.field import Field
+from nerf_jax.rays import Rays
+
+
+def _rays(num=64, seed=0):
+  rng = np.random.default_rng(seed)
+  origins = rng.normal(size=(num, 3)).astype(np.float32) * 2.0
+  directions = rng.normal(size=(num, 3)).astype(np.float32)
+  return Rays.create(jnp.asarray(origins), jnp.asarray(directions), 0.1, 5.0)
+
+
+@pytest.mark.parametrize("kind", ["l2", "linf"])
+def test_contracted_placement_is_linear_inside_and_in_disparity_beyond(kind):
+  rays = _rays()
+  placed = sampler.Sampler(32, scene_bound=1.5, contraction=kind, inner_fraction=0.25)
+  t = placed.place(rays).t
+  t_inner = contraction.inner_exit(rays.origins, rays.directions, 1.5, kind)
+  expected = sampling.stratified_unbounded(rays.near, t_inner, jnp.inf, 32, rays.shape,
+                                           inner_fraction=0.25)
+  np.testing.assert_array_equal(t, expected)
+  # The rays run to (effectively) infinity, not to their far bound, and stay sorted and finite.
+  assert np.all(np.isfinite(t)) and np.all(np.diff(t, axis=-1) >= 0)
+  assert np.all(t[:, -1] >= 1e9)
+  # A bounded sampler stops at the box: the contraction is what lets samples go beyond.
+  bounded = sampler.Sampler(32, scene_bound=1.5).place(rays).t
+  assert np.all(bounded[:, -1] <= 5.0 + 1e-5)
+
+
+def test_the_field_sees_contracted_positions():
+  network = model.GridNeRF(resolutions=(4,), features=2, bound=3.0, hidden=8)
+  field = Field(network, None, 2, contraction="linf", inner_radius=1.5)
+  points = jnp.array([[0.5, -0.2, 0.1], [30.0, 0.0, -2.0], [1e8, 1e8, 0.0]], jnp.float32)
+  encoded = field.encode_positions(points)
+  np.testing.assert_allclose(encoded, contraction.contract(points, 1.5, "linf"), rtol=1e-6)
+  assert np.all(np.abs(encoded) <= 3.0)  # inside the grids' box of half-size 2 x 1.5
+  params = field.init(jax.random.PRNGKey(0))
+  _, sigma = field.query(params, points[:, None, :], jnp.zeros_like(points))
+  assert np.all(np.isfinite(sigma))
+  # Without the contraction, far points fall outside the grids and get no density at all.
+  plain = Field(network, None, 2)
+  _, far_sigma = plain.query(params, points[1:, None, :], jnp.zeros_like(points[1:]))
+  assert np.all(far_sigma == 0.0)
+
+
+def _config(**data):
+  config = config_lib.load("debug")
+  for key, value in data.items():
+    config.data[key] = value
+  return config
+
+
+def test_auto_scene_bound_is_the_cameras_box_and_the_grids_span_twice_it(capsys):
+  exp = experiment.setup(_config(scene_bound=-1.0, contraction="linf"))
+  cameras = float(np.max(np.abs(exp.train_ds.poses[:, :3, 3])))
+  assert exp.config.data.scene_bound == pytest.approx(cameras, abs=1e-4)
+  assert exp.renderer.sampler.scene_bound == exp.config.data.scene_bound
+  assert "scene extent: box ±" in capsys.readouterr().out
+  assert exp.renderer.field.inner_radius == pytest.approx(cameras, abs=1e-4)
+
+
+def test_a_box_that_cuts_most_rays_says_so_in_one_line(capsys):
+  experiment.setup(_config(scene_bound=0.5))  # the built-in cameras sit at radius 4
+  lines = [l for l in capsys.readouterr().out.splitlines() if "leave the scene box" in l]
+  assert len(lines) == 1 and "data.contraction" in lines[0]
+  experiment.setup(_config(scene_bound=0.5, contraction="linf"))  # contracted: nothing cut
+  assert "leave the scene box" not in capsys.readouterr().out
+
+
+def test_contraction_refuses_what_it_cannot_do_yet():
+  config = _config(scene_bound=1.5, contraction="linf")
+  config.occupancy.enabled = True
+  with pytest.raises(ValueError, match="contraction"):
+    experiment.make_sampler(config)
