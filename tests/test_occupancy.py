@@ -8,11 +8,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax.configs import debug
-from nerf_jax import checkpoints, grid, occupancy, renderer, train_lib
+from nerf_jax import checkpoints, experiment, grid, occupancy, renderer, train_lib
 from nerf_jax import rays as rays_lib
 from nerf_jax.rays import Rays
-from tests.conftest import params_equal, restored_params, tiny_config
+from tests.conftest import params_equal, restored_variables
+from tests.helpers import ray_renderer, small_config
 
 BOUND = 1.5
 
@@ -111,26 +111,22 @@ class _AnalyticField:
     return rgb, _sphere_sigma(points)
 
 
-def _analytic_config(num_samples, use_occupancy):
-  config = debug.get_config()
-  config.model.encoding = "grid"  # positions go to the field as they are
-  config.data.scene_bound = BOUND
-  config.num_samples = num_samples
-  config.occupancy.enabled = use_occupancy
-  config.occupancy.resolution = 24
-  config.occupancy.candidates = 512
-  return config
+def _analytic_renderer(num_samples, use_occupancy):
+  """The debug config's RayRenderer around _AnalyticField ('grid': positions go to the field as
+  they are), sampling the box of BOUND with `num_samples`, with or without occupancy."""
+  return ray_renderer(small_config({
+      "model.encoding": "grid", "data.scene_bound": BOUND, "num_samples": num_samples,
+      "occupancy.enabled": use_occupancy, "occupancy.resolution": 24,
+      "occupancy.candidates": 512}), _AnalyticField())
 
 
 def test_rendering_through_the_grid_matches_dense_sampling():
-  model = _AnalyticField()
-  occ_config = _analytic_config(64, True)
-  params = {"coarse": {}}
-  params["occupancy"] = renderer.occupancy_grid(model, params, occ_config)
+  occ_renderer = _analytic_renderer(64, True)
+  variables = {"params": {"coarse": {}}}
+  variables["occupancy"] = occ_renderer.occupancy_grid(variables)
   rays = Rays.create(*_rays(200, seed=2), 2.0, 6.0)
-  fast = renderer.final(renderer.render_rays(model, params, rays, occ_config))
-  dense = renderer.final(renderer.render_rays(model, {"coarse": {}}, rays,
-                                              _analytic_config(4096, False)))
+  fast = renderer.final(occ_renderer.render(variables, rays))
+  dense = renderer.final(_analytic_renderer(4096, False).render({"params": {"coarse": {}}}, rays))
   assert float(jnp.mean(dense["acc"] > 0.5)) > 0.2  # the rays do hit the sphere
   np.testing.assert_allclose(fast["acc"], dense["acc"], atol=0.02)
   np.testing.assert_allclose(fast["rgb"], dense["rgb"], atol=0.02)
@@ -139,45 +135,35 @@ def test_rendering_through_the_grid_matches_dense_sampling():
                              atol=0.02)
   # Jittered (training) samples stay finite with gradients through the colour and density.
   key = jax.random.PRNGKey(0)
-  loss = lambda o: jnp.sum(renderer.final(renderer.render_rays(
-      model, params, Rays.create(o, rays.directions, 2.0, 6.0), occ_config, key=key))["rgb"])
+  loss = lambda o: jnp.sum(renderer.final(occ_renderer.render(
+      variables, Rays.create(o, rays.directions, 2.0, 6.0), key=key))["rgb"])
   assert bool(jnp.all(jnp.isfinite(jax.grad(loss)(rays.origins))))
 
 
-def _train_config(max_steps):
-  config = tiny_config(lr=1e-2, max_steps=max_steps)
-  config.model.encoding = "grid"
-  config.model.grid.resolutions = (8, 16)
-  config.model.grid.features = 2
-  config.model.density_activation = "softplus"
-  config.data.scene_bound = BOUND
-  config.model.grid_bound = BOUND
-  config.occupancy.enabled = True
-  config.occupancy.resolution = 12
-  config.occupancy.candidates = 64
-  config.occupancy.update_every = 5
-  return config
+TRAIN = {"train.lr": 1e-2, "model.encoding": "grid", "model.grid.resolutions": (8, 16),
+         "model.grid.features": 2, "model.density_activation": "softplus",
+         "data.scene_bound": BOUND, "model.grid_bound": BOUND, "occupancy.enabled": True,
+         "occupancy.resolution": 12, "occupancy.candidates": 64, "occupancy.update_every": 5}
 
 
 def test_training_with_the_grid_resumes_bitwise_and_refreshes_the_grid(tmp_path):
-  full = train_lib.train_and_evaluate(_train_config(20), str(tmp_path / "full"))
+  config = lambda: small_config(TRAIN, **{"train.max_steps": 20})
+  full = train_lib.train_and_evaluate(config(), str(tmp_path / "full"))
   split = str(tmp_path / "split")
-  train_lib.train_and_evaluate(_train_config(20), split)  # then "killed" after step 10:
+  train_lib.train_and_evaluate(config(), split)  # then "killed" after step 10:
   os.remove(os.path.join(checkpoints.checkpoint_dir(split), "ckpt_20.msgpack"))
-  resumed = train_lib.train_and_evaluate(_train_config(20), split)
+  resumed = train_lib.train_and_evaluate(config(), split)
   assert resumed["steps"] == 20 and np.isfinite(full["psnr"])
-  p_full, p_split = restored_params(tmp_path / "full"), restored_params(split)
-  assert params_equal(p_full, p_split)
-  assert p_full["occupancy"].shape == (12, 12, 12) and float(jnp.max(p_full["occupancy"])) > 0
+  v_full, v_split = restored_variables(tmp_path / "full"), restored_variables(split)
+  assert params_equal(v_full, v_split)  # the parameters and the occupancy grid
+  assert v_full["occupancy"].shape == (12, 12, 12) and float(jnp.max(v_full["occupancy"])) > 0
   assert checkpoints.list_steps(split)[-1] == 20
 
 
 def test_occupancy_config_errors_name_the_field():
-  config = _train_config(1)
-  config.data.scene_bound = 0.0
+  config = small_config(TRAIN, **{"train.max_steps": 1, "data.scene_bound": 0.0})
   with pytest.raises(ValueError, match="scene_bound"):
-    occupancy.check_config(config)
-  config = _train_config(1)
-  config.num_fine_samples = 8
+    experiment.make_sampler(config)
+  config = small_config(TRAIN, **{"train.max_steps": 1, "num_fine_samples": 8})
   with pytest.raises(ValueError, match="num_fine_samples"):
-    occupancy.check_config(config)
+    experiment.make_sampler(config)

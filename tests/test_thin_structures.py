@@ -6,9 +6,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax import image_renderer, occupancy
-from nerf_jax.configs import debug, fast
+from nerf_jax import experiment, image_renderer, occupancy
 from nerf_jax.rays import Rays
+from tests.helpers import ray_renderer, small_config
 
 BOUND = 1.5
 
@@ -61,27 +61,24 @@ def _rays_towards(targets, seed=0):
 
 
 def _marched_and_plain(sigma_fn, rays, config):
-  model = _Field(sigma_fn)
-  assert image_renderer.marches(config)
-  marched = image_renderer.make_image_renderer(model, config)({"coarse": {}})(rays)
-  plain_chunk = image_renderer.make_chunk_renderer(model, config)
-  plain = image_renderer.render_image(plain_chunk, {"coarse": {}}, rays, chunk=config.render.chunk)
+  rr, settings = ray_renderer(config, _Field(sigma_fn)), experiment.image_settings(config)
+  variables = {"params": {"coarse": {}}}
+  assert image_renderer.marches(rr, settings)
+  marched = image_renderer.make_image_renderer(rr, settings)(variables)(rays)
+  plain_chunk = image_renderer.make_chunk_renderer(rr)
+  plain = image_renderer.render_image(plain_chunk, variables, rays, chunk=config.render.chunk)
   return marched, plain
 
 
-def _config(num_samples):
-  config = fast.get_config()  # the skip grid of the fast config: 48^3 cells of 1/16 unit
-  config.model.density_activation = "relu"
-  config.num_samples = num_samples
-  config.render.chunk = 256
-  return config
+# The skip grid of the fast config (48^3 cells of 1/16 unit), density passed unchanged.
+FAST = {"model.density_activation": "relu", "render.chunk": 256}
 
 
 def test_a_slab_thinner_than_a_cell_renders_the_same_marched_and_plain():
   rng = np.random.default_rng(1)
   on_slab = rng.uniform(-0.8, 0.8, (256, 3))
   on_slab -= (on_slab @ NORMAL)[:, None] * NORMAL  # targets on the slab's mid-plane
-  config = _config(num_samples=384)  # sample spacing along a ray < the slab's 0.03
+  config = small_config(FAST, base="fast", num_samples=384)  # spacing < the slab's 0.03
   cell = 2 * BOUND / config.render.march_grid
   assert 0.03 < 0.5 * cell
   marched, plain = _marched_and_plain(_slab, _rays_towards(on_slab), config)
@@ -91,9 +88,9 @@ def test_a_slab_thinner_than_a_cell_renders_the_same_marched_and_plain():
 
 
 def test_rods_far_thinner_than_a_cell_render_the_same_marched_and_plain():
-  config = _config(num_samples=512)
-  config.render.march_grid = 8  # cells of 0.375: the rods are a quarter of a cell wide
-  config.render.march_probes = 8  # guaranteed from √3·0.375/8 = 0.081 < 0.09
+  config = small_config(FAST, base="fast", num_samples=512, **{
+      "render.march_grid": 8,  # cells of 0.375: the rods are a quarter of a cell wide
+      "render.march_probes": 8})  # guaranteed from √3·0.375/8 = 0.081 < 0.09
   rng = np.random.default_rng(2)
   k = rng.integers(0, 3, 256)
   targets = ROD_POINTS[k] + rng.uniform(-0.7, 0.7, (256, 1)) * ROD_AXES[k]
@@ -126,12 +123,6 @@ def _refresh(sigma_fn, resolution, probes, decay):
   return _REFRESH[sigma_fn]
 
 
-def _occupancy_config():
-  config = debug.get_config()
-  config.occupancy.resolution = 12  # cells of 0.25
-  return config
-
-
 def _slab_cells(resolution, thickness):
   """bool [R, R, R]: the cells the slab passes through (brute force: 6^3 points per cell)."""
   cell = 2 * BOUND / resolution
@@ -155,7 +146,7 @@ def _floor(points):  # elsewhere in the box, always there
 
 
 def test_jittered_refreshes_find_a_slab_that_one_lattice_misses():
-  config = _occupancy_config()
+  config = small_config({"occupancy.resolution": 12})  # cells of 0.25
   oc = config.occupancy
   thin = _thin_slab  # a twelfth of the probe spacing (0.125)
   fixed = occupancy.density_grid(thin, oc.resolution, BOUND, oc.probes)
@@ -168,7 +159,7 @@ def test_jittered_refreshes_find_a_slab_that_one_lattice_misses():
 
 
 def test_a_region_emptied_early_comes_back_and_gone_density_fades():
-  config = _occupancy_config()
+  config = small_config({"occupancy.resolution": 12})  # cells of 0.25
   oc = config.occupancy
   both = lambda p: jnp.maximum(_ball(p), _floor(p))
   centre = (np.asarray(occupancy.cell_centres(oc.resolution, BOUND)) - 0.6) ** 2

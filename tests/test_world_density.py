@@ -9,11 +9,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import empty_space, image_renderer, renderer
+from nerf_jax import empty_space, experiment, image_renderer, renderer
 from nerf_jax import rays as rays_lib
-from nerf_jax.configs import debug
 from nerf_jax.rays import Rays
 from nerf_jax.scenes import builtin, simulator
+from tests.helpers import ray_renderer, small_config
 
 FOG = builtin.SCENES["fog"].medium  # a sphere of radius 0.75, density 1.2, at the origin
 NEAR, FAR = 1.0, 5.0
@@ -45,23 +45,15 @@ def _corner_rays(fov_degrees=60.0):
   return np.asarray(FOG.shape.center) - 3.0 * d, d
 
 
-def _config(path):
-  config = debug.get_config()
-  config.model.encoding = "grid"  # positions go to the field as they are
-  config.model.density_activation = "relu"  # the field's density passes unchanged
-  config.render.chunk = 8
-  config.num_samples = 512
-  if path in ("fine", "occupancy", "march"):
-    config.data.scene_bound = 1.5
-  if path == "fine":
-    config.num_samples, config.num_fine_samples = 128, 256
-  if path == "occupancy":
-    config.occupancy.enabled = True
-    config.occupancy.resolution = 24
-    config.occupancy.candidates = 1024
-  config.render.march = path == "march"
-  config.render.march_grid = 16
-  return config
+# The debug config for each rendering path: 'grid' so positions go to the field as they are,
+# 'relu' so the field's density passes unchanged.
+PLAIN = {"model.encoding": "grid", "model.density_activation": "relu", "render.chunk": 8,
+         "num_samples": 512, "render.march": False, "render.march_grid": 16}
+PATHS = {"plain": PLAIN,
+         "fine": {**PLAIN, "data.scene_bound": 1.5, "num_samples": 128, "num_fine_samples": 256},
+         "occupancy": {**PLAIN, "data.scene_bound": 1.5, "occupancy.enabled": True,
+                       "occupancy.resolution": 24, "occupancy.candidates": 1024},
+         "march": {**PLAIN, "data.scene_bound": 1.5, "render.march": True}}
 
 
 @pytest.mark.parametrize("path", ["plain", "fine", "occupancy", "march"])
@@ -73,16 +65,18 @@ def test_corner_rays_see_the_simulators_closed_form_fog(path):
                                                   np.full(len(origins), FAR))
   # The physics: a chord of 1.5 world units at density 1.2 (not 1.5 / |d| units of t).
   np.testing.assert_allclose(acc, 1.0 - np.exp(-1.2 * 1.5), rtol=1e-6)
-  config, model = _config(path), _MediumField(FOG)
-  params = {"coarse": {}, "fine": {}}
+  config = small_config(PATHS[path])
+  rr = ray_renderer(config, _MediumField(FOG))
+  variables = {"params": {"coarse": {}, "fine": {}}}
   if path == "occupancy":
-    params["occupancy"] = renderer.occupancy_grid(model, params, config)
+    variables["occupancy"] = rr.occupancy_grid(variables)
   rays = Rays.create(origins, directions, NEAR, FAR)
   if path == "march":
-    assert image_renderer.marches(config)
-    out = image_renderer.make_image_renderer(model, config)(params)(rays)
+    settings = experiment.image_settings(config)
+    assert image_renderer.marches(rr, settings)
+    out = image_renderer.make_image_renderer(rr, settings)(variables)(rays)
   else:
-    out = renderer.final(renderer.render_rays(model, params, rays, config))
+    out = renderer.final(rr.render(variables, rays))
   np.testing.assert_allclose(out["acc"], acc, atol=5e-3)
   np.testing.assert_allclose(out["rgb"], rgb, atol=5e-3)
   np.testing.assert_allclose(out["depth"], depth_sum / acc, atol=1e-2)  # z-depth, as before
@@ -93,10 +87,10 @@ def test_the_marchers_stop_test_counts_world_length():
   the test from the field's density, reaches -log(min_transmittance)."""
   origins, directions = _corner_rays()
   medium = dataclasses.replace(FOG, density=40.0)
-  config = _config("march")
-  config.num_samples, config.render.march_group, config.render.min_transmittance = 256, 4, 1e-2
-  model = _MediumField(medium)
-  marcher = image_renderer._Marcher(model, config)  # pylint: disable=protected-access
+  config = small_config(PATHS["march"], num_samples=256, **{"render.march_group": 4,
+                                                            "render.min_transmittance": 1e-2})
+  marcher = image_renderer._Marcher(  # pylint: disable=protected-access
+      ray_renderer(config, _MediumField(medium)), experiment.image_settings(config))
   rays = Rays.create(origins, directions, NEAR, FAR)
   mask = jnp.ones((4, 4, 4), bool)
   t, t_world, points, occupied, rank = marcher.plan(mask, rays)
