@@ -7,7 +7,8 @@ import pytest
 
 from nerf_jax import rays as rays_lib
 from nerf_jax import scenes
-from nerf_jax.scenes import simulator
+from nerf_jax.scenes import garden, simulator
+from nerf_jax.scenes import scene as scene_lib
 from nerf_jax.scenes.geometry import Box, Cylinder, Sphere
 
 LOOK_DOWN = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4.0], [0, 0, 0, 1]])  # at z = 4
@@ -197,7 +198,7 @@ def test_whole_scene_is_in_view():
 
 
 def test_unknown_scene_lists_valid_names():
-  with pytest.raises(ValueError, match="diffuse, fog, forward, glossy, white"):
+  with pytest.raises(ValueError, match="diffuse, fog, forward, garden, glossy, white"):
     scenes.get_scene("lego")
 
 
@@ -227,3 +228,102 @@ def test_checkered_wall_alternates_albedo():
   np.testing.assert_allclose(out["rgb"][2], out["rgb"][0], atol=1e-12)
   np.testing.assert_allclose(out["rgb"][1] / out["rgb"][0],
                              np.divide(wall.albedo2, wall.albedo), rtol=1e-9)  # same lighting
+
+
+def _room_exit(o, d):
+  """Where rays o + t d (float64 [R, 3]) leave the garden's room: the box [-16, 16]^2 x
+  [-0.6, 10] (inner faces of the walls, the ground's top and the ceiling), from inside it."""
+  lo = np.array([-garden.WALL, -garden.WALL, garden.GROUND_Z])
+  hi = np.array([garden.WALL, garden.WALL, garden.SKY_Z])
+  safe = np.where(d == 0.0, 1.0, d)
+  t = np.where(d > 0, (hi - o) / safe, np.where(d < 0, (lo - o) / safe, np.inf))
+  return t.min(-1)
+
+
+def test_garden_depth_is_the_analytic_intersection():
+  scene = scenes.get_scene("garden")
+  pose = rays_lib.pose_spherical(90.0, -10.0, 4.0)  # at +x, 10° up, looking at the centre
+  out = scenes.render_view(scene, pose, 40, 40, 55.6, 0.5, scene.near, scene.far)
+  o, d = (np.asarray(a, np.float64) for a in rays_lib.get_rays(40, 40, 55.6, pose, 0.5))
+  # The top rows pass above everything in the middle and miss the trees: they end on the far
+  # walls (the ceiling is too high to see), at the room's exit.
+  np.testing.assert_allclose(out["depth"][:4], _room_exit(o[:4], d[:4]), rtol=1e-6)
+  assert np.all(out["depth"][:4] > 12.0)
+  # The bottom row's middle ends on the ground (z = -0.6) between the camera and the disc.
+  bottom = (slice(-1, None), slice(15, 25))
+  t_ground = (garden.GROUND_Z - o[bottom][..., 2]) / d[bottom][..., 2]
+  np.testing.assert_allclose(out["depth"][bottom], t_ground, rtol=1e-6)
+  # The centre pixel ends on the red sphere (radius 0.5 at the origin): |o + t d|^2 = 0.25.
+  oc, dc = o[20, 20], d[20, 20]
+  a, b, c = dc @ dc, oc @ dc, oc @ oc - 0.25
+  np.testing.assert_allclose(out["depth"][20, 20], (-b - np.sqrt(b * b - a * c)) / a, rtol=1e-6)
+  assert np.all(out["acc"] == 1.0)
+
+
+def test_garden_is_opaque_everywhere():
+  ds = scenes.make_dataset("garden", num_views=6, height=32, width=32, focal=44.4)
+  np.testing.assert_array_equal(ds.accs, 1.0)
+  assert ds.depths.max() < ds.far and ds.depths.min() > ds.near
+  elevation = np.degrees(np.arcsin(ds.poses[:, 2, 3] / 4.0))
+  assert np.all((elevation >= 2.0) & (elevation <= 20.0))  # the scene's low orbit
+  # Rays in every direction (axis-aligned ones included) from points around the middle: the
+  # room is closed, so every ray ends on a surface inside it.
+  rng = np.random.default_rng(0)
+  directions = np.concatenate([rng.normal(size=(2000, 3)), np.eye(3), -np.eye(3)])
+  origins = rng.uniform(-3.0, 3.0, (len(directions), 3)) * [1.0, 1.0, 0.0] + [0.0, 0.0, 5.0]
+  out = simulator.trace_rays(scenes.get_scene("garden"), origins, directions, 0.0, 1e3)
+  np.testing.assert_array_equal(out["acc"], 1.0)
+  points = origins + out["depth"][:, None] * directions
+  assert np.all(np.abs(points) <= [garden.WALL + 1e-6, garden.WALL + 1e-6, garden.SKY_Z + 1e-6])
+
+
+def test_garden_has_content_beyond_the_inner_region():
+  ds = scenes.make_dataset("garden", num_views=6, height=32, width=32, focal=44.4)
+  o, d = zip(*(rays_lib.get_rays(32, 32, 44.4, pose, 0.5) for pose in ds.poses))
+  points = np.asarray(o, np.float64) + ds.depths[..., None] * np.asarray(d, np.float64)
+  radius = np.linalg.norm(points, axis=-1)
+  assert np.mean(radius > 2.0) > 0.3  # much of every view lies beyond radius 2
+  assert np.mean(radius < 1.2) > 0.2  # and the middle is there too
+  assert np.any((radius > 4.0) & (radius < 8.5))  # the trees, the shed, the boulder
+  assert np.mean(radius > garden.WALL) > 0.05  # the walls
+  assert scenes.get_scene("garden").effects.names() == {"unbounded"}
+
+
+def test_unbounded_declaration_is_checked():
+  far = scenes.Object(Sphere((0.0, 0.0, -5.0), 0.5), scenes.Material((0.5, 0.5, 0.5)))
+  with pytest.raises(ValueError, match="unbounded"):
+    scenes.Scene("far", (far,), scenes.Effects())
+  with pytest.raises(ValueError, match="unbounded"):
+    dataclasses.replace(scenes.get_scene("diffuse"), effects=scenes.Effects(unbounded=True))
+  assert scenes.Scene("far", (far,), scenes.Effects(unbounded=True)).effects.unbounded
+  # The forward scene's back wall (16 x 16 at depth 5) reaches beyond the inner cube too.
+  unbounded = {n for n, scene in scenes.SCENES.items() if scene.effects.unbounded}
+  assert unbounded == {"forward", "garden"}
+
+
+@pytest.mark.parametrize("shape", [Sphere((0.3, -1.2, 0.5), 0.6),
+                                   Box((-0.4, 0.2, 1.1), (0.8, 0.5, 1.3)),
+                                   Cylinder((0.2, 0.9, -0.3), 0.5, 1.6),
+                                   scenes.Rod((0.1, -0.2, 0.3), (0.9, 0.4, -1.1), 0.05)])
+def test_extent_is_the_largest_coordinate(shape):
+  # Brute force: the largest |coordinate| of points on a grid that lie inside the solid (on a
+  # ray through each grid row, by the shape's own interval), within a grid step.
+  g = np.linspace(-3.0, 3.0, 301)
+  y, z = (a.ravel() for a in np.meshgrid(g, g, indexing="ij"))
+  rows = []
+  for perm in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):  # rows along each axis
+    origins = np.zeros((len(y), 3))
+    origins[:, perm[1]], origins[:, perm[2]] = y, z
+    origins[:, perm[0]] = -10.0
+    directions = np.zeros_like(origins)
+    directions[:, perm[0]] = 1.0
+    t_in, t_out, _ = shape.intersect(origins, directions)
+    hit = t_in <= t_out
+    ends = np.stack([t_in[hit], t_out[hit]], -1) - 10.0  # the row's coordinate along the axis
+    rows.append(max(np.abs(ends).max(), np.abs(origins[hit][:, list(perm[1:])]).max()))
+  brute = max(rows)
+  got = scene_lib.extent(shape)
+  if isinstance(shape, scenes.Rod):  # padded by the radius in every direction: a bound
+    assert brute - 0.02 <= got <= brute + shape.radius + 0.02
+  else:
+    assert got == pytest.approx(brute, abs=0.02)

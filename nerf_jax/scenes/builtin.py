@@ -3,6 +3,7 @@
 Two camera rigs (`Scene.camera_rig`):
   'hemisphere' — the 360° scenes fit in a ball of radius ~1.2 around the origin (z up), so that
     cameras at radius 4 with near = 2, far = 6 and tiny_nerf's 40° field of view see them whole;
+    the elevations are the scene's (`Scene.elevation`: 10°-80°, the unbounded `garden` 2°-20°);
   'forward' — an LLFF-like capture: cameras on the plane z = 0 within +-0.3 in x and y, all with
     the identity rotation (looking down -z, y up), in front of objects and a back wall that fills
     every view, so that world coordinates are already those NDC (`nerf_jax.ndc`) expects.
@@ -13,7 +14,7 @@ import numpy as np
 
 from nerf_jax import rays as rays_lib
 from nerf_jax.data.dataset import Dataset
-from nerf_jax.scenes import cache, detail, simulator
+from nerf_jax.scenes import cache, detail, garden, simulator
 from nerf_jax.scenes.geometry import Box, Cylinder, Sphere
 from nerf_jax.scenes.scene import Effects, Light, Material, Medium, Object, Scene
 
@@ -73,8 +74,8 @@ def _forward_scene():
       Object(Box((-1.2, -0.4, -4.4), (0.35, 1.2, 0.35)), Material(PURPLE)),
   )
   light = Light(direction=(0.35, 0.6, 0.7))  # from the upper right, behind the cameras
-  return Scene("forward", objects, Effects(shadows=True), light=light, camera_rig="forward",
-               near=0.9 * 1.85, far=1.1 * 5.0)
+  return Scene("forward", objects, Effects(shadows=True, unbounded=True), light=light,
+               camera_rig="forward", near=0.9 * 1.85, far=1.1 * 5.0)
 
 
 SCENES = {
@@ -85,6 +86,7 @@ SCENES = {
                    background=(1.0, 1.0, 1.0)),
     "forward": _forward_scene(),
     "detail": detail.SCENE,
+    "garden": garden.scene(_objects()),
 }
 
 
@@ -95,12 +97,13 @@ def get_scene(name):
   return SCENES[name]
 
 
-def random_poses(num_views, radius=4.0, seed=0):
+def random_poses(num_views, radius=4.0, seed=0, elevation=(10.0, 80.0)):
   """tiny_nerf-like cameras: float32 [num_views, 4, 4] from `pose_spherical(theta, phi, radius)`,
-  theta ~ U[0, 360) then phi ~ U[-80, -10] (upper hemisphere), drawn with default_rng(seed)."""
+  theta ~ U[0, 360) then phi ~ U[-elevation[1], -elevation[0]] (degrees above the horizon; the
+  default is tiny_nerf's upper hemisphere), drawn with default_rng(seed)."""
   rng = np.random.default_rng(seed)
   thetas = rng.uniform(0.0, 360.0, num_views)
-  phis = rng.uniform(-80.0, -10.0, num_views)
+  phis = rng.uniform(-elevation[1], -elevation[0], num_views)
   return np.stack([rays_lib.pose_spherical(t, p, radius) for t, p in zip(thetas, phis)])
 
 
@@ -117,7 +120,7 @@ def make_dataset(name, num_views=100, height=None, width=None, focal=None, radiu
                  pixel_center=0.5, seed=0, near=None, far=None):
   """Ground-truth `Dataset` of a built-in scene (with `depths` and `accs`).
 
-  The cameras follow the scene's rig: `random_poses(num_views, radius, seed)` or
+  The cameras follow the scene's rig: `random_poses(num_views, radius, seed, scene.elevation)` or
   `forward_poses(num_views, seed=seed)` (radius is ignored). height, width: int or None (= the
   scene's `image_size`). focal: float or None (= tiny_nerf's field of view at this width).
   near, far: float or None (= the scene's bounds). pixel_center: where in each pixel its ray
@@ -134,7 +137,7 @@ def make_dataset(name, num_views=100, height=None, width=None, focal=None, radiu
   if scene.camera_rig == "forward":
     poses = forward_poses(num_views, seed=seed)
   else:
-    poses = random_poses(num_views, radius, seed)
+    poses = random_poses(num_views, radius, seed, scene.elevation)
   shape = (num_views, height, width)
   if scene.supersample > 1:
     out = cache.render_images(scene, poses, height, width, focal, pixel_center, near, far)

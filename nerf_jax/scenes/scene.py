@@ -2,7 +2,8 @@
 
 A scene is plain, frozen data; `nerf_jax.scenes.simulator` renders it. The `effects` declaration
 is checked against the content (`Scene.__post_init__`) and decides what the simulator computes:
-an effect that is not declared is never evaluated.
+an effect that is not declared is never evaluated. (`unbounded` asks nothing more of the
+simulator; it tells a renderer that the content reaches beyond a bounded box.)
 """
 
 import dataclasses
@@ -12,6 +13,11 @@ from nerf_jax.scenes.geometry import Box, Cylinder, Sphere
 from nerf_jax.scenes.raycast import Rod
 
 Shape = Union[Sphere, Box, Cylinder, Rod]
+
+# A bounded scene's content lies inside the cube [-INNER_EXTENT, INNER_EXTENT]^3 (the 360° scenes
+# fit in a ball of radius ~1.2; cameras at radius 4 with near = 2 see the cube's content whole).
+# Content outside it is the `unbounded` effect.
+INNER_EXTENT = 2.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,6 +62,7 @@ class Effects:
   participating_medium: bool = False  # a fog with 0 < opacity < 1
   background: bool = False  # a non-black background
   shadows: bool = False  # opaque objects shadow the directional light
+  unbounded: bool = False  # content beyond the cube [-INNER_EXTENT, INNER_EXTENT]^3
 
   def names(self):
     """The declared effects: frozenset of field names."""
@@ -71,6 +78,7 @@ class Scene:
   background: tuple = (0.0, 0.0, 0.0)  # RGB seen by rays that hit nothing
   medium: Optional[Medium] = None
   camera_rig: str = "hemisphere"  # 'hemisphere' (orbit the origin) or 'forward' (LLFF-like)
+  elevation: tuple = (10.0, 80.0)  # 'hemisphere': camera elevations in degrees above the horizon
   near: float = 2.0  # z-depth bounds of everything the rig's cameras see
   far: float = 6.0
   image_size: int = 100  # default height = width of its datasets, in pixels
@@ -84,9 +92,26 @@ class Scene:
         "view_dependent": any(o.material.specular > 0 for o in self.objects),
         "participating_medium": self.medium is not None,
         "background": any(c != 0 for c in self.background),
+        "unbounded": any(extent(o.shape) > INNER_EXTENT for o in self.objects)
+                     or (self.medium is not None and extent(self.medium.shape) > INNER_EXTENT),
     }
     for effect, present in content.items():
       if present != getattr(self.effects, effect):
         raise ValueError(f"scene {self.name!r}: effect {effect!r} is "
                          f"{'declared' if not present else 'not declared'} but the content "
                          f"{'lacks' if not present else 'has'} it")
+
+
+def extent(shape):
+  """The largest |coordinate| of any point of `shape` (a `Shape`): float, the half-size of the
+  smallest origin-centred cube [-e, e]^3 that holds it (from its axis-aligned bounding box)."""
+  if isinstance(shape, Sphere):
+    return max(abs(c) + shape.radius for c in shape.center)
+  if isinstance(shape, Box):
+    return max(abs(c) + 0.5 * s for c, s in zip(shape.center, shape.size))
+  if isinstance(shape, Cylinder):  # vertical axis
+    half = (shape.radius, shape.radius, 0.5 * shape.height)
+    return max(abs(c) + h for c, h in zip(shape.center, half))
+  if isinstance(shape, Rod):  # the caps' centres, padded by the radius in every direction
+    return max(abs(c) + shape.radius for c in shape.start + shape.end)
+  raise ValueError(f"extent: unknown shape {type(shape).__name__}")

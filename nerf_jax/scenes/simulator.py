@@ -8,6 +8,9 @@ Objects are solids: a ray whose near plane starts inside one terminates at `near
 Only the effects the scene declares are computed (`Scene.effects`).
 """
 
+import functools
+
+import jax
 import numpy as np
 
 from nerf_jax import rays as rays_lib
@@ -89,13 +92,28 @@ def surface_rgb(scene, index, points, normals, viewdirs):
   lit = _shadow(scene, points, normals) if scene.effects.shadows else np.ones(len(index))
   albedo = _albedo(mats, index, points)
   if any(m.texture is not None for m in mats):  # procedural textures are float32 jax.numpy
-    albedo = np.asarray(textures.albedo(mats, index, points, normals), np.float64)
+    albedo = _textured_albedo(tuple(mats), index, points, normals)
   rgb = diffuse(albedo, normals, scene.light, lit)
   if scene.effects.view_dependent:
     strength = np.array([m.specular for m in mats])[index]
     shininess = np.array([m.shininess for m in mats])[index]
     rgb = rgb + specular(strength, shininess, normals, viewdirs, scene.light, lit)
   return np.clip(rgb, 0.0, 1.0)
+
+
+def _textured_albedo(materials, index, points, normals):
+  """`textures.albedo` of R points as float64 [R, 3], jitted over arrays padded to a power of two
+  (at least 1024), so that chunks with different numbers of hits share a few compilations
+  instead of compiling every operation for every new R. materials: tuple of Material."""
+  num = len(index)
+  size = max(1024, 1 << (num - 1).bit_length())
+  pad = lambda a: np.concatenate([a, np.zeros((size - num,) + a.shape[1:], a.dtype)])
+  out = _jitted_albedo(materials, pad(np.asarray(index, np.int32)),
+                       pad(np.asarray(points, np.float32)), pad(np.asarray(normals, np.float32)))
+  return np.asarray(out, np.float64)[:num]
+
+
+_jitted_albedo = jax.jit(textures.albedo, static_argnums=0)
 
 
 def _albedo(materials, index, points):
