@@ -9,10 +9,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax.configs import fast
 from nerf_jax import background, empty_space, experiment, image_renderer, rendering, sampling
 from nerf_jax import train_lib
 from tests.conftest import assert_beats_trivial
+from tests.helpers import ray_renderer, small_config
 
 NUM_RAYS, NUM_SAMPLES = 64, 32
 RADIUS = 0.5  # the analytic field: a ball of this radius at the origin
@@ -125,47 +125,36 @@ def test_a_round_bigger_than_a_buffer_is_queried_in_several(monkeypatch):
 @pytest.mark.parametrize("change", [{"num_fine_samples": 8}, {"data.scene_bound": 0.0},
                                     {"render.march": False}, {"occupancy.enabled": True}])
 def test_marching_only_where_it_applies(change):
-  config = fast.get_config()
-  assert image_renderer.marches(config)
-  for field, value in change.items():
-    section, _, name = field.rpartition(".")
-    (config[section] if section else config)[name] = value
-  assert not image_renderer.marches(config)
+  marches = lambda config: image_renderer.marches(ray_renderer(config),
+                                                  experiment.image_settings(config))
+  assert marches(small_config(base="fast"))
+  assert not marches(small_config(change, base="fast"))
 
 
 @pytest.fixture(scope="module")
 def trained_fast(tmp_path_factory):
-  """A fast-config model trained briefly on a small diffuse scene: (config, model, params, test
-  dataset, near, far)."""
-  config = fast.get_config()
-  config.data.num_views = 24
-  config.data.image_size = 32
-  config.data.holdout_from = 20
-  config.model.grid.resolutions = (16, 32)
-  config.num_samples = 48
-  config.train.batch_rays = 1024
-  config.train.max_steps = 200
-  config.train.log_every = 100
-  config.train.checkpoint_every = 200
-  config.render.chunk = 512
-  config.render.after_training = False
+  """A fast-config model trained briefly on a small diffuse scene: (experiment, variables)."""
+  config = small_config({"data.num_views": 24, "data.image_size": 32, "data.holdout_from": 20,
+                         "model.grid.resolutions": (16, 32), "num_samples": 48,
+                         "train.batch_rays": 1024, "train.max_steps": 200, "train.log_every": 100,
+                         "train.checkpoint_every": 200, "render.chunk": 512}, base="fast")
   workdir = str(tmp_path_factory.mktemp("fast") / "run")
   result = train_lib.train_and_evaluate(config, workdir)
   exp, state = experiment.restore(workdir)
   assert_beats_trivial(result["psnr"], exp)  # the model has learnt the scene: empty is empty
-  return exp, state.params
+  return exp, state.variables
 
 
 def test_marching_renders_the_plain_image_of_a_trained_model(trained_fast):
-  exp, params = trained_fast
+  exp, variables = trained_fast
   config, test_ds = exp.config, exp.test_ds
-  assert image_renderer.marches(config)
+  assert image_renderer.marches(exp.renderer, exp.image)
   bg = background.parse(config.data.background)
-  marched = image_renderer.make_image_renderer(exp.model, config)(params)
-  plain_chunk = image_renderer.make_chunk_renderer(exp.model, config)
+  marched = image_renderer.make_image_renderer(exp.renderer, exp.image)(variables)
+  plain_chunk = image_renderer.make_chunk_renderer(exp.renderer)
   for i in range(len(test_ds)):
     rays = exp.rays(test_ds.poses[i])
-    a = image_renderer.render_image(plain_chunk, params, rays, bg, config.render.chunk)
+    a = image_renderer.render_image(plain_chunk, variables, rays, bg, config.render.chunk)
     b = marched(rays, bg)
     assert np.max(np.abs(a["rgb"] - b["rgb"])) < 2e-2
     assert np.mean(np.abs(a["rgb"] - b["rgb"])) < 2e-3
@@ -179,9 +168,9 @@ def test_marching_renders_the_plain_image_of_a_trained_model(trained_fast):
 
 
 def test_marching_skips_most_samples_of_a_trained_model(trained_fast):
-  exp, params = trained_fast
-  config = exp.config
-  marcher = image_renderer._Marcher(exp.model, config)  # pylint: disable=protected-access
+  exp, variables = trained_fast
+  config, params = exp.config, variables["params"]
+  marcher = image_renderer._Marcher(exp.renderer, exp.image)  # pylint: disable=protected-access
   mask = marcher.skip_grid(params)
   rays = exp.rays(exp.test_ds.poses[0]).reshape(-1)
   _, t_world, points, occupied, rank = marcher.plan(mask, rays)
