@@ -40,6 +40,15 @@ SHARED_RUN = {"data.num_views": 24, "data.image_size": 32, "data.holdout_from": 
               "render.video_frames": 4, "render.after_training": True}
 
 
+@pytest.fixture(scope="module")
+def debug_nans():
+  """jax_debug_nans on for a module that asks for it (`pytestmark`): a NaN anywhere raises."""
+  previous = jax.config.jax_debug_nans
+  jax.config.update("jax_debug_nans", True)
+  yield
+  jax.config.update("jax_debug_nans", previous)
+
+
 @pytest.fixture(scope="session")
 def trained_run(tmp_path_factory):
   """The shared trained run, built once per test session (about 15-30 s on 2 cores); tests only

@@ -19,12 +19,7 @@ jacobian = jax.jit(jax.vmap(jax.jacfwd(contraction.contract), in_axes=(0, None, 
                    static_argnums=(1, 2))
 
 
-@pytest.fixture(autouse=True, scope="module")
-def debug_nans():
-  previous = jax.config.jax_debug_nans
-  jax.config.update("jax_debug_nans", True)
-  yield
-  jax.config.update("jax_debug_nans", previous)
+pytestmark = pytest.mark.usefixtures("debug_nans")  # conftest.py: NaNs raise in this module
 
 
 def _norm(x, kind):

@@ -25,12 +25,7 @@ LOW_PRECISION = [jnp.bfloat16, jnp.float16]
 UNIT_ROUNDOFF = {jnp.bfloat16: 2.0 ** -8, jnp.float16: 2.0 ** -11}
 
 
-@pytest.fixture(autouse=True, scope="module")
-def debug_nans():
-  previous = jax.config.jax_debug_nans
-  jax.config.update("jax_debug_nans", True)
-  yield
-  jax.config.update("jax_debug_nans", previous)
+pytestmark = pytest.mark.usefixtures("debug_nans")  # conftest.py: NaNs raise in this module
 
 
 def _assert_finite(*trees):
