@@ -7,13 +7,22 @@ import numpy as np
 from nerf_jax.rays import orbit_poses, spiral_poses
 
 
-def video_poses(dataset, frames, ndc=False, orbit_phi=-30.0, orbit_radius=4.0):
+# Key cameras of a capture's smoothed trajectory: at most this many, evenly spread in capture order.
+TRAJECTORY_KEYS = 8
+
+
+def video_poses(dataset, frames, ndc=False, orbit_phi=-30.0, orbit_radius=4.0,
+                trajectory=False):
   """The camera path of the video: float32 [F, 4, 4].
 
   Forward-facing data (NDC): a spiral around the mean camera, focused at a depth between the
-  bounds (weighted towards near, in disparity, as LLFF does). Otherwise: a 360° orbit, the
-  reference's pose_spherical path.
+  bounds (weighted towards near, in disparity, as LLFF does). trajectory (a room, a garden: an
+  unbounded scene, where an orbit about the origin would fly through walls): the capture's own
+  path, smoothed (`trajectory_poses`). Otherwise: a 360° orbit, the reference's pose_spherical
+  path.
   """
+  if trajectory:
+    return trajectory_poses(dataset.poses, frames)
   if not ndc:
     return orbit_poses(frames, orbit_phi, orbit_radius)
   centre = np.eye(4, dtype=np.float32)
@@ -23,6 +32,19 @@ def video_poses(dataset, frames, ndc=False, orbit_phi=-30.0, orbit_radius=4.0):
   radii = np.percentile(np.abs(dataset.poses[:, :3, 3] - centre[:3, 3]), 90, axis=0)
   focus = 1.0 / (0.25 / dataset.near + 0.75 / dataset.far)
   return spiral_poses(centre, np.maximum(radii, 1e-3), focus, frames)
+
+
+def trajectory_poses(poses, frames):
+  """float32 [~frames, 4, 4]: a smooth path along the cameras `poses` float [N, 4, 4] in their
+  order (a capture's order): through up to TRAJECTORY_KEYS of them, evenly spread, with
+  Catmull-Rom positions and slerped rotations (viewer/paths.py)."""
+  from nerf_jax.viewer import paths  # pylint: disable=import-outside-toplevel  (pure numpy)
+  keys = np.asarray(poses, np.float32)[
+      np.unique(np.round(np.linspace(0, len(poses) - 1, min(len(poses), TRAJECTORY_KEYS))))
+      .astype(int)]
+  if len(keys) < 2:
+    return np.repeat(keys, max(frames, 1), axis=0)
+  return paths.interpolate(keys, max(1, frames // (len(keys) - 1)))
 
 
 def load_poses(path):

@@ -41,7 +41,8 @@ def render_video(exp, variables, out_dir, depth_npy=False, show_progress=True, s
   rc = exp.config.render
   if poses is None:
     poses = camera_paths.video_poses(exp.train_ds, rc.video_frames, exp.config.data.ndc,
-                                     rc.orbit_phi, rc.orbit_radius)
+                                     rc.orbit_phi, rc.orbit_radius,
+                                     trajectory=bool(exp.config.data.contraction))
   near, far = exp.near, exp.far
   rgb_frames, depth_frames, depths = [], [], []
   frames = render_frames(exp, variables, poses, scale)

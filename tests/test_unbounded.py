@@ -80,3 +80,21 @@ def test_contraction_refuses_what_it_cannot_do_yet():
   config.occupancy.enabled = True
   with pytest.raises(ValueError, match="contraction"):
     experiment.make_sampler(config)
+
+
+def test_a_capture_video_follows_its_own_trajectory():
+  from nerf_jax import camera_paths  # pylint: disable=import-outside-toplevel
+  angles = np.linspace(0.0, np.pi, 30)
+  poses = np.tile(np.eye(4, dtype=np.float32), (30, 1, 1))
+  poses[:, 0, 3], poses[:, 1, 3] = 3 * np.cos(angles), 3 * np.sin(angles)  # an arc, in order
+  dataset = type("Captured", (), {"poses": poses})()
+  path = camera_paths.video_poses(dataset, 60, trajectory=True)
+  assert 50 <= len(path) <= 61
+  np.testing.assert_allclose(path[0], poses[0], atol=1e-6)
+  np.testing.assert_allclose(path[-1], poses[-1], atol=1e-6)
+  # On the arc (radius 3) all the way, in order, with no jumps: the capture's own path.
+  np.testing.assert_allclose(np.linalg.norm(path[:, :2, 3], axis=-1), 3.0, atol=0.05)
+  steps = np.linalg.norm(np.diff(path[:, :3, 3], axis=0), axis=-1)
+  assert steps.max() < 3.0 * np.median(steps)
+  # Not an orbit about the origin at the configured radius.
+  assert not np.allclose(path, camera_paths.video_poses(dataset, 60)[:len(path)], atol=0.1)
