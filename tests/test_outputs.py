@@ -3,7 +3,7 @@ and size, the eval depth `.npy` files, TensorBoard's scalars against metrics.jso
 `render.py --mode=views` from `.json` and [N, 3, 4] poses.
 
 All read the shared trained run (conftest.trained_run). The independent path renders every ray
-of a view in one `renderer.render_rays` call on rays from `rays.get_rays`, without the chunked
+of a view in one `RayRenderer.render` call on rays from `rays.get_rays`, without the chunked
 image renderer the outputs go through.
 """
 
@@ -14,19 +14,20 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import experiment, outputs, renderer
+from nerf_jax import background, camera_paths, experiment, outputs, renderer
+from nerf_jax.visuals import to_uint8
 from nerf_jax.rays import Rays, get_rays
 from tests.conftest import tensorboard_scalars
 
 
-def _reference(exp, params, pose):
+def _reference(exp, variables, pose):
   """numpy dict rgb [H, W, 3], depth [H, W] of `pose` through the training camera, all rays in
   one call (the debug config: the data's pixel centres, no NDC, no scene box)."""
   ds = exp.train_ds
   origins, directions = get_rays(ds.height, ds.width, ds.focal, jnp.asarray(pose),
                                  exp.pixel_center)
   rays = Rays.create(origins, directions, exp.near, exp.far)
-  out = renderer.final(renderer.render_rays(exp.model, params, rays, exp.config))
+  out = renderer.final(exp.renderer.render(variables, rays))
   return {k: np.asarray(out[k]) for k in ("rgb", "depth", "acc")}
 
 
@@ -34,32 +35,33 @@ def _reference(exp, params, pose):
 def restored(trained_run):
   workdir, _ = trained_run
   exp, state = experiment.restore(str(workdir))
-  return workdir, exp, state.params
+  return workdir, exp, state.variables
 
 
 def test_eval_depth_npy_and_panels_hold_the_rendered_views(restored):
-  workdir, exp, params = restored
+  workdir, exp, variables = restored
   for i, pose in enumerate(exp.test_ds.poses):
-    ref = _reference(exp, params, pose)
+    ref = _reference(exp, variables, pose)
     depth = np.load(workdir / "eval" / f"depth_{i:03d}.npy")
     assert depth.dtype == np.float32 and depth.shape == ref["depth"].shape
     np.testing.assert_allclose(depth, ref["depth"], atol=1e-4)
     panel = imageio.imread(workdir / "eval" / f"view_{i:03d}.png")
     width = exp.test_ds.width
     assert panel.shape == (exp.test_ds.height, 3 * width, 3)
-    diff = np.abs(panel[:, :width].astype(int) - outputs.to_uint8(ref["rgb"]).astype(int))
+    diff = np.abs(panel[:, :width].astype(int) - to_uint8(ref["rgb"]).astype(int))
     assert diff.max() <= 1
-    truth = outputs.images_on_background(exp.test_ds, exp.config)[1][i]
-    assert np.abs(panel[:, 2 * width:].astype(int) - outputs.to_uint8(truth)).max() == 0
+    truth = background.images_on_background(
+        exp.test_ds, background.parse(exp.config.data.background))[1][i]
+    assert np.abs(panel[:, 2 * width:].astype(int) - to_uint8(truth)).max() == 0
 
 
 def test_eval_geometry_scores_match_the_truth(restored):
   """metrics.json's depth error, empty-pixel opacity and floater fraction, recomputed per view
   from the independent render and the scene's exact depth and opacity."""
-  workdir, exp, params = restored
+  workdir, exp, variables = restored
   per_view = json.loads((workdir / "eval" / "metrics.json").read_text())["per_view"]
   for i, pose in enumerate(exp.test_ds.poses):
-    ref = _reference(exp, params, pose)
+    ref = _reference(exp, variables, pose)
     true_acc, true_depth = exp.test_ds.accs[i], exp.test_ds.depths[i]
     hit, empty = true_acc > 0.99, true_acc < 0.01
     assert hit.sum() > 20 and empty.sum() > 20  # the views score both kinds of pixel
@@ -76,15 +78,16 @@ def _frames(path):
 
 
 def test_video_has_the_configured_frames_and_size(restored):
-  workdir, exp, params = restored
+  workdir, exp, variables = restored
   config = exp.config
-  poses = outputs.video_poses(config, exp.train_ds)
+  poses = camera_paths.video_poses(exp.train_ds, config.render.video_frames, config.data.ndc,
+                                   config.render.orbit_phi, config.render.orbit_radius)
   rgb = _frames(workdir / "video" / "rgb.mp4")
   depth = _frames(workdir / "video" / "depth.mp4")
   size = (exp.train_ds.height, exp.train_ds.width, 3)
   assert rgb.shape == depth.shape == (config.render.video_frames, *size)
   # Each frame is its orbit pose's render (up to video compression), in order.
-  refs = [outputs.to_uint8(_reference(exp, params, pose)["rgb"]).astype(float) for pose in poses]
+  refs = [to_uint8(_reference(exp, variables, pose)["rgb"]).astype(float) for pose in poses]
   for k, frame in enumerate(rgb.astype(float)):
     errors = [np.mean(np.abs(frame - ref)) for ref in refs]
     assert np.argmin(errors) == k and errors[k] < 8.0, errors  # uint8 units
@@ -92,7 +95,7 @@ def test_video_has_the_configured_frames_and_size(restored):
 
 def test_path_mode_renders_a_video_through_the_key_cameras(restored, tmp_path):
   """render.py --mode=path: the viewer's camera_path.json key cameras, interpolated."""
-  workdir, exp, params = restored
+  workdir, exp, variables = restored
   keys = exp.test_ds.poses[:2]
   path = tmp_path / "camera_path.json"
   path.write_text(json.dumps({"fps": 30, "keyframes": keys.tolist(), "frames": []}))
@@ -101,7 +104,7 @@ def test_path_mode_renders_a_video_through_the_key_cameras(restored, tmp_path):
   assert rgb.shape == (3 + 1, exp.train_ds.height, exp.train_ds.width, 3)  # 3 per segment + end
   # The path starts and ends at the key cameras (up to video compression).
   for frame, key in ((rgb[0], keys[0]), (rgb[-1], keys[1])):
-    ref = outputs.to_uint8(_reference(exp, params, key)["rgb"]).astype(float)
+    ref = to_uint8(_reference(exp, variables, key)["rgb"]).astype(float)
     assert np.mean(np.abs(frame.astype(float) - ref)) < 8.0  # uint8 units
 
 
@@ -121,7 +124,7 @@ def test_tensorboard_scalars_equal_the_json_log(restored):
 
 
 def test_views_mode_reads_json_and_3x4_poses(restored, tmp_path):
-  workdir, exp, params = restored
+  workdir, exp, variables = restored
   poses = exp.test_ds.poses[:2]
   json_path = tmp_path / "poses.json"
   json_path.write_text(json.dumps({"frames": [{"transform_matrix": p.tolist()} for p in poses]}))
@@ -131,9 +134,9 @@ def test_views_mode_reads_json_and_3x4_poses(restored, tmp_path):
     out_dir = tmp_path / path.stem
     outputs.render(str(workdir), "views", str(path), str(out_dir))
     for i, pose in enumerate(poses):
-      ref = _reference(exp, params, pose)
+      ref = _reference(exp, variables, pose)
       image = imageio.imread(out_dir / f"view_{i:03d}.png")
-      assert np.abs(image.astype(int) - outputs.to_uint8(ref["rgb"])).max() <= 1, path
+      assert np.abs(image.astype(int) - to_uint8(ref["rgb"])).max() <= 1, path
       np.testing.assert_allclose(np.load(out_dir / f"depth_{i:03d}.npy"), ref["depth"],
                                  atol=1e-4)
     assert not (out_dir / "view_002.png").exists()

@@ -10,9 +10,9 @@ import json
 import numpy as np
 import pytest
 
-from nerf_jax import experiment, outputs
-from nerf_jax.configs import debug
+from nerf_jax import evaluation, experiment
 from tests.conftest import assert_beats_trivial, trivial_psnrs
+from tests.helpers import small_config
 
 # Bounds on the shared run's depth on opaque test pixels (scene units; their true depths have a
 # standard deviation of 0.26). Measured: median |error| 0.19, almost all of it a bias (the
@@ -30,7 +30,7 @@ def test_shared_run_beats_the_trivial_answers_and_the_untrained_model(trained_ru
   workdir, result = trained_run
   exp, _ = experiment.restore(str(workdir))
   assert_beats_trivial(result["psnr"], exp)
-  untrained = outputs.make_evaluator(exp)(experiment.init_state(exp).params)["psnr"]
+  untrained = evaluation.make_evaluator(exp)(experiment.init_state(exp).variables)["psnr"]
   assert result["psnr"] > untrained + 5.0, (untrained, result["psnr"])
   # What the run wrote says the same.
   saved = json.loads((workdir / "metrics.json").read_text())
@@ -45,8 +45,7 @@ def test_shared_run_beats_the_trivial_answers_and_the_untrained_model(trained_ru
 
 def test_trivial_answers_score_what_they_are():
   """The trivial scores themselves, against a brute-force PSNR on one tiny dataset."""
-  config = debug.get_config()
-  exp = experiment.setup(config)
+  exp = experiment.setup(small_config())
   scores = trivial_psnrs(exp)
   test = exp.test_ds.images  # black background: the targets are the images themselves
   mean = exp.train_ds.images.mean(0)
@@ -66,7 +65,7 @@ def test_shared_run_depth_matches_the_scene_on_opaque_pixels(trained_run):
     opaque = test_ds.accs[i] > 0.999
     predicted.append(out["depth"][opaque])
     true.append(test_ds.depths[i][opaque])
-  outputs.make_evaluator(exp)(state.params, on_view=on_view)
+  evaluation.make_evaluator(exp)(state.variables, on_view=on_view)
   predicted, true = np.concatenate(predicted), np.concatenate(true)
   assert len(true) > 200
   assert np.median(np.abs(predicted - true)) < DEPTH_MEDIAN_BOUND
