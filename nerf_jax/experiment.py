@@ -177,9 +177,9 @@ def make_sampler(config):
     if config.data.scene_bound <= 0 and config.data.scene_bound != -1:
       raise ValueError("config.data.contraction needs config.data.scene_bound > 0 or -1 "
                        "(auto): the inner region's half-size")
-    if oc.enabled or config.data.ndc or config.num_fine_samples > 0:
-      raise ValueError("config.data.contraction does not work with config.occupancy.enabled, "
-                       "config.data.ndc or config.num_fine_samples > 0 yet")
+    if config.data.ndc or config.num_fine_samples > 0:
+      raise ValueError("config.data.contraction does not work with config.data.ndc or "
+                       "config.num_fine_samples > 0 yet")
   return Sampler(config.num_samples, config.data.scene_bound, config.data.lindisp,
                  settings if oc.enabled else None, config.data.contraction,
                  config.data.inner_fraction)

@@ -133,6 +133,18 @@ def sample_occupied(mask, origins, directions, t_min, t_max, bound, num_candidat
   mids = 0.5 * (edges[..., 1:] + edges[..., :-1])
   points = origins[..., None, :] + directions[..., None, :] * mids[..., None]
   occupied = lookup(mask, points, bound) & (t_max > t_min)[..., None]
+  return occupied_slots(edges, occupied, num_samples, t_max)
+
+
+def occupied_slots(edges, occupied, num_samples, t_max):
+  """The occupied candidates of each ray dealt into K slots (see the module docstring).
+
+  edges: float32 [..., M + 1], sorted edges of M candidate intervals. occupied: bool [..., M],
+  the candidates whose cell is occupied. num_samples: int K. t_max: float32 [...], the end of
+  the ray's segment, where invalid slots sit.
+  Returns (starts, ends, valid) as `sample_occupied`; invalid slots are [t_max, t_max].
+  """
+  num_candidates = occupied.shape[-1]
   order = _occupied_indices(occupied, num_candidates)  # [..., M]: candidate of each rank
   n = jnp.sum(occupied, axis=-1, dtype=jnp.int32)[..., None]  # [..., 1]
   slots = jnp.arange(num_samples, dtype=jnp.int32)

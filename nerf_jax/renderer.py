@@ -17,7 +17,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from nerf_jax import compositing, occupancy, sampler as sampler_lib, sampling
+from nerf_jax import compositing, contraction, occupancy, sampler as sampler_lib, sampling
 from nerf_jax.field import Field
 from nerf_jax.sampler import Sampler
 
@@ -94,9 +94,12 @@ class RayRenderer:
   def occupancy_grid(self, variables, key=None):
     """The occupancy grid of the coarse network's density: float32 [R, R, R] (occupancy.py),
     probed at `probes` per cell side, jittered from `key` (None: not jittered)."""
-    oc = self.sampler.occupancy
-    return occupancy.density_grid(self.field.density(variables["params"]["coarse"]),
-                                  oc.resolution, self.sampler.scene_bound, oc.probes, key)
+    oc, rs = self.sampler.occupancy, self.sampler
+    density = self.field.density(variables["params"]["coarse"])
+    if rs.contraction:  # the grid's cells are cells of contracted space: probe their world points
+      world = lambda cells: contraction.uncontract(cells, rs.scene_bound, rs.contraction)
+      density = lambda cells, fn=density: fn(world(cells))
+    return occupancy.density_grid(density, oc.resolution, rs.grid_bound, oc.probes, key)
 
 
 def empty_depth_is_far(out, far):

@@ -105,14 +105,25 @@ class Sampler:
 
   def stratified(self, rays, key=None):
     """Edges t float32 [..., S + 1] of stratified samples over `bounds` (key None: even)."""
-    t_near, t_far = self.bounds(rays)
     if self.contraction:
-      t_inner = contraction.inner_exit(rays.origins, rays.directions, self.scene_bound,
-                                       self.contraction)
-      return sampling.stratified_unbounded(t_near, t_inner, t_far, self.num_samples, rays.shape,
-                                           key, self.inner_fraction)
+      return self._unbounded_edges(rays, self.num_samples, key)
+    t_near, t_far = self.bounds(rays)
     return sampling.stratified(t_near, t_far, self.num_samples, rays.shape, key,
                                lindisp=self.lindisp)
+
+  def _unbounded_edges(self, rays, count, key=None):
+    """Edges float32 [..., count + 1]: linear in t inside the inner box, in disparity beyond."""
+    t_near, t_far = self.bounds(rays)
+    t_inner = contraction.inner_exit(rays.origins, rays.directions, self.scene_bound,
+                                     self.contraction)
+    return sampling.stratified_unbounded(t_near, t_inner, t_far, count, rays.shape, key,
+                                         self.inner_fraction)
+
+  @property
+  def grid_bound(self):
+    """Half-size of the box an occupancy grid covers: the scene box, or in an unbounded scene
+    the contracted space (twice the inner box)."""
+    return contraction.OUTER * self.scene_bound if self.contraction else self.scene_bound
 
   def place(self, rays, key=None, grid=None):
     """Samples of `rays` [...]: stratified, or with `occupancy` in the occupied cells of `grid`
@@ -122,9 +133,17 @@ class Sampler:
     t_near, t_far = self.bounds(rays)
     oc = self.occupancy
     mask = occupancy.occupied_mask(jax.lax.stop_gradient(grid), oc.threshold)
-    starts, ends, valid = occupancy.sample_occupied(
-        mask, rays.origins, rays.directions, t_near, t_far, self.scene_bound, oc.candidates,
-        self.num_samples)
+    if self.contraction:  # candidates spaced as the unbounded samples, looked up contracted
+      edges = self._unbounded_edges(rays, oc.candidates)
+      t_far = edges[..., -1]
+      cells = contraction.contract(points(rays, sampling.midpoints(edges)), self.scene_bound,
+                                   self.contraction)
+      occupied = occupancy.lookup(mask, cells, self.grid_bound)
+      starts, ends, valid = occupancy.occupied_slots(edges, occupied, self.num_samples, t_far)
+    else:
+      starts, ends, valid = occupancy.sample_occupied(
+          mask, rays.origins, rays.directions, t_near, t_far, self.scene_bound, oc.candidates,
+          self.num_samples)
     u = 0.5 if key is None else jax.random.uniform(key, starts.shape, jnp.float32)
     return Samples(occupancy.interleave_gaps(starts, ends, t_far),
                    starts + (ends - starts) * u, valid, gapped=True)

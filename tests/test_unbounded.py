@@ -77,9 +77,28 @@ def test_a_box_that_cuts_most_rays_says_so_in_one_line(capsys):
 
 def test_contraction_refuses_what_it_cannot_do_yet():
   config = _config(scene_bound=1.5, contraction="linf")
-  config.occupancy.enabled = True
+  config.num_fine_samples = 8
   with pytest.raises(ValueError, match="contraction"):
     experiment.make_sampler(config)
+
+
+def test_occupancy_in_contracted_space_samples_only_occupied_cells():
+  # Occupied: the contracted cells of a shell between world radius 3 and 6 (L-inf), i.e.
+  # contracted |c| in [1.5 * (2 - 1/2), 1.5 * (2 - 1/4)] = [2.25, 2.625].
+  oc = experiment.occupancy.OccupancySettings(resolution=16, candidates=128)
+  rs = sampler.Sampler(16, scene_bound=1.5, occupancy=oc, contraction="linf")
+  centres = np.asarray(experiment.occupancy.cell_centres(16, rs.grid_bound))
+  radius = np.max(np.abs(centres), axis=-1)
+  grid = np.where((radius > 2.25) & (radius < 2.625), 10.0, 0.0).astype(np.float32)
+  rays = Rays.create(jnp.zeros((32, 3)), jnp.asarray(np.random.default_rng(1).normal(
+      size=(32, 3)), jnp.float32), 0.1, 5.0)
+  placed = rs.place(rays, jax.random.PRNGKey(0), jnp.asarray(grid))
+  world = sampler.points(rays, placed.distances)[np.asarray(placed.valid)]
+  assert len(world) > 32  # every ray crosses the shell
+  # Each valid sample lies in the occupied shell (up to a cell of contracted space, 0.1875).
+  cells = np.max(np.abs(np.asarray(contraction.contract(world, 1.5, "linf"))), axis=-1)
+  assert np.all((cells > 2.25 - 0.19) & (cells < 2.625 + 0.19))
+  assert np.all(np.isfinite(placed.t)) and np.all(np.diff(placed.t, axis=-1) >= 0)
 
 
 def test_a_capture_video_follows_its_own_trajectory():
