@@ -163,9 +163,9 @@ def make_sampler(config):
   field when occupancy sampling cannot work with the rest."""
   oc = config.occupancy
   if oc.enabled:
-    if config.data.scene_bound <= 0:
-      raise ValueError("config.occupancy.enabled needs config.data.scene_bound > 0 (the grid "
-                       "covers that box)")
+    if config.data.scene_bound <= 0 and config.data.scene_bound != -1:
+      raise ValueError("config.occupancy.enabled needs config.data.scene_bound > 0 or -1 "
+                       "(auto): the grid covers that box")
     if config.num_fine_samples > 0:
       raise ValueError("config.occupancy.enabled and config.num_fine_samples > 0 cannot be "
                        "combined: the occupancy grid already places the samples; set one of "
