@@ -21,18 +21,13 @@ from ml_collections import config_flags
 from nerf_jax import checkpoints, cli, config_lib, experiment, outputs
 from nerf_jax.configs import debug, default
 from nerf_jax.data import DataError
-from tests.conftest import shipped_configs, tiny_config
+from tests.conftest import shipped_configs
 from tests.helpers import blender_folder as _blender
+from tests.helpers import small_config
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
-
-def _config(path="", **data):
-  config = tiny_config(max_steps=2)
-  config.data.path = path
-  for k, v in data.items():
-    config.data[k] = v
-  return config
+TWO_STEPS = {"train.max_steps": 2}  # the debug config, 2 steps
 
 
 def _one_line_error(capsys, fn, *parts):
@@ -71,17 +66,22 @@ def _npz(tmp_path, name="data.npz", num=4, size=(6, 6), **arrays):
 
 # --- data ---------------------------------------------------------------------------------------
 
+def _on(path):
+  """The debug config, 2 steps, on the data at `path`."""
+  return small_config({**TWO_STEPS, "data.path": path})
+
+
 def test_missing_path_and_unknown_format(capsys, tmp_path):
-  _train_fails(capsys, tmp_path, _config(str(tmp_path / "nope.npz")), "nope.npz", "no such")
+  _train_fails(capsys, tmp_path, _on(str(tmp_path / "nope.npz")), "nope.npz", "no such")
   (tmp_path / "notes.txt").write_text("hi")
-  _train_fails(capsys, tmp_path, _config(str(tmp_path / "notes.txt")), "notes.txt",
+  _train_fails(capsys, tmp_path, _on(str(tmp_path / "notes.txt")), "notes.txt",
                "unknown dataset format")
 
 
 @pytest.mark.parametrize("key", ["images", "poses", "focal"])
 def test_npz_missing_array(capsys, tmp_path, key):
   path = _npz(tmp_path, **{key: None})
-  _train_fails(capsys, tmp_path, _config(path), "data.npz", f"missing array '{key}'")
+  _train_fails(capsys, tmp_path, _on(path), "data.npz", f"missing array '{key}'")
 
 
 def test_npz_bad_contents(capsys, tmp_path):
@@ -95,29 +95,30 @@ def test_npz_bad_contents(capsys, tmp_path):
   ]
   for i, (arrays, parts) in enumerate(cases):
     path = _npz(tmp_path, f"bad{i}.npz", **arrays)
-    _train_fails(capsys, tmp_path, _config(path), f"bad{i}.npz", *parts)
+    _train_fails(capsys, tmp_path, _on(path), f"bad{i}.npz", *parts)
 
 
 def test_blender_errors(capsys, tmp_path):
   meta = str(tmp_path / "transforms_train.json")
-  _train_fails(capsys, tmp_path, _config(_blender(tmp_path, text='{"frames": [\n')),
+  _train_fails(capsys, tmp_path, _on(_blender(tmp_path, text='{"frames": [\n')),
                meta, "malformed JSON", "line 2")
-  _train_fails(capsys, tmp_path, _config(_blender(tmp_path, {"camera_angle_x": None})),
+  _train_fails(capsys, tmp_path, _on(_blender(tmp_path, {"camera_angle_x": None})),
                meta, "'camera_angle_x'")
   missing = {"frames": [{"file_path": "./r_9.png", "transform_matrix": np.eye(4).tolist()}]}
-  _train_fails(capsys, tmp_path, _config(_blender(tmp_path, missing)),
+  _train_fails(capsys, tmp_path, _on(_blender(tmp_path, missing)),
                meta, "frames[0].file_path", "r_9.png", "not found")
 
 
 def test_llff_table_of_the_wrong_shape(capsys, tmp_path):
   (tmp_path / "images").mkdir()
   np.save(tmp_path / "poses_bounds.npy", np.zeros((3, 15)))
-  _train_fails(capsys, tmp_path, _config(str(tmp_path)), "poses_bounds.npy", "(3, 15)",
+  _train_fails(capsys, tmp_path, _on(str(tmp_path)), "poses_bounds.npy", "(3, 15)",
                "[N, 17]")
 
 
 def test_holdout_out_of_range(capsys, tmp_path):
-  _train_fails(capsys, tmp_path, _config(holdout_from=12), "holdout_from=12", "empty")
+  _train_fails(capsys, tmp_path, small_config({**TWO_STEPS, "data.holdout_from": 12}),
+               "holdout_from=12", "empty")
 
 
 # --- checkpoints, workdirs and what a run writes --------------------------------------------------
@@ -128,7 +129,7 @@ def trained(tmp_path_factory):
   [N, 3, 4] poses (shared by the tests below, which only read it): (workdir, config, result)."""
   root = tmp_path_factory.mktemp("trained")
   path = _npz(root, num=5, size=(7, 11), poses=_poses(5)[:, :3])
-  config = _config(path, holdout_from=4)
+  config = small_config({**TWO_STEPS, "data.path": path, "data.holdout_from": 4})
   config.train.log_every = config.train.eval_every = 1
   result = cli.train(config, str(root / "run"))
   return root / "run", config, result
@@ -203,7 +204,7 @@ def test_render_needs_a_workdir_with_a_checkpoint(capsys, tmp_path):
                   "none", "no such directory")
   _one_line_error(capsys, lambda: outputs.render(str(tmp_path), "eval"),
                   "config.json not found")
-  (tmp_path / "config.json").write_text(_config().to_json())
+  (tmp_path / "config.json").write_text(small_config(TWO_STEPS).to_json())
   _one_line_error(capsys, lambda: outputs.render(str(tmp_path), "eval"),
                   "no checkpoint", "train first")
 
@@ -264,7 +265,7 @@ def test_config_by_name_from_anywhere(capsys, tmp_path, monkeypatch):
 
 def test_saved_config_is_completed_with_todays_defaults(tmp_path):
   """A config.json written before a field existed gets the default's value for it, once."""
-  saved = _config().to_dict()
+  saved = small_config(TWO_STEPS).to_dict()
   del saved["render"]["march"], saved["model"]["encoding"]
   saved["model"]["skip_layers"] = [1]  # JSON has no tuples
   (tmp_path / "config.json").write_text(json.dumps(saved))
@@ -272,6 +273,58 @@ def test_saved_config_is_completed_with_todays_defaults(tmp_path):
   assert config.render.march == default.get_config().render.march
   assert config.model.encoding == "posenc" and config.model.skip_layers == (1,)
   assert config.train.max_steps == 2  # the saved values win
+
+
+# A value for every renamed field (config_lib.RENAMED), none of them the default's.
+OLD_SPELLINGS = {"model.grid_resolutions": (8, 16), "model.grid_features": 2,
+                 "model.hash_levels": 4, "model.hash_log2_size": 10, "model.hash_features": 4,
+                 "model.hash_base_resolution": 4, "model.hash_max_resolution": 64,
+                 "model.hash_dtype": "float16"}
+
+
+def test_old_spellings_cover_every_renamed_field_with_a_value_not_the_default():
+  assert set(OLD_SPELLINGS) == set(config_lib.RENAMED)
+  defaults = default.get_config().model
+  for old, value in OLD_SPELLINGS.items():
+    _, section, name = config_lib.renamed(old).split(".")  # model.<section>.<name>
+    assert defaults[section][name] != value, old
+
+
+def test_renamed_fields_on_the_command_line_give_the_new_names_config(capsys):
+  """--config.model.grid_resolutions=... (the old name) loads the config that
+  --config.model.grid.resolutions=... does, with one deprecation line per old name."""
+  spell = lambda names: [f"--config.{names(k)}={v}" for k, v in OLD_SPELLINGS.items()]
+  old, error = _parse(capsys, "--config=fast", *spell(lambda k: k))
+  notes = capsys.readouterr().out.strip().splitlines()
+  assert error is None
+  assert notes == [config_lib.deprecation(k, config_lib.renamed(k)) for k in OLD_SPELLINGS]
+  new, error = _parse(capsys, "--config=fast", *spell(config_lib.renamed))
+  assert error is None and "deprecated" not in capsys.readouterr().out
+  assert old.config.to_dict() == new.config.to_dict()
+  assert new.config.model.grid.resolutions == (8, 16)  # the value given, not the default
+
+
+def test_renamed_fields_in_a_saved_config_or_a_config_file_give_the_new_names_config(tmp_path,
+                                                                                     capsys):
+  """A config.json of a run from before the rename (flat model.grid_*/hash_* fields, no
+  model.grid or model.hash section) restores as the config with the new names; so does a
+  config file setting the old names (config_lib.upgrade, one line per old name)."""
+  saved = small_config(TWO_STEPS).to_dict()
+  del saved["model"]["grid"], saved["model"]["hash"]
+  for old, value in OLD_SPELLINGS.items():
+    saved["model"][old.split(".")[1]] = list(value) if isinstance(value, tuple) else value
+  (tmp_path / "config.json").write_text(json.dumps(saved))
+  expected = small_config({**TWO_STEPS, **{config_lib.renamed(k): v
+                                           for k, v in OLD_SPELLINGS.items()}})
+  assert config_lib.load_saved(str(tmp_path)).to_dict() == expected.to_dict()
+  # A config file (a ConfigDict accepts new attributes) that sets the old names.
+  written = small_config(TWO_STEPS)
+  for old, value in OLD_SPELLINGS.items():
+    written.model[old.split(".")[1]] = value
+  capsys.readouterr()
+  assert config_lib.upgrade(written).to_dict() == expected.to_dict()
+  notes = capsys.readouterr().out.strip().splitlines()
+  assert notes == [config_lib.deprecation(k, config_lib.renamed(k)) for k in OLD_SPELLINGS]
 
 
 def _run(args, cwd=ROOT):
@@ -303,7 +356,7 @@ def test_verbosity_asks_for_the_traceback(monkeypatch, tmp_path):
   logging.set_verbosity(logging.DEBUG)
   try:
     with pytest.raises(DataError, match="no such file"):
-      cli.run_main(lambda: cli.train(_config(str(tmp_path / "x.npz")), str(tmp_path / "w")))
+      cli.run_main(lambda: cli.train(_on(str(tmp_path / "x.npz")), str(tmp_path / "w")))
   finally:
     logging.set_verbosity(previous)
 
