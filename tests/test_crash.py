@@ -15,23 +15,23 @@ import numpy as np
 import pytest
 
 from nerf_jax import checkpoints, cli, train_lib
-from tests.conftest import params_equal, restored_params, tiny_config
+from tests.conftest import params_equal, restored_variables
+from tests.helpers import small_config
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 STEPS, EVERY = 120, 10
 SEED = 15  # draws the kill moment: a failure reproduces with the same delay
 
 
-def _config():
-  return tiny_config(max_steps=STEPS, checkpoint_every=EVERY, log_every=50, keep_checkpoints=3)
+# The run: the debug config with these fields (in this process: small_config(RUN)).
+RUN = {"train.max_steps": STEPS, "train.checkpoint_every": EVERY, "train.log_every": 50,
+       "train.keep_checkpoints": 3, "render.after_training": False}
 
 
 def _start(workdir):
-  """train.py with the flags that make `_config()`, in the background."""
+  """train.py with the flags that make small_config(RUN), in the background."""
   args = [sys.executable, "train.py", "--config=configs/debug.py", f"--workdir={workdir}",
-          f"--config.train.max_steps={STEPS}", f"--config.train.checkpoint_every={EVERY}",
-          "--config.train.log_every=50", "--config.train.keep_checkpoints=3",
-          "--config.render.after_training=False"]
+          *[f"--config.{field}={value}" for field, value in RUN.items()]]
   return subprocess.Popen(args, cwd=ROOT, env=dict(os.environ, PYTHONPATH=ROOT),
                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
 
@@ -82,7 +82,7 @@ def test_killed_then_stopped_then_resumed_run_matches_an_uninterrupted_one(tmp_p
   thread.start()
   capsys.readouterr()
   with pytest.raises(SystemExit) as info:
-    cli.run_main(lambda: train_lib.train_and_evaluate(_config(), workdir))
+    cli.run_main(lambda: train_lib.train_and_evaluate(small_config(RUN), workdir))
   thread.join()
   err = capsys.readouterr().err
   assert info.value.code == 130, err
@@ -92,12 +92,12 @@ def test_killed_then_stopped_then_resumed_run_matches_an_uninterrupted_one(tmp_p
   assert killed_at < stopped_at < STEPS and checkpoints.list_steps(workdir)[-1] == stopped_at
 
   # 3. Resume to the end and compare with an uninterrupted run of the same seed.
-  resumed = train_lib.train_and_evaluate(_config(), workdir)
-  clean = train_lib.train_and_evaluate(_config(), str(tmp_path / "clean"))
+  resumed = train_lib.train_and_evaluate(small_config(RUN), workdir)
+  clean = train_lib.train_and_evaluate(small_config(RUN), str(tmp_path / "clean"))
   assert resumed["steps"] == clean["steps"] == STEPS
   for key in ("psnr", "ssim", "per_view"):
     assert resumed[key] == clean[key], key
   saved = json.loads(open(os.path.join(workdir, "metrics.json")).read())
   assert saved["per_view"] == clean["per_view"]
-  assert params_equal(restored_params(workdir), restored_params(tmp_path / "clean"))  # bitwise
+  assert params_equal(restored_variables(workdir), restored_variables(tmp_path / "clean"))
   assert len(checkpoints.list_steps(workdir)) <= 3  # keep_checkpoints

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from nerf_jax import budget, checkpoints, config_lib, experiment, train_lib
-from tests.conftest import shipped_configs, tiny_config
+from tests.conftest import shipped_configs
+from tests.helpers import small_config
 
 
 def _saved_train(workdir):
@@ -17,9 +18,9 @@ def _saved_train(workdir):
 
 
 def test_the_schedule_spans_the_planned_steps_and_stays_at_lr_final():
-  tc = tiny_config(lr=1e-2, lr_final=1e-4, warmup_steps=10).train
-  assert tc.max_steps == 0 and budget.planned_steps(tc) == tc.default_steps == 20
-  budget.fit_schedule(tc, 200)  # warm-up keeps its half of the run
+  tc = small_config({"train.lr": 1e-2, "train.lr_final": 1e-4, "train.warmup_steps": 10}).train
+  assert tc.max_steps == 0 and experiment.schedule_steps(tc) == tc.default_steps == 20
+  train_lib.fit_schedule(tc, 200)  # warm-up keeps its half of the run
   assert (tc.max_steps, tc.warmup_steps) == (200, 100)
   schedule = experiment.make_schedule(tc)
   np.testing.assert_allclose([schedule(50), schedule(100), schedule(200), schedule(400)],
@@ -35,8 +36,9 @@ def _warm(config, tmp_path):
 
 def test_max_seconds_alone_trains_for_that_long(tmp_path):
   seconds = 4.0
-  _warm(tiny_config(max_seconds=seconds), tmp_path)
-  result = train_lib.train_and_evaluate(tiny_config(max_seconds=seconds), str(tmp_path / "run"))
+  _warm(small_config({"train.max_seconds": seconds}), tmp_path)
+  result = train_lib.train_and_evaluate(small_config({"train.max_seconds": seconds}),
+                                        str(tmp_path / "run"))
   assert seconds <= result["train_seconds"] < seconds + 3.0  # one step and the last checkpoint
   fitted = _saved_train(tmp_path / "run")
   assert fitted.max_steps > 0 and fitted.max_seconds == seconds  # the schedule it used
@@ -45,15 +47,17 @@ def test_max_seconds_alone_trains_for_that_long(tmp_path):
 
 
 def test_an_explicit_max_steps_still_caps_a_time_budget(tmp_path):
-  result = train_lib.train_and_evaluate(tiny_config(max_steps=5, max_seconds=60.0),
-                                        str(tmp_path / "capped"))
+  result = train_lib.train_and_evaluate(
+      small_config({"train.max_steps": 5, "train.max_seconds": 60.0}), str(tmp_path / "capped"))
   assert result["steps"] == 5 and result["train_seconds"] < 60.0
-  result = train_lib.train_and_evaluate(tiny_config(default_steps=7), str(tmp_path / "steps"))
+  result = train_lib.train_and_evaluate(small_config({"train.default_steps": 7}),
+                                        str(tmp_path / "steps"))
   assert result["steps"] == 7 and _saved_train(tmp_path / "steps").max_steps == 0
 
 
 def test_a_resumed_time_budget_run_keeps_its_schedule(tmp_path, monkeypatch):
-  config = lambda: tiny_config(max_seconds=4.0, checkpoint_every=5, log_every=1000)
+  config = lambda: small_config({"train.max_seconds": 4.0, "train.checkpoint_every": 5,
+                                 "train.log_every": 1000})
   _warm(config(), tmp_path)
   workdir = str(tmp_path / "run")
   first = train_lib.train_and_evaluate(config(), workdir)
