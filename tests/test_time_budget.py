@@ -4,6 +4,7 @@ the schedule it fitted."""
 
 import json
 import os
+import re
 
 import numpy as np
 import pytest
@@ -76,6 +77,84 @@ def test_a_resumed_time_budget_run_keeps_its_schedule(tmp_path, monkeypatch):
   assert meta["schedule_steps"] == fitted and meta["wall_seconds"] >= 4.0
   with open(os.path.join(workdir, "metrics.json")) as f:
     assert json.load(f)["steps"] == resumed["steps"]
+
+
+class _Clock:
+  """Stands in for budget.time: perf_counter() returns `now`, which the fake step advances."""
+
+  def __init__(self):
+    self.now = 0.0
+
+  def perf_counter(self):
+    return self.now
+
+
+def test_fit_to_time_fits_the_steps_of_the_time_left_and_keeps_the_warmup_share(monkeypatch):
+  """A step of known time (compiling: 2 s, then 0.5 s with one 5 s outlier) on a budget of
+  100 s: calibration runs min(3 s, 5% of 100 s) = 3 s of steps and takes their median (the
+  outlier does not count), the time left is asked for with the compile time, and the steps that
+  fit in it are the schedule's."""
+  clock = _Clock()
+  monkeypatch.setattr(budget, "time", clock)
+  durations = iter([2.0, 0.5, 0.5, 5.0] + [0.5] * 100)
+  calls = []
+
+  def fake_step(state, data, key, planned_steps):
+    calls.append(int(planned_steps))
+    clock.now += next(durations)
+    return state, {}
+
+  asked = []
+
+  def seconds_left(compile_seconds):
+    asked.append(compile_seconds)
+    return 100.0 - clock.now
+
+  exp = experiment.setup(small_config({"train.max_seconds": 100.0, "train.warmup_steps": 10}))
+  config = train_lib.fit_to_time(exp, fake_step, None, None, seconds_left)
+  # Brute force: 2 s compile; timed steps until 3 s have passed after it.
+  timed, t = [], 2.0
+  for d in [0.5, 0.5, 5.0] + [0.5] * 100:
+    if t >= 2.0 + 3.0 and timed:
+      break
+    timed.append(d)
+    t += d
+  assert asked == [2.0] and len(calls) == 1 + len(timed)
+  expected = int((100.0 - t) / np.median(timed))
+  assert np.median(timed) == 0.5 and expected == 184
+  assert config.train.max_steps == expected
+  # Warm-up keeps its share of the config's planned steps: 10 of default_steps 20.
+  assert config.train.warmup_steps == round(10 / 20 * expected)
+  assert exp.config.train.max_steps == 0 and exp.config.train.warmup_steps == 10  # a copy
+
+
+def test_fit_to_time_gives_at_least_one_step(monkeypatch):
+  clock = _Clock()
+  monkeypatch.setattr(budget, "time", clock)
+
+  def slow_step(state, data, key, planned_steps):
+    clock.now += 50.0
+    return state, {}
+
+  exp = experiment.setup(small_config({"train.max_seconds": 10.0}))
+  config = train_lib.fit_to_time(exp, slow_step, None, None, lambda c: 10.0 - clock.now)
+  assert config.train.max_steps == 1
+
+
+def test_a_time_budget_runs_log_lines_count_time_not_the_fitted_steps(tmp_path, monkeypatch,
+                                                                      capsys):
+  """The fitted step count is an estimate a run may outlast (here: fitted to 1 step); its log
+  lines must not show `step N/M` with N > M: the total they show is the time budget."""
+  config = lambda: small_config({"train.max_seconds": 4.0})
+  _warm(config(), tmp_path)  # so that the run itself has time for many steps
+  monkeypatch.setattr(budget, "steps_in", lambda *args: 1)
+  capsys.readouterr()
+  result = train_lib.train_and_evaluate(config(), str(tmp_path / "run"))
+  assert _saved_train(tmp_path / "run").max_steps == 1 < result["steps"]  # outlasted
+  lines = [re.match(r"step (\d+)(?:/(\d+))? ", l) for l in capsys.readouterr().out.splitlines()]
+  logged = [(int(m.group(1)), m.group(2) and int(m.group(2))) for m in lines if m]
+  assert len(logged) >= 2 and logged[-1][0] == result["steps"], logged
+  assert all(total is None or step <= total for step, total in logged), logged
 
 
 @pytest.mark.parametrize("name", shipped_configs())
