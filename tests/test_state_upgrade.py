@@ -1,0 +1,83 @@
+"""Checkpoints of earlier versions restore: the occupancy grid once lived in params['occupancy'],
+with Adam moments of its own (always zero: nothing trained it); experiment.upgrade_state_dict
+moves it to the buffers, and the run resumes exactly where it stood."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import serialization
+
+from nerf_jax import checkpoints, experiment, train_batches, train_step
+from tests.conftest import params_equal
+from tests.helpers import small_config
+
+# A grid model with the occupancy grid (refreshed every step), as test_occupancy trains it.
+OCCUPANCY = {"model.encoding": "grid", "model.grid.resolutions": (8, 16),
+             "model.grid.features": 2, "model.density_activation": "softplus",
+             "data.scene_bound": 1.5, "model.grid_bound": 1.5, "occupancy.enabled": True,
+             "occupancy.resolution": 12, "occupancy.candidates": 64,
+             "occupancy.update_every": 1}
+
+
+def _old_style(state_dict):
+  """Brute force, the inverse of the upgrade: today's state dict as the earlier version saved
+  it: the grid in params['occupancy'], zero Adam moments for it beside the networks', no
+  buffers."""
+  old = jax.tree_util.tree_map(np.asarray, state_dict)
+  grid = old.pop("buffers")["occupancy"]
+  old["params"]["occupancy"] = grid
+  adam = old["opt_state"]["0"]
+  assert set(adam) == {"count", "mu", "nu"} and set(adam["mu"]) == {"coarse"}
+  for moment in ("mu", "nu"):
+    adam[moment]["occupancy"] = np.zeros_like(grid)
+  return old
+
+
+@pytest.fixture(scope="module")
+def trained():
+  """(config, Experiment, TrainState after 3 steps: the grid and the moments are not zero)."""
+  config = small_config(OCCUPANCY)
+  exp = experiment.setup(config)
+  step, data = train_step.make_train_step(exp), train_batches.make_train_data(exp)
+  state = experiment.init_state(exp)
+  for _ in range(3):
+    state, _ = step(state, data, jax.random.PRNGKey(0))
+  assert float(jnp.max(state.buffers["occupancy"])) > 0
+  return config, exp, jax.device_get(state)
+
+
+def test_an_old_checkpoint_restores_into_the_new_train_state(trained, tmp_path):
+  config, exp, state = trained
+  old = _old_style(serialization.to_state_dict(state))
+  workdir = str(tmp_path / "old")
+  (tmp_path / "old").mkdir()
+  (tmp_path / "old" / "config.json").write_text(config.to_json())
+  signature = experiment.model_signature(config)
+  checkpoints.save(workdir, 3, old, signature)  # what the earlier version wrote
+  path = checkpoints.latest_path(workdir)
+  with pytest.raises(checkpoints.CheckpointError):  # not restorable as it is ...
+    checkpoints.restore(path, experiment.state_template(exp), signature)
+  _, restored = experiment.restore(workdir)  # ... but through the upgrade
+  assert "occupancy" not in restored.params
+  assert int(restored.step) == 3 and int(restored.bad_step) == -1
+  assert params_equal(restored.params, state.params)
+  assert params_equal(restored.buffers, state.buffers)
+  assert params_equal(restored.opt_state, state.opt_state)
+  assert (jax.tree_util.tree_structure(restored) ==
+          jax.tree_util.tree_structure(experiment.state_template(exp)))
+
+
+def test_upgrade_leaves_a_current_state_dict_and_one_without_occupancy_alone(trained):
+  _, _, state = trained
+  current = serialization.to_state_dict(state)
+  assert experiment.upgrade_state_dict(current) is current
+  # An old run without occupancy: params hold only the networks; buffers come back empty.
+  old = jax.tree_util.tree_map(np.asarray, current)
+  del old["buffers"]
+  old["params"].pop("occupancy", None)
+  upgraded = experiment.upgrade_state_dict(old)
+  assert upgraded["buffers"] == {} and set(upgraded["params"]) == {"coarse"}
+  structure = jax.tree_util.tree_structure
+  assert structure(upgraded["opt_state"]) == structure(current["opt_state"])
+  assert params_equal(upgraded["opt_state"], current["opt_state"])
