@@ -18,8 +18,9 @@ import jax
 import numpy as np
 import pytest
 
-from nerf_jax import checkpoints, experiment, field, parallel, train_lib
-from tests.conftest import restored_params, tiny_config
+from nerf_jax import checkpoints, experiment, parallel, train_lib
+from tests.conftest import restored_variables
+from tests.helpers import small_config
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 STEPS = 10
@@ -29,17 +30,17 @@ import json, sys
 import jax
 import numpy as np
 from nerf_jax.configs import debug
-from nerf_jax import experiment, parallel, train_lib
+from nerf_jax import experiment, parallel, train_batches, train_step
 
 config = debug.get_config()
 exp = experiment.setup(config)
-data = train_lib.make_train_data(exp)
+data = train_batches.make_train_data(exp)
 key = jax.random.PRNGKey(1)
 
 def run(mesh):
   state = parallel.replicate(experiment.init_state(exp), mesh)
   replicated = parallel.replicate(data, mesh)
-  step = train_lib.make_train_step(exp, mesh)
+  step = train_step.make_train_step(exp, mesh)
   hlo = step.lower(state, replicated, key).compile().as_text()
   losses = []
   for _ in range(STEPS):
@@ -81,7 +82,7 @@ def test_four_devices_match_one():
 
 
 # Two processes of one CPU device each: train.py's own flags for configs/debug.py's 20 steps
-# (tests.conftest.tiny_config), and what each process reports at the end.
+# (tests.helpers.small_config()), and what each process reports at the end.
 TWO_PROCESS_SCRIPT = r"""
 import json, sys
 import jax
@@ -141,10 +142,10 @@ def _wait(procs, logs, timeout):
 def test_two_processes_match_one(tmp_path):
   # Both runs start from the same step-0 checkpoint of other parameters than config.seed's, which
   # only process 0's workdir holds: process 1 must take process 0's start state.
-  config = tiny_config()
+  config = small_config()
   exp = experiment.setup(config)
   state = experiment.init_state(exp)
-  state = state.replace(params=field.init_params(exp.model, config, jax.random.PRNGKey(7)))
+  state = state.replace(params=exp.renderer.init(jax.random.PRNGKey(7))["params"])
   single_dir, workdirs = tmp_path / "single", [tmp_path / "p0", tmp_path / "p1"]
   for workdir in (single_dir, workdirs[0]):
     checkpoints.save(str(workdir), 0, jax.device_get(state), experiment.model_signature(config))
@@ -165,8 +166,9 @@ def test_two_processes_match_one(tmp_path):
   # lr·m/(√v + ε) hardly depends on the gradient's scale: far below 1e-6 after 20 steps of at
   # most lr = 5e-3 each (measured: 0, bit for bit), while every tensor moves by > 1e-3.
   leaves = jax.tree_util.tree_leaves
-  for multi, one, start in zip(leaves(restored_params(workdirs[0])),
-                               leaves(restored_params(single_dir)), leaves(state.params)):
+  for multi, one, start in zip(leaves(restored_variables(workdirs[0])["params"]),
+                               leaves(restored_variables(single_dir)["params"]),
+                               leaves(state.params)):
     np.testing.assert_allclose(multi, one, rtol=0, atol=1e-6)
     assert np.max(np.abs(one - np.asarray(start))) > 1e-3
   # Process 1 evaluated its own copy of the parameters: the same ones.
@@ -190,12 +192,11 @@ def test_a_batch_that_does_not_split_is_refused():
 
 
 def test_a_time_budget_is_refused_with_several_processes(monkeypatch):
-  budget = tiny_config(max_seconds=5.0).train
-  parallel.check_time_budget(budget)  # one process: fine
+  parallel.check_time_budget(5.0)  # one process: fine
   monkeypatch.setattr(jax, "process_count", lambda: 2)
   with pytest.raises(ValueError, match="max_seconds: a time budget needs one process"):
-    parallel.check_time_budget(budget)
-  parallel.check_time_budget(tiny_config(max_steps=5).train)
+    parallel.check_time_budget(5.0)
+  parallel.check_time_budget(0.0)  # a step budget: fine
 
 
 def test_no_distributed_environment_means_one_process(monkeypatch):
