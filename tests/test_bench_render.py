@@ -13,12 +13,12 @@ from nerf_jax import cli, experiment, renderer, train_lib
 from nerf_jax.bench import cli as bench_cli
 from nerf_jax.bench import render
 from nerf_jax.rays import Rays, get_rays
-from tests.conftest import tiny_config
+from tests.helpers import small_config
 
 
 def _trained_workdir(tmp_path):
-  config = tiny_config(max_steps=2)
-  config.data.scene_bound = 1.5  # a scene box: the model renders by marching
+  config = small_config({"train.max_steps": 2,
+                         "data.scene_bound": 1.5})  # a scene box: the model renders by marching
   workdir = str(tmp_path / "run")
   train_lib.train_and_evaluate(config, workdir)
   return workdir
@@ -44,7 +44,7 @@ def test_render_bench_writes_frame_video_and_big_frame_figures(tmp_path, capsys)
   assert record["machine"]["cpu_count"] >= 1
 
   # At the dataset's own size the timed frame is the first test view, checked against an
-  # independent path: rays from rays.get_rays, every ray in one renderer.render_rays call (no
+  # independent path: rays from rays.get_rays, every ray in one RayRenderer.render call (no
   # image renderer, no marching). The marched frame may differ by the documented bound: the
   # skipped cells' density along the box diagonal, plus the light left behind a stopped ray.
   exp, state = experiment.restore(workdir)
@@ -55,12 +55,13 @@ def test_render_bench_writes_frame_video_and_big_frame_figures(tmp_path, capsys)
   origins, directions = get_rays(test.height, test.width, test.focal,
                                  jnp.asarray(test.poses[0]), exp.pixel_center)
   rays = Rays.create(origins, directions, exp.near, exp.far)
-  ref = renderer.final(renderer.render_rays(exp.model, state.params, rays, exp.config))
+  ref = renderer.final(exp.renderer.render(state.variables, rays))
   config = exp.config
   bound = 1.0 - np.exp(-config.render.march_threshold * 2.0 * np.sqrt(3.0)
                        * config.data.scene_bound) + config.render.min_transmittance
-  marched = render.frame_renderer(exp, state.params, max(test.height, test.width))()
-  plain = render.frame_renderer(exp, state.params, max(test.height, test.width), march=False)()
+  size = max(test.height, test.width)
+  marched = render.frame_renderer(exp, state.variables, size)()
+  plain = render.frame_renderer(exp, state.variables, size, march=False)()
   np.testing.assert_allclose(plain["rgb"], ref["rgb"], atol=1e-5)
   np.testing.assert_allclose(plain["depth"], ref["depth"], atol=1e-4)
   assert np.max(np.abs(marched["acc"] - ref["acc"])) <= bound

@@ -6,19 +6,12 @@ import numpy as np
 import pytest
 
 from nerf_jax import experiment, rays as rays_lib, scenes
-from nerf_jax.configs import keras_seed, tiny_nerf
 from nerf_jax.data import export
 from nerf_jax.data.llff import export_llff
 from nerf_jax.scenes import simulator
-from tests.conftest import tiny_config
+from tests.helpers import small_config
 
-
-def _setup(config_fn=tiny_config, **data):
-  config = config_fn()
-  config.data.num_views, config.data.image_size, config.data.holdout_from = 5, 8, 4
-  for k, v in data.items():
-    config.data[k] = v
-  return experiment.setup(config)
+SMALL = {"data.num_views": 5, "data.image_size": 8, "data.holdout_from": 4}  # 4 + 1 views of 8²
 
 
 def _expected_directions(exp, pose, p):
@@ -43,7 +36,7 @@ def _builtin_data_matches_rays(exp):
 
 
 def test_builtin_scenes_default_to_pixel_centres_and_data_agrees():
-  exp = _setup()
+  exp = experiment.setup(small_config(SMALL))
   assert exp.config.data.pixel_center == -1 and exp.pixel_center == 0.5
   pose = exp.train_ds.poses[1]
   np.testing.assert_allclose(exp.rays(pose).directions, _expected_directions(exp, pose, 0.5),
@@ -51,9 +44,9 @@ def test_builtin_scenes_default_to_pixel_centres_and_data_agrees():
   _builtin_data_matches_rays(exp)
 
 
-@pytest.mark.parametrize("config_fn", [keras_seed.get_config, tiny_nerf.get_config])
-def test_reference_configs_pin_pixel_corners(config_fn):
-  exp = _setup(config_fn)
+@pytest.mark.parametrize("base", ["keras_seed", "tiny_nerf"])
+def test_reference_configs_pin_pixel_corners(base):
+  exp = experiment.setup(small_config(SMALL, base=base))
   assert exp.pixel_center == 0.0
   pose = exp.train_ds.poses[0]
   np.testing.assert_allclose(exp.rays(pose).directions, _expected_directions(exp, pose, 0.0),
@@ -68,19 +61,20 @@ def test_file_formats_default_to_their_own_pixel_centres(tmp_path):
   export_llff(fog, str(tmp_path / "llff"))
   export.export_npz(fog, str(tmp_path / "fog.npz"))  # records its pixel centre
   export.export_npz(fog, str(tmp_path / "ref.npz"), rgb_only=True)  # the reference's arrays only
-  got = {name: _setup(path=str(tmp_path / name), ndc=False).pixel_center
-         for name in ("blender", "llff", "fog.npz", "ref.npz")}
+  on = lambda name, **fields: experiment.setup(small_config(
+      SMALL, **{"data.path": str(tmp_path / name), "data.ndc": False}, **fields))
+  got = {name: on(name).pixel_center for name in ("blender", "llff", "fog.npz", "ref.npz")}
   assert got == {"blender": 0.5, "llff": 0.5, "fog.npz": 0.5, "ref.npz": 0.0}
-  assert _setup(path=str(tmp_path / "blender"), pixel_center=0.0).pixel_center == 0.0
+  assert on("blender", **{"data.pixel_center": 0.0}).pixel_center == 0.0
 
 
 def test_a_bad_pixel_center_names_the_field():
   with pytest.raises(ValueError, match="config.data.pixel_center"):
-    _setup(pixel_center=-0.5)
+    experiment.setup(small_config(SMALL, **{"data.pixel_center": -0.5}))
 
 
 def test_project_inverts_the_default_rays():
-  exp = _setup()
+  exp = experiment.setup(small_config(SMALL))
   pose = exp.train_ds.poses[0]
   rays = exp.rays(pose)
   point = np.asarray(rays.origins[3, 5] + 3.0 * rays.directions[3, 5])

@@ -5,8 +5,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax import experiment, regularizers, train_lib
-from tests.conftest import tiny_config
+from nerf_jax import experiment, regularizers, train_batches, train_step
+from tests.helpers import small_config
 
 
 def brute_force(t, w):
@@ -55,9 +55,9 @@ def test_distortion_gradient_is_finite_and_analytic():
 def test_the_train_loss_adds_the_weighted_distortion_and_nothing_else():
   stats = {}
   for weight in (0.0, 0.5):
-    exp = experiment.setup(tiny_config(distortion_weight=weight))
-    step = train_lib.make_train_step(exp)
-    _, stats[weight] = step(experiment.init_state(exp), train_lib.make_train_data(exp),
+    exp = experiment.setup(small_config({"train.distortion_weight": weight}))
+    step = train_step.make_train_step(exp)
+    _, stats[weight] = step(experiment.init_state(exp), train_batches.make_train_data(exp),
                             jax.random.PRNGKey(3))
   # Same render, same photometric error: only the loss grows, by a positive amount.
   np.testing.assert_allclose(stats[0.5]["psnr"], stats[0.0]["psnr"], rtol=1e-6)
