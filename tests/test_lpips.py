@@ -9,8 +9,8 @@ import pickle
 import numpy as np
 import pytest
 
-from nerf_jax import experiment, image_renderer, lpips, metrics, outputs
-from nerf_jax.configs import debug
+from nerf_jax import evaluation, experiment, image_renderer, lpips, metrics
+from tests.helpers import small_config
 
 
 def _reference_weights():
@@ -157,13 +157,11 @@ def test_weights_loader_runs_no_code(tmp_path):
 def _evaluate(image_size, out_dir):
   """One test view of the debug scene at image_size² through make_evaluator, untrained model:
   (result, [(rgb, truth)])."""
-  config = debug.get_config()
-  config.data.image_size = image_size
-  exp = experiment.setup(config)
-  params = experiment.init_state(exp).params
+  exp = experiment.setup(small_config({"data.image_size": image_size}))
+  variables = experiment.init_state(exp).variables
   seen = []
-  evaluate = outputs.make_evaluator(exp)
-  return evaluate(params, max_views=1, out_dir=out_dir,
+  evaluate = evaluation.make_evaluator(exp)
+  return evaluate(variables, max_views=1, out_dir=out_dir,
                   on_view=lambda i, out, truth: seen.append((out["rgb"], truth))), seen
 
 

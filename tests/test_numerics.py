@@ -612,15 +612,13 @@ def test_case11_low_precision_mlp_composited():
 @functools.lru_cache(maxsize=None)
 def _train_setup():
   """The debug config's model, optimizer and jitted train step (compiled once), and 2 views."""
-  from nerf_jax import experiment, train_lib  # pylint: disable=g-import-not-at-top
-  from nerf_jax.configs import debug  # pylint: disable=g-import-not-at-top
-  config = debug.get_config()
-  config.train.batch_rays = 64
-  exp = experiment.setup(config)
-  step = train_lib.make_train_step(exp)
+  from nerf_jax import experiment, train_batches, train_step  # pylint: disable=g-import-not-at-top
+  from tests.helpers import small_config  # pylint: disable=g-import-not-at-top
+  exp = experiment.setup(small_config({"train.batch_rays": 64}))
+  step = train_step.make_train_step(exp)
   # Two views of a random 8x8 target from cameras 4 units from the origin; near 2, far 6.
   ray_list = [rays.get_rays(8, 8, 10.0, pose) for pose in rays.orbit_poses(num_frames=2)]
-  data = train_lib.TrainData(
+  data = train_batches.TrainData(
       rays=rays.Rays.create(jnp.stack([o.reshape(-1, 3) for o, _ in ray_list]),
                             jnp.stack([d.reshape(-1, 3) for _, d in ray_list]), 2.0, 6.0),
       rgb=jnp.asarray(np.random.default_rng(12).uniform(size=(2, 64, 3)), jnp.float32),
