@@ -14,10 +14,11 @@ import jax
 import numpy as np
 import pytest
 
-from nerf_jax import config_lib, experiment, field, image_renderer, outputs
-from nerf_jax.configs import fast
+from nerf_jax import camera_paths, config_lib, experiment, image_renderer, outputs
 from nerf_jax.rays import Rays, pose_spherical, project
 from nerf_jax.viewer import camera, paths, policy, scene, server, training
+from nerf_jax.visuals import to_uint8
+from tests.helpers import small_config
 
 
 def _rodrigues(axis, angle):
@@ -163,8 +164,8 @@ def test_saved_path_is_what_render_py_loads(tmp_path):
   keys = np.stack([pose_spherical(th, -30, 4.0) for th in (0, 60, 150)])
   poses = paths.interpolate(keys, 5)
   json_path, npy_path = paths.save_path(str(tmp_path / "camera_path.json"), keys, poses, 24)
-  np.testing.assert_allclose(outputs.load_poses(json_path), poses, atol=1e-6)
-  np.testing.assert_array_equal(outputs.load_poses(npy_path), poses)
+  np.testing.assert_allclose(camera_paths.load_poses(json_path), poses, atol=1e-6)
+  np.testing.assert_array_equal(camera_paths.load_poses(npy_path), poses)
   rot = poses[:, :3, :3]
   np.testing.assert_allclose(rot @ np.swapaxes(rot, 1, 2), np.broadcast_to(np.eye(3), rot.shape),
                              atol=1e-5)
@@ -181,7 +182,7 @@ def test_depth_output_names_its_range():
   assert image.shape == (10, 10, 3) and f"{lo:.3g}" in caption and f"{hi:.3g}" in caption
   assert server.depth_range(depth, np.zeros_like(acc), 1.0, 9.0) == (1.0, 9.0)
   opacity, _ = server.output_image({"depth": depth, "acc": acc, "rgb": None}, "Opacity", 1, 9)
-  np.testing.assert_array_equal(opacity[..., 0], outputs.to_uint8(acc))
+  np.testing.assert_array_equal(opacity[..., 0], to_uint8(acc))
 
 
 def test_port_taken_names_it_and_suggests_a_free_one():
@@ -210,38 +211,34 @@ def test_workdir_without_checkpoint_is_one_line(tmp_path):
     scene.from_workdir(str(tmp_path))
 
 
-def _tiny_fast_config():
-  config = fast.get_config()
-  config.data.image_size, config.data.num_views, config.data.holdout_from = 20, 4, 3
-  config.num_samples = 16
-  config.model.grid.resolutions, config.model.width = (8, 16), 16
-  config.render.chunk = 128
-  config.render.march_grid = 16  # the skip grid: 16^3 cells × 64 probes, not 48^3 (seconds)
-  return config
+# A tiny marching fast-config model.
+TINY_FAST = {"data.image_size": 20, "data.num_views": 4, "data.holdout_from": 3,
+             "num_samples": 16, "model.grid.resolutions": (8, 16), "model.width": 16,
+             "render.chunk": 128,
+             "render.march_grid": 16}  # the skip grid: 16^3 cells × 64 probes, not 48^3 (seconds)
 
 
 @pytest.fixture(scope="module")
 def tiny_run():
-  """(experiment, its viewer Scene, random params) of a tiny marching fast-config model."""
-  config = _tiny_fast_config()
-  exp = experiment.setup(config)
-  init = jax.jit(lambda key: field.init_params(exp.model, config, key))  # one compile, not one
-  return exp, scene.from_run(exp), init(jax.random.PRNGKey(3))  # per eager operation
+  """(experiment, its viewer Scene, random variables) of a tiny marching fast-config model."""
+  exp = experiment.setup(small_config(TINY_FAST, base="fast"))
+  init = jax.jit(exp.renderer.init)  # one compile, not one per eager operation
+  return exp, scene.from_run(exp), init(jax.random.PRNGKey(3))
 
 
 def test_viewer_camera_at_a_training_pose_renders_what_render_py_does(tmp_path, tiny_run):
-  exp, view, params = tiny_run
+  exp, view, variables = tiny_run
   train_ds = exp.train_ds
   pose = train_ds.poses[1]
-  outputs.render_views(exp, params, pose[None], str(tmp_path))
+  outputs.render_views(exp, variables, pose[None], str(tmp_path))
 
   wxyz, position = camera.c2w_to_viewer(pose, 2.0)  # what the browser's camera holds
-  out = view.render(view.make_draw(params), camera.viewer_to_c2w(wxyz, position, 2.0),
+  out = view.render(view.make_draw(variables), camera.viewer_to_c2w(wxyz, position, 2.0),
                     train_ds.height, train_ds.width, view.fov())
   expected_depth = np.load(tmp_path / "depth_000.npy")
   assert np.ptp(expected_depth) > 0.01  # not a blank image
   np.testing.assert_allclose(out["depth"], expected_depth, atol=1e-4)
-  rgb = outputs.to_uint8(out["rgb"]).astype(int)
+  rgb = to_uint8(out["rgb"]).astype(int)
   assert np.abs(rgb - imageio.imread(tmp_path / "view_000.png").astype(int)).max() <= 1
 
 
@@ -294,13 +291,14 @@ def _compiled(caplog, fn):
 
 
 def test_after_each_compile_step_frames_of_the_ready_size_compile_nothing(tiny_run, caplog):
-  exp, view, params = tiny_run
-  config = _tiny_fast_config()
-  config.render.march_threshold = 0.0  # every cell kept: rounds select all the samples they can
-  view = dataclasses.replace(view, config=config,  # and a renderer of its own, nothing compiled
-                             make_draw=image_renderer.make_image_renderer(exp.model, config))
-  draw = view.make_draw(params)
-  # Inside a narrow view of the box every sample of every ray is in it (see sample_bounds).
+  exp, view, variables = tiny_run
+  # Every cell kept (march_threshold 0): rounds select all the samples they can.
+  config = small_config(TINY_FAST, base="fast", **{"render.march_threshold": 0.0})
+  view = dataclasses.replace(  # and a renderer of its own, nothing compiled
+      view, config=config, make_draw=image_renderer.make_image_renderer(
+          exp.renderer, experiment.image_settings(config)))
+  draw = view.make_draw(variables)
+  # Inside a narrow view of the box every sample of every ray is in it (see Sampler.bounds).
   pose, fov = np.eye(4, dtype=np.float32), 0.3
   pose[2, 3] = 3.4
   frame = lambda h, w: lambda: view.render(draw, pose, h, w, fov)
@@ -342,7 +340,7 @@ def _until(condition, seconds, what):
 
 
 def test_server_sends_frames_of_ready_heights_before_the_warm_up_ends(tiny_run, monkeypatch):
-  _, view, params = tiny_run
+  _, view, variables = tiny_run
   aspect, real_steps, gate, waited = 1000 / 600, view.compile_steps, threading.Event(), []
   ready_rays = int(np.prod(camera.frame_size(24, aspect)))  # 16 and 24 px frames are ready
 
@@ -356,7 +354,7 @@ def test_server_sends_frames_of_ready_heights_before_the_warm_up_ends(tiny_run, 
   with socket.socket() as s:
     s.bind(("127.0.0.1", 0))
     port = s.getsockname()[1]
-  viewer = server.Viewer(view, params, port=port, still_height=64)
+  viewer = server.Viewer(view, variables, port=port, still_height=64)
   try:  # Viewer() returned (the command prints the address now) with the warm-up running
     assert not viewer.warmed.is_set()
     _until(lambda: viewer.ready_rays == ready_rays, 30, "the first warm-up step")

@@ -16,8 +16,8 @@ import time
 import numpy as np
 import pytest
 
-from nerf_jax.configs import fast
 from nerf_jax import train_lib
+from tests.helpers import small_config
 
 CHROMIUM = os.environ.get("NERF_JAX_CHROMIUM", "/usr/bin/chromium")
 INSTALL = ('apt-get update && apt-get install -y chromium && pip install -e ".[viewer-test]"')
@@ -35,18 +35,11 @@ def _missing():
 pytestmark = pytest.mark.skipif(_missing() is not None, reason=str(_missing()))
 
 
-def _tiny_config():
-  config = fast.get_config()
-  config.data.image_size, config.data.num_views, config.data.holdout_from = 32, 8, 7
-  config.num_samples = 32
-  config.model.grid.resolutions, config.model.width = (16, 32), 32
-  config.train.max_steps = config.train.checkpoint_every = 40
-  config.train.batch_rays, config.train.log_every = 512, 40
-  config.train.tensorboard = False
-  config.render.chunk = 512
-  config.render.after_training = False
-  config.data.background = "white"  # empty space white: a high-contrast frame after few steps
-  return config
+# A tiny fast-config model, 40 steps; empty space white: a high-contrast frame after few steps.
+TINY = {"data.image_size": 32, "data.num_views": 8, "data.holdout_from": 7, "num_samples": 32,
+        "model.grid.resolutions": (16, 32), "model.width": 32, "train.max_steps": 40,
+        "train.checkpoint_every": 40, "train.batch_rays": 512, "train.log_every": 40,
+        "train.tensorboard": False, "render.chunk": 512, "data.background": "white"}
 
 
 def _free_port():
@@ -58,7 +51,7 @@ def _free_port():
 @pytest.fixture(scope="module")
 def workdir(tmp_path_factory):
   path = str(tmp_path_factory.mktemp("viewer_run"))
-  train_lib.train_and_evaluate(_tiny_config(), path)
+  train_lib.train_and_evaluate(small_config(TINY, base="fast"), path)
   return path
 
 
