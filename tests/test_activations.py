@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from nerf_jax import activations, experiment
-from nerf_jax.configs import default
+from tests.helpers import small_config
 
 RAW = np.array([-30.0, -3.0, -1.0, 0.0, 0.5, 1.0, 4.0, 30.0, 87.0, 88.0, 89.0, 200.0])
 
@@ -29,15 +29,9 @@ def test_exp_is_clamped_at_88_with_zero_gradient_above():
   assert np.all(np.isfinite(activations.safe_exp(RAW)))
 
 
-def _train_config(**fields):
-  config = default.get_config().train
-  for k, v in fields.items():
-    config[k] = v
-  return config
-
-
 def test_schedule_warms_up_linearly_then_decays_to_lr_final():
-  tc = _train_config(lr=5e-3, lr_final=1e-4, warmup_steps=50, max_steps=1050)
+  tc = small_config({"train.lr": 5e-3, "train.lr_final": 1e-4, "train.warmup_steps": 50,
+                     "train.max_steps": 1050}, base="default").train
   schedule = experiment.make_schedule(tc)
   lr = lambda step: float(schedule(step))
   assert lr(0) == 0.0
@@ -53,7 +47,8 @@ def test_schedule_warms_up_linearly_then_decays_to_lr_final():
 
 
 def test_schedule_without_warm_up_starts_at_lr():
-  schedule = experiment.make_schedule(_train_config(lr=1e-2, lr_final=1e-3, warmup_steps=0,
-                                                    max_steps=100))
+  schedule = experiment.make_schedule(small_config(
+      {"train.lr": 1e-2, "train.lr_final": 1e-3, "train.warmup_steps": 0,
+       "train.max_steps": 100}, base="default").train)
   assert float(schedule(0)) == pytest.approx(1e-2, rel=1e-6)
   assert float(schedule(100)) == pytest.approx(1e-3, rel=1e-5)

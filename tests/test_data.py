@@ -12,6 +12,7 @@ import pytest
 from nerf_jax import scenes
 from nerf_jax.data import DataError, export, load_blender, load_dataset, load_npz
 from tests.helpers import assert_data_error as _error, blender_folder as _blender
+from tests.helpers import small_config
 
 Q = 1.0 / 255 + 1e-6  # 8-bit quantisation
 
@@ -21,10 +22,11 @@ def fog():
   return scenes.make_dataset("fog", num_views=6, height=16, width=16, focal=22.2)
 
 
-def _config(**kw):
-  return ml_collections.ConfigDict({"path": "", "scene": "diffuse", "holdout_from": -1,
-                                    "num_views": 10, "image_size": 20, "pixel_center": 0.0,
-                                    "background": "black", "half_res": False, **kw})
+# The data section the loaders read: 10 views of 20² of the built-in diffuse scene, the
+# reference's 80/20 split, pixel corners.
+DATA = {"data.path": "", "data.scene": "diffuse", "data.holdout_from": -1, "data.num_views": 10,
+        "data.image_size": 20, "data.pixel_center": 0.0, "data.background": "black",
+        "data.half_res": False}
 
 
 def test_npz_round_trip(fog, tmp_path):
@@ -108,7 +110,7 @@ def test_opaque_blender_export_has_unit_accs(fog, tmp_path):
 
 
 def test_load_dataset_builtin():
-  train, test = load_dataset(_config())
+  train, test = load_dataset(small_config(DATA).data)
   assert (len(train), len(test)) == (8, 2) and train.images.shape == (8, 20, 20, 3)
   assert train.focal == pytest.approx(scenes.TINY_NERF_FOCAL / 5)
   assert train.accs is not None and train.depths.shape == (8, 20, 20)
@@ -116,11 +118,13 @@ def test_load_dataset_builtin():
 
 def test_load_dataset_npz_and_blender(fog, tmp_path):
   export.export_npz(fog, str(tmp_path / "fog.npz"))
-  train, test = load_dataset(_config(path=str(tmp_path / "fog.npz"), holdout_from=4))
+  train, test = load_dataset(small_config(
+      {**DATA, "data.path": str(tmp_path / "fog.npz"), "data.holdout_from": 4}).data)
   np.testing.assert_array_equal(test.images, fog.images[4:])
   np.testing.assert_array_equal(train.poses, fog.poses[:4])
   export.export_blender(fog, str(tmp_path / "blender"), split_at=5)
-  train, test = load_dataset(_config(path=str(tmp_path / "blender"), half_res=True))
+  train, test = load_dataset(small_config(
+      {**DATA, "data.path": str(tmp_path / "blender"), "data.half_res": True}).data)
   assert (len(train), len(test)) == (5, 1) and train.images.shape == (5, 8, 8, 3)
   assert train.focal == pytest.approx(fog.focal / 2)
 
@@ -150,7 +154,8 @@ def _npz(tmp_path, **arrays):
 
 
 def test_npz_errors(tmp_path):
-  _error(["nope.npz", "no such"], load_dataset, _config(path=str(tmp_path / "nope.npz")))
+  _error(["nope.npz", "no such"], load_dataset,
+         small_config({**DATA, "data.path": str(tmp_path / "nope.npz")}).data)
   _error(["'focal'", "has: images, poses"], load_npz, _npz(tmp_path, focal=None))
   _error(["'poses' has 3", "2 views"], load_npz, _npz(tmp_path, poses=np.zeros((3, 4, 4))))
   nan = np.zeros((2, 4, 4, 3))
@@ -163,10 +168,12 @@ def test_npz_errors(tmp_path):
          _npz(tmp_path, images=np.zeros((2, 4, 4, 2))))
   (tmp_path / "notes.txt").write_text("hi")
   _error(["unknown dataset format", "notes.txt"], load_dataset,
-         _config(path=str(tmp_path / "notes.txt")))
-  _error(["unknown dataset format"], load_dataset, _config(path=str(tmp_path)))
-  _error(["data.scene", "'lego'"], load_dataset, _config(scene="lego"))
-  _error(["background"], load_dataset, _config(path=_npz(tmp_path), background="pink"))
+         small_config({**DATA, "data.path": str(tmp_path / "notes.txt")}).data)
+  _error(["unknown dataset format"], load_dataset,
+         small_config({**DATA, "data.path": str(tmp_path)}).data)
+  _error(["data.scene", "'lego'"], load_dataset, small_config({**DATA, "data.scene": "lego"}).data)
+  _error(["background"], load_dataset,
+         small_config({**DATA, "data.path": _npz(tmp_path), "data.background": "pink"}).data)
 
 
 def test_npz_uint8_rgba_composited_on_white(tmp_path):

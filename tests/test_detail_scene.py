@@ -1,17 +1,18 @@
 """The 'detail' scene: exact depth and coverage, textures, gloss, Blender export, cache."""
 
 import dataclasses
-import importlib
 import os
 
 import imageio.v3 as iio
 import numpy as np
 import pytest
 
+from nerf_jax import config_lib
 from nerf_jax import rays as rays_lib
 from nerf_jax import scenes
 from nerf_jax.data import export, loaders
 from nerf_jax.scenes import cache, detail, raycast, tracer
+from tests.helpers import small_config
 
 SCENE = detail.SCENE
 S = SCENE.supersample
@@ -253,14 +254,13 @@ def test_large_renders_are_cached(tmp_path, monkeypatch):
 
 
 def test_default_size_and_config():
-  config = importlib.import_module("nerf_jax.configs.scenes.detail").get_config()
+  config = config_lib.load("scenes/detail")
   assert config.data.image_size == SCENE.image_size == 400 and config.model.view_dependent
   assert SCENE.effects.names() == {"view_dependent"} and SCENE.background == (0.0, 0.0, 0.0)
 
 
 def test_detail_config_loads_the_scene():
-  config = importlib.import_module("nerf_jax.configs.scenes.detail").get_config()
-  config.data.num_views, config.data.image_size = 5, 12
+  config = small_config({"data.num_views": 5, "data.image_size": 12}, base="scenes/detail")
   train, test = loaders.load_dataset(config.data)
   assert (len(train), len(test)) == (4, 1) and train.images.shape[1:] == (12, 12, 3)
   assert train.name == "detail" and 0 < train.accs.mean() < 1

@@ -1,28 +1,22 @@
 """Each per-scene config switches on what its scene calls for, and trains for a few steps."""
 
-import importlib
-
 import numpy as np
 import pytest
 
-from nerf_jax import train_lib
+from nerf_jax import config_lib, train_lib
+from tests.helpers import small_config
 
 SCENES = ["diffuse", "glossy", "fog", "white", "forward"]
 
 
-def _shrunk(name):
-  config = importlib.import_module(f"nerf_jax.configs.scenes.{name}").get_config()
-  config.data.num_views, config.data.image_size, config.data.holdout_from = 6, 16, 5
-  config.model.depth, config.model.width, config.model.skip_layers = 2, 16, (0,)
-  config.num_samples = 8
-  config.num_fine_samples = min(config.num_fine_samples, 8)
-  config.train.max_steps, config.train.batch_rays, config.train.log_every = 3, 64, 3
-  config.render.after_training = False
-  return config
+# configs/scenes/<name>.py shrunk to 3 steps (at most 8 fine samples: see the test).
+SHRUNK = {"data.num_views": 6, "data.image_size": 16, "data.holdout_from": 5, "model.depth": 2,
+          "model.width": 16, "model.skip_layers": (0,), "num_samples": 8, "train.max_steps": 3,
+          "train.batch_rays": 64, "train.log_every": 3}
 
 
 def test_components_match_the_scene():
-  load = lambda n: importlib.import_module(f"nerf_jax.configs.scenes.{n}").get_config()
+  load = lambda n: config_lib.load(f"scenes/{n}")
   assert not load("diffuse").model.view_dependent and load("diffuse").num_fine_samples == 0
   assert load("glossy").model.view_dependent
   assert load("fog").num_fine_samples > 0
@@ -32,5 +26,7 @@ def test_components_match_the_scene():
 
 @pytest.mark.parametrize("name", SCENES)
 def test_scene_config_trains(name, tmp_path):
-  result = train_lib.train_and_evaluate(_shrunk(name), str(tmp_path / name))
+  fine = min(config_lib.load(f"scenes/{name}").num_fine_samples, 8)
+  config = small_config(SHRUNK, base=f"scenes/{name}", num_fine_samples=fine)
+  result = train_lib.train_and_evaluate(config, str(tmp_path / name))
   assert result["steps"] == 3 and np.isfinite(result["psnr"])
