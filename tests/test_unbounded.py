@@ -6,9 +6,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import config_lib, contraction, experiment, model, sampler, sampling
+from nerf_jax import contraction, experiment, model, sampler, sampling
 from nerf_jax.field import Field
 from nerf_jax.rays import Rays
+from tests.helpers import small_config
 
 
 def _rays(num=64, seed=0):
@@ -51,15 +52,8 @@ def test_the_field_sees_contracted_positions():
   assert np.all(far_sigma == 0.0)
 
 
-def _config(**data):
-  config = config_lib.load("debug")
-  for key, value in data.items():
-    config.data[key] = value
-  return config
-
-
 def test_auto_scene_bound_is_the_cameras_box_and_the_grids_span_twice_it(capsys):
-  exp = experiment.setup(_config(scene_bound=-1.0, contraction="linf"))
+  exp = experiment.setup(small_config({"data.scene_bound": -1.0, "data.contraction": "linf"}))
   cameras = float(np.max(np.abs(exp.train_ds.poses[:, :3, 3])))
   assert exp.config.data.scene_bound == pytest.approx(cameras, abs=1e-4)
   assert exp.renderer.sampler.scene_bound == exp.config.data.scene_bound
@@ -68,16 +62,17 @@ def test_auto_scene_bound_is_the_cameras_box_and_the_grids_span_twice_it(capsys)
 
 
 def test_a_box_that_cuts_most_rays_says_so_in_one_line(capsys):
-  experiment.setup(_config(scene_bound=0.5))  # the built-in cameras sit at radius 4
+  experiment.setup(small_config({"data.scene_bound": 0.5}))  # the cameras sit at radius 4
   lines = [l for l in capsys.readouterr().out.splitlines() if "leave the scene box" in l]
   assert len(lines) == 1 and "data.contraction" in lines[0]
-  experiment.setup(_config(scene_bound=0.5, contraction="linf"))  # contracted: nothing cut
+  # Contracted: nothing is cut.
+  experiment.setup(small_config({"data.scene_bound": 0.5, "data.contraction": "linf"}))
   assert "leave the scene box" not in capsys.readouterr().out
 
 
 def test_contraction_refuses_what_it_cannot_do_yet():
-  config = _config(scene_bound=1.5, contraction="linf")
-  config.num_fine_samples = 8
+  config = small_config({"data.scene_bound": 1.5, "data.contraction": "linf",
+                         "num_fine_samples": 8})
   with pytest.raises(ValueError, match="contraction"):
     experiment.make_sampler(config)
 
