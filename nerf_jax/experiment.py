@@ -91,16 +91,18 @@ def setup(config):
 
 def with_scene_extent(config, dataset):
   """`config` with data.scene_bound = -1 (auto) resolved from the data, one line saying how:
-  in an unbounded scene (data.contraction) the inner box holds the cameras (as mip-NeRF 360 and
-  nerfacto normalise); else it is the data's own box (Dataset.aabb: instant-ngp's aabb_scale
-  or the sparse points), else the cameras' box. The value is recorded in config.json."""
+  in an unbounded scene (data.contraction) the inner box is the subject's (Dataset.core:
+  instant-ngp's unit cube, or the sparse points' box), else the cameras'; in a bounded one it
+  is the data's whole box (Dataset.aabb: instant-ngp's aabb_scale or the sparse points), else
+  the cameras'. The value is recorded in config.json."""
   if config.data.scene_bound != -1:
     return config
-  cameras = float(np.max(np.abs(dataset.poses[:, :3, 3])))
-  if config.data.contraction or dataset.aabb is None:
-    bound, why = cameras, "the cameras' box"
+  box = dataset.core if config.data.contraction else dataset.aabb
+  if box is None:
+    bound, why = float(np.max(np.abs(dataset.poses[:, :3, 3]))), "the cameras' box"
   else:
-    bound, why = float(np.max(np.abs(dataset.aabb))), "the data's box (aabb)"
+    bound = float(np.max(np.abs(box)))
+    why = "the subject's box (core)" if config.data.contraction else "the data's box (aabb)"
   config = ml_collections.ConfigDict(config.to_dict())
   config.data.scene_bound = round(bound, 4)
   beyond = f", contracted ({config.data.contraction}) beyond" if config.data.contraction else ""

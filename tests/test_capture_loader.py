@@ -271,6 +271,9 @@ def test_aabb_from_aabb_scale_by_hand(tmp_path):
   path = _numbered(tmp_path / "a", 2, {"aabb_scale": 4})  # nerf_jax_normalized: no transform
   np.testing.assert_allclose(nerfstudio.load(path)[0].aabb, [[-2 / 0.33] * 3, [2 / 0.33] * 3],
                              rtol=1e-6)
+  # The subject's box (core): instant-ngp's unit cube, aabb_scale 1: +-0.5 / 0.33.
+  np.testing.assert_allclose(nerfstudio.load(path)[0].core,
+                             [[-0.5 / 0.33] * 3, [0.5 / 0.33] * 3], rtol=1e-6)
   # The file's scale and offset: x = (ngp - offset) / scale, ngp in [-0.5, 1.5].
   (tmp_path / "b").mkdir()
   path = _numbered(tmp_path / "b", 2, {"aabb_scale": 2, "scale": 0.5, "offset": [0.5, 0.4, 0.6]})

@@ -33,6 +33,8 @@ class Dataset:
   aabb: float32 [2, 3] or None, (min, max) corner in world units of the box the data says holds
     the scene (transforms.json: instant-ngp's aabb_scale, else the sparse points); scene-wide,
     so subsets keep it. None when the data does not say.
+  core: float32 [2, 3] or None, the box of the subject within it (instant-ngp's unit cube, else
+    the sparse points' box): the inner region of an unbounded scene. None when unknown.
   """
   images: np.ndarray
   poses: np.ndarray
@@ -46,6 +48,7 @@ class Dataset:
   forward_facing: bool = False
   pixel_center: float = 0.5
   aabb: Optional[np.ndarray] = None
+  core: Optional[np.ndarray] = None
 
   @property
   def height(self):

@@ -213,9 +213,10 @@ def _drop_blurry(found, min_sharpness, meta_path):
   return [f for f, kept in zip(found, keep) if kept]
 
 
-def ngp_box(meta, meta_path):
+def ngp_box(meta, meta_path, unit=False):
   """The scene box instant-ngp's `aabb_scale` gives, in the file's world coordinates: float64
-  [2, 3] (min and max corner), or None without aabb_scale.
+  [2, 3] (min and max corner), or None without aabb_scale. unit: the box of aabb_scale 1
+  instead, instant-ngp's unit cube (where its captures are sized to put the subject).
 
   instant-ngp (src/nerf_loader.cu, nerf_matrix_to_ngp) maps a world point x to ngp space as
   x * scale + offset (then cycles the axes; defaults scale 0.33, offset (0.5, 0.5, 0.5), the
@@ -232,6 +233,7 @@ def ngp_box(meta, meta_path):
     raise DataError(f"{meta_path}: aabb_scale={k:g} and scale={scale:g} must be positive")
   if offset.shape not in ((), (3,)) or not np.isfinite(offset).all():
     raise DataError(f"{meta_path}: 'offset' must be one number or three, got {offset.tolist()}")
+  k = 1.0 if unit else k
   corners = np.array([[0.5 - 0.5 * k], [0.5 + 0.5 * k]])
   return (corners - np.broadcast_to(offset, (3,))) / scale
 
@@ -245,7 +247,8 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
   0 = keep all). Returns (Dataset, names, test_names): names, the frames' file_path values in
   the Dataset's order; test_names, the set of them the file names as test (or val) images, or
   None. Dataset.aabb: `ngp_box` where the file has aabb_scale, else `orient.points_box` of
-  ply_file_path's points, else None; carried with the poses into the Dataset's frame.
+  ply_file_path's points, else None; Dataset.core: instant-ngp's unit cube where the file has
+  aabb_scale, else the points' box; both carried with the poses into the Dataset's frame.
   """
   meta_path = path if path.endswith(".json") else os.path.join(path, FILENAME)
   root = os.path.dirname(meta_path)
@@ -284,8 +287,9 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
     near, far = orient.depth_bounds(poses, points)
   near = validate.scalar(near if near is not None else 2.0, f"{meta_path}: 'near'")
   far = validate.scalar(far if far is not None else 6.0, f"{meta_path}: 'far'")
-  box = ngp_box(meta, meta_path)
+  box, unit = ngp_box(meta, meta_path), ngp_box(meta, meta_path, unit=True)
   aabb = orient.points_box(points) if box is None else orient.carry_box(transform, box)
+  core = orient.points_box(points) if unit is None else orient.carry_box(transform, unit)
   has_alpha = any(im.shape[-1] == 4 for im in images)
   bg = parse_background(background)
   rgb = np.empty((len(images), *images[0].shape[:2], 3), np.float32)
@@ -300,7 +304,8 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
                     accs=accs if has_alpha else None,  # RGB: unknown
                     background=tuple(bg.tolist()),
                     pixel_center=0.0,  # the intrinsics hold cx - 0.5: rays through centres
-                    aabb=None if aabb is None else aabb.astype(np.float32))
+                    aabb=None if aabb is None else aabb.astype(np.float32),
+                    core=None if core is None else core.astype(np.float32))
   return dataset, names, _test_names(meta, names)
 
 
