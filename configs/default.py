@@ -22,7 +22,7 @@ def get_config():
   data.image_size = 100  # built-in scene: height = width in pixels
   data.holdout_from = -1  # views[holdout_from:] are test views; -1 = the reference's 80/20 split
   data.pixel_center = -1.0  # -1 = the data's own (0.5 centres; 0 corners for tiny_nerf .npz)
-  data.background = "black"  # 'black', 'white', 'random' (training) or an RGB triple
+  data.background = "black"  # 'black', 'white' or an RGB triple: rendered and scored on
   data.half_res = False  # Blender data: load at half resolution
   data.factor = 1  # LLFF and transforms.json data: downsample images by this integer factor
   data.bd_factor = 0.75  # LLFF data: scale so the nearest bound is 1/bd_factor (0 = keep units)

@@ -115,9 +115,11 @@ CUT_SHARE = 0.25  # a run warns when more training rays than this leave the box 
 
 def warn_if_cut(exp, num_rays=1024):
   """One line when many training rays leave the scene box before their far bound: what lies
-  beyond is cut from the model (a bounded box on a real capture)."""
+  beyond is cut from the model (a bounded box on a real capture). Data with opacity (RGBA,
+  built-in scenes) says where the scene is empty, so nothing is cut there: no line."""
   sampler = exp.renderer.sampler
-  if sampler.scene_bound <= 0 or sampler.contraction or exp.config.data.ndc:
+  if (sampler.scene_bound <= 0 or sampler.contraction or exp.config.data.ndc
+      or exp.train_ds.accs is not None):
     return
   ds, rng = exp.train_ds, np.random.default_rng(0)
   height, width, intrinsics = exp.camera()

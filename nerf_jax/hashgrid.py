@@ -31,8 +31,8 @@ def level_resolutions(num_levels, base, finest):
   is just `base`).
   """
   if num_levels < 1 or base < 2 or finest < base:
-    raise ValueError(f"hash grid: need hash_levels >= 1 and 2 <= hash_base_resolution <= "
-                     f"hash_max_resolution, got {num_levels}, {base}, {finest}")
+    raise ValueError(f"hash grid: need model.hash.levels >= 1 and 2 <= "
+                     f"model.hash.base_resolution <= model.hash.max_resolution, got {num_levels}, {base}, {finest}")
   if num_levels == 1:
     return (int(base),)
   growth = (finest / base) ** (np.arange(num_levels) / (num_levels - 1))
@@ -42,7 +42,7 @@ def level_resolutions(num_levels, base, finest):
 def level_rows(resolutions, log2_size):
   """Rows of each level's table: min(R^3, 2^log2_size), a tuple of ints."""
   if not 1 <= log2_size <= 24:
-    raise ValueError(f"hash_log2_size must be in [1, 24] (2^24 rows per level), got {log2_size}")
+    raise ValueError(f"model.hash.log2_size must be in [1, 24] (2^24 rows per level), got {log2_size}")
   return tuple(min(r ** 3, 2 ** log2_size) for r in resolutions)
 
 
@@ -139,7 +139,7 @@ def encode(table, unit, resolutions, log2_size, dtype="float32"):
   [..., L, 8, F] rows and the interpolation arithmetic, not the table's memory or traffic.
   """
   if dtype not in DTYPES:
-    raise ValueError(f"hash_dtype must be one of {DTYPES}, got {dtype!r}")
+    raise ValueError(f"model.hash.gather_dtype must be one of {DTYPES}, got {dtype!r}")
   rows, weights = corner_rows(unit, resolutions, log2_size)
   if dtype == "float32":
     features = _interpolate(table, rows, weights, jnp.float32)  # [..., L, F]

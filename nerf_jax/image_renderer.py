@@ -1,5 +1,5 @@
 """Rendering images: any number of rays in fixed-size padded chunks (no recompiles, bounded
-memory), on the plain path (renderer.render_rays) or, for models that allow it, with
+memory), on the plain path (renderer.RayRenderer.render) or, for models that allow it, with
 empty-space skipping and early ray termination (empty_space.py).
 
 A draw function takes `rays.Rays` with any batch shape `...` and a background RGB and returns

@@ -119,9 +119,9 @@ def test_level_resolutions_span_base_to_max_geometrically():
   assert hashgrid.level_resolutions(1, 16, 16) == (16,)
   rows = hashgrid.level_rows(res, 19)
   assert rows[:5] == tuple(r ** 3 for r in res[:5]) and set(rows[5:]) == {2 ** 19}
-  with pytest.raises(ValueError, match="hash_max_resolution"):
+  with pytest.raises(ValueError, match="model.hash.max_resolution"):
     hashgrid.level_resolutions(4, 64, 32)
-  with pytest.raises(ValueError, match="hash_log2_size"):
+  with pytest.raises(ValueError, match="model.hash.log2_size"):
     hashgrid.level_rows(res, 30)
 
 
@@ -232,5 +232,5 @@ def test_config_signature_and_errors():
   config.model.encoding = "hashgrid"
   with pytest.raises(ValueError, match="config.model.encoding"):
     experiment.make_field(config)
-  with pytest.raises(ValueError, match="hash_dtype"):
+  with pytest.raises(ValueError, match="model.hash.gather_dtype"):
     hashgrid.encode(jnp.zeros((64, 1)), jnp.zeros((1, 3)), (4,), 6, "float64")

@@ -1,6 +1,8 @@
 """Unbounded scenes end to end: the sampler's placement, the field's contraction, the scene
 extent found from the data, and the one line when rays leave a bounded box."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -61,12 +63,23 @@ def test_auto_scene_bound_is_the_cameras_box_and_the_grids_span_twice_it(capsys)
   assert exp.renderer.field.inner_radius == pytest.approx(cameras, abs=1e-4)
 
 
+def _photos(exp):
+  """`exp` as if its images were photos: no opacity, so where rays end is unknown."""
+  return dataclasses.replace(exp, train_ds=dataclasses.replace(exp.train_ds, accs=None))
+
+
 def test_a_box_that_cuts_most_rays_says_so_in_one_line(capsys):
-  experiment.setup(small_config({"data.scene_bound": 0.5}))  # the cameras sit at radius 4
+  exp = experiment.setup(small_config({"data.scene_bound": 0.5}))  # the cameras sit at radius 4
+  assert "leave the scene box" not in capsys.readouterr().out  # opacity: the rest is empty
+  experiment.warn_if_cut(_photos(exp))
   lines = [l for l in capsys.readouterr().out.splitlines() if "leave the scene box" in l]
   assert len(lines) == 1 and "data.contraction" in lines[0]
+  # A box holding the whole of [near, far] (radius 4 + far 6) cuts nothing.
+  experiment.warn_if_cut(_photos(experiment.setup(small_config({"data.scene_bound": 10.0}))))
+  assert "leave the scene box" not in capsys.readouterr().out
   # Contracted: nothing is cut.
-  experiment.setup(small_config({"data.scene_bound": 0.5, "data.contraction": "linf"}))
+  exp = experiment.setup(small_config({"data.scene_bound": 0.5, "data.contraction": "linf"}))
+  experiment.warn_if_cut(_photos(exp))
   assert "leave the scene box" not in capsys.readouterr().out
 
 

@@ -101,6 +101,15 @@ SWEEPS = {
         Entry("hash occupancy", {**_VIEW, "model.hash.gather_dtype": "float16",
                                  "occupancy.enabled": True}, base="hash"),
     ],
+    # Unbounded scenes (scene `garden`, and one that does not call for it): the scene box of
+    # fast.py against configs/capture.py (contraction beyond the subject's box + occupancy).
+    "contraction": [
+        Entry("box (fast)", base="fast"),
+        Entry("box + occupancy", {"num_samples": 32, "occupancy.enabled": True,
+                                  "occupancy.resolution": 64, "occupancy.probes": 1,
+                                  "train.batch_rays": 4096, "train.lr": 2e-2}, base="fast"),
+        Entry("contracted (capture)", base="capture"),
+    ],
     # Step time against the work per step (rays x samples); run with --steps (equal steps).
     "scaling": [Entry(f"rays={n}", {"train.batch_rays": n}) for n in (128, 512, 2048, 8192, 32768)]
     + [Entry(f"rays=2048 samples={s}", {"train.batch_rays": 2048, "num_samples": s})
@@ -110,7 +119,7 @@ SWEEPS = {
 # Scenes a sweep runs on unless --scenes says otherwise; the effects need scenes that call for
 # them (glossy: view dependence, fog: a soft medium, white: the background) and one that doesn't.
 SCENES = {"effects": ("diffuse", "glossy", "fog", "white"), "occupancy": ("diffuse", "glossy"),
-          "detail": ("detail",)}
+          "detail": ("detail",), "contraction": ("garden", "diffuse")}
 DEFAULT_SCENES = ("diffuse",)
 
 
