@@ -94,7 +94,7 @@ def with_scene_extent(config, dataset):
   in an unbounded scene (data.contraction) the inner box is the subject's (Dataset.core:
   instant-ngp's unit cube, or the sparse points' box), else the cameras'; in a bounded one it
   is the data's whole box (Dataset.aabb: instant-ngp's aabb_scale or the sparse points), else
-  the cameras'. The value is recorded in config.json."""
+  the cameras'. The value (and the grids' box, model.grid_bound) is recorded in config.json."""
   if config.data.scene_bound != -1:
     return config
   box = dataset.core if config.data.contraction else dataset.aabb
@@ -105,6 +105,7 @@ def with_scene_extent(config, dataset):
     why = "the subject's box (core)" if config.data.contraction else "the data's box (aabb)"
   config = ml_collections.ConfigDict(config.to_dict())
   config.data.scene_bound = round(bound, 4)
+  config.model.grid_bound = round(bound, 4)  # a bounded scene's grids cover the box found
   beyond = f", contracted ({config.data.contraction}) beyond" if config.data.contraction else ""
   print(f"scene extent: box ±{bound:.3g} from {why}{beyond} (data.scene_bound)", flush=True)
   return config

@@ -125,3 +125,11 @@ def test_a_capture_video_follows_its_own_trajectory():
   assert steps.max() < 3.0 * np.median(steps)
   # Not an orbit about the origin at the configured radius.
   assert not np.allclose(path, camera_paths.video_poses(dataset, 60)[:len(path)], atol=0.1)
+
+
+def test_an_automatic_bounded_box_is_the_grids_box_too():
+  exp = experiment.setup(small_config({"data.scene_bound": -1.0, "model.encoding": "grid"}))
+  cameras = float(np.max(np.abs(exp.train_ds.poses[:, :3, 3])))  # built-in: no aabb
+  assert exp.config.data.scene_bound == pytest.approx(cameras, abs=1e-4)
+  assert exp.renderer.field.network.bound == pytest.approx(cameras, abs=1e-4)
+  assert exp.renderer.sampler.scene_bound == exp.config.data.scene_bound
