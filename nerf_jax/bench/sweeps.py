@@ -101,14 +101,15 @@ SWEEPS = {
         Entry("hash occupancy", {**_VIEW, "model.hash.gather_dtype": "float16",
                                  "occupancy.enabled": True}, base="hash"),
     ],
-    # Unbounded scenes (scene `garden`, and one that does not call for it): the scene box of
-    # fast.py against configs/capture.py (contraction beyond the subject's box + occupancy).
+    # Unbounded scenes (scene `garden`, and one that does not call for it): a fixed box, the box
+    # found from the data, and the rest of space contracted beyond it (+ occupancy placement).
     "contraction": [
-        Entry("box (fast)", base="fast"),
-        Entry("box + occupancy", {"num_samples": 32, "occupancy.enabled": True,
-                                  "occupancy.resolution": 64, "occupancy.probes": 1,
-                                  "train.batch_rays": 4096, "train.lr": 2e-2}, base="fast"),
-        Entry("contracted (capture)", base="capture"),
+        Entry("box 1.5 (fast)", base="fast"),
+        Entry("auto box (capture)", base="capture"),
+        Entry("contracted", {"data.contraction": "linf", "num_samples": 32,
+                             "occupancy.enabled": True, "occupancy.resolution": 64,
+                             "occupancy.probes": 1, "train.batch_rays": 4096,
+                             "train.lr": 2e-2}, base="capture"),
     ],
     # Step time against the work per step (rays x samples); run with --steps (equal steps).
     "scaling": [Entry(f"rays={n}", {"train.batch_rays": n}) for n in (128, 512, 2048, 8192, 32768)]
