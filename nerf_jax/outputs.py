@@ -27,6 +27,18 @@ def render_frames(exp, variables, poses, scale=1.0):
     yield draw(exp.rays(pose, camera), bg)
 
 
+def follows_trajectory(exp):
+  """Whether the video follows the capture's own path (render.video_path; 'auto': for
+  unbounded scenes and transforms.json captures, whose data found its own box, where an orbit
+  about the origin could fly through walls) instead of an orbit or a spiral."""
+  kind = exp.config.render.video_path
+  if kind not in ("auto", "orbit", "trajectory"):
+    raise ValueError(f"config.render.video_path={kind!r}: use 'auto', 'orbit' or 'trajectory'")
+  if kind == "auto":
+    return bool(exp.config.data.contraction or exp.train_ds.aabb is not None)
+  return kind == "trajectory"
+
+
 def render_video(exp, variables, out_dir, depth_npy=False, show_progress=True, scale=1.0,
                  poses=None):
   """A video as rgb.mp4 and depth.mp4 in `out_dir`: of `poses` (float32 [F, 4, 4]), or of the
@@ -42,7 +54,7 @@ def render_video(exp, variables, out_dir, depth_npy=False, show_progress=True, s
   if poses is None:
     poses = camera_paths.video_poses(exp.train_ds, rc.video_frames, exp.config.data.ndc,
                                      rc.orbit_phi, rc.orbit_radius,
-                                     trajectory=bool(exp.config.data.contraction))
+                                     trajectory=follows_trajectory(exp))
   near, far = exp.near, exp.far
   rgb_frames, depth_frames, depths = [], [], []
   frames = render_frames(exp, variables, poses, scale)

@@ -133,3 +133,17 @@ def test_an_automatic_bounded_box_is_the_grids_box_too():
   assert exp.config.data.scene_bound == pytest.approx(cameras, abs=1e-4)
   assert exp.renderer.field.network.bound == pytest.approx(cameras, abs=1e-4)
   assert exp.renderer.sampler.scene_bound == exp.config.data.scene_bound
+
+
+def test_the_video_path_is_chosen_by_the_data():
+  from nerf_jax import outputs  # pylint: disable=import-outside-toplevel
+  exp = experiment.setup(small_config())
+  assert not outputs.follows_trajectory(exp)  # built-in scene: the orbit
+  box = np.array([[-1.0] * 3, [1.0] * 3], np.float32)
+  captured = dataclasses.replace(exp, train_ds=dataclasses.replace(exp.train_ds, aabb=box))
+  assert outputs.follows_trajectory(captured)  # a transforms.json capture: its own path
+  captured.config.render.video_path = "orbit"
+  assert not outputs.follows_trajectory(captured)
+  captured.config.render.video_path = "circle"
+  with pytest.raises(ValueError, match="video_path"):
+    outputs.follows_trajectory(captured)
