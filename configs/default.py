@@ -32,9 +32,9 @@ def get_config():
   data.ndc = False  # forward-facing scenes: rays in normalized device coordinates, t in [0, 1]
   data.near = 0.0  # near bound override (0 = the dataset's, 2 for tiny_nerf)
   data.far = 0.0  # far bound override (0 = the dataset's, 6 for tiny_nerf)
-  data.scene_bound = 0.0  # half-size of a box holding the scene; only it is sampled (0 = off, -1 = auto)
+  data.scene_bound = 0.0  # half-size of the box sampled (0 = none, -1 = found from the data)
   data.contraction = ""  # unbounded scene: 'linf' or 'l2' contracts the space beyond the box
-  data.inner_fraction = 0.5  # unbounded scene: share of samples inside the box (the rest: to infinity)
+  data.inner_fraction = 0.5  # unbounded scene: share of samples inside the box (the rest beyond)
 
   config.model = model = ml_collections.ConfigDict()
   model.encoding = "posenc"  # 'posenc' (NeRF MLP), 'grid' (dense grids, configs/fast.py), 'hash'

@@ -32,7 +32,8 @@ def level_resolutions(num_levels, base, finest):
   """
   if num_levels < 1 or base < 2 or finest < base:
     raise ValueError(f"hash grid: need model.hash.levels >= 1 and 2 <= "
-                     f"model.hash.base_resolution <= model.hash.max_resolution, got {num_levels}, {base}, {finest}")
+                     f"model.hash.base_resolution <= model.hash.max_resolution, got "
+                     f"{num_levels}, {base}, {finest}")
   if num_levels == 1:
     return (int(base),)
   growth = (finest / base) ** (np.arange(num_levels) / (num_levels - 1))
@@ -42,7 +43,8 @@ def level_resolutions(num_levels, base, finest):
 def level_rows(resolutions, log2_size):
   """Rows of each level's table: min(R^3, 2^log2_size), a tuple of ints."""
   if not 1 <= log2_size <= 24:
-    raise ValueError(f"model.hash.log2_size must be in [1, 24] (2^24 rows per level), got {log2_size}")
+    raise ValueError(f"model.hash.log2_size must be in [1, 24] (2^24 rows per level), got "
+                     f"{log2_size}")
   return tuple(min(r ** 3, 2 ** log2_size) for r in resolutions)
 
 

@@ -2,8 +2,8 @@
 
 The grid (`OccupancySettings`, from config.occupancy) is float32 [R, R, R]: the largest density
 σ found in each cell of the box [-bound, bound]^3 by probes on a sub-cell lattice, max-pooled
-over the neighbouring cells so structure thinner than a cell is not lost (`density_grid` says how thin). Every `update_every`
-steps training probes the density field again at jittered positions (a key folded from the step)
+over the neighbouring cells so structure thinner than a cell is not lost (`density_grid` says
+how thin). Every `update_every` steps training probes the density field again at jittered positions (a key folded from the step)
 and keeps max(decay·old, new) (Instant-NGP's update, `accumulate`): probes add up across refreshes
 and density that has gone is forgotten. The grid is not trained: it lives beside the parameters,
 as the train state's buffers['occupancy'] (checkpointed and restored with them, so a resumed run
