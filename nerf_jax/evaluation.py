@@ -14,10 +14,10 @@ from nerf_jax import background, image_renderer, lpips, metrics, visuals
 
 def make_evaluator(exp):
   """fn(variables, max_views=None, out_dir=None, on_view=None) -> {'psnr', 'ssim', 'lpips',
-  'per_view'} (variables: a TrainState's, renderer.py); without LPIPS (the `lpips` extra
-  missing, or images under 31 px a side) the 'lpips' keys are absent and 'lpips_skipped' says why in one line. Where the data has true
-  opacity (and depth) the view means of `geometry_errors` come too: 'empty_opacity',
-  'floaters' (and 'depth_error').
+  'per_view'} (variables: a TrainState's, renderer.py); without LPIPS (the `lpips` extra missing, or
+  images under 31 px a side) the 'lpips' keys are absent and 'lpips_skipped' says why in one line.
+  Where the data has true opacity (and depth) the view means of `geometry_errors` come too:
+  'empty_opacity', 'floaters' (and 'depth_error').
 
   Evaluates the test views of `exp` (an experiment.Experiment). With `out_dir`, writes per view
   a PNG of [prediction | depth | ground truth] and depth `.npy`. on_view(index, out, truth) is

@@ -1,13 +1,13 @@
 """Empty-space skipping: an occupancy grid over the scene box, and sampling only where it is full.
 
-The grid (`OccupancySettings`, from config.occupancy) is float32 [R, R, R]: the largest density
-σ found in each cell of the box [-bound, bound]^3 by probes on a sub-cell lattice, max-pooled
-over the neighbouring cells so structure thinner than a cell is not lost (`density_grid` says
-how thin). Every `update_every` steps training probes the density field again at jittered positions (a key folded from the step)
-and keeps max(decay·old, new) (Instant-NGP's update, `accumulate`): probes add up across refreshes
-and density that has gone is forgotten. The grid is not trained: it lives beside the parameters,
-as the train state's buffers['occupancy'] (checkpointed and restored with them, so a resumed run
-uses exactly the grid it would have).
+The grid (`OccupancySettings`, from config.occupancy) is float32 [R, R, R]: the largest density σ
+found in each cell of the box [-bound, bound]^3 by probes on a sub-cell lattice, max-pooled over the
+neighbouring cells so structure thinner than a cell is not lost (`density_grid` says how thin).
+Every `update_every` steps training probes the density field again at jittered positions (a key
+folded from the step) and keeps max(decay·old, new) (Instant-NGP's update, `accumulate`): probes add
+up across refreshes and density that has gone is forgotten. The grid is not trained: it lives beside
+the parameters, as the train state's buffers['occupancy'] (checkpointed and restored with them, so a
+resumed run uses exactly the grid it would have).
 
 Sampling with static shapes: each ray's segment inside the box is cut into M candidate intervals
 of width Δ = segment / M; the occupied candidates, in order, are dealt into K = num_samples
