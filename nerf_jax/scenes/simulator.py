@@ -8,8 +8,6 @@ Objects are solids: a ray whose near plane starts inside one terminates at `near
 Only the effects the scene declares are computed (`Scene.effects`).
 """
 
-import functools
-
 import jax
 import numpy as np
 
