@@ -134,8 +134,8 @@ def warn_if_cut(exp, num_rays=1024):
   if share > CUT_SHARE:
     print(f"note: {100 * share:.0f}% of training rays leave the scene box "
           f"(±{sampler.scene_bound:g}) before their far bound ({exp.far:.3g}): what lies "
-          "beyond is not modelled; for a room or a garden set data.contraction='linf' "
-          "(configs/capture.py) or a larger data.scene_bound", flush=True)
+          "beyond is not modelled; for a garden or a street set data.contraction='linf' "
+          "(docs/real_captures.md) or a larger data.scene_bound", flush=True)
 
 
 ENCODINGS = ("posenc", "grid", "hash")
