@@ -205,8 +205,9 @@ def test_video_in_posed_dataset_out(tmp_path):
             .round().astype(np.uint8) for p in poses]
   iio.imwrite(tmp_path / "orbit.mp4", np.stack(frames), fps=24, codec="libx264", quality=9,
               macro_block_size=1)
+  # One thread: COLMAP repeats itself exactly (with two, 18 of 24 registered once in CI).
   summary = process.process(str(tmp_path / "out"), video=str(tmp_path / "orbit.mp4"),
-                            num_frames=24, log=lambda _: None)
+                            num_frames=24, log=lambda _: None, num_threads=1)
   assert summary["num_images"] == 24 and summary["num_registered"] >= 20
   train, test = nerfstudio.load_split(str(tmp_path / "out"))
   assert len(train) + len(test) == summary["num_registered"] and len(test) >= 3

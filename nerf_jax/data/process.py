@@ -119,10 +119,13 @@ def _gather(image_dir, images, video, num_frames, log):
 
 
 def process(out_dir, images="", video="", num_frames=100, matcher="auto",
-            camera_model="SIMPLE_RADIAL", single_camera=True, min_registered=0.5, log=print):
+            camera_model="SIMPLE_RADIAL", single_camera=True, min_registered=0.5, log=print,
+            num_threads=-1):
   """Photos (`images`, a directory) or a `video` -> a posed dataset in `out_dir`.
 
   min_registered: float, the fraction of images that must be registered (else SfmError).
+  num_threads: COLMAP's threads (-1 = all cores; 1 = the same result on every run: with
+  several threads the order of matches and registrations varies, and so can the outcome).
   Returns a summary dict: num_images, num_registered, mean_error (px), num_points, seconds
   {stage: s}, and `write_dataset`'s fields.
   """
@@ -143,7 +146,7 @@ def process(out_dir, images="", video="", num_frames=100, matcher="auto",
   matcher = sfm.choose_matcher(matcher, len(names), ordered=bool(video))
   log(f"[2/4] structure from motion ({matcher} matching, {camera_model} camera)")
   rec, seconds = sfm.reconstruct(image_dir, work_dir, matcher, camera_model, single_camera,
-                                 log=log)
+                                 num_threads=num_threads, log=log)
   registered = 0 if rec is None else len(rec.names)
   if registered < max(3, min_registered * len(names)):
     raise sfm.SfmError(
