@@ -84,8 +84,8 @@ class RayRenderer:
       extra = sampling.sample_pdf(t, outputs["coarse"]["weights"], self.num_fine_samples,
                                   keys[2])
       fine = sampler_lib.on_edges(sampling.merge_edges(t, extra))
-      outputs["fine"] = self._shade(params[self.networks[-1]], rays, fine, background, keys[3],
-                                    remat_chunk)
+      outputs["fine"] = self._shade(self.final_params(variables), rays, fine, background,
+                                    keys[3], remat_chunk)
     if self.sampler.scene_bound > 0:
       for out in outputs.values():
         out["depth"] = empty_depth_is_far(out, rays.far)

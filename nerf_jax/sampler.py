@@ -130,7 +130,6 @@ class Sampler:
     (float32 [R, R, R], occupancy.py). key: PRNG key for the jitter (None: deterministic)."""
     if self.occupancy is None:
       return on_edges(self.stratified(rays, key))
-    t_near, t_far = self.bounds(rays)
     oc = self.occupancy
     mask = occupancy.occupied_mask(jax.lax.stop_gradient(grid), oc.threshold)
     if self.contraction:  # candidates spaced as the unbounded samples, looked up contracted
@@ -141,6 +140,7 @@ class Sampler:
       occupied = occupancy.lookup(mask, cells, self.grid_bound)
       starts, ends, valid = occupancy.occupied_slots(edges, occupied, self.num_samples, t_far)
     else:
+      t_near, t_far = self.bounds(rays)
       starts, ends, valid = occupancy.sample_occupied(
           mask, rays.origins, rays.directions, t_near, t_far, self.scene_bound, oc.candidates,
           self.num_samples)
