@@ -58,6 +58,7 @@ def get_config():
   model.density_noise = 0.0  # std of noise added to raw density while training (paper: 1)
   model.shared_fine = False  # one network for coarse and fine passes instead of two
   model.dtype = "float32"  # matmul dtype: float32, bfloat16 or float16
+  model.appearance_dims = 0  # per-training-image appearance code (GLO) for colour; 0 = off
 
   config.occupancy = occ = ml_collections.ConfigDict()
   occ.enabled = False  # sample only in occupied cells of a grid over data.scene_bound's box
@@ -84,6 +85,9 @@ def get_config():
   train.coarse_loss_weight = 1.0  # weight of the coarse pass loss when a fine pass exists
   train.distortion_weight = 0.0  # mip-NeRF 360's distortion loss on the final pass (0 = off)
   train.random_background = False  # data with opacity: composite on random colours (no floaters)
+  train.pose_refinement = False  # learn an SE(3) correction of each training camera (BARF)
+  train.pose_lr = 1e-3  # pose refinement: Adam learning rate of the corrections (same decay)
+  train.pose_coarse_to_fine = (0.1, 0.5)  # posenc bands open between these shares of the steps
   train.log_every = 100  # steps between progress lines and metrics.jsonl records
   train.eval_every = 0  # steps between test-view evaluations (0 = only at the end)
   train.eval_views = 2  # test views rendered for periodic evaluations (the final one uses all)

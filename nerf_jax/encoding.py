@@ -20,10 +20,12 @@ import jax.numpy as jnp
 import numpy as np
 
 
-def positional_encoding(x, num_freqs):
+def positional_encoding(x, num_freqs, band_weights=None):
   """Identity plus sin and cos of 2^k·x for k < num_freqs.
 
-  x: float32 [..., d]. num_freqs: int >= 0. Returns float32 [..., d + 2·d·num_freqs].
+  x: float32 [..., d]. num_freqs: int >= 0. band_weights: None, or float32 [num_freqs] factors
+  of each band's sin and cos (`coarse_to_fine_weights`). Returns float32
+  [..., d + 2·d·num_freqs].
   """
   if num_freqs == 0:
     return x
@@ -31,6 +33,8 @@ def positional_encoding(x, num_freqs):
   scales = jnp.asarray(2.0 ** np.arange(num_freqs), x.dtype)
   scaled = x[..., None, :] * scales[:, None]  # [..., L, d]
   features = jnp.concatenate([jnp.sin(scaled), jnp.cos(scaled)], axis=-1)  # [..., L, 2d]
+  if band_weights is not None:
+    features = features * jnp.asarray(band_weights, x.dtype)[:, None]
   features = features.reshape(*x.shape[:-1], 2 * x.shape[-1] * num_freqs)
   return jnp.concatenate([x, features], axis=-1)
 
@@ -38,3 +42,14 @@ def positional_encoding(x, num_freqs):
 def encoded_width(dim, num_freqs):
   """Width of `positional_encoding` output for `dim` input channels."""
   return dim * (1 + 2 * num_freqs)
+
+
+def coarse_to_fine_weights(alpha, num_freqs):
+  """BARF's window over the bands (Lin et al. 2021, eq. 14): band k has weight
+  (1 - cos(π·clip(alpha - k, 0, 1))) / 2, so bands open one after another as alpha goes from 0
+  to num_freqs; every weight is exactly 1 once alpha >= num_freqs (cos(π) = -1).
+
+  alpha: float32 [] (possibly traced). Returns float32 [num_freqs].
+  """
+  k = jnp.arange(num_freqs, dtype=jnp.float32)
+  return 0.5 * (1.0 - jnp.cos(jnp.pi * jnp.clip(alpha - k, 0.0, 1.0)))

@@ -9,7 +9,12 @@ import os
 import imageio.v2 as imageio
 import numpy as np
 
-from nerf_jax import background, image_renderer, lpips, metrics, visuals
+from nerf_jax import background, image_renderer, lpips, metrics, pose_refinement, visuals
+
+# What metrics.json says about how held-out views were rendered (see `protocols`).
+APPEARANCE_PROTOCOL = "mean code: the mean of the training images' appearance codes"
+POSE_PROTOCOL = ("similarity: the given test poses moved by the similarity (Umeyama) that takes "
+                 "the given training camera centres to the refined ones")
 
 
 def make_evaluator(exp):
@@ -18,6 +23,9 @@ def make_evaluator(exp):
   images under 31 px a side) the 'lpips' keys are absent and 'lpips_skipped' says why in one line.
   Where the data has true opacity (and depth) the view means of `geometry_errors` come too:
   'empty_opacity', 'floaters' (and 'depth_error').
+
+  With appearance codes or refined poses the result also holds the protocol used for the test
+  views (`protocols`) and, where the data knows the true poses, `pose_scores`.
 
   Evaluates the test views of `exp` (an experiment.Experiment). With `out_dir`, writes per view
   a PNG of [prediction | depth | ground truth] and depth `.npy`. on_view(index, out, truth) is
@@ -36,8 +44,9 @@ def make_evaluator(exp):
     count = len(test_ds) if max_views is None else min(max_views, len(test_ds))
     per_view = []
     draw = make_draw(variables)
+    poses = held_out_poses(exp, variables)
     for i in range(count):
-      out = draw(exp.rays(test_ds.poses[i], camera), bg)
+      out = draw(exp.rays(poses[i], camera), bg)
       truth = truths[i]
       view = {"view": i, "psnr": float(metrics.psnr(out["rgb"], truth)),
               "ssim": float(metrics.ssim(out["rgb"], truth)),
@@ -53,6 +62,8 @@ def make_evaluator(exp):
     result = {name: float(np.mean([v[name] for v in per_view if name in v])) for name in names}
     if lpips_skipped is not None:
       result["lpips_skipped"] = lpips_skipped
+    result.update(protocols(exp, variables))
+    result.update(pose_scores(exp, variables))
     result["per_view"] = per_view
     if out_dir:
       with open(os.path.join(out_dir, "metrics.json"), "w") as f:
@@ -60,6 +71,53 @@ def make_evaluator(exp):
     return result
 
   return evaluate
+
+
+def refined_poses(exp, variables):
+  """The training cameras float32 [N, 4, 4] as refined (train.pose_refinement: params['poses']
+  holds their corrections), or None without refinement."""
+  corrections = variables["params"].get("poses")
+  if corrections is None:
+    return None
+  return np.asarray(pose_refinement.corrected(exp.train_ds.poses, corrections))
+
+
+def held_out_poses(exp, variables):
+  """The test views' cameras float32 [T, 4, 4] in the frame the field was learnt in: as given,
+  or with refined training cameras moved by POSE_PROTOCOL's similarity."""
+  refined = refined_poses(exp, variables)
+  if refined is None:
+    return exp.test_ds.poses
+  similarity = pose_refinement.align(exp.train_ds.poses[:, :3, 3], refined[:, :3, 3])
+  return pose_refinement.transform(exp.test_ds.poses, similarity)
+
+
+def protocols(exp, variables):
+  """{'appearance': ..., 'held_out_poses': ...}: how the test views were rendered, for the
+  models that need saying (appearance codes, refined poses); {} otherwise."""
+  out = {}
+  if exp.renderer.field.uses_images:
+    out["appearance"] = APPEARANCE_PROTOCOL
+  if refined_poses(exp, variables) is not None:
+    out["held_out_poses"] = POSE_PROTOCOL
+  return out
+
+
+def pose_scores(exp, variables):
+  """Where the training data knows its true poses (`Dataset.true_poses`, a simulated pose
+  error): how far the given and the refined training cameras are from them, aligned
+  (pose_refinement.pose_errors): pose_error_given_degrees, pose_error_given_translation and,
+  with refinement, pose_error_degrees, pose_error_translation. {} otherwise."""
+  true = exp.train_ds.true_poses
+  if true is None:
+    return {}
+  scores = {f"pose_error_given_{k}": v
+            for k, v in pose_refinement.pose_errors(exp.train_ds.poses, true).items()}
+  refined = refined_poses(exp, variables)
+  if refined is not None:
+    scores.update({f"pose_error_{k}": v
+                   for k, v in pose_refinement.pose_errors(refined, true).items()})
+  return scores
 
 
 OPAQUE, EMPTY = 0.99, 0.01  # true opacity of pixels scored for depth, and of empty pixels

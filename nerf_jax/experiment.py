@@ -83,7 +83,7 @@ def setup(config):
   pixel_center(config, train_ds)  # a bad value fails here, naming the field
   near, far = bounds(config, train_ds)
   config = with_scene_extent(config, train_ds)
-  exp = Experiment(config, make_ray_renderer(config), image_settings(config),
+  exp = Experiment(config, make_ray_renderer(config, len(train_ds)), image_settings(config),
                    make_optimizer(config.train), train_ds, test_ds, near, far)
   warn_if_cut(exp)
   return exp
@@ -141,15 +141,21 @@ def warn_if_cut(exp):
 ENCODINGS = ("posenc", "grid", "hash")
 
 
-def make_field(config):
+def make_field(config, num_images=1):
   """The Field of `config.model` (and the top-level encoding bands): the network of
   `model.encoding`, built from the encoding's own subsection (model.grid, model.hash) and the
-  head's fields."""
+  head's fields. num_images: training images, the rows of the appearance codes' table
+  (model.appearance_dims > 0)."""
   m = config.model
   if m.encoding not in ENCODINGS:
     raise ValueError(f"config.model.encoding must be 'posenc', 'grid' or 'hash', got "
                      f"{m.encoding!r}")
+  if m.appearance_dims < 0:
+    raise ValueError(f"config.model.appearance_dims={m.appearance_dims}: use 0 (off) or the "
+                     "length of each training image's appearance code (e.g. 8)")
   head = dict(view_dependent=m.view_dependent, view_width=m.view_width, dtype=m.dtype)
+  if m.appearance_dims:  # only then, so the networks of runs without codes stay as they were
+    head.update(appearance_images=max(int(num_images), 1), appearance_dims=m.appearance_dims)
   if m.encoding == "posenc":
     network = model.NerfMLP(depth=m.depth, width=m.width, skip_layers=tuple(m.skip_layers),
                             **head)
@@ -160,7 +166,7 @@ def make_field(config):
     network = grids(**m[m.encoding], bound=bound, hidden=m.width, **head)
   return Field(network, config.pos_encode_dims if m.encoding == "posenc" else None,
                config.dir_encode_dims, m.view_dependent, m.density_activation, m.density_noise,
-               config.data.contraction, max(config.data.scene_bound, 1e-6))
+               config.data.contraction, max(config.data.scene_bound, 1e-6), m.appearance_dims)
 
 
 def make_sampler(config):
@@ -190,9 +196,11 @@ def make_sampler(config):
                  config.data.inner_fraction)
 
 
-def make_ray_renderer(config):
-  """The RayRenderer of `config`: its field, its sampler and the fine pass."""
-  return RayRenderer(make_field(config), make_sampler(config), config.num_fine_samples,
+def make_ray_renderer(config, num_images=1):
+  """The RayRenderer of `config`: its field, its sampler and the fine pass (num_images: see
+  `make_field`)."""
+  return RayRenderer(make_field(config, num_images), make_sampler(config),
+                     config.num_fine_samples,
                      config.model.shared_fine)
 
 
@@ -255,11 +263,19 @@ def make_schedule(train_config, planned_steps=None):
 
 
 def make_optimizer(train_config, planned_steps=None):
-  """Adam on the schedule (see `make_schedule`), with optional global-norm gradient clipping."""
-  adam = optax.adam(make_schedule(train_config, planned_steps))
+  """Adam on the schedule (see `make_schedule`), with optional global-norm gradient clipping.
+  With train.pose_refinement the camera corrections (params['poses']) have an Adam of their
+  own, on the same schedule scaled to train.pose_lr."""
+  schedule = make_schedule(train_config, planned_steps)
+  adam = optax.adam(schedule)
   if train_config.grad_clip > 0:
-    return optax.chain(optax.clip_by_global_norm(train_config.grad_clip), adam)
-  return adam
+    adam = optax.chain(optax.clip_by_global_norm(train_config.grad_clip), adam)
+  if not train_config.pose_refinement:
+    return adam
+  ratio = train_config.pose_lr / train_config.lr
+  poses = optax.adam(lambda count: ratio * schedule(count))
+  labels = lambda params: {k: "poses" if k == "poses" else "field" for k in params}
+  return optax.multi_transform({"field": adam, "poses": poses}, labels)
 
 
 # Encoding fields that do not fix the parameters' shapes or meaning (left out of the signature).
@@ -286,6 +302,10 @@ def model_signature(config):
     signature.update(flat("hash"))
   if config.occupancy.enabled:
     signature.update(occupancy_resolution=config.occupancy.resolution)
+  if m.appearance_dims:  # only then, so older checkpoints stay valid
+    signature.update(appearance_dims=m.appearance_dims)
+  if config.train.pose_refinement:
+    signature.update(pose_refinement=True)
   return signature
 
 
@@ -293,6 +313,8 @@ def init_state(exp):
   """A fresh TrainState of `exp` (parameters from config.seed)."""
   buffers = exp.renderer.init(jax.random.PRNGKey(exp.config.seed))
   params = buffers.pop("params")
+  if exp.config.train.pose_refinement:  # a correction per training image, zero = as given
+    params["poses"] = jnp.zeros((len(exp.train_ds), 6), jnp.float32)
   return TrainState(step=jnp.array(0, jnp.int32), params=params, opt_state=exp.tx.init(params),
                     bad_step=jnp.array(-1, jnp.int32), buffers=buffers)
 

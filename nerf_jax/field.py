@@ -5,7 +5,10 @@ rgb float32 [..., S, 3] and density sigma float32 [..., S] (per unit of world le
 a Flax network (model.py) with the encoding of its inputs (encoding.py; the grid networks take
 raw positions, the grids are their encoding) and the density activation (activations.py).
 `Field` is built once (experiment.make_field) and queried as field.query(params, points,
-viewdirs, key).
+viewdirs, key). Two optional per-query inputs: `image`, int32 [...] the training image of each
+ray, selects its appearance code (appearance_dims > 0; None = the mean code, as for held-out
+views), and `bands`, float32 [], how many positional-encoding bands are open (BARF's
+coarse-to-fine α while poses are refined; None = all, as after training).
 """
 
 import dataclasses
@@ -39,6 +42,12 @@ class Field:
   density_noise: float = 0.0
   contraction: str = ""
   inner_radius: float = 1.0
+  appearance_dims: int = 0
+
+  @property
+  def uses_images(self):
+    """Whether a query takes each ray's training image (its appearance code)."""
+    return self.appearance_dims > 0
 
   def init(self, key):
     """The network's parameters, from PRNG key `key`."""
@@ -48,56 +57,66 @@ class Field:
     dirs = jnp.zeros((1, encoding.encoded_width(3, self.dir_encode_dims)), jnp.float32)
     return self.network.init(key, pos, dirs)["params"]
 
-  def encode_positions(self, points):
-    """The network's position input for points float32 [..., 3]: encoded, or the points
-    (contracted first in an unbounded scene)."""
+  def encode_positions(self, points, bands=None):
+    """The network's position input for points float32 [..., 3]: encoded (with `bands` open,
+    see the module docstring), or the points (contracted first in an unbounded scene)."""
     if self.contraction:
       points = contraction.contract(points, self.inner_radius, self.contraction)
     if self.pos_encode_dims is None:
       return points  # the grids are the encoding
-    return encoding.positional_encoding(points, self.pos_encode_dims)
+    weights = (None if bands is None else
+               encoding.coarse_to_fine_weights(bands, self.pos_encode_dims))
+    return encoding.positional_encoding(points, self.pos_encode_dims, weights)
 
-  def query(self, params, points, viewdirs, key=None):
+  def query(self, params, points, viewdirs, key=None, image=None, bands=None):
     """Colour and density at sample points.
 
     params: the network's parameters. points: float32 [..., S, 3]. viewdirs: float32 [..., 3]
-    unit directions. key: PRNG key for the density noise (None = no noise).
+    unit directions. key: PRNG key for the density noise (None = no noise). image, bands: see
+    the module docstring (image is ignored without appearance codes).
     Returns rgb float32 [..., S, 3], sigma float32 [..., S].
     """
     dir_features = None
     if self.view_dependent:
       dirs = jnp.broadcast_to(viewdirs[..., None, :], points.shape)
       dir_features = encoding.positional_encoding(dirs, self.dir_encode_dims)
-    rgb, raw_sigma = self.network.apply({"params": params}, self.encode_positions(points),
-                                        dir_features)
+    args = (self.encode_positions(points, bands), dir_features)
+    if self.uses_images:
+      args += (image,)
+    rgb, raw_sigma = self.network.apply({"params": params}, *args)
     if key is not None and self.density_noise > 0:
       # The paper's regulariser: noise on the raw output, before the activation keeps sigma >= 0.
       raw_sigma = raw_sigma + self.density_noise * jax.random.normal(key, raw_sigma.shape)
     sigma = activations.density_activation(self.density_activation)(raw_sigma)
     return rgb, sigma
 
-  def query_in_chunks(self, params, points, viewdirs, key=None, chunk=0):
+  def query_in_chunks(self, params, points, viewdirs, key=None, chunk=0, image=None,
+                      bands=None):
     """`query` over chunks of `chunk` rays, each rematerialised in the backward pass.
 
     points: float32 [R, S, 3], viewdirs: float32 [R, 3]. chunk: rays per chunk, dividing R (0,
     R or a non-divisor = one call). A chunk's activations fit in the CPU's cache, and the
     backward pass recomputes them instead of reading them back from memory: about a third more
     FLOPs for less memory traffic. The density noise of chunk c is drawn from fold_in(key, c).
+    image: int32 [R] or None; bands: float32 [] or None (see `query`).
     Returns rgb float32 [R, S, 3], sigma float32 [R, S], equal to `query`'s up to rounding.
     """
     num_rays = points.shape[0]
+    if not self.uses_images:
+      image = None
     if not chunk or chunk >= num_rays or num_rays % chunk or points.ndim != 3:
-      return self.query(params, points, viewdirs, key)
+      return self.query(params, points, viewdirs, key, image, bands)
     count = num_rays // chunk
-    split = lambda a: a.reshape(count, chunk, *a.shape[1:])
+    split = lambda a: None if a is None else a.reshape(count, chunk, *a.shape[1:])
 
     @jax.checkpoint
     def one_chunk(args):
-      pts, dirs, index = args
+      pts, dirs, index, images = args
       chunk_key = None if key is None else jax.random.fold_in(key, index)
-      return self.query(params, pts, dirs, chunk_key)
+      return self.query(params, pts, dirs, chunk_key, images, bands)
 
-    rgb, sigma = jax.lax.map(one_chunk, (split(points), split(viewdirs), jnp.arange(count)))
+    rgb, sigma = jax.lax.map(one_chunk, (split(points), split(viewdirs), jnp.arange(count),
+                                         split(image)))
     return rgb.reshape(*points.shape[:-1], 3), sigma.reshape(points.shape[:-1])
 
   def at_points(self, params, points, viewdirs):

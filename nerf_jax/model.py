@@ -3,6 +3,8 @@
 Inputs are already encoded (see encoding.py):
   pos_features: float32 [..., Dp]  encoded sample positions
   dir_features: float32 [..., Dd]  encoded unit viewing directions (only if view_dependent)
+  image:        int32 [...] or None  training image of each ray (pos_features: [..., S, Dp]),
+                for the per-image appearance code (appearance_dims > 0); None = the mean code
 The networks are built from config.model by experiment.make_field: its encoding's subsection
 (model.grid or model.hash) unpacked into the module's fields.
 Outputs:
@@ -17,6 +19,18 @@ import jax
 import jax.numpy as jnp
 
 from nerf_jax import grid, hashgrid
+
+
+def _appearance_codes(module, image, shape):
+  """Per-training-image appearance codes (GLO, as NeRF-W and nerfacto): `module`'s parameter
+  'appearance', a table float32 [appearance_images, appearance_dims] (zeros at the start).
+  Returns codes [*shape[:-1], dims] for rays' images int32 [...] (shape = the features'
+  [..., S, F]: each ray's code goes to all its samples), or the mean code for image None.
+  A code conditions colour only, never density."""
+  table = module.param("appearance", nn.initializers.zeros,
+                       (module.appearance_images, module.appearance_dims))
+  code = jnp.mean(table, axis=0) if image is None else table[image][..., None, :]
+  return jnp.broadcast_to(code, (*shape[:-1], module.appearance_dims))
 
 
 class NerfMLP(nn.Module):
@@ -34,24 +48,30 @@ class NerfMLP(nn.Module):
   view_dependent: bool = False
   view_width: int = 128
   dtype: str = "float32"
+  appearance_images: int = 1
+  appearance_dims: int = 0
 
   def _dense(self, features, name):
     return nn.Dense(features, dtype=jnp.dtype(self.dtype), param_dtype=jnp.float32, name=name)
 
   @nn.compact
-  def __call__(self, pos_features, dir_features=None):
+  def __call__(self, pos_features, dir_features=None, image=None):
     x = pos_features.astype(jnp.dtype(self.dtype))
     inputs = x
     for i in range(self.depth):
       x = nn.relu(self._dense(self.width, f"layer_{i}")(x))
       if i in self.skip_layers:
         x = jnp.concatenate([x, inputs], axis=-1)
-    if not self.view_dependent:
+    if not self.view_dependent and not self.appearance_dims:
       out = self._dense(4, "output")(x).astype(jnp.float32)
       return nn.sigmoid(out[..., :3]), out[..., 3]
+    # The colour branch of the paper's 5D model: the direction and/or the appearance code.
     raw_sigma = self._dense(1, "sigma")(x)[..., 0].astype(jnp.float32)
     feature = self._dense(self.width, "feature")(x)
-    h = jnp.concatenate([feature, dir_features.astype(feature.dtype)], axis=-1)
+    extra = [dir_features] if self.view_dependent else []
+    if self.appearance_dims:
+      extra.append(_appearance_codes(self, image, feature.shape))
+    h = jnp.concatenate([feature, *(e.astype(feature.dtype) for e in extra)], axis=-1)
     h = nn.relu(self._dense(self.view_width, "view")(h))
     rgb = self._dense(3, "rgb")(h).astype(jnp.float32)
     return nn.sigmoid(rgb), raw_sigma
@@ -64,17 +84,23 @@ class _GridHead(nn.Module):
   view_dependent: bool = False
   view_width: int = 32
   dtype: str = "float32"
+  appearance_images: int = 1
+  appearance_dims: int = 0
 
   def _dense(self, features, name):
     return nn.Dense(features, dtype=jnp.dtype(self.dtype), param_dtype=jnp.float32, name=name)
 
-  def _head(self, h, unit, dir_features):
-    """Density and a feature from one hidden layer, colour from the feature (and direction)."""
+  def _head(self, h, unit, dir_features, image=None):
+    """Density and a feature from one hidden layer, colour from the feature (and direction,
+    and appearance code)."""
     h = nn.relu(self._dense(self.hidden, "hidden")(h))
     raw_sigma = self._dense(1, "sigma")(h)[..., 0].astype(jnp.float32)
     raw_sigma = jnp.where(grid.inside_box(unit), raw_sigma, -1e5)
-    if self.view_dependent:
-      h = jnp.concatenate([h, dir_features.astype(h.dtype)], axis=-1)
+    if self.view_dependent or self.appearance_dims:
+      extra = [dir_features] if self.view_dependent else []
+      if self.appearance_dims:
+        extra.append(_appearance_codes(self, image, h.shape))
+      h = jnp.concatenate([h, *(e.astype(h.dtype) for e in extra)], axis=-1)
       h = nn.relu(self._dense(self.view_width, "view")(h))
     rgb = self._dense(3, "rgb")(h).astype(jnp.float32)
     return nn.sigmoid(rgb), raw_sigma
@@ -94,12 +120,12 @@ class GridNeRF(_GridHead):
   bound: float = 1.5
 
   @nn.compact
-  def __call__(self, points, dir_features=None):
+  def __call__(self, points, dir_features=None, image=None):
     init = lambda key, shape: 1e-2 * jax.random.normal(key, shape, jnp.float32)
     grids = [self.param(f"grid_{r}", init, (r, r, r, self.features)) for r in self.resolutions]
     unit = grid.to_unit_cube(points.astype(jnp.float32), self.bound)
     return self._head(grid.multires_features(grids, unit).astype(jnp.dtype(self.dtype)), unit,
-                      dir_features)
+                      dir_features, image)
 
 
 class HashNeRF(_GridHead):
@@ -119,7 +145,7 @@ class HashNeRF(_GridHead):
   bound: float = 1.5
 
   @nn.compact
-  def __call__(self, points, dir_features=None):
+  def __call__(self, points, dir_features=None, image=None):
     resolutions = hashgrid.level_resolutions(self.levels, self.base_resolution,
                                              self.max_resolution)
     rows = sum(hashgrid.level_rows(resolutions, self.log2_size))
@@ -127,4 +153,4 @@ class HashNeRF(_GridHead):
     table = self.param("hash_table", init, (rows, self.features))
     unit = grid.to_unit_cube(points.astype(jnp.float32), self.bound)
     h = hashgrid.encode(table, unit, resolutions, self.log2_size, self.gather_dtype)
-    return self._head(h.astype(jnp.dtype(self.dtype)), unit, dir_features)
+    return self._head(h.astype(jnp.dtype(self.dtype)), unit, dir_features, image)

@@ -54,22 +54,27 @@ class RayRenderer:
     """The parameters of the network that renders the final pass."""
     return variables["params"][self.networks[-1]]
 
-  def _shade(self, params, rays, samples, background, key, remat_chunk=0):
+  def _shade(self, params, rays, samples, background, key, remat_chunk=0, image=None,
+             bands=None):
     """One pass over `samples` (sampler.Samples) with one network's `params`."""
     points = sampler_lib.points(rays, samples.distances)
-    rgb, sigma = self.field.query_in_chunks(params, points, rays.viewdirs, key, remat_chunk)
+    rgb, sigma = self.field.query_in_chunks(params, points, rays.viewdirs, key, remat_chunk,
+                                            image, bands)
     rgb, sigma = samples.intervals(rgb, sampler_lib.per_unit_t(sigma, rays))
     out = compositing.composite(rgb, sigma, samples.t, background)
     out["t"] = samples.t
     return out
 
-  def render(self, variables, rays, key=None, background=None, remat_chunk=0):
+  def render(self, variables, rays, key=None, background=None, remat_chunk=0, image=None,
+             bands=None):
     """Render a batch of rays with the coarse and (optionally) fine passes.
 
     variables: see the module docstring. rays: Rays [...]. key: PRNG key for stratified jitter,
     resampling and density noise; None renders deterministically. background: None or float32
     broadcastable to [..., 3]. remat_chunk: rays per recomputed field chunk of a pass
-    (Field.query_in_chunks; training sets it, 0 = one call).
+    (Field.query_in_chunks; training sets it, 0 = one call). image: int32 [...] or None, the
+    training image of each ray (its appearance code; None = the mean code). bands: float32 []
+    or None, positional-encoding bands open (BARF; None = all). See field.py.
     Returns {'coarse': pass_output, ['fine': pass_output]}.
     """
     keys = jax.random.split(key, 4) if key is not None else [None] * 4
@@ -78,14 +83,14 @@ class RayRenderer:
     if samples.gapped:  # occupancy-placed slots: few per ray, no chunks needed
       remat_chunk = 0
     outputs = {"coarse": self._shade(params["coarse"], rays, samples, background, keys[1],
-                                     remat_chunk)}
+                                     remat_chunk, image, bands)}
     if self.num_fine_samples > 0:
       t = samples.t
       extra = sampling.sample_pdf(t, outputs["coarse"]["weights"], self.num_fine_samples,
                                   keys[2])
       fine = sampler_lib.on_edges(sampling.merge_edges(t, extra))
       outputs["fine"] = self._shade(self.final_params(variables), rays, fine, background,
-                                    keys[3], remat_chunk)
+                                    keys[3], remat_chunk, image, bands)
     if self.sampler.scene_bound > 0:
       for out in outputs.values():
         out["depth"] = empty_depth_is_far(out, rays.far)

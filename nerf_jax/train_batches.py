@@ -23,6 +23,8 @@ class TrainData:
   rgb: float32 [N, P, 3], target colours composited on the configured background.
   acc: float32 [N, P], ground-truth opacity (ones where unknown), for random backgrounds.
   poses: float32 [N, 4, 4], camera-to-world of each image (with rays None).
+  image, pixel: int32 [B], in a drawn batch (`draw_batch`) the training image of each ray (for
+    its appearance code and its camera's correction) and the pixel's row-major index in it.
   camera: static (height, width, intrinsics, near, far, pixel_center, use_ndc): the arguments
     of `rays.pixel_rays` that every image shares (with rays None).
   """
@@ -30,6 +32,8 @@ class TrainData:
   rgb: jnp.ndarray
   acc: jnp.ndarray
   poses: jnp.ndarray = None
+  image: jnp.ndarray = None
+  pixel: jnp.ndarray = None
   camera: tuple = flax.struct.field(pytree_node=False, default=None)
 
 
@@ -46,15 +50,17 @@ def make_train_data(exp):
                    poses=jnp.asarray(ds.poses, jnp.float32), camera=camera)
 
 
-def _pixel_rays(data, image, pixel):
+def pixel_rays_of(data, image, pixel, poses=None):
   """Rays [B] of pixels `pixel` (int32 [B], row-major index in its image) of images `image`
-  (int32 [B]), made from data.poses and data.camera."""
+  (int32 [B]), made from `poses` (float32 [N, 4, 4]; None = data.poses: the train step passes
+  the refined cameras) and data.camera."""
+  poses = data.poses if poses is None else poses
   height, width, intrinsics, near, far, pixel_center, use_ndc = data.camera
   i = (pixel % width).astype(jnp.float32)
   j = (pixel // width).astype(jnp.float32)
   one = lambda i, j, c2w: pixel_rays(i, j, height, width, intrinsics, c2w, near, far,
                                      pixel_center, use_ndc)
-  return jax.vmap(one)(i, j, data.poses[image])
+  return jax.vmap(one)(i, j, poses[image])
 
 
 def _targets(exp):
@@ -93,8 +99,9 @@ def draw_batch(data, config, key, step=0, run_key=None):
     take = lambda a: a.reshape(-1, *a.shape[2:])[idx]
     image, pixel = idx // num_pixels, idx % num_pixels
   rays = (jax.tree_util.tree_map(take, data.rays) if data.rays is not None else
-          _pixel_rays(data, image, pixel))
-  return TrainData(rays=rays, rgb=take(data.rgb), acc=take(data.acc))
+          pixel_rays_of(data, image, pixel))
+  return TrainData(rays=rays, rgb=take(data.rgb), acc=take(data.acc),
+                   image=image.astype(jnp.int32), pixel=pixel.astype(jnp.int32))
 
 
 def rays_per_step(config, dataset):

@@ -1,6 +1,10 @@
 """The jitted train step: draw a batch, refresh the occupancy grid, render, take a gradient
 step of Adam; a non-finite step is not applied and is reported.
 
+With appearance codes each ray is rendered with its training image's code; with pose refinement
+each ray is made from its camera's corrected pose (pose_refinement.py), so the corrections
+params['poses'] take a gradient, and the positional encoding's bands open coarse to fine.
+
 With several devices each batch is split over them (see parallel.py); the parameters are
 replicated.
 """
@@ -11,8 +15,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from nerf_jax import (background, experiment, metrics, occupancy, parallel, regularizers,
-                      renderer, train_batches)
+from nerf_jax import (background, experiment, metrics, occupancy, parallel, pose_refinement,
+                      regularizers, renderer, train_batches)
 from nerf_jax.experiment import TrainState
 
 
@@ -29,16 +33,33 @@ def make_train_step(exp, mesh=None):
   fixed_background = jnp.asarray(background.parse(config.data.background))
   random_background = background.trains_on_random(config.train.random_background,
                                                   exp.train_ds.accs is not None)
+  refine = config.train.pose_refinement
+  image_of = lambda batch: batch.image if ray_renderer.field.uses_images else None
 
-  def loss_fn(params, buffers, batch, key):
+  def bands_at(step, planned_steps):
+    """BARF's α: positional-encoding bands open between the shares train.pose_coarse_to_fine
+    of the planned steps (None without pose refinement or positional encoding: all open)."""
+    dims = ray_renderer.field.pos_encode_dims
+    if not refine or dims is None:
+      return None
+    start, end = config.train.pose_coarse_to_fine
+    planned = experiment.schedule_steps(config.train) if planned_steps is None else planned_steps
+    share = step.astype(jnp.float32) / jnp.maximum(planned, 1)
+    return dims * jnp.clip((share - start) / max(end - start, 1e-6), 0.0, 1.0)
+
+  def loss_fn(params, buffers, batch, key, data=None, bands=None):
     render_key, bg_key = jax.random.split(key)
     bg, target = fixed_background, batch.rgb
     if random_background:
       # A fresh background per ray: the field cannot bake the background into density.
       bg = jax.random.uniform(bg_key, batch.rgb.shape)
       target = background.recomposite(batch.rgb, batch.acc, fixed_background, bg)
-    outs = ray_renderer.render({"params": params, **buffers}, batch.rays, render_key, bg,
-                               config.train.remat_chunk)
+    rays = batch.rays
+    if refine:  # the rays of the corrected cameras: the corrections take a gradient
+      rays = train_batches.pixel_rays_of(
+          data, batch.image, batch.pixel, pose_refinement.corrected(data.poses, params["poses"]))
+    outs = ray_renderer.render({"params": params, **buffers}, rays, render_key, bg,
+                               config.train.remat_chunk, image_of(batch), bands)
     mses = {name: jnp.mean((out["rgb"] - target) ** 2) for name, out in outs.items()}
     loss = mses["coarse"] if "fine" not in mses else (
         mses["fine"] + config.train.coarse_loss_weight * mses["coarse"])
@@ -69,7 +90,8 @@ def make_train_step(exp, mesh=None):
     batch = parallel.shard_batch(
         train_batches.draw_batch(data, config, batch_key, state.step, run_key), mesh)
     buffers = refresh_occupancy(state, run_key)
-    grads, stats = jax.grad(loss_fn, has_aux=True)(state.params, buffers, batch, render_key)
+    grads, stats = jax.grad(loss_fn, has_aux=True)(state.params, buffers, batch, render_key,
+                                                   data, bands_at(state.step, planned_steps))
     finite = jnp.isfinite(stats["loss"]) & jnp.all(jnp.array(
         [jnp.all(jnp.isfinite(g)) for g in jax.tree_util.tree_leaves(grads)]))
     step_tx = tx if planned_steps is None else experiment.make_optimizer(config.train,

@@ -35,6 +35,8 @@ class Dataset:
     so subsets keep it. None when the data does not say.
   core: float32 [2, 3] or None, the box of the subject within it (instant-ngp's unit cube, else
     the sparse points' box): the inner region of an unbounded scene. None when unknown.
+  true_poses: float32 [N, 4, 4] or None, the poses the images were really taken from where they
+    differ from `poses` and the data knows them (a simulated pose error, scenes/photos.py).
   """
   images: np.ndarray
   poses: np.ndarray
@@ -49,6 +51,7 @@ class Dataset:
   pixel_center: float = 0.5
   aabb: Optional[np.ndarray] = None
   core: Optional[np.ndarray] = None
+  true_poses: Optional[np.ndarray] = None
 
   @property
   def height(self):
@@ -78,7 +81,8 @@ class Dataset:
     """The views `indices` (int array, slice or list), as a new Dataset."""
     take = lambda a: None if a is None else a[indices]
     return dataclasses.replace(self, images=self.images[indices], poses=self.poses[indices],
-                               depths=take(self.depths), accs=take(self.accs))
+                               depths=take(self.depths), accs=take(self.accs),
+                               true_poses=take(self.true_poses))
 
   def split(self, holdout_from=-1):
     """(train, test): views [:holdout_from] and [holdout_from:].

@@ -164,7 +164,8 @@ def load_dataset(config):
         name, num_views=config.num_views, height=size, width=size,
         focal=scenes.TINY_NERF_FOCAL * size / 100,
         pixel_center=0.5 if config.pixel_center == -1 else config.pixel_center)
-    return dataset.split(holdout_from)
+    train, test = dataset.split(holdout_from)
+    return scenes.photographed(train, scenes.get_scene(name).effects), test
   if not os.path.exists(path):
     raise DataError(f"{path}: no such file or directory")
   if os.path.isfile(path) and path.endswith(".npz"):

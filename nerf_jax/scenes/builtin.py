@@ -87,6 +87,10 @@ SCENES = {
     "forward": _forward_scene(),
     "detail": detail.SCENE,
     "garden": garden.scene(_objects()),
+    # `diffuse` as a photographer captures it (scenes/photos.py): per-photo exposure and white
+    # balance, and training poses off by 1° and 2% of the scene's size.
+    "exposure": Scene("exposure", _objects(pedestal=False), Effects(appearance=True)),
+    "perturbed": Scene("perturbed", _objects(pedestal=False), Effects(pose_error=True)),
 }
 
 

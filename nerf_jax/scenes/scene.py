@@ -3,7 +3,9 @@
 A scene is plain, frozen data; `nerf_jax.scenes.simulator` renders it. The `effects` declaration
 is checked against the content (`Scene.__post_init__`) and decides what the simulator computes:
 an effect that is not declared is never evaluated. (`unbounded` asks nothing more of the
-simulator; it tells a renderer that the content reaches beyond a bounded box.)
+simulator; it tells a renderer that the content reaches beyond a bounded box. `appearance` and
+`pose_error` are the capture's, not the content's: scenes/photos.py applies them to the
+training views.)
 """
 
 import dataclasses
@@ -63,6 +65,8 @@ class Effects:
   background: bool = False  # a non-black background
   shadows: bool = False  # opaque objects shadow the directional light
   unbounded: bool = False  # content beyond the cube [-INNER_EXTENT, INNER_EXTENT]^3
+  appearance: bool = False  # training photos differ in exposure and white balance (photos.py)
+  pose_error: bool = False  # the training cameras' poses are off by a known amount (photos.py)
 
   def names(self):
     """The declared effects: frozenset of field names."""

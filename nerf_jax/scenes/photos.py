@@ -1,0 +1,69 @@
+"""What a photographer's capture adds to the simulator's exact views: each photo's own exposure
+and white balance, and camera poses that structure from motion got slightly wrong.
+
+Both apply to the training views of a built-in scene that declares them (`Effects.appearance`,
+`Effects.pose_error`; data/loaders.py): the held-out views keep the neutral look (gain 1) and
+their true poses, so a test score measures the model, not the test photo's own exposure or
+pose error. The amounts are known, so what a model recovers can be measured.
+"""
+
+import dataclasses
+
+import numpy as np
+
+EXPOSURE_STOPS = 0.6  # each photo's exposure: 2^u, u ~ U[-0.6, 0.6] stops
+WHITE_BALANCE = 0.15  # each channel's gain: exp(w), w ~ U[-0.15, 0.15], times the exposure
+POSE_DEGREES = 1.0  # each training camera turns by exactly this about a random axis ...
+SCENE_SIZE = 2.4  # ... (the 360° scenes' content fits in a ball of radius 1.2) ...
+POSE_TRANSLATION = 0.02 * SCENE_SIZE  # ... and moves by exactly 2% of the scene's size
+
+
+def gains(num_views, seed=0):
+  """Per-photo colour gains float32 [N, 3]: exposure times white balance (module constants)."""
+  rng = np.random.default_rng(seed)
+  stops = rng.uniform(-EXPOSURE_STOPS, EXPOSURE_STOPS, (num_views, 1))
+  balance = rng.uniform(-WHITE_BALANCE, WHITE_BALANCE, (num_views, 3))
+  return (2.0 ** stops * np.exp(balance)).astype(np.float32)
+
+
+def with_gains(images, view_gains):
+  """Photos float32 [N, H, W, 3] scaled by their gains float32 [N, 3], clipped to [0, 1] as a
+  sensor saturates."""
+  return np.clip(images * view_gains[:, None, None, :], 0.0, 1.0).astype(np.float32)
+
+
+def rotation(axis_angle):
+  """Rotation matrices float64 [..., 3, 3] of axis-angle vectors float [..., 3] (Rodrigues)."""
+  w = np.asarray(axis_angle, np.float64)
+  theta = np.linalg.norm(w, axis=-1)[..., None, None]
+  k = w / np.maximum(np.linalg.norm(w, axis=-1, keepdims=True), 1e-300)
+  zero = np.zeros_like(k[..., 0])
+  big_k = np.stack([np.stack([zero, -k[..., 2], k[..., 1]], -1),
+                    np.stack([k[..., 2], zero, -k[..., 0]], -1),
+                    np.stack([-k[..., 1], k[..., 0], zero], -1)], -2)
+  return np.eye(3) + np.sin(theta) * big_k + (1 - np.cos(theta)) * big_k @ big_k
+
+
+def perturbed(poses, degrees=POSE_DEGREES, translation=POSE_TRANSLATION, seed=0):
+  """Cameras float32 [N, 4, 4], each turned by exactly `degrees` about a random axis through
+  its centre and moved by exactly `translation` (scene units) in a random direction."""
+  rng = np.random.default_rng(seed)
+  unit = lambda v: v / np.linalg.norm(v, axis=-1, keepdims=True)
+  axes = unit(rng.normal(size=(len(poses), 3)))
+  moves = unit(rng.normal(size=(len(poses), 3))) * translation
+  out = np.array(poses, np.float64)
+  out[:, :3, :3] = out[:, :3, :3] @ rotation(np.radians(degrees) * axes)
+  out[:, :3, 3] += moves
+  return out.astype(np.float32)
+
+
+def photographed(train, effects, seed=0):
+  """The training views `train` (a Dataset) as the capture declaring `effects` took them:
+  per-photo gains (appearance), poses off by a known amount (pose_error; the true ones kept in
+  `Dataset.true_poses`)."""
+  if effects.appearance:
+    train = dataclasses.replace(train, images=with_gains(train.images, gains(len(train), seed)))
+  if effects.pose_error:
+    train = dataclasses.replace(train, poses=perturbed(train.poses, seed=seed),
+                                true_poses=train.poses)
+  return train
