@@ -14,7 +14,7 @@ from nerf_jax import background, image_renderer, lpips, metrics, pose_refinement
 # What metrics.json says about how held-out views were rendered (see `protocols`).
 APPEARANCE_PROTOCOL = "mean code: the mean of the training images' appearance codes"
 POSE_PROTOCOL = ("similarity: the given test poses moved by the similarity (Umeyama) that takes "
-                 "the given training camera centres to the refined ones")
+                 "the given training cameras (centres and axes) to the refined ones")
 
 
 def make_evaluator(exp):
@@ -88,7 +88,7 @@ def held_out_poses(exp, variables):
   refined = refined_poses(exp, variables)
   if refined is None:
     return exp.test_ds.poses
-  similarity = pose_refinement.align(exp.train_ds.poses[:, :3, 3], refined[:, :3, 3])
+  similarity = pose_refinement.align_cameras(exp.train_ds.poses, refined)
   return pose_refinement.transform(exp.test_ds.poses, similarity)
 
 

@@ -62,14 +62,19 @@ class NerfMLP(nn.Module):
       x = nn.relu(self._dense(self.width, f"layer_{i}")(x))
       if i in self.skip_layers:
         x = jnp.concatenate([x, inputs], axis=-1)
-    if not self.view_dependent and not self.appearance_dims:
-      out = self._dense(4, "output")(x).astype(jnp.float32)
-      return nn.sigmoid(out[..., :3]), out[..., 3]
-    # The colour branch of the paper's 5D model: the direction and/or the appearance code.
+    if not self.view_dependent:
+      if not self.appearance_dims:
+        out = self._dense(4, "output")(x).astype(jnp.float32)
+        return nn.sigmoid(out[..., :3]), out[..., 3]
+      # The reference's head split in two: density from x alone, colour from x and the code.
+      raw_sigma = self._dense(1, "sigma")(x)[..., 0].astype(jnp.float32)
+      code = _appearance_codes(self, image, x.shape).astype(x.dtype)
+      rgb = self._dense(3, "rgb")(jnp.concatenate([x, code], axis=-1)).astype(jnp.float32)
+      return nn.sigmoid(rgb), raw_sigma
     raw_sigma = self._dense(1, "sigma")(x)[..., 0].astype(jnp.float32)
     feature = self._dense(self.width, "feature")(x)
-    extra = [dir_features] if self.view_dependent else []
-    if self.appearance_dims:
+    extra = [dir_features]
+    if self.appearance_dims:  # the code joins the direction in the colour branch
       extra.append(_appearance_codes(self, image, feature.shape))
     h = jnp.concatenate([feature, *(e.astype(feature.dtype) for e in extra)], axis=-1)
     h = nn.relu(self._dense(self.view_width, "view")(h))
@@ -96,11 +101,12 @@ class _GridHead(nn.Module):
     h = nn.relu(self._dense(self.hidden, "hidden")(h))
     raw_sigma = self._dense(1, "sigma")(h)[..., 0].astype(jnp.float32)
     raw_sigma = jnp.where(grid.inside_box(unit), raw_sigma, -1e5)
-    if self.view_dependent or self.appearance_dims:
-      extra = [dir_features] if self.view_dependent else []
-      if self.appearance_dims:
-        extra.append(_appearance_codes(self, image, h.shape))
+    extra = [dir_features] if self.view_dependent else []
+    if self.appearance_dims:  # colour only: the code joins h after density is taken from it
+      extra.append(_appearance_codes(self, image, h.shape))
+    if extra:
       h = jnp.concatenate([h, *(e.astype(h.dtype) for e in extra)], axis=-1)
+    if self.view_dependent:
       h = nn.relu(self._dense(self.view_width, "view")(h))
     rgb = self._dense(3, "rgb")(h).astype(jnp.float32)
     return nn.sigmoid(rgb), raw_sigma

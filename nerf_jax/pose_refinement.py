@@ -7,9 +7,9 @@ The corrected camera is c2w @ exp(xi): it turns about its own centre and moves a
 axes, so a correction means the same for every camera wherever it stands. A correction of zeros
 is the identity exactly (exp(0) = I), so refinement starts from the given poses.
 
-Held-out views are taken by cameras that were not refined. `align` fits the similarity
-transform (Umeyama) that takes the given training camera centres to the refined ones, the
-frame the field was learnt in, and `transform` applies it to the held-out poses
+Held-out views are taken by cameras that were not refined. `align_cameras` fits the similarity
+transform (Umeyama) that takes the given training cameras to the refined ones, the frame the
+field was learnt in, and `transform` applies it to the held-out poses
 (evaluation.py); `pose_errors` scores refined cameras against true ones the same way.
 """
 
@@ -79,28 +79,48 @@ def align(src, dst, with_scale=True):
   return scale, rot, mu_d - scale * rot @ mu_s
 
 
+def camera_points(poses):
+  """Each camera's centre and the points one scene unit along its x, y and viewing (-z) axes:
+  float64 [4N, 3] of cameras float [N, 4, 4]. Aligning these instead of the centres alone
+  fixes the rotation even where the centres lie on a line."""
+  poses = np.asarray(poses, np.float64)
+  centres = poses[:, :3, 3]
+  ahead = [centres + sign * poses[:, :3, axis] for axis, sign in ((0, 1), (1, 1), (2, -1))]
+  return np.concatenate([centres, *ahead])
+
+
+def align_cameras(src, dst):
+  """The similarity (`align`) taking cameras src to cameras dst (float [N, 4, 4]), fitted to
+  their `camera_points`."""
+  return align(camera_points(src), camera_points(dst))
+
+
 def transform(poses, similarity):
   """Cameras float [..., 4, 4] moved by `similarity` (s, R, t) of `align`: centres c -> s R c
-  + t, orientations R_c -> R R_c. Returns float32 [..., 4, 4]."""
+  + t, orientations R_c -> R R_c. Returns float64 [..., 4, 4]."""
   scale, rot, trans = similarity
   out = np.array(poses, np.float64)
   out[..., :3, :3] = rot @ out[..., :3, :3]
   out[..., :3, 3] = scale * out[..., :3, 3] @ rot.T + trans
-  return out.astype(np.float32)
+  return out
 
 
 def rotation_degrees(rot_a, rot_b):
   """Angles in degrees float64 [...] of the rotations taking rot_a to rot_b (float [..., 3, 3])."""
   rel = np.swapaxes(np.asarray(rot_a, np.float64), -1, -2) @ np.asarray(rot_b, np.float64)
-  cos = np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
-  return np.degrees(np.arccos(cos))
+  # atan2 of sine and cosine: arccos of the cosine alone loses half the digits near 0.
+  cos = (np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0
+  skew = rel - np.swapaxes(rel, -1, -2)
+  sin = 0.5 * np.linalg.norm(np.stack([skew[..., 2, 1], skew[..., 0, 2], skew[..., 1, 0]], -1),
+                             axis=-1)
+  return np.degrees(np.arctan2(sin, cos))
 
 
 def pose_errors(poses, true_poses):
   """How far cameras `poses` are from `true_poses` (float [N, 4, 4]) once the frame they share
-  is aligned (`align` of the centres, with scale): {'degrees': mean angle of the rotations,
+  is aligned (`align_cameras`, with scale): {'degrees': mean angle of the rotations,
   'translation': mean centre distance, in the true poses' units}."""
-  moved = transform(poses, align(poses[:, :3, 3], true_poses[:, :3, 3]))
+  moved = transform(poses, align_cameras(poses, true_poses))
   true_poses = np.asarray(true_poses, np.float64)
   return {"degrees": float(np.mean(rotation_degrees(moved[:, :3, :3],
                                                               true_poses[:, :3, :3]))),
