@@ -14,6 +14,9 @@ def get_config():
   config.num_fine_samples = 0  # extra samples drawn from the coarse weights (0 = no hierarchy)
   config.pos_encode_dims = 10  # POS_ENCODE_DIMS: frequency bands for positions
   config.dir_encode_dims = 4  # frequency bands for viewing directions (view-dependent model)
+  config.auto = False  # decide the effects and the representation from the data (configs/auto.py)
+  config.auto_decisions = ()  # what auto decided and why, one line each (filled by auto)
+  config.auto_flags = ()  # fields set on the command line (filled by nerf-train): auto keeps them
 
   config.data = data = ml_collections.ConfigDict()
   data.path = ""  # dataset: .npz, Blender, LLFF or transforms.json folder; empty = built-in scene

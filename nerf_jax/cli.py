@@ -117,8 +117,16 @@ def default_workdir(config, config_spec):
   return os.path.join("runs", f"{name}_{data}")
 
 
-def train(config, workdir, config_spec=""):
-  """Train `config` into `workdir` (default: `default_workdir`); returns the final metrics."""
+def override_names(argv):
+  """The dotted fields of the `--config.FIELD=VALUE` arguments in argv."""
+  return tuple(a[len("--config."):].split("=", 1)[0] for a in argv if a.startswith("--config."))
+
+
+def train(config, workdir, config_spec="", overrides=()):
+  """Train `config` into `workdir` (default: `default_workdir`); returns the final metrics.
+  overrides: the fields set on the command line, which config.auto keeps as they are."""
+  if config.auto:
+    config.auto_flags = tuple(overrides)
   parallel.initialize_distributed()
   workdir = workdir or default_workdir(config, config_spec)
   if parallel.is_main_process():
@@ -133,7 +141,8 @@ def train_main(argv=None):
                                            "Training config: a path or a name under configs/.",
                                            lock_config=True, sys_argv=argv)
   workdir = flags.DEFINE_string("workdir", "", "Run directory (default: runs/<config>_<scene>).")
-  app.run(lambda _: run_main(lambda: train(config.value, workdir.value, spec)), argv=argv,
+  app.run(lambda _: run_main(lambda: train(config.value, workdir.value, spec,
+                                            override_names(argv))), argv=argv,
           flags_parser=parse_flags)
 
 

@@ -62,6 +62,7 @@ def train_and_evaluate(config, workdir):
   if main:
     os.makedirs(workdir, exist_ok=True)
   exp = experiment.setup(config)
+  config = exp.config  # as resolved from the data (config.auto, data.scene_bound = -1)
   near, far = exp.near, exp.far
   signature = experiment.model_signature(config)
   state, meta = _start_state(exp, workdir, signature)

@@ -11,6 +11,10 @@ import dataclasses
 
 import numpy as np
 
+# Each draw has a stream of its own: default_rng(seed) alone would repeat the stream the
+# cameras were drawn from (scenes.random_poses), tying a photo's gain to where it stands.
+GAIN_STREAM, POSE_STREAM = 0x6A1, 0x9053
+
 EXPOSURE_STOPS = 0.6  # each photo's exposure: 2^u, u ~ U[-0.6, 0.6] stops
 WHITE_BALANCE = 0.15  # each channel's gain: exp(w), w ~ U[-0.15, 0.15], times the exposure
 POSE_DEGREES = 1.0  # each training camera turns by exactly this about a random axis ...
@@ -20,7 +24,7 @@ POSE_TRANSLATION = 0.02 * SCENE_SIZE  # ... and moves by exactly 2% of the scene
 
 def gains(num_views, seed=0):
   """Per-photo colour gains float32 [N, 3]: exposure times white balance (module constants)."""
-  rng = np.random.default_rng(seed)
+  rng = np.random.default_rng([seed, GAIN_STREAM])
   stops = rng.uniform(-EXPOSURE_STOPS, EXPOSURE_STOPS, (num_views, 1))
   balance = rng.uniform(-WHITE_BALANCE, WHITE_BALANCE, (num_views, 3))
   return (2.0 ** stops * np.exp(balance)).astype(np.float32)
@@ -47,7 +51,7 @@ def rotation(axis_angle):
 def perturbed(poses, degrees=POSE_DEGREES, translation=POSE_TRANSLATION, seed=0):
   """Cameras float32 [N, 4, 4], each turned by exactly `degrees` about a random axis through
   its centre and moved by exactly `translation` (scene units) in a random direction."""
-  rng = np.random.default_rng(seed)
+  rng = np.random.default_rng([seed, POSE_STREAM])
   unit = lambda v: v / np.linalg.norm(v, axis=-1, keepdims=True)
   axes = unit(rng.normal(size=(len(poses), 3)))
   moves = unit(rng.normal(size=(len(poses), 3))) * translation
