@@ -198,7 +198,7 @@ def test_whole_scene_is_in_view():
 
 
 def test_unknown_scene_lists_valid_names():
-  with pytest.raises(ValueError, match="diffuse, fog, forward, garden, glossy, white"):
+  with pytest.raises(ValueError, match="diffuse, exposure, fog, forward, garden, glossy, perturbed"):
     scenes.get_scene("lego")
 
 
