@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from nerf_jax import characterise, config_lib, experiment, scenes
+from nerf_jax import characterise, cli, config_lib, experiment, scenes
 from nerf_jax.data import loaders
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.scenes import photos
@@ -104,3 +104,9 @@ def test_auto_picks_what_the_scene_config_switches_on(scene):
                          c.model.appearance_dims > 0)
   assert expressed(auto) == expressed(hand)
   assert auto.auto_decisions and not auto.auto
+
+
+def test_the_command_line_names_the_fields_it_sets():
+  argv = ["train.py", "--config=auto", "--config.data.ndc=False", "--workdir=w",
+          "--config.train.max_steps=3"]
+  assert cli.override_names(argv) == ("data.ndc", "train.max_steps")
