@@ -113,6 +113,7 @@ def get_config():
   render.orbit_phi = -30.0  # orbit elevation in degrees
   render.orbit_radius = 4.0  # orbit distance from the origin
   render.after_training = True  # train.py renders test views and the video when done
+  render.appearance_protocol = "mean"  # test views' codes: 'mean', or 'left_half' (NeRF-W's)
 
   config.viewer = viewer = ml_collections.ConfigDict()
   viewer.enabled = False  # serve the live viewer (viser) while training: pip install -e ".[viewer]"

@@ -71,9 +71,9 @@ def nearest_cameras(poses):
 
 def colour_spread(dataset):
   """How much photos of nearly the same view differ in exposure and white balance: the median
-  over cameras of the change of log mean colour from its nearest camera's (see the code). With opacity
-  the means are over the subject (weighted by alpha), so a subject that fills more or less of
-  the frame does not count as a change of exposure."""
+  over cameras of the change of log mean colour from its nearest camera's (see the code). With
+  opacity the means are over the subject (weighted by alpha), so a subject that fills more or
+  less of the frame does not count as a change of exposure."""
   images = np.asarray(dataset.images, np.float64).reshape(len(dataset), -1, 3)
   weights = (np.ones(images.shape[:2]) if dataset.accs is None else
              np.asarray(dataset.accs, np.float64).reshape(len(dataset), -1))

@@ -7,12 +7,19 @@ import json
 import os
 
 import imageio.v2 as imageio
+import jax
+import jax.numpy as jnp
 import numpy as np
+import optax
 
-from nerf_jax import background, image_renderer, lpips, metrics, pose_refinement, visuals
+from nerf_jax import background, image_renderer, lpips, metrics, pose_refinement, renderer, visuals
 
 # What metrics.json says about how held-out views were rendered (see `protocols`).
-APPEARANCE_PROTOCOL = "mean code: the mean of the training images' appearance codes"
+APPEARANCE_PROTOCOLS = {
+    "mean": "mean code: the mean of the training images' appearance codes",
+    "left_half": ("left half: a code fitted to each test image's left half (the field frozen), "
+                  "every score over its right half (NeRF-W)")}
+FIT_STEPS, FIT_RAYS, FIT_LR = 100, 1024, 1e-2  # left_half: Adam steps, rays a step, step size
 POSE_PROTOCOL = ("similarity: the given test poses moved by the similarity (Umeyama) that takes "
                  "the given training cameras (centres and axes) to the refined ones")
 
@@ -38,7 +45,10 @@ def make_evaluator(exp):
   test_ds = exp.test_ds
   camera = (test_ds.height, test_ds.width, test_ds.intrinsics)
   truths = background.images_on_background(test_ds, bg)[1]
-  lpips_skipped = lpips.unavailable_reason(test_ds.height, test_ds.width)  # None: LPIPS runs
+  half = appearance_protocol(exp) == "left_half"
+  scored = (lambda a: a[:, test_ds.width // 2:]) if half else (lambda a: a)
+  lpips_skipped = lpips.unavailable_reason(test_ds.height, scored(truths[0]).shape[1])
+  fit_code = make_code_fitter(exp.renderer) if half else None
 
   def evaluate(variables, max_views=None, out_dir=None, on_view=None):
     count = len(test_ds) if max_views is None else min(max_views, len(test_ds))
@@ -46,13 +56,19 @@ def make_evaluator(exp):
     draw = make_draw(variables)
     poses = held_out_poses(exp, variables)
     for i in range(count):
-      out = draw(exp.rays(poses[i], camera), bg)
+      rays = exp.rays(poses[i], camera)
+      if fit_code is not None:  # this view's own code, from its left half
+        left = jax.tree_util.tree_map(lambda a: a[:, :test_ds.width // 2].reshape(
+            -1, *a.shape[2:]), rays)
+        target = jnp.asarray(truths[i][:, :test_ds.width // 2].reshape(-1, 3))
+        draw = make_draw(fit_code(variables, left, target, jnp.asarray(bg, jnp.float32)))
+      out = draw(rays, bg)
       truth = truths[i]
-      view = {"view": i, "psnr": float(metrics.psnr(out["rgb"], truth)),
-              "ssim": float(metrics.ssim(out["rgb"], truth)),
+      view = {"view": i, "psnr": float(metrics.psnr(scored(out["rgb"]), scored(truth))),
+              "ssim": float(metrics.ssim(scored(out["rgb"]), scored(truth))),
               **geometry_errors(out, test_ds, i)}
       if lpips_skipped is None:
-        view["lpips"] = float(lpips.lpips(out["rgb"], truth))
+        view["lpips"] = float(lpips.lpips(scored(out["rgb"]), scored(truth)))
       per_view.append(view)
       if on_view is not None:
         on_view(i, out, truth)
@@ -71,6 +87,57 @@ def make_evaluator(exp):
     return result
 
   return evaluate
+
+
+def appearance_protocol(exp):
+  """config.render.appearance_protocol where the field has appearance codes, else None;
+  ValueError naming the field for an unknown protocol."""
+  protocol = exp.config.render.appearance_protocol
+  if protocol not in APPEARANCE_PROTOCOLS:
+    raise ValueError(f"config.render.appearance_protocol={protocol!r}: use "
+                     f"{' or '.join(map(repr, APPEARANCE_PROTOCOLS))}")
+  return protocol if exp.renderer.field.uses_images else None
+
+
+def with_codes(variables, codes):
+  """`variables` with every row of each network's appearance table set to its code in `codes`
+  ({network: float32 [D]}): rendered without an image index (the mean code), it shows `codes`."""
+  params = dict(variables["params"])
+  for name, code in codes.items():
+    table = params[name]["appearance"]
+    params[name] = {**params[name], "appearance": jnp.broadcast_to(code, table.shape)}
+  return {**variables, "params": params}
+
+
+def make_code_fitter(ray_renderer):
+  """fn(variables, rays: Rays [P], target float32 [P, 3], background float32 [3]) -> variables
+  showing the codes (one per network) fitted to `target` from the training codes' mean: FIT_STEPS
+  Adam steps on FIT_RAYS rays drawn from the P each step, the field frozen (NeRF-W's protocol
+  for held-out views; jitted once for every view of one size)."""
+  tx = optax.adam(FIT_LR)
+
+  @jax.jit
+  def fit(variables, rays, target, bg):
+    codes = {name: jnp.mean(p["appearance"], axis=0)
+             for name, p in variables["params"].items() if isinstance(p, dict) and
+             "appearance" in p}
+
+    def loss(codes, key):
+      pick = jax.random.randint(key, (FIT_RAYS,), 0, target.shape[0])
+      batch = jax.tree_util.tree_map(lambda a: a[pick], rays)
+      out = renderer.final(ray_renderer.render(with_codes(variables, codes), batch,
+                                               background=bg))
+      return jnp.mean((out["rgb"] - target[pick]) ** 2)
+
+    def step(carry, key):
+      codes, opt = carry
+      updates, opt = tx.update(jax.grad(loss)(codes, key), opt)
+      return (optax.apply_updates(codes, updates), opt), None
+
+    keys = jax.random.split(jax.random.PRNGKey(0), FIT_STEPS)
+    (codes, _), _ = jax.lax.scan(step, (codes, tx.init(codes)), keys)
+    return with_codes(variables, codes)
+  return fit
 
 
 def refined_poses(exp, variables):
@@ -97,7 +164,7 @@ def protocols(exp, variables):
   models that need saying (appearance codes, refined poses); {} otherwise."""
   out = {}
   if exp.renderer.field.uses_images:
-    out["appearance"] = APPEARANCE_PROTOCOL
+    out["appearance"] = APPEARANCE_PROTOCOLS[appearance_protocol(exp)]
   if refined_poses(exp, variables) is not None:
     out["held_out_poses"] = POSE_PROTOCOL
   return out

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import experiment, metrics, train_lib
+from nerf_jax import evaluation, experiment, metrics, train_lib
 from nerf_jax.data import loaders
 from nerf_jax.scenes import photos
 from tests.conftest import restored_variables
@@ -81,10 +81,14 @@ def _train_view_scores(workdir, config):
   return float(np.mean(psnrs)), np.array(brightness)
 
 
+@pytest.mark.slow
 def test_codes_absorb_known_per_photo_gains(tmp_path, monkeypatch):
   """The exposure capture at 16 px with exposures spread over ±1.2 stops, a small grid model,
   150 steps: with codes the training views are explained better, and the brightness each code
-  renders follows that photo's gain."""
+  renders follows that photo's gain. Then render.appearance_protocol='left_half' (a code fitted
+  on each test image's left half, scores over the right half): with the held-out views
+  brightened 1.5x (a gain no training code has) the fitted code scores better on the right half
+  than the mean code it starts from."""
   monkeypatch.setattr(photos, "EXPOSURE_STOPS", 1.2)  # a gain the short run cannot miss
   runs = {}
   for dims in (0, 4):
@@ -103,3 +107,16 @@ def test_codes_absorb_known_per_photo_gains(tmp_path, monkeypatch):
   rank = lambda a: np.argsort(np.argsort(a))
   corr = np.corrcoef(rank(brightness), rank(gains))[0, 1]  # Spearman's: clipping bends it
   assert corr > 0.8, (corr, brightness, gains)
+
+  config.render.appearance_protocol = "left_half"
+  exp = experiment.setup(config)
+  exp.test_ds.images[:] = np.clip(1.5 * exp.test_ds.images, 0, 1)
+  variables = restored_variables(workdir)
+  fitted = evaluation.make_evaluator(exp)(variables)
+  monkeypatch.setattr(evaluation, "FIT_STEPS", 0)  # the code stays the mean: the same half
+  unfitted = evaluation.make_evaluator(exp)(variables)
+  assert fitted["appearance"].startswith("left half")
+  assert fitted["psnr"] > unfitted["psnr"] + 0.5, (fitted["psnr"], unfitted["psnr"])
+  config.render.appearance_protocol = "whole"
+  with pytest.raises(ValueError, match="appearance_protocol='whole'"):
+    evaluation.make_evaluator(experiment.setup(config))
