@@ -111,6 +111,13 @@ SWEEPS = {
                              "occupancy.probes": 1, "train.batch_rays": 4096,
                              "train.lr": 2e-2}, base="capture"),
     ],
+    # A photographer's effects (scenes `exposure`, `perturbed`, and `diffuse`, which calls for
+    # neither): per-photo appearance codes and camera pose refinement (appearance_and_poses.md).
+    "photos": [
+        Entry("fast", base="fast"),
+        Entry("appearance codes", {"model.appearance_dims": 8}, base="fast"),
+        Entry("pose refinement", {"train.pose_refinement": True}, base="fast"),
+    ],
     # Step time against the work per step (rays x samples); run with --steps (equal steps).
     "scaling": [Entry(f"rays={n}", {"train.batch_rays": n}) for n in (128, 512, 2048, 8192, 32768)]
     + [Entry(f"rays=2048 samples={s}", {"train.batch_rays": 2048, "num_samples": s})
@@ -120,7 +127,8 @@ SWEEPS = {
 # Scenes a sweep runs on unless --scenes says otherwise; the effects need scenes that call for
 # them (glossy: view dependence, fog: a soft medium, white: the background) and one that doesn't.
 SCENES = {"effects": ("diffuse", "glossy", "fog", "white"), "occupancy": ("diffuse", "glossy"),
-          "detail": ("detail",), "contraction": ("garden", "diffuse")}
+          "detail": ("detail",), "contraction": ("garden", "diffuse"),
+          "photos": ("exposure", "perturbed", "diffuse")}
 DEFAULT_SCENES = ("diffuse",)
 
 
