@@ -58,8 +58,9 @@ class RayRenderer:
              bands=None):
     """One pass over `samples` (sampler.Samples) with one network's `params`."""
     points = sampler_lib.points(rays, samples.distances)
+    extra = {} if image is None and bands is None else {"image": image, "bands": bands}
     rgb, sigma = self.field.query_in_chunks(params, points, rays.viewdirs, key, remat_chunk,
-                                            image, bands)
+                                            **extra)
     rgb, sigma = samples.intervals(rgb, sampler_lib.per_unit_t(sigma, rays))
     out = compositing.composite(rgb, sigma, samples.t, background)
     out["t"] = samples.t
