@@ -15,6 +15,8 @@ from tests.helpers import small_config
 
 def _field_and_params(base, dims, num_images=5):
   config = small_config({"model.appearance_dims": dims}, base=base)
+  if base == "fast":
+    config.model.grid.resolutions = (8, 16)  # small grids: the head is what is tested
   field = experiment.make_field(config, num_images)
   return field, field.init(jax.random.PRNGKey(0))
 
