@@ -44,7 +44,7 @@ def get_config():
   model.grid = grid = ml_collections.ConfigDict()  # the grid encoding (model.GridNeRF)
   grid.resolutions = (32, 64, 128)  # lattice points per side of each level
   grid.features = 4  # features per lattice point
-  grid.density_resolution = 0  # >0: density from a grid of its own with this many points per side
+  grid.density_resolutions = ()  # density from one-channel grids of these sizes; () = from the MLP
   model.hash = hashing = ml_collections.ConfigDict()  # the hash encoding (model.HashNeRF)
   hashing.levels = 16  # resolution levels (configs/hash.py)
   hashing.log2_size = 19  # log2 of the rows of each level's table

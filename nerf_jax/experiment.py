@@ -188,11 +188,11 @@ def make_field(config):
     fields = dict(m[m.encoding])
     if m.encoding == "hash":
       grids = model.HashNeRF
-    elif fields.pop("density_resolution"):  # density from a grid of its own
+    elif fields.pop("density_resolutions"):  # density from a grid of its own
       grids = functools.partial(model.DensityGridNeRF,
-                                density_resolution=m.grid.density_resolution)
+                                density_resolutions=tuple(m.grid.density_resolutions))
       if m.density_activation == "relu":
-        raise ValueError("config.model.grid.density_resolution needs "
+        raise ValueError("config.model.grid.density_resolutions needs "
                          "config.model.density_activation 'softplus' or 'exp': the density "
                          "grid starts below zero, where relu has no gradient")
     else:
@@ -303,7 +303,7 @@ def make_optimizer(train_config, planned_steps=None):
 
 
 # Encoding fields that do not fix the parameters' shapes or meaning (left out of the signature).
-_NOT_IN_SIGNATURE = ("gather_dtype", "density_resolution")
+_NOT_IN_SIGNATURE = ("gather_dtype", "density_resolutions")
 
 
 def model_signature(config):
@@ -328,8 +328,8 @@ def model_signature(config):
     signature.update(occupancy_resolution=config.occupancy.resolution)
   if m.grid_box:  # only then, so older checkpoints stay valid
     signature.update(grid_box=list(m.grid_box))
-  if m.encoding == "grid" and m.grid.density_resolution:  # likewise
-    signature.update(grid_density_resolution=m.grid.density_resolution)
+  if m.encoding == "grid" and m.grid.density_resolutions:  # likewise
+    signature.update(grid_density_resolutions=list(m.grid.density_resolutions))
   return signature
 
 

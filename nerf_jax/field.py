@@ -75,7 +75,7 @@ class Field:
   @property
   def splits_density(self):
     """Whether the network gives density and colour separately (model.DensityGridNeRF)."""
-    return getattr(self.network, "density_resolution", 0) > 0
+    return bool(getattr(self.network, "density_resolutions", ()))
 
   def _activate(self, raw_sigma, key):
     if key is not None and self.density_noise > 0:

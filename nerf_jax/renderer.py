@@ -78,8 +78,8 @@ class RayRenderer:
     """
     sigma = sampler_lib.per_unit_t(self.field.query_density(params, points, key), rays)
     black = jnp.zeros(points.shape, jnp.float32)
-    _, sigma_e = samples.intervals(black, sigma)
-    weights = compositing.composite(black, jax.lax.stop_gradient(sigma_e), samples.t)["weights"]
+    black_e, sigma_e = samples.intervals(black, sigma)
+    weights = compositing.composite(black_e, jax.lax.stop_gradient(sigma_e), samples.t)["weights"]
     if samples.gapped:  # interval 2k is sample k
       weights = weights[..., ::2]
     flat_weights = weights.reshape(-1)

@@ -11,7 +11,7 @@ from nerf_jax import experiment, grid, model, renderer
 from nerf_jax.rays import get_rays, pose_spherical, Rays
 from tests.helpers import small_config
 
-SPLIT = {"model.grid.density_resolution": 16, "model.grid.resolutions": (8, 16),
+SPLIT = {"model.grid.density_resolutions": (8, 16), "model.grid.resolutions": (8, 16),
          "model.view_dependent": True, "num_samples": 24}
 
 
@@ -23,7 +23,7 @@ def _trained_like(params):
   res = params[name].shape[0]
   c = np.linspace(-1.5, 1.5, res)
   x, y, z = np.meshgrid(c, c, c, indexing="ij")
-  ball = np.where(x ** 2 + y ** 2 + z ** 2 < 0.8 ** 2, 4.0, -5.0)
+  ball = np.where(x ** 2 + y ** 2 + z ** 2 < 0.8 ** 2, 4.0, -5.0) / model.DENSITY_GAIN
   params[name] = jnp.asarray(ball[..., None], jnp.float32)
   return params
 
@@ -34,7 +34,7 @@ def _rays():
 
 
 def test_each_half_of_the_split_network_equals_the_whole():
-  net = model.DensityGridNeRF(resolutions=(4, 8), features=2, density_resolution=8,
+  net = model.DensityGridNeRF(resolutions=(4, 8), features=2, density_resolutions=(8,),
                               view_dependent=True)
   points = jax.random.uniform(jax.random.PRNGKey(0), (50, 3), minval=-1.6, maxval=1.6)
   dirs = jax.random.normal(jax.random.PRNGKey(1), (50, 27))
@@ -42,23 +42,27 @@ def test_each_half_of_the_split_network_equals_the_whole():
   rgb, raw = net.apply(variables, points, dirs)
   np.testing.assert_array_equal(net.apply(variables, points, part="density"), raw)
   np.testing.assert_array_equal(net.apply(variables, points, dirs, part="colour"), rgb)
-  density = variables["params"]["density_8"]
   unit = grid.to_unit_cube(points, 1.5)
   inside = np.asarray(grid.inside_box(unit))
-  np.testing.assert_allclose(np.asarray(raw)[inside],
-                             np.asarray(grid.trilinear(density, unit)[..., 0])[inside])
-  assert np.all(np.asarray(raw)[~inside] == -1e5)
-  np.testing.assert_allclose(density, model.INITIAL_RAW_DENSITY)  # a nearly empty start
+  np.testing.assert_allclose(np.asarray(raw)[inside], model.INITIAL_RAW_DENSITY, rtol=1e-6)
+  assert np.all(np.asarray(raw)[~inside] == -1e5)  # a nearly empty start, empty outside
+  density = jax.random.normal(jax.random.PRNGKey(4), variables["params"]["density_8"].shape)
+  variables["params"]["density_8"] = density
+  raw = net.apply(variables, points, part="density")
+  np.testing.assert_allclose(np.asarray(raw)[inside], model.DENSITY_GAIN * np.asarray(
+      grid.trilinear(density, unit)[..., 0])[inside], rtol=1e-5, atol=1e-5)
 
 
-def _renderers(fraction):
-  config = small_config(SPLIT, base="fast", **{"model.colour_fraction": fraction})
+def _renderers(fraction, occupied=False):
+  config = small_config(SPLIT, base="fast", **{"model.colour_fraction": fraction,
+                                                "occupancy.enabled": occupied})
   split = experiment.make_ray_renderer(config)
   return split, renderer.RayRenderer(split.field, split.sampler)
 
 
-def test_a_full_colour_budget_renders_what_the_plain_pass_renders():
-  split, plain = _renderers(1.0)
+@pytest.mark.parametrize("occupied", [False, True])
+def test_a_full_colour_budget_renders_what_the_plain_pass_renders(occupied):
+  split, plain = _renderers(1.0, occupied)
   variables = split.init(jax.random.PRNGKey(0))
   variables["params"]["coarse"] = _trained_like(variables["params"]["coarse"])
   rays = _rays()
@@ -68,8 +72,9 @@ def test_a_full_colour_budget_renders_what_the_plain_pass_renders():
     np.testing.assert_allclose(a[name], b[name], atol=2e-6, err_msg=name)
 
 
-def test_a_partial_budget_errs_by_at_most_the_weight_it_leaves_out():
-  split, plain = _renderers(0.25)
+@pytest.mark.parametrize("occupied", [False, True])
+def test_a_partial_budget_errs_by_at_most_the_weight_it_leaves_out(occupied):
+  split, plain = _renderers(0.25, occupied)
   variables = split.init(jax.random.PRNGKey(0))
   variables["params"]["coarse"] = _trained_like(variables["params"]["coarse"])
   rays = _rays()
@@ -77,6 +82,8 @@ def test_a_partial_budget_errs_by_at_most_the_weight_it_leaves_out():
   want = plain.render(variables, rays)["coarse"]
   weights = np.asarray(want["weights"])  # identical densities: identical weights
   np.testing.assert_allclose(got["weights"], weights, atol=1e-6)
+  if occupied:  # interval 2k is sample k, 2k + 1 the empty gap after it
+    weights = weights[..., ::2]
   k = int(np.ceil(0.25 * weights.size))
   threshold = np.sort(weights.reshape(-1))[-k]
   left_out = np.where(weights >= threshold, 0.0, weights).sum(-1)  # colours lie in (0, 1)
