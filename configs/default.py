@@ -36,15 +36,18 @@ def get_config():
   data.near = 0.0  # near bound override (0 = the dataset's, 2 for tiny_nerf)
   data.far = 0.0  # far bound override (0 = the dataset's, 6 for tiny_nerf)
   data.scene_bound = 0.0  # half-size of the box sampled (0 = none, -1 = found from the data)
+  data.visual_hull = False  # data with opacity: carve the masks' hull; grids and samples fit it
   data.contraction = ""  # unbounded scene: 'linf' or 'l2' contracts the space beyond the box
   data.inner_fraction = 0.5  # unbounded scene: share of samples inside the box (the rest beyond)
 
   config.model = model = ml_collections.ConfigDict()
   model.encoding = "posenc"  # 'posenc' (NeRF MLP), 'grid' (dense grids, configs/fast.py), 'hash'
   model.grid_bound = 1.5  # grid and hash encodings: the grids cover [-bound, bound]^3
+  model.grid_box = ()  # grid encodings: (min x, y, z, max x, y, z) of a tighter box; () = cube
   model.grid = grid = ml_collections.ConfigDict()  # the grid encoding (model.GridNeRF)
   grid.resolutions = (32, 64, 128)  # lattice points per side of each level
   grid.features = 4  # features per lattice point
+  grid.density_resolutions = ()  # density from one-channel grids of these sizes; () = from the MLP
   model.hash = hashing = ml_collections.ConfigDict()  # the hash encoding (model.HashNeRF)
   hashing.levels = 16  # resolution levels (configs/hash.py)
   hashing.log2_size = 19  # log2 of the rows of each level's table
@@ -59,6 +62,7 @@ def get_config():
   model.view_width = 32  # width of the view-dependent colour layer
   model.density_activation = "relu"  # 'relu' (reference), 'softplus' (shifted) or 'exp'
   model.density_noise = 0.0  # std of noise added to raw density while training (paper: 1)
+  model.colour_fraction = 0.0  # density grid: colour only for this share of samples (top weights)
   model.shared_fine = False  # one network for coarse and fine passes instead of two
   model.dtype = "float32"  # matmul dtype: float32, bfloat16 or float16
   model.appearance_dims = 0  # per-training-image appearance code (GLO) for colour; 0 = off

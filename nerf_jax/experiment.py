@@ -4,6 +4,8 @@ train state and its checkpoint signature; and restoring all of it from a workdir
 """
 
 import dataclasses
+import functools
+from typing import Any
 
 import flax.struct
 import jax
@@ -12,7 +14,7 @@ import ml_collections
 import numpy as np
 import optax
 
-from nerf_jax import characterise, checkpoints, config_lib, model, occupancy
+from nerf_jax import characterise, checkpoints, config_lib, model, occupancy, visual_hull
 from nerf_jax.data import loaders
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.field import Field
@@ -52,6 +54,7 @@ class Experiment:
   test_ds: Dataset
   near: float
   far: float
+  hull: Any = None  # float32 [R, R, R] visual hull on the occupancy grid's cells (data.visual_hull)
 
   def camera(self, scale=1.0):
     """(height, width, intrinsics) of the training camera with `scale` times its pixels per side
@@ -85,8 +88,9 @@ def setup(config):
   pixel_center(config, train_ds)  # a bad value fails here, naming the field
   near, far = bounds(config, train_ds)
   config = with_scene_extent(config, train_ds)
+  config, hull = with_visual_hull(config, train_ds)
   exp = Experiment(config, make_ray_renderer(config, len(train_ds)), image_settings(config),
-                   make_optimizer(config.train), train_ds, test_ds, near, far)
+                   make_optimizer(config.train), train_ds, test_ds, near, far, hull)
   warn_if_cut(exp)
   return exp
 
@@ -201,6 +205,31 @@ def with_scene_extent(config, dataset):
   return config
 
 
+HULL_RESOLUTION = 64  # cells per side of the carved grid when no occupancy grid sets it
+
+
+def with_visual_hull(config, dataset):
+  """(config, hull): with data.visual_hull on data with opacity, the training masks are carved
+  (visual_hull.py) on the occupancy grid's cells (else 64^3 cells of the grids' cube), the grid
+  encodings' box (model.grid_box, recorded in config.json) becomes the hull's bounding box and
+  `hull` (float32 [R, R, R]) is returned for the occupancy grid; else (config, None)."""
+  if not config.data.visual_hull or dataset.accs is None or config.data.contraction:
+    return config, None
+  occupied = config.occupancy.enabled
+  bound = config.data.scene_bound if occupied else config.model.grid_bound
+  resolution = config.occupancy.resolution if occupied else HULL_RESOLUTION
+  hull = visual_hull.carve(dataset.accs, dataset.poses, dataset.intrinsics, bound, resolution,
+                           pixel_center(config, dataset))
+  box = visual_hull.bounding_box(hull, bound)
+  config = ml_collections.ConfigDict(config.to_dict())
+  config.model.grid_box = tuple(round(float(v), 4) for v in box.reshape(-1))
+  share = float(np.mean(np.asarray(hull)))
+  print(f"visual hull: {100 * share:.1f}% of the box's cells; the grids cover "
+        f"{np.round(box[0], 3).tolist()} to {np.round(box[1], 3).tolist()} (model.grid_box)",
+        flush=True)
+  return config, hull if occupied else None
+
+
 CUT_SHARE = 0.25  # a run warns when more training rays than this leave the box before far
 
 
@@ -252,8 +281,22 @@ def make_field(config, num_images=1):
   else:
     # In an unbounded scene the grids cover the whole contracted space, twice the inner box.
     bound = 2.0 * config.data.scene_bound if config.data.contraction else m.grid_bound
-    grids = model.GridNeRF if m.encoding == "grid" else model.HashNeRF
-    network = grids(**m[m.encoding], bound=bound, hidden=m.width, **head)
+    fields = dict(m[m.encoding])
+    if m.encoding == "hash":
+      grids = model.HashNeRF
+    elif fields.pop("density_resolutions"):  # density from a grid of its own
+      grids = functools.partial(model.DensityGridNeRF,
+                                density_resolutions=tuple(m.grid.density_resolutions))
+      if m.density_activation == "relu":
+        raise ValueError("config.model.grid.density_resolutions needs "
+                         "config.model.density_activation 'softplus' or 'exp': the density "
+                         "grid starts below zero, where relu has no gradient")
+      if m.appearance_dims:
+        raise ValueError("config.model.grid.density_resolutions does not take appearance codes "
+                         "yet: set config.model.appearance_dims=0 or density_resolutions=()")
+    else:
+      grids = model.GridNeRF
+    network = grids(**fields, bound=bound, box=tuple(m.grid_box), hidden=m.width, **head)
   return Field(network, config.pos_encode_dims if m.encoding == "posenc" else None,
                config.dir_encode_dims, m.view_dependent, m.density_activation, m.density_noise,
                config.data.contraction, max(config.data.scene_bound, 1e-6), m.appearance_dims)
@@ -290,8 +333,8 @@ def make_ray_renderer(config, num_images=1):
   """The RayRenderer of `config`: its field, its sampler and the fine pass (num_images: see
   `make_field`)."""
   return RayRenderer(make_field(config, num_images), make_sampler(config),
-                     config.num_fine_samples,
-                     config.model.shared_fine)
+                     config.num_fine_samples, config.model.shared_fine,
+                     config.model.colour_fraction)
 
 
 def image_settings(config):
@@ -369,7 +412,7 @@ def make_optimizer(train_config, planned_steps=None):
 
 
 # Encoding fields that do not fix the parameters' shapes or meaning (left out of the signature).
-_NOT_IN_SIGNATURE = ("gather_dtype",)
+_NOT_IN_SIGNATURE = ("gather_dtype", "density_resolutions")
 
 
 def model_signature(config):
@@ -396,6 +439,10 @@ def model_signature(config):
     signature.update(appearance_dims=m.appearance_dims)
   if config.train.pose_refinement:
     signature.update(pose_refinement=True)
+  if m.grid_box:  # only then, so older checkpoints stay valid
+    signature.update(grid_box=list(m.grid_box))
+  if m.encoding == "grid" and m.grid.density_resolutions:  # likewise
+    signature.update(grid_density_resolutions=list(m.grid.density_resolutions))
   return signature
 
 
@@ -405,6 +452,9 @@ def init_state(exp):
   params = buffers.pop("params")
   if exp.config.train.pose_refinement:  # a correction per training image, zero = as given
     params["poses"] = jnp.zeros((len(exp.train_ds), 6), jnp.float32)
+  if exp.hull is not None:  # sample only inside the hull from the first step, and ever after
+    # Two arrays, not one: the train step donates its state, and a buffer is donated once.
+    buffers.update(occupancy=jnp.array(exp.hull), hull=jnp.array(exp.hull))
   return TrainState(step=jnp.array(0, jnp.int32), params=params, opt_state=exp.tx.init(params),
                     bad_step=jnp.array(-1, jnp.int32), buffers=buffers)
 

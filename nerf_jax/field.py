@@ -84,11 +84,35 @@ class Field:
     if self.uses_images:
       args += (image,)
     rgb, raw_sigma = self.network.apply({"params": params}, *args)
+    return rgb, self._activate(raw_sigma, key)
+
+  @property
+  def splits_density(self):
+    """Whether the network gives density and colour separately (model.DensityGridNeRF)."""
+    return bool(getattr(self.network, "density_resolutions", ()))
+
+  def _activate(self, raw_sigma, key):
     if key is not None and self.density_noise > 0:
       # The paper's regulariser: noise on the raw output, before the activation keeps sigma >= 0.
       raw_sigma = raw_sigma + self.density_noise * jax.random.normal(key, raw_sigma.shape)
-    sigma = activations.density_activation(self.density_activation)(raw_sigma)
-    return rgb, sigma
+    return activations.density_activation(self.density_activation)(raw_sigma)
+
+  def query_density(self, params, points, key=None):
+    """sigma float32 [...] at points float32 [..., 3]: the density half alone where the network
+    has one (`splits_density`), else `query`'s density (direction-independent)."""
+    if not self.splits_density:
+      dirs = jnp.zeros(points.shape[:-2] + (3,), points.dtype)
+      return self.query(params, points, dirs, key)[1]
+    raw = self.network.apply({"params": params}, self.encode_positions(points), part="density")
+    return self._activate(raw, key)
+
+  def query_colour(self, params, points, viewdirs):
+    """rgb float32 [P, 3] at points float32 [P, 3] seen along unit directions float32 [P, 3]:
+    the colour half alone (needs `splits_density`)."""
+    dir_features = (encoding.positional_encoding(viewdirs, self.dir_encode_dims)
+                    if self.view_dependent else None)
+    return self.network.apply({"params": params}, self.encode_positions(points), dir_features,
+                              part="colour")
 
   def query_in_chunks(self, params, points, viewdirs, key=None, chunk=0, image=None,
                       bands=None):
@@ -130,4 +154,4 @@ class Field:
 
   def density(self, params):
     """fn: points float32 [P, 3] -> σ float32 [P] (density does not depend on the direction)."""
-    return lambda points: self.at_points(params, points, jnp.zeros_like(points))[1]
+    return lambda points: self.query_density(params, points[:, None, :])[:, 0]

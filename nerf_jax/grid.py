@@ -1,19 +1,38 @@
 """Dense feature grids with trilinear interpolation (the fast encoding).
 
-A grid covers the scene box [-bound, bound]^3. Names:
-  grid:   float32 [R, R, R, F]  features at the R^3 lattice points (corners of R-1 cells)
-  points: float32 [..., 3]      world positions
-  unit:   float32 [..., 3]      positions mapped to [0, 1]^3 (0 = -bound, 1 = +bound)
+A grid covers a box: the scene box [-bound, bound]^3, or a tighter one (min and max corners, e.g.
+the visual hull's, visual_hull.py) with as many lattice points per side as keep its cells cubic
+(`axis_resolutions`). Names:
+  grid:   float32 [Rx, Ry, Rz, F]  features at the lattice points (corners of (Rx-1)(Ry-1)(Rz-1)
+                                   cells)
+  points: float32 [..., 3]         world positions
+  unit:   float32 [..., 3]         positions mapped to [0, 1]^3 (0 = the box's min, 1 = its max)
 Interpolation gathers the 8 lattice points around each position; its gradient is a scatter-add
 into the grid, so the cost per sample is independent of the grid size.
 """
 
 import jax.numpy as jnp
+import numpy as np
 
 
 def to_unit_cube(points, bound):
   """World positions float32 [..., 3] -> float32 [..., 3] in [0, 1] inside the box."""
   return (points / bound + 1.0) * 0.5
+
+
+def to_unit_box(points, box):
+  """World positions float32 [..., 3] -> float32 [..., 3] in [0, 1] inside `box`, a pair of
+  (min, max) corners (3 floats each)."""
+  low, high = jnp.asarray(box[0], jnp.float32), jnp.asarray(box[1], jnp.float32)
+  return (points - low) / (high - low)
+
+
+def axis_resolutions(resolution, box):
+  """Lattice points per axis (3 ints) of a grid over `box` ((min, max) corners) with
+  `resolution` points along its longest side and cells as near cubic as whole numbers allow."""
+  sides = np.asarray(box[1], np.float64) - np.asarray(box[0], np.float64)
+  cells = (resolution - 1) * sides / sides.max()
+  return tuple(int(max(2, round(c) + 1)) for c in cells)
 
 
 def inside_box(unit):
@@ -22,15 +41,15 @@ def inside_box(unit):
 
 
 def trilinear(grid, unit):
-  """Trilinear interpolation of grid: float32 [R, R, R, F] at unit: float32 [..., 3].
+  """Trilinear interpolation of grid: float32 [Rx, Ry, Rz, F] at unit: float32 [..., 3].
 
   Positions outside [0, 1]^3 are clamped to the box surface (callers mask them out).
   Returns float32 [..., F].
   """
-  res = grid.shape[0]
-  x = jnp.clip(unit, 0.0, 1.0) * (res - 1)
+  res = jnp.array(grid.shape[:3], jnp.int32)
+  x = jnp.clip(unit, 0.0, 1.0) * (res - 1).astype(jnp.float32)
   # floor clamped to res - 2 so the upper corner index stays in range at x = res - 1.
-  lower = jnp.clip(jnp.floor(x), 0, res - 2).astype(jnp.int32)
+  lower = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, res - 2)
   frac = x - lower  # in [0, 1]
   flat = grid.reshape(-1, grid.shape[-1])
   out = 0.0
@@ -38,7 +57,7 @@ def trilinear(grid, unit):
     offset = jnp.array([(corner >> 2) & 1, (corner >> 1) & 1, corner & 1], jnp.int32)
     idx = lower + offset
     w = jnp.prod(jnp.where(offset == 1, frac, 1.0 - frac), axis=-1, keepdims=True)
-    flat_idx = (idx[..., 0] * res + idx[..., 1]) * res + idx[..., 2]
+    flat_idx = (idx[..., 0] * grid.shape[1] + idx[..., 1]) * grid.shape[2] + idx[..., 2]
     out = out + w * flat[flat_idx]
   return out
 

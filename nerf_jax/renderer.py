@@ -28,11 +28,15 @@ class RayRenderer:
 
   num_fine_samples: samples drawn from the first pass's weights for a second pass (0 = none).
   shared_fine: the fine pass queries the coarse network instead of a network of its own.
+  colour_fraction: with a field that gives density alone (Field.splits_density), a pass
+    computes the density of every sample, then colour only for this share of the batch's
+    samples, those of largest weight (`_shade_where_it_matters`); 0 = colour everywhere.
   """
   field: Field
   sampler: Sampler
   num_fine_samples: int = 0
   shared_fine: bool = False
+  colour_fraction: float = 0.0
 
   @property
   def networks(self):
@@ -58,10 +62,37 @@ class RayRenderer:
              bands=None):
     """One pass over `samples` (sampler.Samples) with one network's `params`."""
     points = sampler_lib.points(rays, samples.distances)
+    if self.colour_fraction > 0 and self.field.splits_density:
+      return self._shade_where_it_matters(params, rays, samples, points, background, key)
     extra = {} if image is None and bands is None else {"image": image, "bands": bands}
     rgb, sigma = self.field.query_in_chunks(params, points, rays.viewdirs, key, remat_chunk,
                                             **extra)
     rgb, sigma = samples.intervals(rgb, sampler_lib.per_unit_t(sigma, rays))
+    out = compositing.composite(rgb, sigma, samples.t, background)
+    out["t"] = samples.t
+    return out
+
+  def _shade_where_it_matters(self, params, rays, samples, points, background, key):
+    """`_shade` with colour only where it counts (TensoRF's and DVGO's saving): density for all
+    samples first; then the K = ceil(colour_fraction · samples) samples of largest compositing
+    weight (over the whole batch, a fixed K so the shapes stay static) get their colour, and
+    every other sample is composited black. A sample left out has at most the K-th largest
+    weight, so the colour it would add is bounded by that weight (tests/test_colour_budget.py).
+    """
+    sigma = sampler_lib.per_unit_t(self.field.query_density(params, points, key), rays)
+    black = jnp.zeros(points.shape, jnp.float32)
+    black_e, sigma_e = samples.intervals(black, sigma)
+    weights = compositing.composite(black_e, jax.lax.stop_gradient(sigma_e), samples.t)["weights"]
+    if samples.gapped:  # interval 2k is sample k
+      weights = weights[..., ::2]
+    flat_weights = weights.reshape(-1)
+    count = max(1, min(flat_weights.size, int(-(-self.colour_fraction * flat_weights.size // 1))))
+    _, chosen = jax.lax.top_k(flat_weights, count)  # [K] flat sample indices
+    per_ray = points.shape[-2]
+    viewdirs = rays.viewdirs.reshape(-1, 3)[chosen // per_ray]
+    colour = self.field.query_colour(params, points.reshape(-1, 3)[chosen], viewdirs)
+    rgb = black.reshape(-1, 3).at[chosen].set(colour).reshape(points.shape)
+    rgb, sigma = samples.intervals(rgb, sigma)
     out = compositing.composite(rgb, sigma, samples.t, background)
     out["t"] = samples.t
     return out

@@ -79,7 +79,8 @@ def make_train_step(exp, mesh=None):
     # A stream of its own: fold_in(run_key, n) is step n's key, and step 2^32 - 1 never comes.
     key = jax.random.fold_in(jax.random.fold_in(run_key, 0xFFFFFFFF), state.step)
     refresh = lambda s: occupancy.accumulate(
-        s.buffers["occupancy"], ray_renderer.occupancy_grid(s.variables, key), oc.decay)
+        s.buffers["occupancy"], ray_renderer.occupancy_grid(s.variables, key), oc.decay
+    ) * s.buffers.get("hull", 1.0)  # what the masks rule out stays empty
     grid = jax.lax.cond(state.step % oc.update_every == 0, refresh,
                         lambda s: s.buffers["occupancy"], state)
     return {**state.buffers, "occupancy": grid}

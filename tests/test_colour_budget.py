@@ -1,0 +1,123 @@
+"""Density from a grid of its own, and colour only where the weights say it matters: each half of
+the split network equals the whole; a full colour budget renders exactly what the plain pass
+renders; a partial one errs by no more than the weight it leaves out (a closed-form bound)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from nerf_jax import experiment, grid, model, renderer
+from nerf_jax.rays import get_rays, pose_spherical, Rays
+from tests.helpers import small_config
+
+SPLIT = {"model.grid.density_resolutions": (8, 16), "model.grid.resolutions": (8, 16),
+         "model.view_dependent": True, "num_samples": 24}
+
+
+def _trained_like(params):
+  """params with the density grid set to a ball of raw density 4 (sigma ~ 4 per unit) of
+  radius 0.8 at the origin, and -5 elsewhere: a field whose weights are far from uniform."""
+  params = jax.tree_util.tree_map(lambda x: x, params)
+  name = next(k for k in params if k.startswith("density_"))
+  res = params[name].shape[0]
+  c = np.linspace(-1.5, 1.5, res)
+  x, y, z = np.meshgrid(c, c, c, indexing="ij")
+  ball = np.where(x ** 2 + y ** 2 + z ** 2 < 0.8 ** 2, 4.0, -5.0) / model.DENSITY_GAIN
+  params[name] = jnp.asarray(ball[..., None], jnp.float32)
+  return params
+
+
+def _rays():
+  origins, directions = get_rays(12, 12, 14.0, pose_spherical(30.0, -20.0, 4.0), 0.5)
+  return Rays.create(origins.reshape(-1, 3), directions.reshape(-1, 3), 2.0, 6.0)
+
+
+def test_each_half_of_the_split_network_equals_the_whole():
+  net = model.DensityGridNeRF(resolutions=(4, 8), features=2, density_resolutions=(8,),
+                              view_dependent=True)
+  points = jax.random.uniform(jax.random.PRNGKey(0), (50, 3), minval=-1.6, maxval=1.6)
+  dirs = jax.random.normal(jax.random.PRNGKey(1), (50, 27))
+  variables = net.init(jax.random.PRNGKey(2), points, dirs)
+  rgb, raw = net.apply(variables, points, dirs)
+  np.testing.assert_array_equal(net.apply(variables, points, part="density"), raw)
+  np.testing.assert_array_equal(net.apply(variables, points, dirs, part="colour"), rgb)
+  unit = grid.to_unit_cube(points, 1.5)
+  inside = np.asarray(grid.inside_box(unit))
+  np.testing.assert_allclose(np.asarray(raw)[inside], model.INITIAL_RAW_DENSITY, rtol=1e-6)
+  assert np.all(np.asarray(raw)[~inside] == -1e5)  # a nearly empty start, empty outside
+  density = jax.random.normal(jax.random.PRNGKey(4), variables["params"]["density_8"].shape)
+  variables["params"]["density_8"] = density
+  raw = net.apply(variables, points, part="density")
+  np.testing.assert_allclose(np.asarray(raw)[inside], model.DENSITY_GAIN * np.asarray(
+      grid.trilinear(density, unit)[..., 0])[inside], rtol=1e-5, atol=1e-5)
+
+
+def _renderers(fraction, occupied=False):
+  config = small_config(SPLIT, base="fast", **{"model.colour_fraction": fraction,
+                                                "occupancy.enabled": occupied})
+  split = experiment.make_ray_renderer(config)
+  return split, renderer.RayRenderer(split.field, split.sampler)
+
+
+@pytest.mark.parametrize("occupied", [False, True])
+def test_a_full_colour_budget_renders_what_the_plain_pass_renders(occupied):
+  split, plain = _renderers(1.0, occupied)
+  variables = split.init(jax.random.PRNGKey(0))
+  variables["params"]["coarse"] = _trained_like(variables["params"]["coarse"])
+  rays = _rays()
+  a = split.render(variables, rays)["coarse"]
+  b = plain.render(variables, rays)["coarse"]
+  for name in ("rgb", "acc", "depth", "weights"):
+    np.testing.assert_allclose(a[name], b[name], atol=2e-6, err_msg=name)
+
+
+@pytest.mark.parametrize("occupied", [False, True])
+def test_a_partial_budget_errs_by_at_most_the_weight_it_leaves_out(occupied):
+  split, plain = _renderers(0.25, occupied)
+  variables = split.init(jax.random.PRNGKey(0))
+  variables["params"]["coarse"] = _trained_like(variables["params"]["coarse"])
+  rays = _rays()
+  got = split.render(variables, rays)["coarse"]
+  want = plain.render(variables, rays)["coarse"]
+  weights = np.asarray(want["weights"])  # identical densities: identical weights
+  np.testing.assert_allclose(got["weights"], weights, atol=1e-6)
+  if occupied:  # interval 2k is sample k, 2k + 1 the empty gap after it
+    weights = weights[..., ::2]
+  k = int(np.ceil(0.25 * weights.size))
+  threshold = np.sort(weights.reshape(-1))[-k]
+  left_out = np.where(weights >= threshold, 0.0, weights).sum(-1)  # colours lie in (0, 1)
+  error = np.abs(np.asarray(got["rgb"]) - np.asarray(want["rgb"])).max(-1)
+  assert np.all(error <= left_out + 1e-5)
+  assert left_out.max() < 0.05 and weights.sum(-1).max() > 0.5  # the test has teeth
+
+
+def test_split_gradients_are_finite_and_reach_both_halves():
+  split, _ = _renderers(0.25)
+  variables = split.init(jax.random.PRNGKey(0))
+  rays = _rays()
+
+  def loss(params):
+    out = split.render({"params": params}, rays, jax.random.PRNGKey(3))["coarse"]
+    return jnp.mean((out["rgb"] - 0.5) ** 2)
+
+  grads = jax.grad(loss)(variables["params"])["coarse"]
+  assert all(bool(jnp.all(jnp.isfinite(g))) for g in jax.tree_util.tree_leaves(grads))
+  assert float(jnp.abs(grads["density_16"]).sum()) > 0
+  assert float(jnp.abs(grads["grid_16"]).sum()) > 0
+
+
+def test_density_grid_with_relu_is_refused():
+  config = small_config(SPLIT, base="fast", **{"model.density_activation": "relu"})
+  with pytest.raises(ValueError, match="density_activation"):
+    experiment.make_field(config)
+
+
+def test_occupancy_probes_read_the_density_half():
+  split, _ = _renderers(0.25)
+  params = _trained_like(split.init(jax.random.PRNGKey(0))["params"]["coarse"])
+  points = jnp.array([[0.0, 0.0, 0.0], [1.2, 1.2, 1.2]])
+  sigma = split.field.density(params)(points)
+  _, full = split.field.query(params, points[:, None, :], jnp.zeros((2, 3)))
+  np.testing.assert_allclose(sigma, full[:, 0], rtol=1e-6)
+  assert float(sigma[0]) > 3.0 and float(sigma[1]) < 0.01
