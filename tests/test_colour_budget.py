@@ -16,15 +16,18 @@ SPLIT = {"model.grid.density_resolutions": (8, 16), "model.grid.resolutions": (8
 
 
 def _trained_like(params):
-  """params with the density grid set to a ball of raw density 4 (sigma ~ 4 per unit) of
-  radius 0.8 at the origin, and -5 elsewhere: a field whose weights are far from uniform."""
-  params = jax.tree_util.tree_map(lambda x: x, params)
-  name = next(k for k in params if k.startswith("density_"))
-  res = params[name].shape[0]
+  """params with the density levels set to a ball of raw density 4 (sigma ~ 4 per unit) of
+  radius 0.8 at the origin, and -5 elsewhere: the first level holds it, the others are zero (the
+  raw density is their sum): a field whose weights are far from uniform."""
+  params = dict(params)
+  names = sorted((k for k in params if k.startswith("density_")), key=lambda k: int(k[8:]))
+  for name in names[1:]:
+    params[name] = jnp.zeros_like(params[name])
+  res = params[names[0]].shape[0]
   c = np.linspace(-1.5, 1.5, res)
   x, y, z = np.meshgrid(c, c, c, indexing="ij")
   ball = np.where(x ** 2 + y ** 2 + z ** 2 < 0.8 ** 2, 4.0, -5.0) / model.DENSITY_GAIN
-  params[name] = jnp.asarray(ball[..., None], jnp.float32)
+  params[names[0]] = jnp.asarray(ball[..., None], jnp.float32)
   return params
 
 
@@ -60,26 +63,25 @@ def _renderers(fraction, occupied=False):
   return split, renderer.RayRenderer(split.field, split.sampler)
 
 
-@pytest.mark.parametrize("occupied", [False, True])
-def test_a_full_colour_budget_renders_what_the_plain_pass_renders(occupied):
-  split, plain = _renderers(1.0, occupied)
+def _split_and_plain(fraction, occupied):
+  """The coarse pass of the split and the plain renderer on the same ball-shaped field."""
+  split, plain = _renderers(fraction, occupied)
   variables = split.init(jax.random.PRNGKey(0))
   variables["params"]["coarse"] = _trained_like(variables["params"]["coarse"])
   rays = _rays()
-  a = split.render(variables, rays)["coarse"]
-  b = plain.render(variables, rays)["coarse"]
+  return split.render(variables, rays)["coarse"], plain.render(variables, rays)["coarse"]
+
+
+@pytest.mark.parametrize("occupied", [False, True])
+def test_a_full_colour_budget_renders_what_the_plain_pass_renders(occupied):
+  a, b = _split_and_plain(1.0, occupied)
   for name in ("rgb", "acc", "depth", "weights"):
     np.testing.assert_allclose(a[name], b[name], atol=2e-6, err_msg=name)
 
 
 @pytest.mark.parametrize("occupied", [False, True])
 def test_a_partial_budget_errs_by_at_most_the_weight_it_leaves_out(occupied):
-  split, plain = _renderers(0.25, occupied)
-  variables = split.init(jax.random.PRNGKey(0))
-  variables["params"]["coarse"] = _trained_like(variables["params"]["coarse"])
-  rays = _rays()
-  got = split.render(variables, rays)["coarse"]
-  want = plain.render(variables, rays)["coarse"]
+  got, want = _split_and_plain(0.25, occupied)
   weights = np.asarray(want["weights"])  # identical densities: identical weights
   np.testing.assert_allclose(got["weights"], weights, atol=1e-6)
   if occupied:  # interval 2k is sample k, 2k + 1 the empty gap after it

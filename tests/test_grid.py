@@ -13,12 +13,13 @@ from nerf_jax.rays import Rays, get_rays, pose_spherical
 from tests.helpers import ray_renderer, small_config
 
 
-def _trilinear_brute(g, u):
-  res = g.shape[0]
+def trilinear_brute(g, u):
+  """Trilinear interpolation of g [Rx, Ry, Rz, F] at one unit-cube position u [3], by loops."""
+  res = np.array(g.shape[:3])
   x = np.clip(u, 0, 1) * (res - 1)
   out = np.zeros(g.shape[-1])
   for corner in itertools.product([0, 1], repeat=3):
-    idx = [min(int(np.floor(x[a])), res - 2) + corner[a] for a in range(3)]
+    idx = [min(int(np.floor(x[a])), res[a] - 2) + corner[a] for a in range(3)]
     w = np.prod([1 - abs(x[a] - idx[a]) for a in range(3)])
     out += w * g[idx[0], idx[1], idx[2]]
   return out
@@ -32,7 +33,7 @@ def test_trilinear_matches_brute_force_and_hits_lattice_values():
   u[1] = [1.0, 1.0, 1.0]
   u[2] = [0.25, 0.5, 0.75]  # a lattice point of a 5^3 grid
   got = np.asarray(grid.trilinear(jnp.asarray(g), jnp.asarray(u)))
-  want = np.stack([_trilinear_brute(g, p) for p in u])
+  want = np.stack([trilinear_brute(g, p) for p in u])
   np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
   np.testing.assert_allclose(got[2], g[1, 2, 3], atol=1e-6)
   np.testing.assert_allclose(got[1], g[4, 4, 4], atol=1e-6)

@@ -2,8 +2,6 @@
 the sphere touches and removes what no view covers; grids over a tighter, non-cubic box
 interpolate as brute force; a run with data.visual_hull samples only inside the hull."""
 
-import itertools
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,6 +9,7 @@ import numpy as np
 from nerf_jax import (experiment, grid, model, occupancy, rays, sampler, train_batches,
                       train_step, visual_hull)
 from tests.helpers import small_config
+from tests.test_grid import trilinear_brute
 
 
 def _views(count, radius=4.0):
@@ -85,24 +84,13 @@ def test_bounding_box_of_a_block_of_cells():
   np.testing.assert_allclose(visual_hull.bounding_box(hull * 0, 1.0), [[-1] * 3, [1] * 3])
 
 
-def _trilinear_brute(g, u):
-  res = np.array(g.shape[:3])
-  x = np.clip(u, 0, 1) * (res - 1)
-  out = np.zeros(g.shape[-1])
-  for corner in itertools.product([0, 1], repeat=3):
-    idx = [min(int(np.floor(x[a])), res[a] - 2) + corner[a] for a in range(3)]
-    w = np.prod([1 - abs(x[a] - idx[a]) for a in range(3)])
-    out += w * g[idx[0], idx[1], idx[2]]
-  return out
-
-
 def test_trilinear_on_a_non_cubic_grid_matches_brute_force():
   rng = np.random.default_rng(1)
   g = rng.standard_normal((3, 7, 5, 2)).astype(np.float32)
   u = rng.random((40, 3)).astype(np.float32)
   u[0], u[1] = [1.0, 1.0, 1.0], [0.5, 1 / 6, 0.25]  # a corner and a lattice point
   got = np.asarray(grid.trilinear(jnp.asarray(g), jnp.asarray(u)))
-  np.testing.assert_allclose(got, np.stack([_trilinear_brute(g, p) for p in u]), atol=1e-5)
+  np.testing.assert_allclose(got, np.stack([trilinear_brute(g, p) for p in u]), atol=1e-5)
   np.testing.assert_allclose(got[1], g[1, 1, 1], atol=1e-5)
 
 
