@@ -213,7 +213,11 @@ def with_visual_hull(config, dataset):
   (visual_hull.py) on the occupancy grid's cells (else 64^3 cells of the grids' cube), the grid
   encodings' box (model.grid_box, recorded in config.json) becomes the hull's bounding box and
   `hull` (float32 [R, R, R]) is returned for the occupancy grid; else (config, None)."""
-  if not config.data.visual_hull or dataset.accs is None or config.data.contraction:
+  if not config.data.visual_hull:
+    return config, None
+  if dataset.accs is None or config.data.contraction:
+    why = "the data has no opacity" if dataset.accs is None else "the scene is unbounded"
+    print(f"note: data.visual_hull is ignored: {why}", flush=True)
     return config, None
   occupied = config.occupancy.enabled
   bound = config.data.scene_bound if occupied else config.model.grid_bound

@@ -64,8 +64,9 @@ class Field:
       points = contraction.contract(points, self.inner_radius, self.contraction)
     if self.pos_encode_dims is None:
       return points  # the grids are the encoding
-    weights = (None if bands is None else
-               encoding.coarse_to_fine_weights(bands, self.pos_encode_dims))
+    if bands is None:
+      return encoding.positional_encoding(points, self.pos_encode_dims)
+    weights = encoding.coarse_to_fine_weights(bands, self.pos_encode_dims)
     return encoding.positional_encoding(points, self.pos_encode_dims, weights)
 
   def query(self, params, points, viewdirs, key=None, image=None, bands=None):

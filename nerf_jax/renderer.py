@@ -13,6 +13,7 @@ Rendering whole images in fixed-size chunks is image_renderer.py.
 """
 
 import dataclasses
+import math
 
 import jax
 import jax.numpy as jnp
@@ -86,7 +87,7 @@ class RayRenderer:
     if samples.gapped:  # interval 2k is sample k
       weights = weights[..., ::2]
     flat_weights = weights.reshape(-1)
-    count = max(1, min(flat_weights.size, int(-(-self.colour_fraction * flat_weights.size // 1))))
+    count = max(1, min(flat_weights.size, math.ceil(self.colour_fraction * flat_weights.size)))
     _, chosen = jax.lax.top_k(flat_weights, count)  # [K] flat sample indices
     per_ray = points.shape[-2]
     viewdirs = rays.viewdirs.reshape(-1, 3)[chosen // per_ray]

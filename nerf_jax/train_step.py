@@ -58,8 +58,11 @@ def make_train_step(exp, mesh=None):
     if refine:  # the rays of the corrected cameras: the corrections take a gradient
       rays = train_batches.pixel_rays_of(
           data, batch.image, batch.pixel, pose_refinement.corrected(data.poses, params["poses"]))
+    image = image_of(batch)
+    # Only given, so a renderer's plain render(variables, rays, key, bg, chunk) keeps working.
+    extra = {} if image is None and bands is None else {"image": image, "bands": bands}
     outs = ray_renderer.render({"params": params, **buffers}, rays, render_key, bg,
-                               config.train.remat_chunk, image_of(batch), bands)
+                               config.train.remat_chunk, **extra)
     mses = {name: jnp.mean((out["rgb"] - target) ** 2) for name, out in outs.items()}
     loss = mses["coarse"] if "fine" not in mses else (
         mses["fine"] + config.train.coarse_loss_weight * mses["coarse"])
