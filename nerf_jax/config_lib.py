@@ -174,6 +174,15 @@ def load_saved(workdir):
   return complete(saved)
 
 
+def set_field(config, field, value):
+  """Set the dotted `field` of `config` (a ConfigDict) to `value`."""
+  *path, last = field.split(".")
+  node = config
+  for part in path:
+    node = node[part]
+  node[last] = value
+
+
 def unknown_override(config, field):
   """None if `config` has the dotted `field`, else one line naming the missing part."""
   node, known = config, ["config"]

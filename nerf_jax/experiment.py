@@ -112,14 +112,6 @@ def _flat(config):
   return out
 
 
-def _set(config, name, value):
-  *path, last = name.split(".")
-  node = config
-  for part in path:
-    node = node[part]
-  node[last] = value
-
-
 def auto_config(config, dataset):
   """`config` (config.auto: configs/auto.py and the user's flags) decided from the training
   views `dataset` by characterise.decide: the representation of the config that suits the
@@ -174,7 +166,7 @@ def auto_config(config, dataset):
         lines.append(f"{name}={value!r} from your flags, not auto's {effects[name]!r}")
     values[name] = value
   for name, value in values.items():
-    _set(result, name, list(value) if isinstance(value, tuple) and name == "auto_decisions"
+    config_lib.set_field(result, name, list(value) if isinstance(value, tuple) and name == "auto_decisions"
          else value)
   result.auto = False
   result.auto_decisions = tuple(lines)

@@ -28,11 +28,7 @@ def small_config(overrides=None, /, base="debug", **fields):
     problem = config_lib.unknown_override(config, name)
     if problem:
       raise KeyError(problem)
-    *path, last = name.split(".")
-    node = config
-    for part in path:
-      node = node[part]
-    node[last] = value
+    config_lib.set_field(config, name, value)
   return config
 
 
