@@ -101,6 +101,17 @@ SWEEPS = {
         Entry("hash occupancy", {**_VIEW, "model.hash.gather_dtype": "float16",
                                  "occupancy.enabled": True}, base="hash"),
     ],
+    # Quality per CPU-second (issue 24): the configs the README recommends and their challengers,
+    # each probed at 1, 2, 5 and 10 minutes (--budget_seconds=600 --eval_times=60,120,300,600)
+    # on the built-in `detail` and on public NeRF-synthetic and LLFF folders (--scenes=PATH).
+    "frontier": [
+        Entry("detail", base="detail"),
+        # density read from one-channel levels, activated after interpolation; colour only for
+        # the quarter of the batch's samples with the largest weights
+        Entry("detail density levels", {"model.grid.density_resolutions": (32, 64, 128),
+                                        "model.density_activation": "exp",
+                                        "model.colour_fraction": 0.25}, base="detail"),
+    ],
     # Unbounded scenes (scene `garden`, and one that does not call for it): a fixed box, the box
     # found from the data, and the rest of space contracted beyond it (+ occupancy placement).
     "contraction": [
@@ -127,9 +138,11 @@ SWEEPS = {
 # Scenes a sweep runs on unless --scenes says otherwise; the effects need scenes that call for
 # them (glossy: view dependence, fog: a soft medium, white: the background) and one that doesn't.
 SCENES = {"effects": ("diffuse", "glossy", "fog", "white"), "occupancy": ("diffuse", "glossy"),
-          "detail": ("detail",), "contraction": ("garden", "diffuse"),
+          "detail": ("detail",), "frontier": ("detail",), "contraction": ("garden", "diffuse"),
           "photos": ("exposure", "perturbed", "diffuse")}
 DEFAULT_SCENES = ("diffuse",)
+# Sweeps 'all' leaves out: the small one, and the long ones at 400 px.
+_ON_REQUEST = ("quick", "default_tuning", "detail", "frontier")
 
 
 # Fields the bench sets itself: an override would mislabel or unbudget the runs.
@@ -153,10 +166,10 @@ class Request:
 
 
 def sweep_names(spec):
-  """Sweep names from a comma list; 'all' = every sweep but 'quick', 'default_tuning', 'detail'."""
+  """Sweep names from a comma list; 'all' = every sweep but those run only on request."""
   names = [n.strip() for n in spec.split(",") if n.strip()]
   if names == ["all"]:
-    return [n for n in SWEEPS if n not in ("quick", "default_tuning", "detail")]
+    return [n for n in SWEEPS if n not in _ON_REQUEST]
   unknown = [n for n in names if n not in SWEEPS]
   if unknown:
     raise ValueError(f"--sweep: unknown sweep(s) {', '.join(unknown)} "
