@@ -14,5 +14,5 @@ from nerf_jax.configs import capture
 
 def get_config():
   config = capture.get_config()
-  config.auto = True  # decided when the data is loaded (experiment.auto_config)
+  config.auto = True  # decided when the data is loaded (auto.auto_config)
   return config

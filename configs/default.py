@@ -41,7 +41,7 @@ def get_config():
   data.inner_fraction = 0.5  # unbounded scene: share of samples inside the box (the rest beyond)
 
   config.model = model = ml_collections.ConfigDict()
-  model.encoding = "posenc"  # 'posenc' (NeRF MLP), 'grid' (dense grids, configs/fast.py), 'hash'
+  model.encoding = "posenc"  # 'posenc' (NeRF MLP), 'grid' (configs/fast.py), 'hash', 'tensorf'
   model.grid_bound = 1.5  # grid and hash encodings: the grids cover [-bound, bound]^3
   model.grid_box = ()  # grid encodings: (min x, y, z, max x, y, z) of a tighter box; () = cube
   model.grid = grid = ml_collections.ConfigDict()  # the grid encoding (model.GridNeRF)
@@ -55,6 +55,9 @@ def get_config():
   hashing.base_resolution = 16  # lattice points per side of the coarsest level
   hashing.max_resolution = 2048  # lattice points per side of the finest level
   hashing.gather_dtype = "float32"  # dtype of the gathered rows (the table stays float32)
+  model.tensorf = tensorf = ml_collections.ConfigDict()  # the factorised encoding (TensoRFNeRF)
+  tensorf.resolutions = (128, 256)  # lattice points along the box's longest side, per level
+  tensorf.rank = 16  # components per plane-line pair (3 x rank features per level)
   model.depth = 8  # hidden layers
   model.width = 64  # units per hidden layer (reference 64, paper 256)
   model.skip_layers = (4,)  # re-inject the input after these layers (0-based)
@@ -91,6 +94,7 @@ def get_config():
   train.remat_chunk = 128  # rays per cache-sized, recomputed field chunk in a step (0 = off)
   train.coarse_loss_weight = 1.0  # weight of the coarse pass loss when a fine pass exists
   train.distortion_weight = 0.0  # mip-NeRF 360's distortion loss on the final pass (0 = off)
+  train.tv_weight = 0.0  # grid encodings: total variation of the lattice tables (0 = off)
   train.random_background = False  # data with opacity: composite on random colours (no floaters)
   train.pose_refinement = False  # learn an SE(3) correction of each training camera (BARF)
   train.pose_lr = 3e-4  # pose refinement: Adam learning rate of the corrections (same decay)

@@ -1,5 +1,5 @@
 """What a capture calls for, read from the capture itself (pure numpy): the measurements and
-rules behind `--config=auto` (experiment.auto_config applies them).
+rules behind `--config=auto` (auto.auto_config applies them).
 
 Each rule looks at the training views (a `Dataset`) and returns a `Decision`: its name, what it
 found (True / False), and the measured reason, one line:

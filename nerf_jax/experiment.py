@@ -14,7 +14,7 @@ import ml_collections
 import numpy as np
 import optax
 
-from nerf_jax import characterise, checkpoints, config_lib, model, occupancy, visual_hull
+from nerf_jax import auto, checkpoints, config_lib, model, occupancy, visual_hull
 from nerf_jax.data import loaders
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.field import Field
@@ -84,7 +84,7 @@ def setup(config):
   make_ray_renderer(config)  # a bad model or sampler setting fails before the data loads
   train_ds, test_ds = loaders.load_dataset(config.data)
   if config.auto:
-    config = auto_config(config, train_ds)
+    config = auto.auto_config(config, train_ds)
   pixel_center(config, train_ds)  # a bad value fails here, naming the field
   near, far = bounds(config, train_ds)
   config = with_scene_extent(config, train_ds)
@@ -93,86 +93,6 @@ def setup(config):
                    make_optimizer(config.train), train_ds, test_ds, near, far, hull)
   warn_if_cut(exp)
   return exp
-
-
-APPEARANCE_DIMS = 8  # the appearance codes' length auto switches on (NeRF-W: 48, nerfacto: 32)
-LARGE_IMAGES = 400  # auto: object captures from this many pixels a side use configs/detail.py
-
-
-def _flat(config):
-  """{dotted name: value} of every leaf field of a ConfigDict."""
-  out = {}
-  def walk(node, prefix):
-    for key, value in node.items():
-      if isinstance(value, ml_collections.ConfigDict):
-        walk(value, f"{prefix}{key}.")
-      else:
-        out[prefix + key] = tuple(value) if isinstance(value, list) else value
-  walk(config, "")
-  return out
-
-
-def auto_config(config, dataset):
-  """`config` (config.auto: configs/auto.py and the user's flags) decided from the training
-  views `dataset` by characterise.decide: the representation of the config that suits the
-  kind of capture (fast.py for an object on a background, detail.py from LARGE_IMAGES pixels,
-  the NDC setup of configs/scenes/forward.py for a forward-facing one, capture.py otherwise or
-  when there are too few cameras) and the effects it calls for. A field the user set (named in
-  config.auto_flags by the command line, or differing from configs/auto.py's) wins over the
-  decision, with one line saying so. Prints one
-  line per decision with its reason; the lines go to config.auto_decisions (config.json), and
-  auto is off in the result (a restored run keeps what was decided)."""
-  base = _flat(config_lib.load("auto"))
-  given = _flat(config)
-  user = {k: v for k, v in given.items()
-          if (base.get(k) != v or k in config.auto_flags)
-          and k not in ("auto", "auto_decisions", "auto_flags")}
-  decisions = characterise.decide(dataset)
-  effects, lines = {}, []
-  if decisions is None:
-    chosen = "capture"
-    lines.append(f"{len(dataset)} cameras are too few to characterise (< "
-                 f"{characterise.MIN_CAMERAS}): using configs/capture.py's defaults")
-  else:
-    found = {d.name: d for d in decisions}
-    if found["forward"].found:
-      chosen = "default"
-      effects.update({"data.ndc": True, "data.lindisp": False})
-    elif found["background"].found:
-      chosen = "detail" if max(dataset.height, dataset.width) >= LARGE_IMAGES else "fast"
-      effects["train.random_background"] = True
-    else:
-      chosen = "capture"
-    bg = tuple(float(c) for c in dataset.background)
-    effects["data.background"] = ("white" if bg == (1.0, 1.0, 1.0) else
-                                  "black" if bg == (0.0, 0.0, 0.0) else bg)
-    effects["model.appearance_dims"] = APPEARANCE_DIMS if found["appearance"].found else 0
-    settings = {"background": "an object on a background: a box, random backgrounds while "
-                              "training",
-                "forward": "forward-facing: NDC rays (data.ndc)",
-                "unbounded": "unbounded: the scene box from the data (data.scene_bound=-1)",
-                "appearance": f"per-photo appearance codes (model.appearance_dims="
-                              f"{APPEARANCE_DIMS})"}
-    for d in decisions:
-      lines.append(f"{settings[d.name] if d.found else 'no ' + d.name}: {d.reason}")
-    lines.append("pose refinement: off (nothing in the photos measures a pose error; "
-                 "train.pose_refinement=True switches it on)")
-  lines.append(f"representation: configs/{chosen}.py")
-  result = config_lib.load(chosen)
-  values = {**_flat(result), **effects}
-  for name, value in user.items():
-    if name in values and values[name] != value and (name in effects or name in base):
-      if name in effects:
-        lines.append(f"{name}={value!r} from your flags, not auto's {effects[name]!r}")
-    values[name] = value
-  for name, value in values.items():
-    config_lib.set_field(result, name, list(value) if isinstance(value, tuple) and name == "auto_decisions"
-         else value)
-  result.auto = False
-  result.auto_decisions = tuple(lines)
-  for line in lines:
-    print(f"auto: {line}", flush=True)
-  return result
 
 
 def with_scene_extent(config, dataset):
@@ -253,17 +173,17 @@ def warn_if_cut(exp):
           "(docs/real_captures.md), or data.scene_bound=-1 (the box from the data)", flush=True)
 
 
-ENCODINGS = ("posenc", "grid", "hash")
+ENCODINGS = ("posenc", "grid", "hash", "tensorf")
 
 
 def make_field(config, num_images=1):
   """The Field of `config.model` (and the top-level encoding bands): the network of
   `model.encoding`, built from the encoding's own subsection (model.grid, model.hash) and the
-  head's fields. num_images: training images, the rows of the appearance codes' table
+  head's fields (model.tensorf for 'tensorf'). num_images: training images, the rows of the appearance codes' table
   (model.appearance_dims > 0)."""
   m = config.model
   if m.encoding not in ENCODINGS:
-    raise ValueError(f"config.model.encoding must be 'posenc', 'grid' or 'hash', got "
+    raise ValueError(f"config.model.encoding must be one of {', '.join(ENCODINGS)}, got "
                      f"{m.encoding!r}")
   if m.appearance_dims < 0:
     raise ValueError(f"config.model.appearance_dims={m.appearance_dims}: use 0 (off) or the "
@@ -278,8 +198,8 @@ def make_field(config, num_images=1):
     # In an unbounded scene the grids cover the whole contracted space, twice the inner box.
     bound = 2.0 * config.data.scene_bound if config.data.contraction else m.grid_bound
     fields = dict(m[m.encoding])
-    if m.encoding == "hash":
-      grids = model.HashNeRF
+    if m.encoding in ("hash", "tensorf"):
+      grids = {"hash": model.HashNeRF, "tensorf": model.TensoRFNeRF}[m.encoding]
     elif fields.pop("density_resolutions"):  # density from a grid of its own
       grids = functools.partial(model.DensityGridNeRF,
                                 density_resolutions=tuple(m.grid.density_resolutions))
@@ -427,8 +347,8 @@ def model_signature(config):
                           for k, v in m[section].items() if k not in _NOT_IN_SIGNATURE}
   if m.encoding != "posenc":  # only then, so older checkpoints stay valid
     signature.update(encoding=m.encoding, **flat("grid"))
-  if m.encoding == "hash":  # the table's shape and the meaning of its rows
-    signature.update(flat("hash"))
+  if m.encoding in ("hash", "tensorf"):  # the tables' shapes and the meaning of their rows
+    signature.update(flat(m.encoding))
   if config.occupancy.enabled:
     signature.update(occupancy_resolution=config.occupancy.resolution)
   if m.appearance_dims:  # only then, so older checkpoints stay valid

@@ -129,10 +129,8 @@ class Field:
     num_rays = points.shape[0]
     if not self.uses_images:
       image = None
-    # Only given, so a subclass's plain query(params, points, viewdirs, key) keeps working.
-    extra = {} if image is None and bands is None else {"image": image, "bands": bands}
     if not chunk or chunk >= num_rays or num_rays % chunk or points.ndim != 3:
-      return self.query(params, points, viewdirs, key, **extra)
+      return self.query(params, points, viewdirs, key, image, bands)
     count = num_rays // chunk
     split = lambda a: None if a is None else a.reshape(count, chunk, *a.shape[1:])
 
@@ -140,8 +138,7 @@ class Field:
     def one_chunk(args):
       pts, dirs, index, images = args
       chunk_key = None if key is None else jax.random.fold_in(key, index)
-      return self.query(params, pts, dirs, chunk_key, **({**extra, "image": images}
-                                                          if extra else {}))
+      return self.query(params, pts, dirs, chunk_key, images, bands)
 
     rgb, sigma = jax.lax.map(one_chunk, (split(points), split(viewdirs), jnp.arange(count),
                                          split(image)))

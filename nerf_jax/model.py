@@ -18,7 +18,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from nerf_jax import grid, hashgrid
+from nerf_jax import grid, hashgrid, tensorf
 
 
 def _appearance_codes(module, image, shape):
@@ -177,6 +177,33 @@ class HashNeRF(_GridHead):
     return self._head(h.astype(jnp.dtype(self.dtype)), unit, dir_features, image)
 
 
+class TensoRFNeRF(_GridHead):
+  """GridNeRF with vector-matrix factorised fields (tensorf.py) in place of the dense grids.
+
+  The same inputs, outputs, head and out-of-box density as GridNeRF. Each level is a TensoRF-VM
+  field with `rank` components per mode and `resolution` lattice points along the box's longest
+  side (3·rank features); the levels' features are concatenated. Planes and lines start at
+  0.1·N(0, 1), so their products, the features, start at about GridNeRF's 1e-2.
+  """
+  resolutions: Sequence[int] = (128, 256)
+  rank: int = 16
+  bound: float = 1.5
+  box: Sequence[float] = ()  # as GridNeRF's
+
+  @nn.compact
+  def __call__(self, points, dir_features=None, image=None):
+    init = lambda key, shape: 0.1 * jax.random.normal(key, shape, jnp.float32)
+    unit = self._unit(points.astype(jnp.float32))
+    features = []
+    for r in self.resolutions:
+      plane_shapes, line_shapes = tensorf.shapes(self._shape(r), self.rank)
+      planes = [self.param(f"plane_{r}_{m}", init, s) for m, s in enumerate(plane_shapes)]
+      lines = [self.param(f"line_{r}_{m}", init, s) for m, s in enumerate(line_shapes)]
+      features.append(tensorf.vm_features(planes, lines, unit))
+    h = jnp.concatenate(features, axis=-1).astype(jnp.dtype(self.dtype))
+    return self._head(h, unit, dir_features, image)
+
+
 class DensityGridNeRF(_GridHead):
   """GridNeRF with density read straight from grids of its own (DVGO's recipe): the raw density
   is interpolated, then activated (by the Field), so it stays sharp inside a cell; it is the sum
@@ -217,6 +244,24 @@ class DensityGridNeRF(_GridHead):
         h = nn.relu(self._dense(self.view_width, "view")(h))
       rgb = nn.sigmoid(self._dense(3, "rgb")(h).astype(jnp.float32))
     return {"all": (rgb, raw_sigma), "density": raw_sigma, "colour": rgb}[part]
+
+
+# Parameter names of the grid fields' lattice tables, with their number of spatial axes (the
+# last axis holds features): dense grids and density levels, TensoRF's planes and lines.
+TABLE_AXES = {"grid_": 3, "density_": 3, "plane_": 2, "line_": 1}
+
+
+def lattice_tables(params):
+  """[(table, spatial axes)] of every lattice table in a network's params (a nested dict)."""
+  found = []
+  for name, value in params.items():
+    if isinstance(value, dict):
+      found += lattice_tables(value)
+      continue
+    for prefix, axes in TABLE_AXES.items():
+      if name.startswith(prefix):
+        found.append((value, axes))
+  return found
 
 
 # Raw density at start: with the shifted softplus (activations.py), softplus(-5 - 1) = 0.0025 per

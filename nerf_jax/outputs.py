@@ -100,7 +100,7 @@ def mesh_bound(config):
   built-in scenes fit in a ball of radius 1.2)."""
   if config.data.scene_bound > 0:
     return float(config.data.scene_bound)
-  if config.model.encoding in ("grid", "hash"):
+  if config.model.encoding != "posenc":
     return float(config.model.grid_bound)
   return 1.5
 

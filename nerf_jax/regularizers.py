@@ -1,4 +1,5 @@
-"""Losses on a ray's weights that keep empty space empty (no floaters).
+"""Regularisers: losses on a ray's weights that keep empty space empty (no floaters), and the
+total variation that keeps a feature table smooth where few rays constrain it.
 
 The distortion loss of mip-NeRF 360 (Barron et al. 2022, eq. 15) is small when a ray's weight
 sits in one short interval and large when it is spread along the ray (a cloud of faint
@@ -28,3 +29,17 @@ def distortion(t, weights):
   between = 2.0 * jnp.sum(weights * (mids * w_before - wm_before), axis=-1)
   within = jnp.sum(weights ** 2 * (t[..., 1:] - t[..., :-1]), axis=-1) / 3.0
   return between + within
+
+
+def total_variation(table, spatial_axes):
+  """Mean squared difference between neighbouring lattice points of table float32
+  [R_1, ..., R_k, C] along its first `spatial_axes` (k) axes, summed over those axes: float32 [].
+
+  DVGO and TensoRF use it on forward-facing captures, where a cell seen by few cameras would
+  otherwise take any value that fits them. Axes with a single lattice point contribute 0.
+  """
+  total = 0.0
+  for axis in range(spatial_axes):
+    if table.shape[axis] > 1:
+      total = total + jnp.mean(jnp.square(jnp.diff(table, axis=axis)))
+  return total

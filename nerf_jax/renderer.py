@@ -65,9 +65,8 @@ class RayRenderer:
     points = sampler_lib.points(rays, samples.distances)
     if self.colour_fraction > 0 and self.field.splits_density:
       return self._shade_where_it_matters(params, rays, samples, points, background, key)
-    extra = {} if image is None and bands is None else {"image": image, "bands": bands}
     rgb, sigma = self.field.query_in_chunks(params, points, rays.viewdirs, key, remat_chunk,
-                                            **extra)
+                                            image, bands)
     rgb, sigma = samples.intervals(rgb, sampler_lib.per_unit_t(sigma, rays))
     out = compositing.composite(rgb, sigma, samples.t, background)
     out["t"] = samples.t

@@ -15,8 +15,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from nerf_jax import (background, experiment, metrics, occupancy, parallel, pose_refinement,
-                      regularizers, renderer, train_batches)
+from nerf_jax import (background, experiment, metrics, model, occupancy, parallel,
+                      pose_refinement, regularizers, renderer, train_batches)
 from nerf_jax.experiment import TrainState
 
 
@@ -58,11 +58,8 @@ def make_train_step(exp, mesh=None):
     if refine:  # the rays of the corrected cameras: the corrections take a gradient
       rays = train_batches.pixel_rays_of(
           data, batch.image, batch.pixel, pose_refinement.corrected(data.poses, params["poses"]))
-    image = image_of(batch)
-    # Only given, so a renderer's plain render(variables, rays, key, bg, chunk) keeps working.
-    extra = {} if image is None and bands is None else {"image": image, "bands": bands}
     outs = ray_renderer.render({"params": params, **buffers}, rays, render_key, bg,
-                               config.train.remat_chunk, **extra)
+                               config.train.remat_chunk, image_of(batch), bands)
     mses = {name: jnp.mean((out["rgb"] - target) ** 2) for name, out in outs.items()}
     loss = mses["coarse"] if "fine" not in mses else (
         mses["fine"] + config.train.coarse_loss_weight * mses["coarse"])
@@ -71,6 +68,10 @@ def make_train_step(exp, mesh=None):
       last = renderer.final(outs)
       loss = loss + config.train.distortion_weight * jnp.mean(
           regularizers.distortion(last["t"], last["weights"]))
+    if config.train.tv_weight > 0:  # smooth tables where few rays constrain them (LLFF)
+      tables = model.lattice_tables(params)
+      loss = loss + config.train.tv_weight * sum(
+          regularizers.total_variation(table, axes) for table, axes in tables)
     return loss, {"loss": loss, "psnr": metrics.mse_to_psnr(best)}
 
   def refresh_occupancy(state, run_key):

@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from nerf_jax import characterise, cli, config_lib, experiment, scenes
+from nerf_jax import auto, characterise, cli, config_lib, experiment, scenes
 from nerf_jax.data import loaders
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.scenes import photos
@@ -70,12 +70,12 @@ def _auto(scene, capsys=None, **fields):
     else:
       config[section][field] = value
   train, _ = loaders.load_dataset(config.data)
-  return experiment.auto_config(config, train)
+  return auto.auto_config(config, train)
 
 
 def test_too_few_cameras_use_the_capture_defaults(capsys):
   config = config_lib.load("auto")
-  decided = experiment.auto_config(config, _capture(AROUND[:2]))
+  decided = auto.auto_config(config, _capture(AROUND[:2]))
   out = capsys.readouterr().out
   assert "2 cameras are too few to characterise" in out and "configs/capture.py" in out
   assert decided.data.scene_bound == config_lib.load("capture").data.scene_bound

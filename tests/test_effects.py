@@ -105,8 +105,9 @@ def _loss(monkeypatch, rendered, acc, pixel=0.3, spelling="random"):
   """The train loss of one step on random backgrounds (`spelling`: a key of RANDOM_SPELLINGS),
   every target pixel `pixel` (on the configured background) with opacity `acc`, and a field
   whose render is `rendered(background)`."""
-  def fake_render(self, variables, rays, key=None, background=None, remat_chunk=0):
-    del self, variables, key, remat_chunk
+  def fake_render(self, variables, rays, key=None, background=None, remat_chunk=0, image=None,
+                  bands=None):
+    del self, variables, key, remat_chunk, image, bands
     rgb = jnp.broadcast_to(rendered(background), (*rays.shape, 3))
     return {"coarse": {"rgb": rgb}}
   monkeypatch.setattr(renderer.RayRenderer, "render", fake_render)

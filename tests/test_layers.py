@@ -1,7 +1,7 @@
 """The layering rule: no ConfigDict is read below the entry layer.
 
-Outside the entry modules (cli, config_lib, experiment, train*, outputs*, eval*, bench/, viewer/,
-data/loaders.py) no function takes a `config` / `*_config` argument and no code reads a
+Outside the entry modules (cli, config_lib, experiment, auto, train*, outputs*, eval*, bench/,
+viewer/, data/loaders.py) no function takes a `config` / `*_config` argument and no code reads a
 `config.` / `*_config.` attribute: each layer receives its own small, typed settings, built once
 by experiment.py. Checked on the syntax tree (docstrings and messages may name config fields).
 """
@@ -13,7 +13,7 @@ import re
 import nerf_jax
 
 PACKAGE = pathlib.Path(nerf_jax.__file__).parent
-ENTRY = re.compile(r"^(cli|config_lib|experiment|train\w*|outputs\w*|eval\w*)\.py$|"
+ENTRY = re.compile(r"^(cli|config_lib|experiment|auto|train\w*|outputs\w*|eval\w*)\.py$|"
                    r"^(bench|viewer)/|^data/loaders\.py$")
 CONFIG_NAME = re.compile(r"^(config|\w+_config)$")
 

@@ -1,11 +1,11 @@
 """The distortion loss against its O(S^2) definition, its analytic values, and its place in the
-training loss."""
+training loss; total variation against closed forms and its place in the loss."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax import experiment, regularizers, train_batches, train_step
+from nerf_jax import experiment, model, regularizers, train_batches, train_step
 from tests.helpers import small_config
 
 
@@ -62,3 +62,37 @@ def test_the_train_loss_adds_the_weighted_distortion_and_nothing_else():
   # Same render, same photometric error: only the loss grows, by a positive amount.
   np.testing.assert_allclose(stats[0.5]["psnr"], stats[0.0]["psnr"], rtol=1e-6)
   assert float(stats[0.5]["loss"]) > float(stats[0.0]["loss"]) * 1.001
+
+
+def test_total_variation_of_ramps_and_constants():
+  i, j, k = np.meshgrid(np.arange(5.0), np.arange(4.0), np.arange(3.0), indexing="ij")
+  ramp = jnp.asarray(np.stack([0.5 * i - 2.0 * k, 0.0 * i], axis=-1), jnp.float32)  # [5, 4, 3, 2]
+  # Differences: 0.5 along x and -2 along z in channel 0, none in channel 1 (a mean over both).
+  want = (0.25 + 0.0 + 4.0) / 2
+  np.testing.assert_allclose(float(regularizers.total_variation(ramp, 3)), want, rtol=1e-6)
+  assert float(regularizers.total_variation(jnp.full((6, 6, 3), 2.5), 2)) == 0.0
+  # A single lattice point along an axis has no neighbour: no term, no NaN from an empty mean.
+  line = jnp.asarray(np.arange(4.0)[:, None] * 3.0, jnp.float32)
+  np.testing.assert_allclose(float(regularizers.total_variation(line, 1)), 9.0, rtol=1e-6)
+  assert float(regularizers.total_variation(jnp.ones((1, 4)), 1)) == 0.0
+
+
+def test_lattice_tables_and_the_weighted_tv_in_the_train_loss():
+  params = {"coarse": {"grid_8": jnp.zeros((8, 8, 8, 2)), "plane_8_0": jnp.zeros((8, 8, 4)),
+                       "line_8_0": jnp.zeros((8, 4)), "hidden": {"kernel": jnp.zeros((6, 4))}},
+            "poses": jnp.zeros((3, 6))}
+  assert sorted(axes for _, axes in model.lattice_tables(params)) == [1, 2, 3]
+  stats = {}
+  for weight in (0.0, 10.0):
+    config = small_config({"train.tv_weight": weight}, base="fast",
+                          **{"model.grid.resolutions": (8, 16)})
+    exp = experiment.setup(config)
+    state = experiment.init_state(exp)
+    tv = sum(float(regularizers.total_variation(t, a))
+             for t, a in model.lattice_tables(state.params))
+    _, stats[weight] = train_step.make_train_step(exp)(
+        state, train_batches.make_train_data(exp), jax.random.PRNGKey(3))
+  # Same render: only the loss grows, by the weight times the random start's variation.
+  np.testing.assert_allclose(stats[10.0]["psnr"], stats[0.0]["psnr"], rtol=1e-6)
+  np.testing.assert_allclose(float(stats[10.0]["loss"] - stats[0.0]["loss"]), 10.0 * tv,
+                             rtol=1e-3)

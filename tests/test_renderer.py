@@ -121,8 +121,8 @@ class _AnalyticField(field.Field):
   place of the network."""
   sigma_rgb: object = None
 
-  def query(self, params, points, viewdirs, key=None):
-    del params, viewdirs, key
+  def query(self, params, points, viewdirs, key=None, image=None, bands=None):
+    del params, viewdirs, key, image, bands
     sigma, rgb = self.sigma_rgb(points)
     return rgb, sigma
 
