@@ -1,10 +1,9 @@
-"""LLFF folders (forward-facing real photos, e.g. fern): NDC rays and a factorised grid field.
+"""LLFF folders (forward-facing real photos, e.g. fern): NDC rays and dense grids.
 
-configs/fast.py's tiny MLP head over TensoRF vector-matrix features (model.encoding='tensorf')
-in normalized device coordinates, where the photos' frustum fills x, y in [-1, 1] and depth is
-z in [-1, 1] (uniform in disparity); the box leaves room for the other cameras' rays. A total
-variation term keeps the tables smooth where few photos constrain them (as DVGO and TensoRF do
-on LLFF). Measured on fern in docs/quality_per_second.md.
+configs/fast.py's grids and tiny MLP head in normalized device coordinates, where the photos'
+frustum fills x, y in [-1, 1] and depth is z in [-1, 1] (uniform in disparity). The grids cover
+the box of all the training rays in NDC, found from the data (experiment.with_ndc_box).
+Measured on fern in docs/quality_per_second.md, with what lost there.
 
   python train.py --config=configs/llff.py --config.data.path=DIR --config.data.factor=8
 """
@@ -16,10 +15,6 @@ def get_config():
   config = fast.get_config()
   config.data.ndc = True  # forward-facing: NDC rays, t in [0, 1] uniform in disparity
   config.data.scene_bound = 0.0  # NDC's t in [0, 1] already spans the frustum: no box cut
-  config.model.encoding = "tensorf"  # planes and lines: fine in x, y at a small table size
-  config.model.tensorf.resolutions = (128, 300)  # lattice points along x, per level
-  config.model.tensorf.rank = 16  # components per plane-line pair
-  config.model.grid_box = (-1.5, -1.35, -1.0, 1.5, 1.35, 1.0)  # NDC frusta of all the photos
   config.model.view_dependent = True  # real photos have some gloss
   config.dir_encode_dims = 4  # the paper's 4 bands for directions
   config.train.random_background = False  # photos have no opacity to composite over

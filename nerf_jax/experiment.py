@@ -19,7 +19,7 @@ from nerf_jax.data import loaders
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.field import Field
 from nerf_jax.image_renderer import ImageSettings
-from nerf_jax.rays import camera_rays
+from nerf_jax.rays import camera_rays, pixel_rays
 from nerf_jax.renderer import RayRenderer
 from nerf_jax.sampler import Sampler
 
@@ -88,6 +88,7 @@ def setup(config):
   pixel_center(config, train_ds)  # a bad value fails here, naming the field
   near, far = bounds(config, train_ds)
   config = with_scene_extent(config, train_ds)
+  config = with_ndc_box(config, train_ds, near, far)
   config, hull = with_visual_hull(config, train_ds)
   exp = Experiment(config, make_ray_renderer(config, len(train_ds)), image_settings(config),
                    make_optimizer(config.train), train_ds, test_ds, near, far, hull)
@@ -117,6 +118,38 @@ def with_scene_extent(config, dataset):
   return config
 
 
+NDC_MARGIN = 0.02  # share of each side added around the training rays' NDC box
+
+
+def with_ndc_box(config, dataset, near, far):
+  """`config` with the grid encodings' box (model.grid_box) found from the data in an NDC run
+  that sets none: the box of every training ray's ends in NDC (t = 0 on the near plane and
+  t = 1 at infinity), NDC_MARGIN wider on each side, so no photo's frustum is cut, and no cells
+  are spent beyond them. One line says so; the box is recorded in config.json."""
+  m = config.model
+  if not config.data.ndc or m.encoding == "posenc" or m.grid_box:
+    return config
+  # A pinhole camera maps its pixel grid projectively onto any plane, so the NDC ends of its
+  # rays span the quadrilateral of its corner pixels' rays.
+  i = jnp.array([0.0, dataset.width - 1.0, 0.0, dataset.width - 1.0])
+  j = jnp.array([0.0, 0.0, dataset.height - 1.0, dataset.height - 1.0])
+  ends = []
+  for pose in dataset.poses:
+    rays = pixel_rays(i, j, dataset.height, dataset.width, dataset.intrinsics, pose, near, far,
+                      pixel_center(config, dataset), use_ndc=True)
+    ends += [np.asarray(rays.origins), np.asarray(rays.origins + rays.directions)]
+  ends = np.concatenate(ends)
+  low, high = ends.min(axis=0), ends.max(axis=0)
+  pad = NDC_MARGIN * (high - low)
+  low, high = np.maximum(low - pad, -1e3), np.minimum(high + pad, 1e3)
+  config = ml_collections.ConfigDict(config.to_dict())
+  config.model.grid_box = tuple(round(float(v), 4) for v in (*low, *high))
+  corner = lambda c: "(" + ", ".join(f"{float(v):.3f}" for v in c) + ")"
+  print(f"NDC extent: the training rays span {corner(low)} to {corner(high)}; the grids cover "
+        "it (model.grid_box)", flush=True)
+  return config
+
+
 HULL_RESOLUTION = 64  # cells per side of the carved grid when no occupancy grid sets it
 
 
@@ -140,9 +173,9 @@ def with_visual_hull(config, dataset):
   config = ml_collections.ConfigDict(config.to_dict())
   config.model.grid_box = tuple(round(float(v), 4) for v in box.reshape(-1))
   share = float(np.mean(np.asarray(hull)))
+  corner = lambda c: "(" + ", ".join(f"{float(v):.3f}" for v in c) + ")"
   print(f"visual hull: {100 * share:.1f}% of the box's cells; the grids cover "
-        f"{np.round(box[0], 3).tolist()} to {np.round(box[1], 3).tolist()} (model.grid_box)",
-        flush=True)
+        f"{corner(box[0])} to {corner(box[1])} (model.grid_box)", flush=True)
   return config, hull if occupied else None
 
 

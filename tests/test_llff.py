@@ -186,3 +186,24 @@ def test_spiral_poses_circle_the_centre_and_look_at_the_focus():
   assert np.all(np.abs(offsets) <= radii + 1e-6)
   assert np.all(np.ptp(offsets, axis=0) > radii)  # the spiral spans its radii
   assert np.all(rot[:, :, 1] @ centre[:3, 1] > 0.95)  # no roll: up stays up
+
+
+def test_llff_config_grids_hold_every_training_ray_in_ndc(forward, tmp_path):
+  # configs/llff.py samples t in [0, 1] with no box cut: every sample of every training ray
+  # must fall inside the grids' box found from the data, or parts of the photos would render
+  # empty; and the box is no larger than the rays need. NDC rays are straight, so their ends
+  # (t = 0 and t = 1) bound them; here they are checked at every pixel, not only the corners.
+  from nerf_jax import experiment  # pylint: disable=import-outside-toplevel
+  from tests.helpers import small_config  # pylint: disable=import-outside-toplevel
+  export_llff(forward, str(tmp_path))
+  config = small_config({"data.path": str(tmp_path), "data.factor": 1}, base="llff")
+  exp = experiment.setup(config)
+  assert config.data.ndc and exp.near == 0.0 and exp.far == 1.0
+  assert not config.model.grid_box  # found at setup, recorded in the run's config
+  box = np.asarray(exp.config.model.grid_box, np.float32).reshape(2, 3)
+  points = np.concatenate([np.asarray(r.origins + t * r.directions).reshape(-1, 3)
+                           for r in map(exp.rays, exp.train_ds.poses) for t in (0.0, 1.0)])
+  low, high = points.min(axis=0), points.max(axis=0)
+  assert np.all(box[0] <= low) and np.all(high <= box[1]), (box, low, high)
+  np.testing.assert_allclose(box[1] - box[0], (high - low) * (1 + 2 * experiment.NDC_MARGIN),
+                             rtol=1e-3)

@@ -7,6 +7,7 @@ import numpy as np
 import optax
 
 from nerf_jax import experiment, grid, renderer, tensorf
+from nerf_jax.bench import encodings as bench_encodings
 from nerf_jax.model import TensoRFNeRF
 from nerf_jax.rays import Rays, get_rays, pose_spherical
 from tests.helpers import ray_renderer, small_config
@@ -112,3 +113,11 @@ def test_tensorf_box_cells_and_out_of_box_density():
   assert params["plane_9_0"].shape == (9, 5, 2) and params["line_9_0"].shape == (3, 2)
   _, raw_sigma = model.apply({"params": params}, points)
   assert float(raw_sigma[1]) == -1e5 and np.isfinite(float(raw_sigma[0]))
+
+
+def test_encodings_microbenchmark_counts_the_tables_it_times():
+  for kind, resolutions, width, want in (("dense", (4, 8), 2, 4 ** 3 * 2 + 8 ** 3 * 2),
+                                         ("tensorf", (8,), 2, 3 * 8 * 8 * 2 + 3 * 8 * 2)):
+    count, forward_ms, step_ms = bench_encodings.measure_one(kind, resolutions, width,
+                                                            samples=64, repeats=1)
+    assert count == want and forward_ms > 0 and step_ms > 0
