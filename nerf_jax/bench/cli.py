@@ -62,7 +62,7 @@ def define_sweep_flags(values, argv):
                  "every run.")
   names = ", ".join(sweeps.SWEEPS)
   flags.DEFINE_string("sweep", "all", f"Comma list of sweeps ({names}) or 'all' (every sweep "
-                      "but quick, default_tuning, detail and frontier).", flag_values=values)
+                      "but quick, default_tuning, detail and the frontiers).", flag_values=values)
   flags.DEFINE_bool("quick", False, "The small sweep: --sweep=quick, 60 s per run on the "
                     "diffuse scene.", flag_values=values)
   flags.DEFINE_list("only", [], "Configuration labels to keep.", flag_values=values)

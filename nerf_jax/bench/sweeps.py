@@ -112,6 +112,12 @@ SWEEPS = {
                                         "model.density_activation": "exp",
                                         "model.colour_fraction": 0.25}, base="detail"),
     ],
+    # The same for forward-facing captures (LLFF folders: --scenes=PATH --config.data.factor=8):
+    # configs/llff.py's grids in NDC against the NDC MLP of configs/scenes/forward.py.
+    "frontier_llff": [
+        Entry("llff", base="llff"),
+        Entry("mlp (scenes/forward.py)", base="scenes/forward"),
+    ],
     # Unbounded scenes (scene `garden`, and one that does not call for it): a fixed box, the box
     # found from the data, and the rest of space contracted beyond it (+ occupancy placement).
     "contraction": [
@@ -138,11 +144,11 @@ SWEEPS = {
 # Scenes a sweep runs on unless --scenes says otherwise; the effects need scenes that call for
 # them (glossy: view dependence, fog: a soft medium, white: the background) and one that doesn't.
 SCENES = {"effects": ("diffuse", "glossy", "fog", "white"), "occupancy": ("diffuse", "glossy"),
-          "detail": ("detail",), "frontier": ("detail",), "contraction": ("garden", "diffuse"),
+          "detail": ("detail",), "frontier": ("detail",), "frontier_llff": ("forward",), "contraction": ("garden", "diffuse"),
           "photos": ("exposure", "perturbed", "diffuse")}
 DEFAULT_SCENES = ("diffuse",)
 # Sweeps 'all' leaves out: the small one, and the long ones at 400 px.
-_ON_REQUEST = ("quick", "default_tuning", "detail", "frontier")
+_ON_REQUEST = ("quick", "default_tuning", "detail", "frontier", "frontier_llff")
 
 
 # Fields the bench sets itself: an override would mislabel or unbudget the runs.
