@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import pytest
 from absl import flags
 
-from nerf_jax import cli, config_lib
+from nerf_jax import cli, config_lib, scenes
 from nerf_jax.bench import cli as bench_cli
 from nerf_jax.bench import measure, profile, report, runner, sweeps, timed_run
 
@@ -199,11 +199,13 @@ def test_every_documented_command_parses(tmp_path, monkeypatch, capsys):
   # docs/hashgrid.md); these are the sweep, render and profile command lines.
   commands = [c for c in commands if c[1] in known]
   for page, module, args in commands:
-    for arg in args:  # dataset files the command expects to exist
+    for arg in args:  # dataset files and folders the command expects to exist
       if arg.startswith("--scenes="):
         for scene in arg.split("=", 1)[1].split(","):
           if scene.endswith(".npz"):
             (tmp_path / scene).touch()
+          elif scene not in scenes.SCENES:  # a public dataset's folder (lego400, fern)
+            (tmp_path / scene).mkdir(exist_ok=True)
     try:
       if module == "nerf_jax.bench":
         assert _sweep(*args, "--dry_run") == [], (page, args)
@@ -217,7 +219,8 @@ def test_every_documented_command_parses(tmp_path, monkeypatch, capsys):
 
 
 def test_recorded_results_still_make_their_report():
-  paths = sorted(glob.glob(os.path.join(ROOT, "docs", "bench", "*", "results.jsonl")))
+  paths = sorted(glob.glob(os.path.join(ROOT, "docs", "bench", "**", "results.jsonl"),
+                          recursive=True))
   assert paths
   for path in paths:
     with open(path) as f:
