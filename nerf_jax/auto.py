@@ -28,7 +28,7 @@ def auto_config(config, dataset):
   """`config` (config.auto: configs/auto.py and the user's flags) decided from the training
   views `dataset` by characterise.decide: the representation of the config that suits the
   kind of capture (fast.py for an object on a background, detail.py from LARGE_IMAGES pixels,
-  the NDC setup of configs/scenes/forward.py for a forward-facing one, capture.py otherwise or
+  configs/llff.py (grids in NDC) for a forward-facing one, capture.py otherwise or
   when there are too few cameras) and the effects it calls for. A field the user set (named in
   config.auto_flags by the command line, or differing from configs/auto.py's) wins over the
   decision, with one line saying so. Prints one line per decision with its reason; the lines go to config.auto_decisions (config.json), and
@@ -46,7 +46,7 @@ def auto_config(config, dataset):
   else:
     found = {d.name: d for d in decisions}
     if found["forward"].found:
-      chosen = "default"
+      chosen = "llff"  # the winner on fern (docs/quality_per_second.md)
       effects.update({"data.ndc": True, "data.lindisp": False})
     elif found["background"].found:
       chosen = "detail" if max(dataset.height, dataset.width) >= LARGE_IMAGES else "fast"
