@@ -1,14 +1,17 @@
 """Shared test helpers: small configs with dotted overrides, a renderer around a stand-in
-network, one-line data errors and a minimal Blender folder."""
+network, a one-view loss, one-line data errors and a minimal Blender folder."""
 
 import dataclasses
 import json
 
 import imageio.v3 as iio
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import config_lib, experiment
+from nerf_jax import config_lib, experiment, renderer as renderer_lib
+from nerf_jax.rays import Rays, get_rays, pose_spherical
 from nerf_jax.data import DataError
 
 
@@ -40,6 +43,19 @@ def ray_renderer(config, network=None):
   if network is None:
     return renderer
   return dataclasses.replace(renderer, field=dataclasses.replace(renderer.field, network=network))
+
+
+def grey_view_loss(ray_renderer_):
+  """loss(params): the mean squared error of `ray_renderer_`'s final pass on one 8 x 8 view
+  (bounds [2, 6]) against a uniform grey 0.3; for training-step tests of a network."""
+  origins, directions = get_rays(8, 8, 10.0, pose_spherical(20.0, -30.0, 4.0))
+  rays = Rays.create(origins.reshape(-1, 3), directions.reshape(-1, 3), 2.0, 6.0)
+
+  def loss(params):
+    out = renderer_lib.final(ray_renderer_.render({"params": params}, rays,
+                                                  jax.random.PRNGKey(1)))
+    return jnp.mean((out["rgb"] - 0.3) ** 2)
+  return loss
 
 
 def assert_data_error(match, fn, *args, **kw):

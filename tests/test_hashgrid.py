@@ -10,10 +10,9 @@ import numpy as np
 import optax
 import pytest
 
-from nerf_jax import experiment, grid, hashgrid, renderer
+from nerf_jax import experiment, grid, hashgrid
 from nerf_jax.model import HashNeRF
-from nerf_jax.rays import Rays, get_rays, pose_spherical
-from tests.helpers import ray_renderer, small_config
+from tests.helpers import grey_view_loss, ray_renderer, small_config
 
 P1, P2 = 2654435761, 805459861
 
@@ -197,16 +196,8 @@ def test_hash_model_trains_one_step_through_the_ray_renderer():
   table = params["coarse"]["hash_table"]
   assert table.shape == (4 ** 3 + 10 ** 3 + 2 * 2 ** 10, 2)  # 4, 10 dense; 25, 64 hashed
   assert float(jnp.max(jnp.abs(table))) <= 1e-4  # instant-ngp's initial scale
-  origins, directions = get_rays(8, 8, 10.0, pose_spherical(20.0, -30.0, 4.0))
-  rays = Rays.create(origins.reshape(-1, 3), directions.reshape(-1, 3), 2.0, 6.0)
-  target = jnp.full((64, 3), 0.3)
-
-  def loss_fn(p):
-    out = renderer.final(rr.render({"params": p}, rays, jax.random.PRNGKey(1)))
-    return jnp.mean((out["rgb"] - target) ** 2)
-
   tx = optax.adam(1e-2)
-  loss_and_grad = jax.jit(jax.value_and_grad(loss_fn))
+  loss_and_grad = jax.jit(jax.value_and_grad(grey_view_loss(rr)))
   loss, grads = loss_and_grad(params)
   updates, _ = tx.update(grads, tx.init(params))
   new_params = optax.apply_updates(params, updates)

@@ -6,11 +6,10 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from nerf_jax import experiment, grid, renderer, tensorf
+from nerf_jax import experiment, grid, tensorf
 from nerf_jax.bench import encodings as bench_encodings
 from nerf_jax.model import TensoRFNeRF
-from nerf_jax.rays import Rays, get_rays, pose_spherical
-from tests.helpers import ray_renderer, small_config
+from tests.helpers import grey_view_loss, ray_renderer, small_config
 from tests.test_grid import trilinear_brute
 
 
@@ -83,16 +82,8 @@ def test_tensorf_model_shapes_box_and_one_training_step():
   assert signature["encoding"] == "tensorf" and signature["tensorf_rank"] == 4
   assert signature["tensorf_resolutions"] == [8, 16]
 
-  origins, directions = get_rays(8, 8, 10.0, pose_spherical(20.0, -30.0, 4.0))
-  rays = Rays.create(origins.reshape(-1, 3), directions.reshape(-1, 3), 2.0, 6.0)
-  target = jnp.full((64, 3), 0.3)
-
-  def loss_fn(p):
-    out = renderer.final(rr.render({"params": p}, rays, jax.random.PRNGKey(1)))
-    return jnp.mean((out["rgb"] - target) ** 2)
-
   tx = optax.adam(1e-2)
-  loss_and_grad = jax.jit(jax.value_and_grad(loss_fn))
+  loss_and_grad = jax.jit(jax.value_and_grad(grey_view_loss(rr)))
   state, p = tx.init(params), params
   losses = []
   for _ in range(30):
