@@ -40,17 +40,22 @@ def inside_box(unit):
   return jnp.all((unit >= 0.0) & (unit <= 1.0), axis=-1)
 
 
+def lower_corner(unit, points):
+  """(lower lattice index int32 [...], fraction float32 [...]) of unit float32 [...] in [0, 1]
+  (clamped) on axes of `points` lattice points (int, or int32 broadcasting against unit)."""
+  x = jnp.clip(unit, 0.0, 1.0) * (points - 1)
+  # floor clamped to points - 2 so the upper corner index stays in range at x = points - 1.
+  lower = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, points - 2)
+  return lower, x - lower  # the fraction is in [0, 1]
+
+
 def trilinear(grid, unit):
   """Trilinear interpolation of grid: float32 [Rx, Ry, Rz, F] at unit: float32 [..., 3].
 
   Positions outside [0, 1]^3 are clamped to the box surface (callers mask them out).
   Returns float32 [..., F].
   """
-  res = jnp.array(grid.shape[:3], jnp.int32)
-  x = jnp.clip(unit, 0.0, 1.0) * (res - 1).astype(jnp.float32)
-  # floor clamped to res - 2 so the upper corner index stays in range at x = res - 1.
-  lower = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, res - 2)
-  frac = x - lower  # in [0, 1]
+  lower, frac = lower_corner(unit, jnp.array(grid.shape[:3], jnp.int32))
   flat = grid.reshape(-1, grid.shape[-1])
   out = 0.0
   for corner in range(8):

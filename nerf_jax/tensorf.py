@@ -5,8 +5,9 @@ along the third, and its C components multiply point by point:
   features(x, y, z) = [P_xy(x, y) * L_z(z),  P_xz(x, z) * L_y(y),  P_yz(y, z) * L_x(x)]
 Each read is bilinear on a plane (4 corners) and linear on a line (2 corners): 18 gathers of C
 floats per point whatever the resolution, and the tables hold 3·R²·C + 3·R·C floats instead of
-a dense grid's R³·F. That keeps both the gathers' working set and the optimiser's dense update
-small at resolutions where a dense grid's are not (docs/quality_per_second.md).
+a dense grid's R³·F, so the optimiser's dense update stays small at fine resolutions. Its
+backward pass still scatter-adds 18 rows of C floats per point: on a 2-core CPU it costs more
+per sample than the dense levels (docs/quality_per_second.md).
 
 Names:
   planes: 3 arrays float32 [Ra, Rb, C]  mode m's plane over axes MODES[m][0] (Ra lattice points
@@ -17,23 +18,16 @@ Names:
 
 import jax.numpy as jnp
 
+from nerf_jax import grid
+
 # (the plane's two axes, the line's axis) of each mode
 MODES = (((0, 1), 2), ((0, 2), 1), ((1, 2), 0))
-
-
-def _lower_and_frac(coord, size):
-  """Lower lattice index int32 [...] and fraction float32 [...] of coord float32 [...] in [0, 1]
-  (clamped) on an axis of `size` lattice points; the lower index stays <= size - 2 so that the
-  upper one is in range at coord = 1."""
-  x = jnp.clip(coord, 0.0, 1.0) * (size - 1)
-  lower = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, size - 2)
-  return lower, x - lower
 
 
 def linear(line, coord):
   """Linear interpolation of line float32 [R, C] at coord float32 [...] in [0, 1].
   Returns float32 [..., C]."""
-  lower, frac = _lower_and_frac(coord, line.shape[0])
+  lower, frac = grid.lower_corner(coord, line.shape[0])
   frac = frac[..., None]
   return (1.0 - frac) * line[lower] + frac * line[lower + 1]
 
@@ -42,8 +36,8 @@ def bilinear(plane, u, v):
   """Bilinear interpolation of plane float32 [Ra, Rb, C] at u, v float32 [...] in [0, 1]
   (u along its first axis). Returns float32 [..., C]."""
   rows, cols = plane.shape[:2]
-  iu, fu = _lower_and_frac(u, rows)
-  iv, fv = _lower_and_frac(v, cols)
+  iu, fu = grid.lower_corner(u, rows)
+  iv, fv = grid.lower_corner(v, cols)
   fu, fv = fu[..., None], fv[..., None]
   flat = plane.reshape(rows * cols, plane.shape[-1])
   at = lambda du, dv: flat[(iu + du) * cols + iv + dv]
