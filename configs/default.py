@@ -24,6 +24,7 @@ def get_config():
   data.num_views = 100  # built-in scene: number of rendered views
   data.image_size = 100  # built-in scene: height = width in pixels
   data.holdout_from = -1  # views[holdout_from:] are test views; -1 = the reference's 80/20 split
+  data.held_out_looks = "neutral"  # per-photo-look scenes: test views 'neutral' or 'own' looks
   data.pixel_center = -1.0  # -1 = the data's own (0.5 centres; 0 corners for tiny_nerf .npz)
   data.background = "black"  # 'black', 'white' or an RGB triple: rendered and scored on
   data.half_res = False  # Blender data: load at half resolution

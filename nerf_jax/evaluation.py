@@ -19,6 +19,8 @@ APPEARANCE_PROTOCOLS = {
     "mean": "mean code: the mean of the training images' appearance codes",
     "left_half": ("left half: a code fitted to each test image's left half (the field frozen), "
                   "every score over its right half (NeRF-W)")}
+NO_CODE_HALF = ("right half: no appearance codes to fit, every score over each test image's "
+                "right half (to compare with left_half runs)")
 FIT_STEPS, FIT_RAYS, FIT_LR = 100, 1024, 1e-2  # left_half: Adam steps, rays a step, step size
 POSE_PROTOCOL = ("similarity: the given test poses moved by the similarity (Umeyama) that takes "
                  "the given training cameras (centres and axes) to the refined ones")
@@ -46,7 +48,8 @@ def make_evaluator(exp):
   camera = (test_ds.height, test_ds.width, test_ds.intrinsics)
   truths = background.images_on_background(test_ds, bg)[1]
   half = appearance_protocol(exp) == "left_half"
-  scored = (lambda a: a[:, test_ds.width // 2:]) if half else (lambda a: a)
+  scored = ((lambda a: a[:, test_ds.width // 2:]) if exp.config.render.appearance_protocol ==
+            "left_half" else (lambda a: a))
   lpips_skipped = lpips.unavailable_reason(test_ds.height, scored(truths[0]).shape[1])
   fit_code = make_code_fitter(exp.renderer) if half else None
 
@@ -160,11 +163,14 @@ def held_out_poses(exp, variables):
 
 
 def protocols(exp, variables):
-  """{'appearance': ..., 'held_out_poses': ...}: how the test views were rendered, for the
-  models that need saying (appearance codes, refined poses); {} otherwise."""
+  """{'appearance': ..., 'held_out_poses': ...}: how the test views were rendered and scored,
+  for the models or protocols that need saying (appearance codes or left_half, refined poses);
+  {} otherwise."""
   out = {}
   if exp.renderer.field.uses_images:
     out["appearance"] = APPEARANCE_PROTOCOLS[appearance_protocol(exp)]
+  elif exp.config.render.appearance_protocol == "left_half":
+    out["appearance"] = NO_CODE_HALF
   if refined_poses(exp, variables) is not None:
     out["held_out_poses"] = POSE_PROTOCOL
   return out
@@ -174,16 +180,20 @@ def pose_scores(exp, variables):
   """Where the training data knows its true poses (`Dataset.true_poses`, a simulated pose
   error): how far the given and the refined training cameras are from them, aligned
   (pose_refinement.pose_errors): pose_error_given_degrees, pose_error_given_translation and,
-  with refinement, pose_error_degrees, pose_error_translation. {} otherwise."""
+  with refinement, pose_error_degrees, pose_error_translation; where the data has true depth
+  and opacity, pose_error_given_reprojection_px and pose_error_reprojection_px. {} otherwise."""
   true = exp.train_ds.true_poses
   if true is None:
     return {}
+  ds = exp.train_ds
+  surface = None if ds.depths is None or ds.accs is None else (ds.depths, ds.accs,
+                                                                 ds.intrinsics)
   scores = {f"pose_error_given_{k}": v
-            for k, v in pose_refinement.pose_errors(exp.train_ds.poses, true).items()}
+            for k, v in pose_refinement.pose_errors(ds.poses, true, surface).items()}
   refined = refined_poses(exp, variables)
   if refined is not None:
     scores.update({f"pose_error_{k}": v
-                   for k, v in pose_refinement.pose_errors(refined, true).items()})
+                   for k, v in pose_refinement.pose_errors(refined, true, surface).items()})
   return scores
 
 

@@ -116,13 +116,49 @@ def rotation_degrees(rot_a, rot_b):
   return np.degrees(np.arctan2(sin, cos))
 
 
-def pose_errors(poses, true_poses):
+def pose_errors(poses, true_poses, surface=None):
   """How far cameras `poses` are from `true_poses` (float [N, 4, 4]) once the frame they share
   is aligned (`align_cameras`, with scale): {'degrees': mean angle of the rotations,
-  'translation': mean centre distance, in the true poses' units}."""
+  'translation': mean centre distance, in the true poses' units}. With `surface` (depths,
+  accs, intrinsics: the true views' z-depth and opacity float [N, H, W] and (fx, fy, cx, cy))
+  also 'reprojection_px' (`reprojection_px`)."""
   moved = transform(poses, align_cameras(poses, true_poses))
   true_poses = np.asarray(true_poses, np.float64)
-  return {"degrees": float(np.mean(rotation_degrees(moved[:, :3, :3],
-                                                              true_poses[:, :3, :3]))),
-          "translation": float(np.mean(np.linalg.norm(moved[:, :3, 3] - true_poses[:, :3, 3],
-                                                      axis=-1)))}
+  errors = {"degrees": float(np.mean(rotation_degrees(moved[:, :3, :3],
+                                                      true_poses[:, :3, :3]))),
+            "translation": float(np.mean(np.linalg.norm(moved[:, :3, 3] - true_poses[:, :3, 3],
+                                                        axis=-1)))}
+  if surface is not None:
+    errors["reprojection_px"] = reprojection_px(moved, true_poses, *surface)
+  return errors
+
+
+REPROJECTION_POINTS = 4096  # surface points per view (a strided subset of its opaque pixels)
+OPAQUE = 0.99  # true opacity of the pixels whose surface points are reprojected
+
+
+def reprojection_px(poses, true_poses, depths, accs, intrinsics):
+  """The mean distance in pixels between where the true cameras see the visible surface and
+  where the cameras `poses` (aligned to the true ones' frame) put it: the error a renderer
+  sees. A small turn and a sideways move shift a distant surface alike, so the angle alone
+  overstates an error the images cannot tell apart.
+
+  poses, true_poses: float [N, 4, 4]; depths, accs: float [N, H, W] true z-depth and opacity of
+  the true views; intrinsics (fx, fy, cx, cy). Surface points: up to REPROJECTION_POINTS pixels
+  a view with opacity > OPAQUE, at their true depth."""
+  fx, fy, cx, cy = intrinsics
+  rows, cols = np.mgrid[:depths.shape[1], :depths.shape[2]] + 0.5
+  camera_xy = np.stack([(cols - cx) / fx, -(rows - cy) / fy], -1)
+  means = []
+  for pose, true, depth, acc in zip(np.asarray(poses, np.float64), true_poses, depths, accs):
+    pick = np.flatnonzero(acc.reshape(-1) > OPAQUE)
+    pick = pick[::max(1, len(pick) // REPROJECTION_POINTS)]
+    if not len(pick):
+      continue
+    z = depth.reshape(-1)[pick, None]
+    local = np.concatenate([camera_xy.reshape(-1, 2)[pick] * z, -z], -1)
+    world = local @ true[:3, :3].T + true[:3, 3]
+    seen = (world - pose[:3, 3]) @ pose[:3, :3]  # into the camera `pose`: R^T (X - t)
+    shift = seen[:, :2] / -seen[:, 2:] - camera_xy.reshape(-1, 2)[pick]
+    means.append(np.mean(np.hypot(fx * shift[:, 0], fy * shift[:, 1])))
+  return float(np.mean(means)) if means else float("nan")

@@ -62,6 +62,31 @@ def test_the_exposure_capture_has_the_stated_gains_on_training_views_only():
   np.testing.assert_allclose(train.images, np.clip(plain_train.images * gains[:, None, None],
                                                    0, 1), atol=1e-6)
   assert np.ptp(np.log2(gains.mean(axis=1))) > 0.5  # exposures differ by over half a stop
+  _, own_test = loaders.load_dataset({**data, "held_out_looks": "own"})
+  own_gains = photos.gains(10)[8:]  # drawn after the training photos' from the same stream
+  np.testing.assert_allclose(own_test.images, np.clip(plain_test.images * own_gains[:, None, None],
+                                                      0, 1), atol=1e-6)
+  _, diffuse_test = loaders.load_dataset({**data, "scene": "diffuse", "held_out_looks": "own"})
+  np.testing.assert_array_equal(diffuse_test.images, plain_test.images)  # no looks to give
+  with pytest.raises(loaders.DataError, match="held_out_looks='mine'"):
+    loaders.load_dataset({**data, "held_out_looks": "mine"})
+
+
+def test_left_half_without_codes_scores_the_right_half_and_says_so():
+  """A codeless model under render.appearance_protocol='left_half' has no code to fit; its
+  scores are over the right halves, as the coded runs' are, so the two compare."""
+  config = small_config({"data.scene": "exposure", "data.num_views": 6, "data.holdout_from": 4,
+                         "data.image_size": 16, "render.appearance_protocol": "left_half"})
+  exp = experiment.setup(config)
+  variables = {"params": experiment.init_state(exp).params}
+  rendered = {}
+  result = evaluation.make_evaluator(exp)(variables, on_view=lambda i, out, truth: rendered.update(
+      {i: (out["rgb"], truth)}))
+  assert result["appearance"] == evaluation.NO_CODE_HALF
+  for view in result["per_view"]:
+    rgb, truth = rendered[view["view"]]
+    assert view["psnr"] == pytest.approx(float(metrics.psnr(rgb[:, 8:], truth[:, 8:])), abs=1e-4)
+    assert view["psnr"] != pytest.approx(float(metrics.psnr(rgb, truth)), abs=1e-4)
 
 
 def _train_view_scores(workdir, config):

@@ -138,3 +138,23 @@ def test_refinement_recovers_a_known_perturbation():
   assert given["degrees"] > 0.8
   assert got["degrees"] < 0.3 * given["degrees"], (got, given)
   assert got["translation"] < 0.3 * given["translation"], (got, given)
+
+
+def test_reprojection_error_of_a_sideways_move_is_focal_times_move_over_depth():
+  """A camera facing a plane at depth 4 (every pixel opaque) moved 0.1 sideways sees every
+  point shifted by f·0.1/4 pixels; the true camera itself reprojects with no error."""
+  f, size, depth, move = 50.0, 20, 4.0, 0.1
+  true = np.eye(4)[None]
+  moved = true.copy()
+  moved[0, 0, 3] = move
+  depths, accs = np.full((1, size, size), depth), np.ones((1, size, size))
+  surface = (depths, accs, (f, f, size / 2, size / 2))
+  assert pose_refinement.reprojection_px(moved, true, *surface) == pytest.approx(f * move / depth)
+  assert pose_refinement.reprojection_px(true, true, *surface) == pytest.approx(0.0, abs=1e-12)
+  half_transparent = np.where(np.arange(size) < size // 2, 1.0, 0.0)[None, None, :]
+  tilted = np.broadcast_to(np.where(np.arange(size) < size // 2, depth, 2 * depth), (1, size,
+                                                                                        size))
+  # only the opaque half (at depth 4) counts; the far half would shift half as much
+  assert pose_refinement.reprojection_px(moved, true, tilted, np.broadcast_to(
+      half_transparent, (1, size, size)), (f, f, size / 2, size / 2)) == pytest.approx(
+          f * move / depth)

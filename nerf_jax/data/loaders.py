@@ -142,7 +142,8 @@ def load_dataset(config):
   of configs/default.py, which documents every field).
 
   path '' = the built-in `scene` (image_size, num_views and pixel_center apply, -1 = 0.5; focal
-  keeps tiny_nerf's field of view); background and half_res apply to .npz and Blender; factor,
+  keeps tiny_nerf's field of view; held_out_looks 'own' gives the test views of a scene with
+  per-photo looks their own, scenes/photos.py); background and half_res apply to .npz and Blender; factor,
   bd_factor (0 = keep the file's units) and recenter to LLFF, see `load_llff`: the defaults are
   the original NeRF's LLFF pipeline, which NDC rays (near plane 1, world -z forward) rely on.
   holdout_from: views[holdout_from:] are the test views; -1 = the default split of the format:
@@ -165,7 +166,12 @@ def load_dataset(config):
         focal=scenes.TINY_NERF_FOCAL * size / 100,
         pixel_center=0.5 if config.pixel_center == -1 else config.pixel_center)
     train, test = dataset.split(holdout_from)
-    return scenes.photographed(train, scenes.get_scene(name).effects), test
+    effects = scenes.get_scene(name).effects
+    if config.held_out_looks not in ("neutral", "own"):
+      raise DataError(f"data.held_out_looks={config.held_out_looks!r}: use 'neutral' or 'own'")
+    if config.held_out_looks == "own":
+      test = scenes.held_out_with_own_looks(test, effects, len(train))
+    return scenes.photographed(train, effects), test
   if not os.path.exists(path):
     raise DataError(f"{path}: no such file or directory")
   if os.path.isfile(path) and path.endswith(".npz"):

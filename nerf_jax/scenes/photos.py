@@ -4,7 +4,8 @@ and white balance, and camera poses that structure from motion got slightly wron
 Both apply to the training views of a built-in scene that declares them (`Effects.appearance`,
 `Effects.pose_error`; data/loaders.py): the held-out views keep the neutral look (gain 1) and
 their true poses, so a test score measures the model, not the test photo's own exposure or
-pose error. The amounts are known, so what a model recovers can be measured.
+pose error. `held_out_with_own_looks` gives the held-out views looks of their own instead, as a
+real capture's (data.held_out_looks='own'), for NeRF-W's left-half protocol. The amounts are known, so what a model recovers can be measured.
 """
 
 import dataclasses
@@ -71,3 +72,13 @@ def photographed(train, effects, seed=0):
     train = dataclasses.replace(train, poses=perturbed(train.poses, seed=seed),
                                 true_poses=train.poses)
   return train
+
+
+def held_out_with_own_looks(test, effects, num_train, seed=0):
+  """The held-out views `test` (a Dataset) each with a look of its own, as a real capture's
+  held-out photos have (what NeRF-W's left-half protocol is for), where `effects` declare
+  per-photo looks: gains drawn after the `num_train` training photos' from the same stream."""
+  if not effects.appearance:
+    return test
+  own = gains(num_train + len(test), seed)[num_train:]
+  return dataclasses.replace(test, images=with_gains(test.images, own))
