@@ -145,8 +145,19 @@ def complete(saved):
   """A ConfigDict of `saved` (a dict, e.g. a run's config.json) with the default's value for
   every field it lacks; tuples come back as tuples (JSON stores lists). Fields the default does
   not have are kept as they are; old spellings are moved (`upgrade`) without a word."""
-  return ml_collections.ConfigDict(_merge(default().to_dict(), _upgraded_dict(saved,
-                                                                               quiet=True)))
+  return ml_collections.ConfigDict(_merge(default().to_dict(), _as_trained(
+      _upgraded_dict(saved, quiet=True))))
+
+
+def _as_trained(saved):
+  """`saved` with the fields a run saved before they existed set to what it trained with, not
+  today's defaults: its appearance codes learnt at train.lr."""
+  train = saved.get("train")
+  if not isinstance(train, dict):
+    return saved
+  if "appearance_lr" not in train and "lr" in train:
+    train["appearance_lr"] = train["lr"]
+  return saved
 
 
 def _merge(base, saved):

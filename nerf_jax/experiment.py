@@ -91,7 +91,7 @@ def setup(config):
   config = with_ndc_box(config, train_ds, near, far)
   config, hull = with_visual_hull(config, train_ds)
   exp = Experiment(config, make_ray_renderer(config, len(train_ds)), image_settings(config),
-                   make_optimizer(config.train), train_ds, test_ds, near, far, hull)
+                   optimizer_for(config), train_ds, test_ds, near, far, hull)
   warn_if_cut(exp)
   return exp
 
@@ -344,20 +344,42 @@ def make_schedule(train_config, planned_steps=None):
   return schedule
 
 
-def make_optimizer(train_config, planned_steps=None):
+def optimizer_for(config, planned_steps=None):
+  """`make_optimizer` for the run `config` describes (its codes, if model.appearance_dims)."""
+  return make_optimizer(config.train, planned_steps, config.model.appearance_dims > 0)
+
+
+def make_optimizer(train_config, planned_steps=None, with_codes=False):
   """Adam on the schedule (see `make_schedule`), with optional global-norm gradient clipping.
   With train.pose_refinement the camera corrections (params['poses']) have an Adam of their
-  own, on the same schedule scaled to train.pose_lr."""
-  schedule = make_schedule(train_config, planned_steps)
+  own, on the same schedule scaled to train.pose_lr; `with_codes` (appearance codes: every
+  parameter named 'appearance'), so do the codes, scaled to train.appearance_lr (unless it is
+  train.lr: one Adam, as in runs saved before train.appearance_lr existed)."""
+  tc = train_config
+  schedule = make_schedule(tc, planned_steps)
   adam = optax.adam(schedule)
-  if train_config.grad_clip > 0:
-    adam = optax.chain(optax.clip_by_global_norm(train_config.grad_clip), adam)
-  if not train_config.pose_refinement:
+  if tc.grad_clip > 0:
+    adam = optax.chain(optax.clip_by_global_norm(tc.grad_clip), adam)
+  scaled = lambda lr: optax.adam(lambda count: lr / tc.lr * schedule(count))
+  groups = {"field": adam}
+  if tc.pose_refinement:
+    groups["poses"] = scaled(tc.pose_lr)
+  if with_codes and tc.appearance_lr != tc.lr:
+    groups["codes"] = scaled(tc.appearance_lr)
+  if len(groups) == 1:
     return adam
-  ratio = train_config.pose_lr / train_config.lr
-  poses = optax.adam(lambda count: ratio * schedule(count))
-  labels = lambda params: {k: "poses" if k == "poses" else "field" for k in params}
-  return optax.multi_transform({"field": adam, "poses": poses}, labels)
+  return optax.multi_transform(groups, functools.partial(_parameter_groups, groups))
+
+
+def _parameter_groups(groups, params):
+  """The optimiser group of each leaf of `params`: 'poses' (params['poses']), 'codes' (leaves
+  named 'appearance') where `groups` has them, else 'field'."""
+  def label(path, _):
+    names = [getattr(entry, "key", None) for entry in path]
+    if names[0] == "poses" and "poses" in groups:
+      return "poses"
+    return "codes" if names[-1] == "appearance" and "codes" in groups else "field"
+  return jax.tree_util.tree_map_with_path(label, params)
 
 
 # Encoding fields that do not fix the parameters' shapes or meaning (left out of the signature).

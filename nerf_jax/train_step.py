@@ -99,8 +99,7 @@ def make_train_step(exp, mesh=None):
                                                    data, bands_at(state.step, planned_steps))
     finite = jnp.isfinite(stats["loss"]) & jnp.all(jnp.array(
         [jnp.all(jnp.isfinite(g)) for g in jax.tree_util.tree_leaves(grads)]))
-    step_tx = tx if planned_steps is None else experiment.make_optimizer(config.train,
-                                                                         planned_steps)
+    step_tx = tx if planned_steps is None else experiment.optimizer_for(config, planned_steps)
     updates, opt_state = step_tx.update(grads, state.opt_state, state.params)
     params = optax.apply_updates(state.params, updates)
     # A non-finite step is not applied (the state stays the last good one) and is reported.

@@ -81,3 +81,20 @@ def test_upgrade_leaves_a_current_state_dict_and_one_without_occupancy_alone(tra
   structure = jax.tree_util.tree_structure
   assert structure(upgraded["opt_state"]) == structure(current["opt_state"])
   assert params_equal(upgraded["opt_state"], current["opt_state"])
+
+
+def test_a_run_saved_before_appearance_lr_keeps_what_it_trained_with():
+  """A config.json without train.appearance_lr (saved before it existed) completes to what
+  that run did: codes at train.lr, in the field's Adam (the checkpoint's state); a current
+  save keeps its own value, and its codes have an Adam of their own."""
+  from nerf_jax import config_lib
+  saved = small_config({"model.appearance_dims": 4, "train.pose_refinement": True}).to_dict()
+  del saved["train"]["appearance_lr"]
+  old = config_lib.complete(saved)
+  assert old.train.appearance_lr == old.train.lr
+  state = experiment.init_state(experiment.setup(old))
+  assert set(state.opt_state.inner_states) == {"field", "poses"}  # codes in the field's Adam
+  current = config_lib.complete(small_config({"model.appearance_dims": 4}).to_dict())
+  state = experiment.init_state(experiment.setup(current))
+  assert set(state.opt_state.inner_states) == {"field", "codes"}
+  assert current.train.appearance_lr == 1e-3 != current.train.lr

@@ -106,7 +106,7 @@ def run_config(config, options):
     config = train_lib.fit_to_time(exp, train_step.make_train_step(exp), data, key,
                                    lambda compile_seconds: tc.max_seconds - compile_seconds)
     tc = config.train
-    exp = dataclasses.replace(exp, config=config, tx=experiment.make_optimizer(tc))
+    exp = dataclasses.replace(exp, config=config, tx=experiment.optimizer_for(config))
     max_steps = sys.maxsize
   jitted, state = _build(exp)
   evaluate = evaluation.make_evaluator(exp)
