@@ -372,14 +372,16 @@ def make_optimizer(train_config, planned_steps=None, with_codes=False):
 
 
 def _parameter_groups(groups, params):
-  """The optimiser group of each leaf of `params`: 'poses' (params['poses']), 'codes' (leaves
-  named 'appearance') where `groups` has them, else 'field'."""
-  def label(path, _):
-    names = [getattr(entry, "key", None) for entry in path]
-    if names[0] == "poses" and "poses" in groups:
-      return "poses"
-    return "codes" if names[-1] == "appearance" and "codes" in groups else "field"
-  return jax.tree_util.tree_map_with_path(label, params)
+  """The optimiser group of `params`' parts: 'poses' for params['poses'], 'codes' for the leaves
+  named 'appearance' where `groups` has codes, else 'field'. Labels stay a prefix of the tree
+  where they can (a whole network is 'field'), as checkpoints of pose refinement saved them."""
+  def network(tree):
+    if "codes" not in groups:
+      return "field"
+    return jax.tree_util.tree_map_with_path(
+        lambda path, _: "codes" if getattr(path[-1], "key", None) == "appearance" else "field",
+        tree)
+  return {name: "poses" if name == "poses" else network(tree) for name, tree in params.items()}
 
 
 # Encoding fields that do not fix the parameters' shapes or meaning (left out of the signature).

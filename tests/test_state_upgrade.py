@@ -98,3 +98,18 @@ def test_a_run_saved_before_appearance_lr_keeps_what_it_trained_with():
   state = experiment.init_state(experiment.setup(current))
   assert set(state.opt_state.inner_states) == {"field", "codes"}
   assert current.train.appearance_lr == 1e-3 != current.train.lr
+
+
+def test_pose_refinement_keeps_the_optimiser_state_its_checkpoints_saved():
+  """Brute force: the optimiser state of a pose-refinement run without codes has the structure
+  of the one checkpoints were saved with (two Adams, labels by top-level name)."""
+  import optax
+  config = small_config({"train.pose_refinement": True, "data.scene": "perturbed"})
+  exp = experiment.setup(config)
+  state = experiment.init_state(exp)
+  schedule = experiment.make_schedule(config.train)
+  saved_style = optax.multi_transform(
+      {"field": optax.adam(schedule), "poses": optax.adam(schedule)},
+      lambda params: {k: "poses" if k == "poses" else "field" for k in params})
+  assert (jax.tree_util.tree_structure(state.opt_state) ==
+          jax.tree_util.tree_structure(saved_style.init(state.params)))
