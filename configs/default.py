@@ -98,7 +98,7 @@ def get_config():
   train.tv_weight = 0.0  # grid encodings: total variation of the lattice tables (0 = off)
   train.random_background = False  # data with opacity: composite on random colours (no floaters)
   train.pose_refinement = False  # learn an SE(3) correction of each training camera (BARF)
-  train.appearance_lr = 1e-3  # appearance codes: Adam learning rate (the field's schedule)
+  train.appearance_lr = 3e-4  # appearance codes: Adam learning rate (the field's schedule)
   train.pose_lr = 3e-4  # pose refinement: Adam learning rate of the corrections (same decay)
   train.pose_coarse_to_fine = (0.1, 0.5)  # posenc bands open between these shares of the steps
   train.log_every = 100  # steps between progress lines and metrics.jsonl records

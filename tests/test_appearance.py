@@ -122,7 +122,8 @@ def test_codes_absorb_known_per_photo_gains(tmp_path, monkeypatch):
     config = small_config({
         "data.scene": "exposure", "data.num_views": 10, "data.holdout_from": 8,
         "data.image_size": 16, "num_samples": 32, "model.grid.resolutions": (8, 16),
-        "model.appearance_dims": dims, "train.max_steps": 150, "train.log_every": 150,
+        "model.appearance_dims": dims, "train.appearance_lr": 1e-2,  # 150 steps: fast codes
+        "train.max_steps": 150, "train.log_every": 150,
         "train.checkpoint_every": 150, "train.batch_rays": 512}, base="fast")
     workdir = str(tmp_path / f"dims{dims}")
     result = train_lib.train_and_evaluate(config, workdir)

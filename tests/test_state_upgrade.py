@@ -97,7 +97,7 @@ def test_a_run_saved_before_appearance_lr_keeps_what_it_trained_with():
   current = config_lib.complete(small_config({"model.appearance_dims": 4}).to_dict())
   state = experiment.init_state(experiment.setup(current))
   assert set(state.opt_state.inner_states) == {"field", "codes"}
-  assert current.train.appearance_lr == 1e-3 != current.train.lr
+  assert current.train.appearance_lr == 3e-4 != current.train.lr
 
 
 def test_pose_refinement_keeps_the_optimiser_state_its_checkpoints_saved():
