@@ -143,9 +143,10 @@ def load_dataset(config):
 
   path '' = the built-in `scene` (image_size, num_views and pixel_center apply, -1 = 0.5; focal
   keeps tiny_nerf's field of view; held_out_looks 'own' gives the test views of a scene with
-  per-photo looks their own, scenes/photos.py); background and half_res apply to .npz and Blender; factor,
-  bd_factor (0 = keep the file's units) and recenter to LLFF, see `load_llff`: the defaults are
-  the original NeRF's LLFF pipeline, which NDC rays (near plane 1, world -z forward) rely on.
+  per-photo looks their own, scenes/photos.py); background and half_res apply to .npz and
+  Blender; factor, bd_factor (0 = keep the file's units) and recenter to LLFF, see
+  `load_llff`: the defaults are the original NeRF's LLFF pipeline, which NDC rays (near plane
+  1, world -z forward) rely on.
   holdout_from: views[holdout_from:] are the test views; -1 = the default split of the format:
   the reference's 80/20 for built-in scenes and .npz, every 8th view (0, 8, 16, ...) for LLFF
   (the original NeRF's convention) and for transforms.json folders unless the file names its

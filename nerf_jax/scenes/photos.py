@@ -5,7 +5,8 @@ Both apply to the training views of a built-in scene that declares them (`Effect
 `Effects.pose_error`; data/loaders.py): the held-out views keep the neutral look (gain 1) and
 their true poses, so a test score measures the model, not the test photo's own exposure or
 pose error. `held_out_with_own_looks` gives the held-out views looks of their own instead, as a
-real capture's (data.held_out_looks='own'), for NeRF-W's left-half protocol. The amounts are known, so what a model recovers can be measured.
+real capture's (data.held_out_looks='own'), for NeRF-W's left-half protocol. The amounts are
+known, so what a model recovers can be measured.
 """
 
 import dataclasses
