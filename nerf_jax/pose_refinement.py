@@ -16,6 +16,8 @@ field was learnt in, and `transform` applies it to the held-out poses
 import jax.numpy as jnp
 import numpy as np
 
+from nerf_jax import rays
+
 SMALL_ANGLE_SQ = 1e-2  # θ² below which the series are used: (θ - sin θ)/θ³ cancels in float32
 
 
@@ -146,9 +148,9 @@ def reprojection_px(poses, true_poses, depths, accs, intrinsics):
   poses, true_poses: float [N, 4, 4]; depths, accs: float [N, H, W] true z-depth and opacity of
   the true views; intrinsics (fx, fy, cx, cy). Surface points: up to REPROJECTION_POINTS pixels
   a view with opacity > OPAQUE, at their true depth."""
-  fx, fy, cx, cy = intrinsics
-  rows, cols = np.mgrid[:depths.shape[1], :depths.shape[2]] + 0.5
-  camera_xy = np.stack([(cols - cx) / fx, -(rows - cy) / fy], -1)
+  fx, fy = intrinsics[:2]
+  directions = rays.pixel_directions(depths.shape[1], depths.shape[2], *intrinsics, 0.5)
+  camera_xy = np.asarray(directions, np.float64)[..., :2]  # z = -1: x/-z and y/-z
   means = []
   for pose, true, depth, acc in zip(np.asarray(poses, np.float64), true_poses, depths, accs):
     pick = np.flatnonzero(acc.reshape(-1) > OPAQUE)
