@@ -2,7 +2,11 @@
 branch and samples placed by an occupancy grid, chosen by measurement on the built-in `detail`
 scene (docs/detail_scene.md): 32 samples in occupied cells instead of 64 across the whole box pay
 for twice the rays per step, and the larger step size converges faster in a 10-minute budget.
-Renders with the occupancy sampler (no marching: its plain 64 samples do not match training's).
+Density is read from one-channel grid levels (activated after interpolation, DVGO's way) and
+colour is computed only for the quarter of the samples that carry the most weight: in ten
+minutes +0.65 dB on `detail` and +0.58 dB on lego over the MLP's density, and renders 2.5x
+faster (docs/quality_per_second.md). Renders with the occupancy sampler (no marching: its plain
+64 samples do not match training's).
 
   python train.py --config=configs/detail.py --config.data.path=DIR --workdir=runs/mine
 """
@@ -18,6 +22,9 @@ def get_config():
   config.occupancy.enabled = True  # sample where the occupancy grid says there is something
   config.occupancy.resolution = 64  # 64^3 cells of 3/64 units over the scene box
   config.occupancy.probes = 1  # one jittered probe per cell per refresh (they accumulate)
+  config.model.grid.density_resolutions = (32, 64, 128)  # density from one-channel levels
+  config.model.density_activation = "exp"  # exp of the summed levels: fast to fill and to clear
+  config.model.colour_fraction = 0.25  # colour for the quarter of samples with the most weight
   config.train.batch_rays = 4096  # twice fast.py's rays: the samples per step stay the same
   config.train.lr = 2e-2  # twice fast.py's step: more progress in a short budget (measured)
   config.train.max_seconds = 600.0  # ten minutes; the step budget and schedule follow from it

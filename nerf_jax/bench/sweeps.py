@@ -105,12 +105,13 @@ SWEEPS = {
     # each probed at 1, 2, 5 and 10 minutes (--budget_seconds=600 --eval_times=60,120,300,600)
     # on the built-in `detail` and on public NeRF-synthetic and LLFF folders (--scenes=PATH).
     "frontier": [
+        # density from one-channel levels, activated after interpolation; colour only for the
+        # quarter of the batch's samples with the largest weights
         Entry("detail", base="detail"),
-        # density read from one-channel levels, activated after interpolation; colour only for
-        # the quarter of the batch's samples with the largest weights
-        Entry("detail density levels", {"model.grid.density_resolutions": (32, 64, 128),
-                                        "model.density_activation": "exp",
-                                        "model.colour_fraction": 0.25}, base="detail"),
+        # the challenger it replaced: density from the MLP's first output, colour for every sample
+        Entry("detail MLP density", {"model.grid.density_resolutions": (),
+                                     "model.density_activation": "softplus",
+                                     "model.colour_fraction": 0.0}, base="detail"),
     ],
     # The same for forward-facing captures (LLFF folders: --scenes=PATH --config.data.factor=8):
     # configs/llff.py's grids in NDC against the NDC MLP of configs/scenes/forward.py.
