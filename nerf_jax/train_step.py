@@ -68,6 +68,11 @@ def make_train_step(exp, mesh=None):
       last = renderer.final(outs)
       loss = loss + config.train.distortion_weight * jnp.mean(
           regularizers.distortion(last["t"], last["weights"]))
+    if refine and config.train.pose_prior > 0:
+      # A zero-mean Gaussian prior on each camera's correction (rotation in radians, move in
+      # scene units): directions the images barely constrain stay near the given poses
+      # instead of drifting with the field's noise.
+      loss = loss + config.train.pose_prior * jnp.mean(jnp.sum(params["poses"] ** 2, axis=-1))
     if config.train.tv_weight > 0:  # smooth tables where few rays constrain them (LLFF)
       tables = model.lattice_tables(params)
       loss = loss + config.train.tv_weight * sum(

@@ -158,3 +158,38 @@ def test_reprojection_error_of_a_sideways_move_is_focal_times_move_over_depth():
   assert pose_refinement.reprojection_px(moved, true, tilted, np.broadcast_to(
       half_transparent, (1, size, size)), (f, f, size / 2, size / 2)) == pytest.approx(
           f * move / depth)
+
+
+class _EmptyField:
+  """A stand-in network with no density anywhere: every ray renders the background, so the
+  images say nothing about the poses and only train.pose_prior acts on the corrections."""
+
+  def apply(self, variables, features, dir_features=None):
+    return jnp.full(features.shape[:-1] + (3,), 0.5), jnp.zeros(features.shape[:-1])
+
+
+@pytest.mark.parametrize("prior", [0.0, 10.0])
+def test_the_pose_prior_pulls_corrections_toward_none_where_images_say_nothing(prior):
+  config = small_config({"data.scene": "perturbed", "data.num_views": 6, "data.holdout_from": 4,
+                         "data.image_size": 8, "num_samples": 8, "train.pose_refinement": True,
+                         "train.pose_prior": prior, "train.batch_rays": 64,
+                         "train.max_steps": 20, "train.warmup_steps": 0})
+  exp = experiment.setup(config)
+  exp = dataclasses.replace(exp, renderer=ray_renderer(config, _EmptyField()))
+  size = jax.random.uniform(jax.random.PRNGKey(1), (len(exp.train_ds), 6), minval=0.01,
+                            maxval=0.05)  # far from zero: 5 steps of pose_lr cannot cross it
+  start = np.asarray(size * jnp.sign(jax.random.normal(jax.random.PRNGKey(2), size.shape)))
+  params = {"coarse": {}, "poses": jnp.asarray(start)}  # the step donates the state
+  state = experiment.TrainState(step=jnp.array(0, jnp.int32), params=params,
+                                opt_state=exp.tx.init(params),
+                                bad_step=jnp.array(-1, jnp.int32))
+  step = train_step.make_train_step(exp)
+  data = train_batches.make_train_data(exp)
+  for _ in range(5):
+    state, _ = step(state, data, jax.random.PRNGKey(0))
+  moved = np.asarray(state.params["poses"])
+  if prior == 0:  # no gradient reaches the corrections: Adam leaves them exactly where they were
+    np.testing.assert_array_equal(moved, start)
+  else:  # every component moved toward zero (5 Adam steps of at most pose_lr each)
+    assert np.all(np.abs(moved) < np.abs(start))
+    assert np.all(np.abs(moved - start) <= 5 * config.train.pose_lr * 1.001)
