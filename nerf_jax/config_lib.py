@@ -151,12 +151,15 @@ def complete(saved):
 
 def _as_trained(saved):
   """`saved` with the fields a run saved before they existed set to what it trained with, not
-  today's defaults: its appearance codes learnt at train.lr."""
+  today's defaults: its appearance codes learnt at train.lr, its pose corrections without a
+  prior."""
   train = saved.get("train")
   if not isinstance(train, dict):
     return saved
   if "appearance_lr" not in train and "lr" in train:
     train["appearance_lr"] = train["lr"]
+  if "pose_prior" not in train:  # corrections learnt without the prior
+    train["pose_prior"] = 0.0
   return saved
 
 

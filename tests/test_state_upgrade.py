@@ -113,3 +113,12 @@ def test_pose_refinement_keeps_the_optimiser_state_its_checkpoints_saved():
       lambda params: {k: "poses" if k == "poses" else "field" for k in params})
   assert (jax.tree_util.tree_structure(state.opt_state) ==
           jax.tree_util.tree_structure(saved_style.init(state.params)))
+
+
+def test_a_run_saved_before_pose_prior_keeps_its_corrections_free():
+  from nerf_jax import config_lib
+  saved = small_config({"train.pose_refinement": True}).to_dict()
+  del saved["train"]["pose_prior"]
+  assert config_lib.complete(saved).train.pose_prior == 0.0
+  current = config_lib.complete(small_config({"train.pose_refinement": True}).to_dict())
+  assert current.train.pose_prior == config_lib.load("default").train.pose_prior > 0
