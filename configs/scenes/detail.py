@@ -2,9 +2,10 @@
 (~1-2 px wide), glossy spheres and a transparent (black, alpha = acc) background. Anti-aliased
 ground truth (3 x 3 rays per pixel), rendered once and cached (see nerf_jax/scenes/cache.py).
 
-Trained with configs/detail.py (dense grids, view branch, occupancy-placed samples, random
-backgrounds while training), chosen by measurement on this scene against the hash grid, the
-MLP and fast.py's 64 box samples (docs/detail_scene.md has the tables and the commands).
+Trained with configs/detail.py (dense grids, view branch, occupancy-placed samples, density
+levels with a colour budget, random backgrounds while training), chosen by measurement on this
+scene against the hash grid, the MLP, fast.py's 64 box samples (docs/detail_scene.md) and the
+MLP's density (docs/quality_per_second.md).
 
   python train.py --config=configs/scenes/detail.py --workdir=runs/detail
   python -m nerf_jax.data.export --scene=detail --format=blender --alpha --out=/tmp/detail
