@@ -4,7 +4,7 @@ scene (docs/detail_scene.md): 32 samples in occupied cells instead of 64 across 
 for twice the rays per step, and the larger step size converges faster in a 10-minute budget.
 Density is read from one-channel grid levels (activated after interpolation, DVGO's way) and
 colour is computed only for the quarter of the samples that carry the most weight: in ten
-minutes +0.65 dB on `detail` and +0.58 dB on lego over the MLP's density, and renders 2.5x
+minutes +0.65 dB on `detail` and +0.58 dB on lego over the MLP's density, and renders 2.6-2.8x
 faster (docs/quality_per_second.md). Renders with the occupancy sampler (no marching: its plain
 64 samples do not match training's).
 
