@@ -107,6 +107,21 @@ class _AnalyticField:
     return rgb, 30.0 * jnp.exp(-jnp.sum(points ** 2, axis=-1) / 0.3)
 
 
+def _train_corrections(exp, start, steps):
+  """The cameras' corrections (float32 [N, 6]) after `steps` train steps from `start` (numpy
+  [N, 6]; the step donates its state, so the caller's copy stays intact) with exp's stand-in
+  network, which has no parameters of its own."""
+  params = {"coarse": {}, "poses": jnp.asarray(start, jnp.float32)}
+  state = experiment.TrainState(step=jnp.array(0, jnp.int32), params=params,
+                                opt_state=exp.tx.init(params),
+                                bad_step=jnp.array(-1, jnp.int32))
+  step = train_step.make_train_step(exp)
+  data = train_batches.make_train_data(exp)
+  for _ in range(steps):
+    state, _ = step(state, data, jax.random.PRNGKey(0))
+  return np.asarray(state.params["poses"])
+
+
 def test_refinement_recovers_a_known_perturbation():
   """The perturbed capture's cameras (1° and 2% of the scene's size each, photos.py) looking at
   a known field: training steps with the field fixed bring them back to the true poses."""
@@ -126,16 +141,8 @@ def test_refinement_recovers_a_known_perturbation():
   ds = dataclasses.replace(ds, images=np.stack([np.asarray(t).reshape(ds.images.shape[1:])
                                                 for t in truth]), accs=None)
   exp = dataclasses.replace(exp, renderer=renderer, train_ds=ds)
-  params = {"coarse": {}, "poses": jnp.zeros((len(ds), 6))}
-  state = experiment.TrainState(step=jnp.array(0, jnp.int32), params=params,
-                                opt_state=exp.tx.init(params),
-                                bad_step=jnp.array(-1, jnp.int32))
-  step = train_step.make_train_step(exp)
-  data = train_batches.make_train_data(exp)
-  key = jax.random.PRNGKey(0)
-  for _ in range(config.train.max_steps):
-    state, _ = step(state, data, key)
-  refined = np.asarray(pose_refinement.corrected(ds.poses, state.params["poses"]))
+  corrections = _train_corrections(exp, np.zeros((len(ds), 6)), config.train.max_steps)
+  refined = np.asarray(pose_refinement.corrected(ds.poses, corrections))
   given = pose_refinement.pose_errors(ds.poses, ds.true_poses)
   got = pose_refinement.pose_errors(refined, ds.true_poses)
   assert given["degrees"] > 0.8
@@ -182,15 +189,7 @@ def test_the_pose_prior_pulls_corrections_toward_none_where_images_say_nothing(p
   size = jax.random.uniform(jax.random.PRNGKey(1), (len(exp.train_ds), 6), minval=0.01,
                             maxval=0.05)  # far from zero: 5 steps of pose_lr cannot cross it
   start = np.asarray(size * jnp.sign(jax.random.normal(jax.random.PRNGKey(2), size.shape)))
-  params = {"coarse": {}, "poses": jnp.asarray(start)}  # the step donates the state
-  state = experiment.TrainState(step=jnp.array(0, jnp.int32), params=params,
-                                opt_state=exp.tx.init(params),
-                                bad_step=jnp.array(-1, jnp.int32))
-  step = train_step.make_train_step(exp)
-  data = train_batches.make_train_data(exp)
-  for _ in range(5):
-    state, _ = step(state, data, jax.random.PRNGKey(0))
-  moved = np.asarray(state.params["poses"])
+  moved = _train_corrections(exp, start, 5)
   if prior == 0:  # no gradient reaches the corrections: Adam leaves them exactly where they were
     np.testing.assert_array_equal(moved, start)
   else:  # every component moved toward zero (5 Adam steps of at most pose_lr each)
