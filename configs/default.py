@@ -100,7 +100,7 @@ def get_config():
   train.pose_refinement = False  # learn an SE(3) correction of each training camera (BARF)
   train.appearance_lr = 3e-4  # appearance codes: Adam learning rate (the field's schedule)
   train.pose_lr = 3e-4  # pose refinement: Adam learning rate of the corrections (same decay)
-  train.pose_coarse_to_fine = (0.1, 0.5)  # posenc bands open between these shares of the steps
+  train.pose_coarse_to_fine = (0.1, 0.5)  # bands (grid levels) open between these shares of steps
   train.pose_prior = 3.0  # pose refinement: weight of a pull of the corrections toward none
   train.log_every = 100  # steps between progress lines and metrics.jsonl records
   train.eval_every = 0  # steps between test-view evaluations (0 = only at the end)

@@ -7,8 +7,9 @@ raw positions, the grids are their encoding) and the density activation (activat
 `Field` is built once (experiment.make_field) and queried as field.query(params, points,
 viewdirs, key). Two optional per-query inputs: `image`, int32 [...] the training image of each
 ray, selects its appearance code (appearance_dims > 0; None = the mean code, as for held-out
-views), and `bands`, float32 [], how many positional-encoding bands are open (BARF's
-coarse-to-fine α while poses are refined; None = all, as after training).
+views), and `bands`, float32 [], how many positional-encoding bands, or grid levels after the
+coarsest, are open (BARF's coarse-to-fine α while poses are refined; None = all, as after
+training).
 """
 
 import dataclasses
@@ -57,6 +58,24 @@ class Field:
     dirs = jnp.zeros((1, encoding.encoded_width(3, self.dir_encode_dims)), jnp.float32)
     return self.network.init(key, pos, dirs)["params"]
 
+  @property
+  def coarse_to_fine_stages(self):
+    """What opens coarse to fine while poses are refined (the most `bands` means): the
+    positional encoding's bands, or a grid network's levels after the coarsest (always open);
+    0 for a network whose density has grids of its own (model.DensityGridNeRF)."""
+    if self.pos_encode_dims is not None:
+      return self.pos_encode_dims
+    if self.splits_density:
+      return 0
+    return self.network.num_levels - 1
+
+  def level_weights(self, bands):
+    """float32 [levels] weights of a grid network's levels with `bands` open (None: all)."""
+    if bands is None or self.pos_encode_dims is not None or not self.coarse_to_fine_stages:
+      return None
+    rest = encoding.coarse_to_fine_weights(bands, self.coarse_to_fine_stages)
+    return jnp.concatenate([jnp.ones((1,), jnp.float32), rest])
+
   def encode_positions(self, points, bands=None):
     """The network's position input for points float32 [..., 3]: encoded (with `bands` open,
     see the module docstring), or the points (contracted first in an unbounded scene)."""
@@ -84,7 +103,9 @@ class Field:
     args = (self.encode_positions(points, bands), dir_features)
     if self.uses_images:
       args += (image,)
-    rgb, raw_sigma = self.network.apply({"params": params}, *args)
+    weights = self.level_weights(bands)
+    kwargs = {} if weights is None else {"level_weights": weights}
+    rgb, raw_sigma = self.network.apply({"params": params}, *args, **kwargs)
     return rgb, self._activate(raw_sigma, key)
 
   @property

@@ -123,6 +123,21 @@ class _GridHead(nn.Module):
     rgb = self._dense(3, "rgb")(h).astype(jnp.float32)
     return nn.sigmoid(rgb), raw_sigma
 
+  @property
+  def num_levels(self):
+    """Resolution levels of the encoding, coarsest first (their features are concatenated)."""
+    return len(self.resolutions)
+
+
+def weigh_levels(h, level_weights):
+  """Features float [..., L·F] of L equal-width levels, level l scaled by level_weights[l]
+  (float32 [L]; None = unchanged): BARF's coarse-to-fine window over a grid's levels."""
+  if level_weights is None:
+    return h
+  levels = level_weights.shape[0]
+  scaled = h.reshape(*h.shape[:-1], levels, -1) * level_weights[:, None].astype(h.dtype)
+  return scaled.reshape(h.shape)
+
 
 class GridNeRF(_GridHead):
   """The fast field: multiresolution dense feature grids over the scene box + a tiny MLP.
@@ -139,13 +154,13 @@ class GridNeRF(_GridHead):
   box: Sequence[float] = ()  # (min x, y, z, max x, y, z) of a tighter box; () = the bound's cube
 
   @nn.compact
-  def __call__(self, points, dir_features=None, image=None):
+  def __call__(self, points, dir_features=None, image=None, level_weights=None):
     init = lambda key, shape: 1e-2 * jax.random.normal(key, shape, jnp.float32)
     grids = [self.param(f"grid_{r}", init, (*self._shape(r), self.features))
              for r in self.resolutions]
     unit = self._unit(points.astype(jnp.float32))
-    return self._head(grid.multires_features(grids, unit).astype(jnp.dtype(self.dtype)), unit,
-                      dir_features, image)
+    h = weigh_levels(grid.multires_features(grids, unit), level_weights)
+    return self._head(h.astype(jnp.dtype(self.dtype)), unit, dir_features, image)
 
 
 class HashNeRF(_GridHead):
@@ -165,8 +180,12 @@ class HashNeRF(_GridHead):
   bound: float = 1.5
   box: Sequence[float] = ()  # as GridNeRF's
 
+  @property
+  def num_levels(self):
+    return self.levels
+
   @nn.compact
-  def __call__(self, points, dir_features=None, image=None):
+  def __call__(self, points, dir_features=None, image=None, level_weights=None):
     resolutions = hashgrid.level_resolutions(self.levels, self.base_resolution,
                                              self.max_resolution)
     rows = sum(hashgrid.level_rows(resolutions, self.log2_size))
@@ -174,6 +193,7 @@ class HashNeRF(_GridHead):
     table = self.param("hash_table", init, (rows, self.features))
     unit = self._unit(points.astype(jnp.float32))
     h = hashgrid.encode(table, unit, resolutions, self.log2_size, self.gather_dtype)
+    h = weigh_levels(h, level_weights)
     return self._head(h.astype(jnp.dtype(self.dtype)), unit, dir_features, image)
 
 
@@ -191,7 +211,7 @@ class TensoRFNeRF(_GridHead):
   box: Sequence[float] = ()  # as GridNeRF's
 
   @nn.compact
-  def __call__(self, points, dir_features=None, image=None):
+  def __call__(self, points, dir_features=None, image=None, level_weights=None):
     init = lambda key, shape: 0.1 * jax.random.normal(key, shape, jnp.float32)
     unit = self._unit(points.astype(jnp.float32))
     features = []
@@ -200,8 +220,8 @@ class TensoRFNeRF(_GridHead):
       planes = [self.param(f"plane_{r}_{m}", init, s) for m, s in enumerate(plane_shapes)]
       lines = [self.param(f"line_{r}_{m}", init, s) for m, s in enumerate(line_shapes)]
       features.append(tensorf.vm_features(planes, lines, unit))
-    h = jnp.concatenate(features, axis=-1).astype(jnp.dtype(self.dtype))
-    return self._head(h, unit, dir_features, image)
+    h = weigh_levels(jnp.concatenate(features, axis=-1), level_weights)
+    return self._head(h.astype(jnp.dtype(self.dtype)), unit, dir_features, image)
 
 
 class DensityGridNeRF(_GridHead):

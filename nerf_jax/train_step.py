@@ -37,10 +37,10 @@ def make_train_step(exp, mesh=None):
   image_of = lambda batch: batch.image if ray_renderer.field.uses_images else None
 
   def bands_at(step, planned_steps):
-    """BARF's α: positional-encoding bands open between the shares train.pose_coarse_to_fine
-    of the planned steps (None without pose refinement or positional encoding: all open)."""
-    dims = ray_renderer.field.pos_encode_dims
-    if not refine or dims is None:
+    """BARF's α: positional-encoding bands (or grid levels) open between the shares
+    train.pose_coarse_to_fine of the planned steps (None without pose refinement: all open)."""
+    dims = ray_renderer.field.coarse_to_fine_stages
+    if not refine or not dims:
       return None
     start, end = config.train.pose_coarse_to_fine
     planned = experiment.schedule_steps(config.train) if planned_steps is None else planned_steps

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from nerf_jax import encoding, experiment, pose_refinement, train_batches, train_step
+from nerf_jax import encoding, experiment, hashgrid, pose_refinement, train_batches, train_step
 from nerf_jax.scenes import photos
 from tests.helpers import ray_renderer, small_config
 
@@ -87,6 +87,53 @@ def test_coarse_to_fine_weights_open_band_by_band():
   np.testing.assert_array_equal(w(0.0), [0, 0, 0, 0])
   np.testing.assert_allclose(w(1.5), [1, 0.5, 0, 0], atol=1e-7)
   np.testing.assert_array_equal(w(4.0), [1, 1, 1, 1])  # all open: the plain encoding
+
+
+THREE_LEVELS = {"grid": {"model.grid.resolutions": (4, 8, 16)},
+                "hash": {"model.hash.levels": 3, "model.hash.log2_size": 12,
+                         "model.hash.max_resolution": 64}}
+
+
+@pytest.mark.parametrize("encoding_name", sorted(THREE_LEVELS))
+def test_grid_levels_open_coarse_to_fine(encoding_name):
+  """BARF's window on a grid network: with no bands open only the coarsest level speaks (the
+  same field as with the finer levels' features zeroed by hand, and no gradient reaches them);
+  with every band open the field is the plain one."""
+  config = small_config({"model.encoding": encoding_name, **THREE_LEVELS[encoding_name]},
+                        base="fast")
+  field = experiment.make_field(config)
+  assert field.coarse_to_fine_stages == 2
+  params = field.init(jax.random.PRNGKey(0))
+  points = jax.random.uniform(jax.random.PRNGKey(1), (5, 7, 3), minval=-1.0, maxval=1.0)
+  dirs = jnp.zeros((5, 3))
+  rgb_all, sigma_all = field.query(params, points, dirs)
+  rgb_open, sigma_open = field.query(params, points, dirs, bands=jnp.float32(2.0))
+  np.testing.assert_array_equal(rgb_open, rgb_all)
+  np.testing.assert_array_equal(sigma_open, sigma_all)
+
+  # By hand: the finer levels' parameters zeroed, so their features are zero.
+  zeroed = dict(params)
+  if encoding_name == "grid":
+    zeroed.update({name: jnp.zeros_like(params[name]) for name in ("grid_8", "grid_16")})
+  else:
+    network = field.network
+    resolutions = hashgrid.level_resolutions(3, network.base_resolution, network.max_resolution)
+    coarse_rows = hashgrid.level_rows(resolutions, network.log2_size)[0]
+    zeroed["hash_table"] = params["hash_table"].at[coarse_rows:].set(0.0)
+  rgb_hand, sigma_hand = field.query(zeroed, points, dirs)
+  rgb_closed, sigma_closed = field.query(params, points, dirs, bands=jnp.float32(0.0))
+  np.testing.assert_allclose(rgb_closed, rgb_hand, atol=1e-6)
+  np.testing.assert_allclose(sigma_closed, sigma_hand, atol=1e-6)
+  assert not np.allclose(rgb_closed, rgb_all)
+
+  grads = jax.grad(lambda p: jnp.sum(field.query(p, points, dirs, bands=jnp.float32(0.0))[0]))(
+      params)
+  if encoding_name == "grid":  # closed levels take no gradient, the open one does
+    assert not np.any(np.asarray(grads["grid_8"])) and not np.any(np.asarray(grads["grid_16"]))
+    assert np.any(np.asarray(grads["grid_4"]))
+  else:
+    table = np.asarray(grads["hash_table"])
+    assert not np.any(table[coarse_rows:]) and np.any(table[:coarse_rows])
 
 
 def test_refinement_is_off_by_default_and_leaves_the_state_as_it_was():
