@@ -29,7 +29,8 @@ def auto_config(config, dataset):
   views `dataset` by characterise.decide: the representation of the config that suits the
   kind of capture (fast.py for an object on a background, detail.py from LARGE_IMAGES pixels,
   configs/llff.py (grids in NDC) for a forward-facing one, capture.py otherwise or
-  when there are too few cameras) and the effects it calls for. A field the user set (named in
+  when there are too few cameras) and the effects it calls for (view dependence only where
+  it is measured: the views need depth; else the representation's setting stands). A field the user set (named in
   config.auto_flags by the command line, or differing from configs/auto.py's) wins over the
   decision, with one line saying so. Prints one line per decision with its reason; the lines go to config.auto_decisions (config.json), and
   auto is off in the result (a restored run keeps what was decided)."""
@@ -57,14 +58,26 @@ def auto_config(config, dataset):
     effects["data.background"] = ("white" if bg == (1.0, 1.0, 1.0) else
                                   "black" if bg == (0.0, 0.0, 0.0) else bg)
     effects["model.appearance_dims"] = APPEARANCE_DIMS if found["appearance"].found else 0
+    view_dependence = found["view_dependence"].found
+    if view_dependence is not None:
+      effects["model.view_dependent"] = view_dependence
+    else:  # not measured: the representation's own setting, said in its line
+      view_dependence = config_lib.load(chosen).model.view_dependent
     settings = {"background": "an object on a background: a box, random backgrounds while "
                               "training",
                 "forward": "forward-facing: NDC rays (data.ndc)",
                 "unbounded": "unbounded: the scene box from the data (data.scene_bound=-1)",
                 "appearance": f"per-photo appearance codes (model.appearance_dims="
-                              f"{APPEARANCE_DIMS})"}
+                              f"{APPEARANCE_DIMS})",
+                "view_dependence": "view dependence: colour from the viewing direction too "
+                                   "(model.view_dependent)"}
     for d in decisions:
-      lines.append(f"{settings[d.name] if d.found else 'no ' + d.name}: {d.reason}")
+      if d.found is None:  # the representation's own setting
+        lines.append(f"view dependence {'on' if view_dependence else 'off'} as in "
+                     f"configs/{chosen}.py: {d.reason}")
+      else:
+        lines.append(f"{settings[d.name] if d.found else 'no ' + d.name.replace('_', ' ')}: "
+                     f"{d.reason}")
     lines.append("pose refinement: off (nothing in the photos measures a pose error; "
                  "train.pose_refinement=True switches it on)")
   lines.append(f"representation: configs/{chosen}.py")

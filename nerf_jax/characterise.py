@@ -12,11 +12,17 @@ found (True / False), and the measured reason, one line:
   appearance  photos of nearly the same view (each with its nearest camera) differ in mean
               colour by more than APPEARANCE_LOG_RATIO (log of the ratio, median over pairs):
               per-photo exposure or white balance.
+  view_dependence  highlights that move between views (`highlight_excess`): a fifth of the
+              surface points look more than HIGHLIGHT_LOG_RATIO brighter (log) from two views
+              than from most. It needs the views' depth (the built-in scenes, RGB-D data) to
+              match points and to tell a highlight from an occluder; without depth it is not
+              measured (found None) and the representation's config decides.
 
 Camera axes are those of rays.py: a camera looks down its -z axis.
 """
 
 import dataclasses
+from typing import Optional
 
 import numpy as np
 
@@ -24,12 +30,18 @@ MIN_CAMERAS = 3  # fewer cameras than this cannot be characterised: the defaults
 FORWARD_CONE_DEGREES = 30.0  # forward-facing: every view direction within this of their mean
 EMPTY_ALPHA, EMPTY_SHARE = 0.01, 0.01  # an object capture: >= 1% of pixels with alpha < 0.01
 APPEARANCE_LOG_RATIO = 0.1  # a photo-to-photo colour change of ~10% (0.14 stops) or more
+HIGHLIGHT_QUANTILE = 0.8  # highlight_excess: of the points, the 20% most lit from some views
+HIGHLIGHT_LOG_RATIO = 0.2  # view dependence above this excess, e^0.2 = 1.22x (built-in scenes
+#   at 24-100 px: Lambertian <= 0.19, glossy >= 0.21; docs/appearance_and_poses.md)
+DEPTH_AGREEMENT = 0.02  # a view sees a point when its own depth there agrees to 2%
+OPAQUE = 0.99  # surface points come from pixels at least this opaque (where opacity is known)
+HIGHLIGHT_VIEWS, HIGHLIGHT_POINTS = 16, 800  # reference views, and the points picked in each
 
 
 @dataclasses.dataclass(frozen=True)
 class Decision:
-  name: str  # 'background', 'forward', 'unbounded' or 'appearance'
-  found: bool  # whether the capture calls for it
+  name: str  # 'background', 'forward', 'unbounded', 'appearance' or 'view_dependence'
+  found: Optional[bool]  # whether the capture calls for it; None: the data cannot tell
   reason: str  # one line: what was measured
 
 
@@ -88,6 +100,83 @@ def colour_spread(dataset):
   return float(np.median(np.maximum(exposure, balance)))
 
 
+def _nanmedian(a, axis):
+  """The median of the finite entries of `a` along `axis` (NaN where there are none), without
+  numpy's all-NaN warning."""
+  a = np.sort(np.moveaxis(a, axis, -1), axis=-1)  # NaNs sort last
+  count = np.isfinite(a).sum(-1)
+  lo = np.take_along_axis(a, np.maximum(count - 1, 0)[..., None] // 2, -1)[..., 0]
+  hi = np.take_along_axis(a, (count // 2)[..., None], -1)[..., 0] if a.shape[-1] else lo
+  return np.where(count > 0, 0.5 * (lo + np.where(count > 1, hi, lo)), np.nan)
+
+
+def _seen_from(dataset, points, log_luminance):
+  """float64 [P, N]: the log luminance of each point float64 [P, 3] in each view, NaN where the
+  view does not see it (outside the frame, behind it, its own depth there disagrees by more
+  than DEPTH_AGREEMENT: an occluder, or not opaque)."""
+  fx, fy, cx, cy = dataset.intrinsics
+  num, height, width = log_luminance.shape
+  out = np.full((len(points), num), np.nan)
+  for j, pose in enumerate(np.asarray(dataset.poses, np.float64)):
+    q = (points - pose[:3, 3]) @ pose[:3, :3]  # camera coordinates (rays.py axes)
+    z = -q[:, 2]
+    ahead = z > 1e-9
+    safe_z = np.where(ahead, z, 1.0)
+    col = np.floor(cx + fx * q[:, 0] / safe_z - dataset.pixel_center + 0.5).astype(int)
+    row = np.floor(cy - fy * q[:, 1] / safe_z - dataset.pixel_center + 0.5).astype(int)
+    seen = ahead & (col >= 0) & (col < width) & (row >= 0) & (row < height)
+    col, row = np.clip(col, 0, width - 1), np.clip(row, 0, height - 1)
+    seen &= np.abs(dataset.depths[j][row, col] - z) < DEPTH_AGREEMENT * z
+    if dataset.accs is not None:
+      seen &= dataset.accs[j][row, col] > OPAQUE
+    out[:, j] = np.where(seen, log_luminance[j][row, col], np.nan)
+  return out
+
+
+def highlight_excess(dataset, seed=0):
+  """How much brighter some views see the surface than most do: over surface points, the
+  HIGHLIGHT_QUANTILE of (second-brightest − median) of a point's log luminance across the
+  views that see it; None without depth.
+
+  Points: HIGHLIGHT_POINTS opaque pixels of each of HIGHLIGHT_VIEWS reference views, lifted to
+  3D by their depth and looked up in every view that sees them (`_seen_from`; at least 4 such
+  views). Each view's median difference from the reference over these points is removed
+  first, so a photo's own exposure is not a highlight. A Lambertian point looks the same from
+  every view; a highlight lights it in the views near its mirror direction. The second
+  brightest, not the brightest, so one mismatched pixel at an edge does not count; a high
+  quantile, not the mean, because highlights cover a small part of a scene. float >= 0.
+  """
+  if dataset.depths is None:
+    return None
+  images = np.asarray(dataset.images, np.float64)
+  num, height, width = images.shape[:3]
+  log_luminance = np.log(images.mean(-1) + 0.05)  # +0.05: dark pixels' noise stays small
+  poses = np.asarray(dataset.poses, np.float64)
+  fx, fy, cx, cy = dataset.intrinsics
+  rng = np.random.default_rng(seed)
+  excess = []
+  for ref in np.unique(np.linspace(0, num - 1, min(HIGHLIGHT_VIEWS, num)).round().astype(int)):
+    opaque = (np.ones((height, width), bool) if dataset.accs is None else
+              np.asarray(dataset.accs[ref]) > OPAQUE)
+    candidates = np.flatnonzero(opaque)
+    if not len(candidates):
+      continue
+    pick = rng.choice(candidates, min(HIGHLIGHT_POINTS, len(candidates)), replace=False)
+    row, col = np.divmod(pick, width)
+    z = np.asarray(dataset.depths[ref], np.float64)[row, col]
+    dirs = np.stack([(col + dataset.pixel_center - cx) / fx,
+                     -(row + dataset.pixel_center - cy) / fy, -np.ones(len(col))], -1)
+    points = poses[ref, :3, 3] + (dirs * z[:, None]) @ poses[ref, :3, :3].T
+    seen = _seen_from(dataset, points, log_luminance)
+    gain = _nanmedian(seen - seen[:, ref:ref + 1], axis=0)  # each view's exposure offset
+    seen = seen - np.where(np.isfinite(gain), gain, 0.0)
+    seen = seen[np.isfinite(seen).sum(1) >= 4]
+    second = -np.sort(-np.where(np.isfinite(seen), seen, -np.inf), axis=1)[:, 1]
+    excess.append(second - _nanmedian(seen, axis=1))
+  excess = np.concatenate(excess) if excess else np.zeros(0)
+  return float(np.quantile(excess, HIGHLIGHT_QUANTILE)) if len(excess) else None
+
+
 def decide(dataset):
   """[Decision] of the rules (module docstring), or None when the capture has fewer than
   MIN_CAMERAS cameras."""
@@ -112,4 +201,14 @@ def decide(dataset):
                       f"neighbouring photos differ in mean colour by {100 * spread:.0f}% "
                       f"(median; {'>' if spread > APPEARANCE_LOG_RATIO else '<='} "
                       f"{100 * APPEARANCE_LOG_RATIO:.0f}%)"))
+  excess = highlight_excess(dataset)
+  if excess is None:
+    out.append(Decision("view_dependence", None, "not measured: the views have no depth to "
+                        "match their points"))
+  else:
+    lit = excess > HIGHLIGHT_LOG_RATIO
+    out.append(Decision("view_dependence", lit,
+                        f"a fifth of the surface points look {np.exp(excess):.2f}x brighter "
+                        f"from two views than from most ({'>' if lit else '<='} "
+                        f"{np.exp(HIGHLIGHT_LOG_RATIO):.2f}x)"))
   return out

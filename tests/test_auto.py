@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from nerf_jax import auto, characterise, cli, config_lib, experiment, scenes
+from nerf_jax import auto, characterise, cli, config_lib, experiment, rays, scenes
 from nerf_jax.data import loaders
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.scenes import photos
@@ -30,7 +30,8 @@ def test_opacity_with_empty_pixels_is_an_object_on_a_background():
   accs = np.zeros((20, 8, 8), np.float32)
   accs[:, 2:6, 2:6] = 1.0  # the subject in the middle, empty around it
   assert _found(_capture(AROUND, accs)) == {"background": True, "forward": False,
-                                             "unbounded": False, "appearance": False}
+                                             "unbounded": False, "appearance": False,
+                                             "view_dependence": None}  # no depth: not measured
   full = np.ones((20, 8, 8), np.float32)  # opacity known but nothing empty: no background
   assert not _found(_capture(AROUND, full))["background"]
 
@@ -47,7 +48,7 @@ def test_cameras_within_a_cone_are_forward_facing():
 
 def test_cameras_around_a_frame_filling_scene_are_unbounded():
   assert _found(_capture(AROUND)) == {"background": False, "forward": False, "unbounded": True,
-                                      "appearance": False}
+                                      "appearance": False, "view_dependence": None}
   assert not _found(_capture(AHEAD))["unbounded"]
 
 
@@ -58,6 +59,78 @@ def test_per_photo_gains_call_for_appearance_codes():
                                                                photos.gains(len(train))))
   assert _found(gained)["appearance"]
   assert characterise.colour_spread(gained) > 2 * characterise.colour_spread(train)
+
+
+def test_highlights_that_move_call_for_view_dependence():
+  """glossy's Blinn-Phong highlights against diffuse's Lambertian objects (the same scene
+  without them), also with per-photo gains, which are exposure, not highlights."""
+  load = lambda scene: loaders.load_dataset({"scene": scene, "num_views": 40,
+                                             "image_size": 24})[0]
+  glossy, diffuse = load("glossy"), load("diffuse")
+  assert _found(glossy)["view_dependence"] and not _found(diffuse)["view_dependence"]
+  gained = dataclasses.replace(diffuse, images=photos.with_gains(diffuse.images,
+                                                                 photos.gains(len(diffuse))))
+  assert not _found(gained)["view_dependence"]
+  assert characterise.highlight_excess(glossy) > 1.5 * characterise.highlight_excess(gained)
+  # Without depth the points cannot be matched: not measured.
+  assert _found(dataclasses.replace(glossy, depths=None))["view_dependence"] is None
+
+
+def _plane_capture(lit_views=(), size=32):
+  """The square |x|, |y| <= 1 of the plane z = 0, grey 0.4, under 12 cameras around it (exact
+  z-depth and opacity per pixel); in `lit_views` its part x > 0.4 (30% of it) looks 0.8."""
+  poses = scenes.random_poses(12, seed=3)
+  intrinsics = (1.8 * size, 1.8 * size, size / 2, size / 2)  # the square fills most of a view
+  cam = np.asarray(rays.pixel_directions(size, size, *intrinsics, 0.5), np.float64)
+  images = np.zeros((12, size, size, 3), np.float32)
+  depths = np.full((12, size, size), 100.0, np.float32)
+  accs = np.zeros((12, size, size), np.float32)
+  for view, pose in enumerate(poses):
+    dirs = cam @ pose[:3, :3].T  # z-depth t: the point is origin + t·dirs (cam's z = -1)
+    t = -pose[2, 3] / np.minimum(dirs[..., 2], -1e-9)
+    hit = pose[:3, 3] + t[..., None] * dirs
+    inside = (dirs[..., 2] < 0) & (np.abs(hit[..., 0]) <= 1) & (np.abs(hit[..., 1]) <= 1)
+    grey = np.where((hit[..., 0] > 0.4) & (view in lit_views), 0.8, 0.4)
+    images[view] = np.where(inside, grey, 0.0)[..., None]
+    depths[view] = np.where(inside, t, 100.0)
+    accs[view] = inside
+  return Dataset(images, np.asarray(poses, np.float32), intrinsics, depths=depths, accs=accs)
+
+
+def test_a_plane_lit_in_two_views_has_a_highlight_and_in_one_view_not():
+  """By hand: Lambertian, every view sees the same grey (excess 0); lit in two views, a point
+  of the lit part has second-brightest/median = (0.8 + 0.05)/(0.4 + 0.05) and it is more than
+  a fifth of the points; lit in one view, the second brightest is grey again."""
+  assert characterise.highlight_excess(_plane_capture()) == pytest.approx(0.0, abs=1e-12)
+  assert characterise.highlight_excess(_plane_capture((2, 7))) == pytest.approx(
+      np.log(0.85 / 0.45), rel=1e-6)
+  assert characterise.highlight_excess(_plane_capture((2,))) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_a_view_whose_depth_is_nearer_does_not_see_the_point():
+  """An occluder in front of the plane in one view: its pixels are not the plane's points."""
+  flat = _plane_capture()
+  points = np.array([[0.0, 0.0, 0.0], [0.5, -0.5, 0.0]])
+  log_luminance = np.log(np.asarray(flat.images, np.float64).mean(-1) + 0.05)
+  seen = characterise._seen_from(flat, points, log_luminance)
+  assert np.isfinite(seen[:, 5]).all() and np.isfinite(seen).sum() >= 18  # of 24
+  np.testing.assert_allclose(seen[np.isfinite(seen)], np.log(0.45), rtol=1e-6)  # float32 0.4
+  occluded = np.array(flat.depths)
+  occluded[5] *= 0.5
+  behind = characterise._seen_from(dataclasses.replace(flat, depths=occluded), points,
+                                   log_luminance)
+  assert np.isnan(behind[:, 5]).all()
+  np.testing.assert_array_equal(np.delete(behind, 5, axis=1), np.delete(seen, 5, axis=1))
+
+
+def test_nanmedian_matches_numpys():
+  rng = np.random.default_rng(0)
+  a = rng.normal(size=(7, 5))
+  a[rng.random(a.shape) < 0.4] = np.nan
+  a[:, 2] = np.nan  # a column with nothing finite
+  with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
+    expected = np.nanmedian(a, axis=0)
+  np.testing.assert_array_equal(characterise._nanmedian(a, axis=0), expected)
 
 
 def _auto(scene, capsys=None, **fields):
@@ -97,11 +170,11 @@ HAND_WRITTEN = ["diffuse", "glossy", "fog", "white", "forward", "garden", "expos
 @pytest.mark.parametrize("scene", HAND_WRITTEN)
 def test_auto_picks_what_the_scene_config_switches_on(scene):
   """The effects both express: NDC, the background colour, an unbounded scene's box from the
-  data, appearance codes."""
+  data, appearance codes, view dependence."""
   hand = config_lib.load(f"scenes/{scene}")
   auto = _auto(scene)
   expressed = lambda c: (c.data.ndc, c.data.background, c.data.scene_bound == -1,
-                         c.model.appearance_dims > 0)
+                         c.model.appearance_dims > 0, c.model.view_dependent)
   assert expressed(auto) == expressed(hand)
   assert auto.auto_decisions and not auto.auto
 
