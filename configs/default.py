@@ -102,6 +102,7 @@ def get_config():
   train.pose_lr = 3e-4  # pose refinement: Adam learning rate of the corrections (same decay)
   train.pose_coarse_to_fine = (0.1, 0.5)  # bands (grid levels) open between these shares of steps
   train.pose_prior = 3.0  # pose refinement: weight of a pull of the corrections toward none
+  train.pose_ray_share = 1.0  # pose refinement: share of a batch's rays that move the poses
   train.log_every = 100  # steps between progress lines and metrics.jsonl records
   train.eval_every = 0  # steps between test-view evaluations (0 = only at the end)
   train.eval_views = 2  # test views rendered for periodic evaluations (the final one uses all)

@@ -29,11 +29,12 @@ def auto_config(config, dataset):
   views `dataset` by characterise.decide: the representation of the config that suits the
   kind of capture (fast.py for an object on a background, detail.py from LARGE_IMAGES pixels,
   configs/llff.py (grids in NDC) for a forward-facing one, capture.py otherwise or
-  when there are too few cameras) and the effects it calls for (view dependence only where
-  it is measured: the views need depth; else the representation's setting stands). A field the user set (named in
-  config.auto_flags by the command line, or differing from configs/auto.py's) wins over the
-  decision, with one line saying so. Prints one line per decision with its reason; the lines go to config.auto_decisions (config.json), and
-  auto is off in the result (a restored run keeps what was decided)."""
+  when there are too few cameras) and the effects it calls for (view dependence only where it
+  is measured: the views need depth; else the representation's setting stands). A field the
+  user set (named in config.auto_flags by the command line, or differing from
+  configs/auto.py's) wins over the decision, with one line saying so. Prints one line per
+  decision with its reason; the lines go to config.auto_decisions (config.json), and auto is
+  off in the result (a restored run keeps what was decided)."""
   base = _flat(config_lib.load("auto"))
   given = _flat(config)
   user = {k: v for k, v in given.items()

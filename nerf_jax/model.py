@@ -147,6 +147,8 @@ class GridNeRF(_GridHead):
   layer over the concatenated grid features; colour from the feature (and direction).
   Positions outside the box get raw density -1e5, which every density activation maps to 0
   with a zero gradient (relu, softplus and exp all underflow to exactly 0 there).
+  level_weights (GridNeRF, HashNeRF, TensoRFNeRF): float32 [num_levels] or None, each level's
+  features scaled by its weight (`weigh_levels`: pose refinement's coarse to fine).
   """
   resolutions: Sequence[int] = (32, 64, 128)
   features: int = 4

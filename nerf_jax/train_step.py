@@ -10,6 +10,7 @@ replicated.
 """
 
 import collections
+import math
 
 import jax
 import jax.numpy as jnp
@@ -18,6 +19,25 @@ import optax
 from nerf_jax import (background, experiment, metrics, model, occupancy, parallel,
                       pose_refinement, regularizers, renderer, train_batches)
 from nerf_jax.experiment import TrainState
+
+
+def _render_split(render, rays, key, background, image, posed):
+  """`render(rays, key, background, image)` of a batch of rays [B] in two parts: the first
+  `posed` rays as they are, the rest from stop_gradient(rays), so the backward pass computes
+  no gradient with respect to their samples' positions (with pose refinement that gradient,
+  through every sample's interpolation, is most of the extra cost of a step). background:
+  float32 [3] or [B, 3]; image: int32 [B] or None. Returns the two parts' outputs joined along
+  the rays, in the rays' order."""
+  parts = (slice(None, posed), slice(posed, None))
+  keys = jax.random.split(key)
+  outs = []
+  for part, part_key, stop in zip(parts, keys, (False, True)):
+    part_rays = jax.tree_util.tree_map(lambda a: a[part], rays)
+    if stop:
+      part_rays = jax.lax.stop_gradient(part_rays)
+    part_bg = background[part] if jnp.ndim(background) == 2 else background
+    outs.append(render(part_rays, part_key, part_bg, None if image is None else image[part]))
+  return jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), *outs)
 
 
 def make_train_step(exp, mesh=None):
@@ -47,6 +67,14 @@ def make_train_step(exp, mesh=None):
     share = step.astype(jnp.float32) / jnp.maximum(planned, 1)
     return dims * jnp.clip((share - start) / max(end - start, 1e-6), 0.0, 1.0)
 
+  def posed_rays(num_rays):
+    """How many of a batch's rays carry the poses' gradient: ceil(train.pose_ray_share ·
+    num_rays), or None for all of them (or without refinement)."""
+    share = config.train.pose_ray_share
+    if not refine or share >= 1:
+      return None
+    return max(1, min(num_rays, math.ceil(share * num_rays)))
+
   def loss_fn(params, buffers, batch, key, data=None, bands=None):
     render_key, bg_key = jax.random.split(key)
     bg, target = fixed_background, batch.rgb
@@ -58,8 +86,13 @@ def make_train_step(exp, mesh=None):
     if refine:  # the rays of the corrected cameras: the corrections take a gradient
       rays = train_batches.pixel_rays_of(
           data, batch.image, batch.pixel, pose_refinement.corrected(data.poses, params["poses"]))
-    outs = ray_renderer.render({"params": params, **buffers}, rays, render_key, bg,
-                               config.train.remat_chunk, image_of(batch), bands)
+    render = lambda rays, key, bg, image: ray_renderer.render(
+        {"params": params, **buffers}, rays, key, bg, config.train.remat_chunk, image, bands)
+    posed = posed_rays(rays.near.shape[0])
+    if posed is None:
+      outs = render(rays, render_key, bg, image_of(batch))
+    else:  # only the first `posed` rays' gradient reaches the poses
+      outs = _render_split(render, rays, render_key, bg, image_of(batch), posed)
     mses = {name: jnp.mean((out["rgb"] - target) ** 2) for name, out in outs.items()}
     loss = mses["coarse"] if "fine" not in mses else (
         mses["fine"] + config.train.coarse_loss_weight * mses["coarse"])

@@ -10,6 +10,7 @@ import pytest
 import scipy.linalg
 
 from nerf_jax import encoding, experiment, hashgrid, pose_refinement, train_batches, train_step
+from nerf_jax.rays import Rays
 from nerf_jax.scenes import photos
 from tests.helpers import ray_renderer, small_config
 
@@ -169,10 +170,13 @@ def _train_corrections(exp, start, steps):
   return np.asarray(state.params["poses"])
 
 
-def test_refinement_recovers_a_known_perturbation():
+@pytest.mark.parametrize("share", [1.0, 0.5])
+def test_refinement_recovers_a_known_perturbation(share):
   """The perturbed capture's cameras (1° and 2% of the scene's size each, photos.py) looking at
-  a known field: training steps with the field fixed bring them back to the true poses."""
+  a known field: training steps with the field fixed bring them back to the true poses, also
+  when only half of each batch's rays move the poses (train.pose_ray_share)."""
   config = small_config({"data.scene": "perturbed", "data.num_views": 8, "data.holdout_from": 6,
+                         "train.pose_ray_share": share,
                          "data.image_size": 16, "num_samples": 32,
                          "train.pose_refinement": True, "train.lr": 1e-2,
                          "train.pose_lr": 1e-2, "train.lr_final": 3e-3, "train.batch_rays": 256,
@@ -195,6 +199,31 @@ def test_refinement_recovers_a_known_perturbation():
   assert given["degrees"] > 0.8
   assert got["degrees"] < 0.3 * given["degrees"], (got, given)
   assert got["translation"] < 0.3 * given["translation"], (got, given)
+
+
+def test_a_split_render_is_the_whole_render_with_the_poses_gradient_from_its_head():
+  """train_step._render_split against one render of all rays, with a stand-in renderer whose
+  output depends on each ray's geometry, background and image: the same values in the same
+  order, and the geometry's gradient only on the first `posed` rays."""
+  num, posed = 10, 4
+  rays = Rays(*(jnp.linspace(0.1, 1.0, num * 3).reshape(num, 3) + k
+               for k in range(3)), near=jnp.full((num,), 2.0), far=jnp.full((num,), 6.0))
+  background = jnp.linspace(0.0, 1.0, num * 3).reshape(num, 3)
+  image = jnp.arange(num, dtype=jnp.int32) % 3
+
+  def render(rays, key, bg, image):
+    del key  # the stand-in is deterministic
+    rgb = jnp.sin(rays.origins * rays.directions) + bg + image[:, None]
+    return {"coarse": {"rgb": rgb, "t": rays.near[:, None] + jnp.arange(3.0)}}
+
+  whole = render(rays, None, background, image)
+  split = train_step._render_split(render, rays, jax.random.PRNGKey(0), background, image, posed)
+  for name in ("rgb", "t"):
+    np.testing.assert_allclose(split["coarse"][name], whole["coarse"][name], rtol=1e-6)
+  grad = jax.grad(lambda o: jnp.sum(train_step._render_split(
+      render, rays.replace(origins=o), jax.random.PRNGKey(0), background, image,
+      posed)["coarse"]["rgb"]))(rays.origins)
+  assert np.all(np.asarray(grad[:posed]) != 0) and not np.any(np.asarray(grad[posed:]))
 
 
 def test_reprojection_error_of_a_sideways_move_is_focal_times_move_over_depth():

@@ -24,6 +24,8 @@ class Entry(NamedTuple):
 
 _NO_SKIP = {"model.skip_layers": ()}  # a 4-layer MLP has no layer 4 to skip after
 _VIEW = {"model.view_dependent": True}  # the view branch (glossy parts)
+# Held-out photos with their own looks, scored on right halves, codes fitted on left halves.
+_OWN_LOOKS = {"data.held_out_looks": "own", "render.appearance_protocol": "left_half"}
 
 SWEEPS = {
     "quick": [
@@ -131,10 +133,14 @@ SWEEPS = {
     ],
     # A photographer's effects (scenes `exposure`, `perturbed`, and `diffuse`, which calls for
     # neither): per-photo appearance codes and camera pose refinement (appearance_and_poses.md).
+    # The "own looks" pair: _OWN_LOOKS (NeRF-W's protocol for photos with looks of their own).
     "photos": [
         Entry("fast", base="fast"),
         Entry("appearance codes", {"model.appearance_dims": 8}, base="fast"),
         Entry("pose refinement", {"train.pose_refinement": True}, base="fast"),
+        Entry("fast, own looks", _OWN_LOOKS, base="fast"),
+        Entry("appearance codes, own looks", {**_OWN_LOOKS, "model.appearance_dims": 8},
+              base="fast"),
     ],
     # Step time against the work per step (rays x samples); run with --steps (equal steps).
     "scaling": [Entry(f"rays={n}", {"train.batch_rays": n}) for n in (128, 512, 2048, 8192, 32768)]
