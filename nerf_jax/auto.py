@@ -55,15 +55,14 @@ def auto_config(config, dataset):
       effects["train.random_background"] = True
     else:
       chosen = "capture"
+  result = config_lib.load(chosen)
+  if decisions is not None:
     bg = tuple(float(c) for c in dataset.background)
     effects["data.background"] = ("white" if bg == (1.0, 1.0, 1.0) else
                                   "black" if bg == (0.0, 0.0, 0.0) else bg)
     effects["model.appearance_dims"] = APPEARANCE_DIMS if found["appearance"].found else 0
-    view_dependence = found["view_dependence"].found
-    if view_dependence is not None:
-      effects["model.view_dependent"] = view_dependence
-    else:  # not measured: the representation's own setting, said in its line
-      view_dependence = config_lib.load(chosen).model.view_dependent
+    if found["view_dependence"].found is not None:  # else the representation's own setting
+      effects["model.view_dependent"] = found["view_dependence"].found
     settings = {"background": "an object on a background: a box, random backgrounds while "
                               "training",
                 "forward": "forward-facing: NDC rays (data.ndc)",
@@ -74,15 +73,14 @@ def auto_config(config, dataset):
                                    "(model.view_dependent)"}
     for d in decisions:
       if d.found is None:  # the representation's own setting
-        lines.append(f"view dependence {'on' if view_dependence else 'off'} as in "
-                     f"configs/{chosen}.py: {d.reason}")
+        lines.append(f"view dependence {'on' if result.model.view_dependent else 'off'} as "
+                     f"in configs/{chosen}.py: {d.reason}")
       else:
         lines.append(f"{settings[d.name] if d.found else 'no ' + d.name.replace('_', ' ')}: "
                      f"{d.reason}")
     lines.append("pose refinement: off (nothing in the photos measures a pose error; "
                  "train.pose_refinement=True switches it on)")
   lines.append(f"representation: configs/{chosen}.py")
-  result = config_lib.load(chosen)
   values = {**_flat(result), **effects}
   for name, value in user.items():
     if name in effects and effects[name] != value:

@@ -1,5 +1,6 @@
-"""What a capture calls for, read from the capture itself (pure numpy): the measurements and
-rules behind `--config=auto` (auto.auto_config applies them).
+"""What a capture calls for, read from the capture itself (numpy; pixels and cameras through
+rays.pixel_directions and visual_hull.project): the measurements and rules behind
+`--config=auto` (auto.auto_config applies them).
 
 Each rule looks at the training views (a `Dataset`) and returns a `Decision`: its name, what it
 found (True / False), and the measured reason, one line:
@@ -25,6 +26,8 @@ import dataclasses
 from typing import Optional
 
 import numpy as np
+
+from nerf_jax import rays, visual_hull
 
 MIN_CAMERAS = 3  # fewer cameras than this cannot be characterised: the defaults are used
 FORWARD_CONE_DEGREES = 30.0  # forward-facing: every view direction within this of their mean
@@ -114,17 +117,13 @@ def _seen_from(dataset, points, log_luminance):
   """float64 [P, N]: the log luminance of each point float64 [P, 3] in each view, NaN where the
   view does not see it (outside the frame, behind it, its own depth there disagrees by more
   than DEPTH_AGREEMENT: an occluder, or not opaque)."""
-  fx, fy, cx, cy = dataset.intrinsics
   num, height, width = log_luminance.shape
   out = np.full((len(points), num), np.nan)
   for j, pose in enumerate(np.asarray(dataset.poses, np.float64)):
-    q = (points - pose[:3, 3]) @ pose[:3, :3]  # camera coordinates (rays.py axes)
-    z = -q[:, 2]
-    ahead = z > 1e-9
-    safe_z = np.where(ahead, z, 1.0)
-    col = np.floor(cx + fx * q[:, 0] / safe_z - dataset.pixel_center + 0.5).astype(int)
-    row = np.floor(cy - fy * q[:, 1] / safe_z - dataset.pixel_center + 0.5).astype(int)
-    seen = ahead & (col >= 0) & (col < width) & (row >= 0) & (row < height)
+    column, row, z = (np.asarray(a, np.float64) for a in visual_hull.project(
+        points, pose, dataset.intrinsics, dataset.pixel_center))
+    col, row = np.floor(column + 0.5).astype(int), np.floor(row + 0.5).astype(int)
+    seen = (z > 1e-9) & (col >= 0) & (col < width) & (row >= 0) & (row < height)
     col, row = np.clip(col, 0, width - 1), np.clip(row, 0, height - 1)
     seen &= np.abs(dataset.depths[j][row, col] - z) < DEPTH_AGREEMENT * z
     if dataset.accs is not None:
@@ -152,7 +151,8 @@ def highlight_excess(dataset, seed=0):
   num, height, width = images.shape[:3]
   log_luminance = np.log(images.mean(-1) + 0.05)  # +0.05: dark pixels' noise stays small
   poses = np.asarray(dataset.poses, np.float64)
-  fx, fy, cx, cy = dataset.intrinsics
+  directions = np.asarray(rays.pixel_directions(height, width, *dataset.intrinsics,
+                                                dataset.pixel_center), np.float64)  # z = -1
   rng = np.random.default_rng(seed)
   excess = []
   for ref in np.unique(np.linspace(0, num - 1, min(HIGHLIGHT_VIEWS, num)).round().astype(int)):
@@ -164,9 +164,7 @@ def highlight_excess(dataset, seed=0):
     pick = rng.choice(candidates, min(HIGHLIGHT_POINTS, len(candidates)), replace=False)
     row, col = np.divmod(pick, width)
     z = np.asarray(dataset.depths[ref], np.float64)[row, col]
-    dirs = np.stack([(col + dataset.pixel_center - cx) / fx,
-                     -(row + dataset.pixel_center - cy) / fy, -np.ones(len(col))], -1)
-    points = poses[ref, :3, 3] + (dirs * z[:, None]) @ poses[ref, :3, :3].T
+    points = poses[ref, :3, 3] + (directions[row, col] * z[:, None]) @ poses[ref, :3, :3].T
     seen = _seen_from(dataset, points, log_luminance)
     gain = _nanmedian(seen - seen[:, ref:ref + 1], axis=0)  # each view's exposure offset
     seen = seen - np.where(np.isfinite(gain), gain, 0.0)
