@@ -20,7 +20,7 @@ def get_config():
   config.dir_encode_dims = 4  # the paper's 4 bands for directions
   config.num_samples = 32  # samples per ray, all in occupied cells of the box
   config.occupancy.enabled = True  # sample where the occupancy grid says there is something
-  config.occupancy.resolution = 64  # 64^3 cells of 3/64 units over the scene box
+  config.occupancy.resolution = 128  # 128^3 cells of 3/128 units: a thin shell round surfaces
   config.occupancy.probes = 1  # one jittered probe per cell per refresh (they accumulate)
   config.model.grid.density_resolutions = (32, 64, 128)  # density from one-channel levels
   config.model.density_activation = "exp"  # exp of the summed levels: fast to fill and to clear
