@@ -69,11 +69,13 @@ def make_train_step(exp, mesh=None):
 
   def posed_rays(num_rays):
     """How many of a batch's rays carry the poses' gradient: ceil(train.pose_ray_share ·
-    num_rays), or None for all of them (or without refinement)."""
+    num_rays), or None for all of them (or without refinement): a share that rounds up to the
+    whole batch renders it in one part, not with an empty second part."""
     share = config.train.pose_ray_share
-    if not refine or share >= 1:
+    posed = max(1, math.ceil(share * num_rays))
+    if not refine or posed >= num_rays:
       return None
-    return max(1, min(num_rays, math.ceil(share * num_rays)))
+    return posed
 
   def loss_fn(params, buffers, batch, key, data=None, bands=None):
     render_key, bg_key = jax.random.split(key)
