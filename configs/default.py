@@ -45,10 +45,15 @@ def get_config():
   model.encoding = "posenc"  # 'posenc' (NeRF MLP), 'grid' (configs/fast.py), 'hash', 'tensorf'
   model.grid_bound = 1.5  # grid and hash encodings: the grids cover [-bound, bound]^3
   model.grid_box = ()  # grid encodings: (min x, y, z, max x, y, z) of a tighter box; () = cube
+  model.grid_cell_aspect = (1.0, 1.0, 1.0)  # grid and tensorf: relative x, y, z sides of a cell
   model.grid = grid = ml_collections.ConfigDict()  # the grid encoding (model.GridNeRF)
   grid.resolutions = (32, 64, 128)  # lattice points per side of each level
   grid.features = 4  # features per lattice point
   grid.density_resolutions = ()  # density from one-channel grids of these sizes; () = from the MLP
+  grid.density_hash_resolution = 0  # with density_resolutions: a hashed finer level (0 = none)
+  grid.density_hash_log2_size = 20  # log2 of the hashed density level's rows
+  grid.colour_hash_resolution = 0  # with density_resolutions: a hashed finer colour level
+  grid.colour_hash_log2_size = 20  # log2 of the hashed colour level's rows
   model.hash = hashing = ml_collections.ConfigDict()  # the hash encoding (model.HashNeRF)
   hashing.levels = 16  # resolution levels (configs/hash.py)
   hashing.log2_size = 19  # log2 of the rows of each level's table

@@ -231,6 +231,12 @@ def make_field(config, num_images=1):
     # In an unbounded scene the grids cover the whole contracted space, twice the inner box.
     bound = 2.0 * config.data.scene_bound if config.data.contraction else m.grid_bound
     fields = dict(m[m.encoding])
+    if m.encoding == "grid" and not m.grid.density_resolutions:
+      hashed = {name: fields.pop(name) for name in _HASHED_LEVELS}
+      if hashed["density_hash_resolution"] or hashed["colour_hash_resolution"]:
+        raise ValueError("config.model.grid.density_hash_resolution and colour_hash_resolution "
+                         "add levels to the split network: they need "
+                         "config.model.grid.density_resolutions")
     if m.encoding in ("hash", "tensorf"):
       grids = {"hash": model.HashNeRF, "tensorf": model.TensoRFNeRF}[m.encoding]
     elif fields.pop("density_resolutions"):  # density from a grid of its own
@@ -245,7 +251,8 @@ def make_field(config, num_images=1):
                          "yet: set config.model.appearance_dims=0 or density_resolutions=()")
     else:
       grids = model.GridNeRF
-    network = grids(**fields, bound=bound, box=tuple(m.grid_box), hidden=m.width, **head)
+    network = grids(**fields, bound=bound, box=tuple(m.grid_box), hidden=m.width,
+                    cell_aspect=tuple(m.grid_cell_aspect), **head)
   return Field(network, config.pos_encode_dims if m.encoding == "posenc" else None,
                config.dir_encode_dims, m.view_dependent, m.density_activation, m.density_noise,
                config.data.contraction, max(config.data.scene_bound, 1e-6), m.appearance_dims)
@@ -385,7 +392,9 @@ def _parameter_groups(groups, params):
 
 
 # Encoding fields that do not fix the parameters' shapes or meaning (left out of the signature).
-_NOT_IN_SIGNATURE = ("gather_dtype", "density_resolutions")
+_HASHED_LEVELS = ("density_hash_resolution", "density_hash_log2_size",
+                  "colour_hash_resolution", "colour_hash_log2_size")
+_NOT_IN_SIGNATURE = ("gather_dtype", "density_resolutions", *_HASHED_LEVELS)
 
 
 def model_signature(config):
@@ -414,8 +423,14 @@ def model_signature(config):
     signature.update(pose_refinement=True)
   if m.grid_box:  # only then, so older checkpoints stay valid
     signature.update(grid_box=list(m.grid_box))
+  if tuple(m.grid_cell_aspect) != (1.0, 1.0, 1.0):  # likewise
+    signature.update(grid_cell_aspect=list(m.grid_cell_aspect))
   if m.encoding == "grid" and m.grid.density_resolutions:  # likewise
     signature.update(grid_density_resolutions=list(m.grid.density_resolutions))
+    for part in ("density", "colour"):  # likewise
+      if m.grid[f"{part}_hash_resolution"]:
+        signature[f"grid_{part}_hash"] = [m.grid[f"{part}_hash_resolution"],
+                                          m.grid[f"{part}_hash_log2_size"]]
   return signature
 
 

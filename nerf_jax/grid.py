@@ -27,10 +27,12 @@ def to_unit_box(points, box):
   return (points - low) / (high - low)
 
 
-def axis_resolutions(resolution, box):
+def axis_resolutions(resolution, box, cell_aspect=(1.0, 1.0, 1.0)):
   """Lattice points per axis (3 ints) of a grid over `box` ((min, max) corners) with
-  `resolution` points along its longest side and cells as near cubic as whole numbers allow."""
+  `resolution` points along the side that has the most cells, and cells whose sides are in the
+  ratio `cell_aspect` (x, y, z; all ones = cubic) as nearly as whole numbers allow."""
   sides = np.asarray(box[1], np.float64) - np.asarray(box[0], np.float64)
+  sides = sides / np.asarray(cell_aspect, np.float64)  # in cell lengths of each axis
   cells = (resolution - 1) * sides / sides.max()
   return tuple(int(max(2, round(c) + 1)) for c in cells)
 

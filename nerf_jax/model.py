@@ -91,6 +91,7 @@ class _GridHead(nn.Module):
   dtype: str = "float32"
   appearance_images: int = 1
   appearance_dims: int = 0
+  cell_aspect: Sequence[float] = (1.0, 1.0, 1.0)  # relative x, y, z sides of a lattice cell
 
   def _dense(self, features, name):
     return nn.Dense(features, dtype=jnp.dtype(self.dtype), param_dtype=jnp.float32, name=name)
@@ -102,10 +103,9 @@ class _GridHead(nn.Module):
     return grid.to_unit_box(points, (self.box[:3], self.box[3:]))
 
   def _shape(self, resolution):
-    """Lattice points per axis of a level with `resolution` along the box's longest side."""
-    if not self.box:
-      return (resolution,) * 3
-    return grid.axis_resolutions(resolution, (self.box[:3], self.box[3:]))
+    """Lattice points per axis of a level with `resolution` along the axis with most cells."""
+    box = (self.box[:3], self.box[3:]) if self.box else ((-self.bound,) * 3, (self.bound,) * 3)
+    return grid.axis_resolutions(resolution, box, self.cell_aspect)
 
   def _head(self, h, unit, dir_features, image=None):
     """Density and a feature from one hidden layer, colour from the feature (and direction,
@@ -244,23 +244,46 @@ class DensityGridNeRF(_GridHead):
   bound: float = 1.5
   box: Sequence[float] = ()  # as GridNeRF's
   density_resolutions: Sequence[int] = (32, 64, 128)  # lattice points per side of each level
+  density_hash_resolution: int = 0  # a finer, hashed density level: points per side (0 = none)
+  density_hash_log2_size: int = 20  # log2 of its table's rows
+  colour_hash_resolution: int = 0  # a finer, hashed colour feature level: points per side
+  colour_hash_log2_size: int = 20  # log2 of its table's rows
+
+  def _raw_density(self, unit):
+    """Raw density float32 [...] at unit-box positions float32 [..., 3]: the sum of the dense
+    levels and, if set, the hashed level (instant-ngp's hash: its rows cost memory and Adam's
+    update in proportion to 2^log2_size, not to its resolution cubed)."""
+    hashed = bool(self.density_hash_resolution)
+    start = INITIAL_RAW_DENSITY / DENSITY_GAIN / (len(self.density_resolutions) + hashed)
+    levels = [self.param(f"density_{r}", nn.initializers.constant(start), (*self._shape(r), 1))
+              for r in self.density_resolutions]
+    raw = sum(grid.trilinear(g, unit)[..., 0] for g in levels)
+    if hashed:
+      resolution = (self.density_hash_resolution,)
+      rows = hashgrid.level_rows(resolution, self.density_hash_log2_size)[0]
+      table = self.param("hashed_density", nn.initializers.constant(start), (rows, 1))
+      raw = raw + hashgrid.encode(table, unit, resolution, self.density_hash_log2_size)[..., 0]
+    return DENSITY_GAIN * raw
 
   @nn.compact
   def __call__(self, points, dir_features=None, part="all"):
     unit = self._unit(points.astype(jnp.float32))
     raw_sigma = rgb = None
     if part in ("all", "density"):
-      start = INITIAL_RAW_DENSITY / DENSITY_GAIN / len(self.density_resolutions)
-      levels = [self.param(f"density_{r}", nn.initializers.constant(start),
-                           (*self._shape(r), 1)) for r in self.density_resolutions]
-      raw = DENSITY_GAIN * sum(grid.trilinear(g, unit)[..., 0] for g in levels)
+      raw = self._raw_density(unit)
       raw_sigma = jnp.where(grid.inside_box(unit), raw, -1e5)
     if part in ("all", "colour"):
       init = lambda key, shape: 1e-2 * jax.random.normal(key, shape, jnp.float32)
       grids = [self.param(f"grid_{r}", init, (*self._shape(r), self.features))
                for r in self.resolutions]
-      h = grid.multires_features(grids, unit).astype(jnp.dtype(self.dtype))
-      h = nn.relu(self._dense(self.hidden, "hidden")(h))
+      h = grid.multires_features(grids, unit)
+      if self.colour_hash_resolution:  # read only by the samples that get colour
+        resolution = (self.colour_hash_resolution,)
+        rows = hashgrid.level_rows(resolution, self.colour_hash_log2_size)[0]
+        table = self.param("hashed_colour", init, (rows, self.features))
+        fine = hashgrid.encode(table, unit, resolution, self.colour_hash_log2_size)
+        h = jnp.concatenate([h, fine], axis=-1)
+      h = nn.relu(self._dense(self.hidden, "hidden")(h.astype(jnp.dtype(self.dtype))))
       if self.view_dependent:
         h = jnp.concatenate([h, dir_features.astype(h.dtype)], axis=-1)
         h = nn.relu(self._dense(self.view_width, "view")(h))

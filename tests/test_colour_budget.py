@@ -123,3 +123,71 @@ def test_occupancy_probes_read_the_density_half():
   _, full = split.field.query(params, points[:, None, :], jnp.zeros((2, 3)))
   np.testing.assert_allclose(sigma, full[:, 0], rtol=1e-6)
   assert float(sigma[0]) > 3.0 and float(sigma[1]) < 0.01
+
+
+def _hashed_brute(table, point, resolution, log2_size):
+  """Trilinear interpolation of a hashed level at one unit-cube point, corner by corner, with
+  instant-ngp's hash written out in Python integers."""
+  x = np.clip(point, 0.0, 1.0) * (resolution - 1)
+  lower = np.minimum(np.floor(x), resolution - 2).astype(np.int64)
+  frac = x - lower
+  total = 0.0
+  for corner in np.ndindex(2, 2, 2):
+    c = lower + np.array(corner)
+    row = ((int(c[0]) * 1) ^ (int(c[1]) * 2654435761) ^ (int(c[2]) * 805459861)) % 2 ** 32
+    row %= 2 ** log2_size
+    weight = np.prod(np.where(np.array(corner) == 1, frac, 1.0 - frac))
+    total += weight * table[row, 0]
+  return total
+
+
+def test_a_hashed_density_level_adds_its_hash_lookup_to_the_dense_levels():
+  net = model.DensityGridNeRF(resolutions=(4,), features=2, density_resolutions=(8,),
+                              density_hash_resolution=32, density_hash_log2_size=8)
+  points = jax.random.uniform(jax.random.PRNGKey(0), (40, 3), minval=-1.4, maxval=1.4)
+  variables = net.init(jax.random.PRNGKey(2), points, jnp.zeros((40, 3)))
+  params = variables["params"]
+  assert params["hashed_density"].shape == (256, 1)  # 32^3 points share 2^8 rows
+  unit = grid.to_unit_cube(points, 1.5)
+  np.testing.assert_allclose(net.apply(variables, points, part="density"),
+                             model.INITIAL_RAW_DENSITY, rtol=1e-6)  # the same faint start
+  params["density_8"] = jax.random.normal(jax.random.PRNGKey(3), params["density_8"].shape)
+  params["hashed_density"] = jax.random.normal(jax.random.PRNGKey(4), (256, 1))
+  raw = np.asarray(net.apply(variables, points, part="density"))
+  dense = np.asarray(grid.trilinear(params["density_8"], unit)[..., 0])
+  hashed = [_hashed_brute(np.asarray(params["hashed_density"]), u, 32, 8)
+            for u in np.asarray(unit)]
+  np.testing.assert_allclose(raw, model.DENSITY_GAIN * (dense + np.array(hashed)),
+                             rtol=1e-5, atol=1e-5)
+  # Its gradient reaches only the rows the points' corners hash to.
+  grad = jax.grad(lambda p: jnp.sum(net.apply({"params": p}, points, part="density")))(params)
+  touched = np.flatnonzero(np.asarray(grad["hashed_density"])[:, 0])
+  assert 0 < len(touched) <= 8 * len(points)
+
+
+def test_a_hashed_colour_level_joins_the_colour_features():
+  net = model.DensityGridNeRF(resolutions=(4,), features=2, density_resolutions=(8,),
+                              colour_hash_resolution=32, colour_hash_log2_size=8)
+  points = jax.random.uniform(jax.random.PRNGKey(0), (40, 3), minval=-1.4, maxval=1.4)
+  variables = net.init(jax.random.PRNGKey(2), points, jnp.zeros((40, 3)))
+  params = variables["params"]
+  assert params["hashed_colour"].shape == (256, 2)
+  assert params["hidden"]["kernel"].shape[0] == 2 + 2  # the dense level's and the hashed one's
+  # The colour's gradient reaches the hashed rows; density does not read them.
+  colour = lambda p: jnp.sum(net.apply({"params": p}, points, part="colour"))
+  assert np.any(np.asarray(jax.grad(colour)(params)["hashed_colour"]) != 0)
+  raw = net.apply(variables, points, part="density")
+  params["hashed_colour"] = params["hashed_colour"] + 1.0
+  np.testing.assert_array_equal(net.apply(variables, points, part="density"), raw)
+
+
+@pytest.mark.parametrize("part", ["density", "colour"])
+def test_a_hashed_level_needs_the_dense_density_levels(part):
+  config = small_config({f"model.grid.{part}_hash_resolution": 32}, base="fast")
+  with pytest.raises(ValueError, match="density_resolutions"):
+    experiment.make_ray_renderer(config)
+  config = small_config({**SPLIT, f"model.grid.{part}_hash_resolution": 32}, base="fast")
+  assert experiment.model_signature(config)[f"grid_{part}_hash"] == [32, 20]
+  variables = experiment.make_ray_renderer(config).init(jax.random.PRNGKey(0))
+  table = variables["params"]["coarse"][f"hashed_{part}"]
+  assert table.shape[0] == 2 ** 15  # 32^3 points fit 2^20 rows: indexed densely, as grid.py

@@ -100,6 +100,23 @@ def test_axis_resolutions_keep_cells_cubic():
   assert grid.axis_resolutions(3, box) == (2, 3, 2)  # never fewer than 2 points
 
 
+def test_axis_resolutions_with_long_cells_along_z():
+  box = ([-0.5, -1.0, 0.0], [0.5, 1.0, 0.5])  # sides 1, 2, 0.5
+  # z cells 4x as long as x and y's: 64, 128 cells of 1/64 and 8 cells of 1/16.
+  assert grid.axis_resolutions(129, box, (1.0, 1.0, 4.0)) == (65, 129, 9)
+  # z cells 1/16 as long: z has the most cells (0.5 / (1/16 of x's cells)) and gets 129 points.
+  assert grid.axis_resolutions(129, box, (1.0, 1.0, 1 / 16)) == (17, 33, 129)
+
+
+def test_a_grid_field_with_long_cells_along_z_has_fewer_lattice_points_there():
+  config = small_config({"model.grid.resolutions": (8, 16),
+                         "model.grid_cell_aspect": (1.0, 1.0, 4.0)}, base="fast")
+  params = experiment.make_ray_renderer(config).init(jax.random.PRNGKey(0))["params"]["coarse"]
+  assert params["grid_16"].shape == (16, 16, 5, 4)  # 15 cells of x's side along z are 3.75
+  assert experiment.model_signature(config)["grid_cell_aspect"] == [1.0, 1.0, 4.0]
+  assert "grid_cell_aspect" not in experiment.model_signature(small_config(base="fast"))
+
+
 def test_grid_field_over_a_box_is_empty_outside_it():
   net = model.GridNeRF(resolutions=(8,), features=2, box=(-0.5, -1.0, 0.0, 0.5, 1.0, 0.5))
   points = jnp.array([[0.0, 0.0, 0.25], [0.6, 0.0, 0.25], [0.0, 0.0, -0.1]])
