@@ -141,11 +141,17 @@ def _hashed_brute(table, point, resolution, log2_size):
   return total
 
 
-def test_a_hashed_density_level_adds_its_hash_lookup_to_the_dense_levels():
+def _hashed_network(part):
+  """(network, points float32 [40, 3], variables): a split network whose `part` ('density' or
+  'colour') has a hashed level of 32^3 points in 2^8 rows, and random points in its box."""
   net = model.DensityGridNeRF(resolutions=(4,), features=2, density_resolutions=(8,),
-                              density_hash_resolution=32, density_hash_log2_size=8)
+                              **{f"{part}_hash_resolution": 32, f"{part}_hash_log2_size": 8})
   points = jax.random.uniform(jax.random.PRNGKey(0), (40, 3), minval=-1.4, maxval=1.4)
-  variables = net.init(jax.random.PRNGKey(2), points, jnp.zeros((40, 3)))
+  return net, points, net.init(jax.random.PRNGKey(2), points, jnp.zeros((40, 3)))
+
+
+def test_a_hashed_density_level_adds_its_hash_lookup_to_the_dense_levels():
+  net, points, variables = _hashed_network("density")
   params = variables["params"]
   assert params["hashed_density"].shape == (256, 1)  # 32^3 points share 2^8 rows
   unit = grid.to_unit_cube(points, 1.5)
@@ -166,10 +172,7 @@ def test_a_hashed_density_level_adds_its_hash_lookup_to_the_dense_levels():
 
 
 def test_a_hashed_colour_level_joins_the_colour_features():
-  net = model.DensityGridNeRF(resolutions=(4,), features=2, density_resolutions=(8,),
-                              colour_hash_resolution=32, colour_hash_log2_size=8)
-  points = jax.random.uniform(jax.random.PRNGKey(0), (40, 3), minval=-1.4, maxval=1.4)
-  variables = net.init(jax.random.PRNGKey(2), points, jnp.zeros((40, 3)))
+  net, points, variables = _hashed_network("colour")
   params = variables["params"]
   assert params["hashed_colour"].shape == (256, 2)
   assert params["hidden"]["kernel"].shape[0] == 2 + 2  # the dense level's and the hashed one's
