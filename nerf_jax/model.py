@@ -259,11 +259,17 @@ class DensityGridNeRF(_GridHead):
               for r in self.density_resolutions]
     raw = sum(grid.trilinear(g, unit)[..., 0] for g in levels)
     if hashed:
-      resolution = (self.density_hash_resolution,)
-      rows = hashgrid.level_rows(resolution, self.density_hash_log2_size)[0]
-      table = self.param("hashed_density", nn.initializers.constant(start), (rows, 1))
-      raw = raw + hashgrid.encode(table, unit, resolution, self.density_hash_log2_size)[..., 0]
+      raw = raw + self._hashed_level("hashed_density", nn.initializers.constant(start), 1, unit,
+                                     self.density_hash_resolution,
+                                     self.density_hash_log2_size)[..., 0]
     return DENSITY_GAIN * raw
+
+  def _hashed_level(self, name, init, features, unit, resolution, log2_size):
+    """Features float32 [..., features] of a one-level hash grid (hashgrid.py) of `resolution`
+    points per side in 2^log2_size rows (fewer if its lattice fits), the parameter `name`."""
+    rows = hashgrid.level_rows((resolution,), log2_size)[0]
+    table = self.param(name, init, (rows, features))
+    return hashgrid.encode(table, unit, (resolution,), log2_size)
 
   @nn.compact
   def __call__(self, points, dir_features=None, part="all"):
@@ -278,10 +284,8 @@ class DensityGridNeRF(_GridHead):
                for r in self.resolutions]
       h = grid.multires_features(grids, unit)
       if self.colour_hash_resolution:  # read only by the samples that get colour
-        resolution = (self.colour_hash_resolution,)
-        rows = hashgrid.level_rows(resolution, self.colour_hash_log2_size)[0]
-        table = self.param("hashed_colour", init, (rows, self.features))
-        fine = hashgrid.encode(table, unit, resolution, self.colour_hash_log2_size)
+        fine = self._hashed_level("hashed_colour", init, self.features, unit,
+                                  self.colour_hash_resolution, self.colour_hash_log2_size)
         h = jnp.concatenate([h, fine], axis=-1)
       h = nn.relu(self._dense(self.hidden, "hidden")(h.astype(jnp.dtype(self.dtype))))
       if self.view_dependent:
