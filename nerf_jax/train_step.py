@@ -140,14 +140,20 @@ def make_train_step(exp, mesh=None):
     finite = jnp.isfinite(stats["loss"]) & jnp.all(jnp.array(
         [jnp.all(jnp.isfinite(g)) for g in jax.tree_util.tree_leaves(grads)]))
     step_tx = tx if planned_steps is None else experiment.optimizer_for(config, planned_steps)
-    updates, opt_state = step_tx.update(grads, state.opt_state, state.params)
-    params = optax.apply_updates(state.params, updates)
+
+    def apply(params_and_state):
+      params, opt_state = params_and_state
+      updates, opt_state = step_tx.update(grads, opt_state, params)
+      return optax.apply_updates(params, updates), opt_state
     # A non-finite step is not applied (the state stays the last good one) and is reported.
-    keep = lambda new, old: jax.tree_util.tree_map(lambda n, o: jnp.where(finite, n, o), new, old)
+    # A cond, not a select of new and old: the select kept both copies of the parameters and
+    # Adam's moments and cost 3-4x the update itself (45 ms of a 245 ms detail.py step).
+    params, opt_state = jax.lax.cond(finite, apply, lambda same: same,
+                                     (state.params, state.opt_state))
+    buffers = jax.tree_util.tree_map(lambda n, o: jnp.where(finite, n, o), buffers, state.buffers)
     bad_step = jnp.where((state.bad_step < 0) & ~finite, state.step, state.bad_step)
-    new_state = TrainState(step=state.step + 1, params=keep(params, state.params),
-                           opt_state=keep(opt_state, state.opt_state), bad_step=bad_step,
-                           buffers=keep(buffers, state.buffers))
+    new_state = TrainState(step=state.step + 1, params=params, opt_state=opt_state,
+                           bad_step=bad_step, buffers=buffers)
     return parallel.replicated_constraint(new_state, mesh), stats
 
   return jax.jit(step, donate_argnums=0)
