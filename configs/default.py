@@ -97,6 +97,8 @@ def get_config():
   train.lr_final = 1e-4  # learning rate at max_steps (exponential decay)
   train.warmup_steps = 50  # linear warm-up from 0
   train.grad_clip = 0.0  # clip gradients to this global norm (0 = off)
+  train.adam_b2 = 0.999  # Adam's second-moment decay (instant-ngp uses 0.99 for its tables)
+  train.network_lr = 0.0  # the MLP's Adam learning rate on the same schedule (0 = train.lr)
   train.remat_chunk = 128  # rays per cache-sized, recomputed field chunk in a step (0 = off)
   train.coarse_loss_weight = 1.0  # weight of the coarse pass loss when a fine pass exists
   train.distortion_weight = 0.0  # mip-NeRF 360's distortion loss on the final pass (0 = off)

@@ -361,18 +361,21 @@ def make_optimizer(train_config, planned_steps=None, with_codes=False):
   With train.pose_refinement the camera corrections (params['poses']) have an Adam of their
   own, on the same schedule scaled to train.pose_lr; `with_codes` (appearance codes: every
   parameter named 'appearance'), so do the codes, scaled to train.appearance_lr (unless it is
-  train.lr: one Adam, as in runs saved before train.appearance_lr existed)."""
+  train.lr: one Adam, as in runs saved before train.appearance_lr existed); with
+  train.network_lr, the MLP's layers (leaves 'kernel' and 'bias'), scaled to it."""
   tc = train_config
   schedule = make_schedule(tc, planned_steps)
-  adam = optax.adam(schedule)
+  adam = optax.adam(schedule, b2=tc.adam_b2)
   if tc.grad_clip > 0:
     adam = optax.chain(optax.clip_by_global_norm(tc.grad_clip), adam)
-  scaled = lambda lr: optax.adam(lambda count: lr / tc.lr * schedule(count))
+  scaled = lambda lr: optax.adam(lambda count: lr / tc.lr * schedule(count), b2=tc.adam_b2)
   groups = {"field": adam}
   if tc.pose_refinement:
     groups["poses"] = scaled(tc.pose_lr)
   if with_codes and tc.appearance_lr != tc.lr:
     groups["codes"] = scaled(tc.appearance_lr)
+  if tc.network_lr > 0 and tc.network_lr != tc.lr:
+    groups["network"] = scaled(tc.network_lr)
   if len(groups) == 1:
     return adam
   return optax.multi_transform(groups, functools.partial(_parameter_groups, groups))
@@ -380,14 +383,19 @@ def make_optimizer(train_config, planned_steps=None, with_codes=False):
 
 def _parameter_groups(groups, params):
   """The optimiser group of `params`' parts: 'poses' for params['poses'], 'codes' for the leaves
-  named 'appearance' where `groups` has codes, else 'field'. Labels stay a prefix of the tree
+  named 'appearance' where `groups` has codes, 'network' for the MLP's 'kernel' and 'bias'
+  leaves where it has network, else 'field'. Labels stay a prefix of the tree
   where they can (a whole network is 'field'), as checkpoints of pose refinement saved them."""
+  def label(path):
+    name = getattr(path[-1], "key", None)
+    if name == "appearance" and "codes" in groups:
+      return "codes"
+    return "network" if name in ("kernel", "bias") and "network" in groups else "field"
+
   def network(tree):
-    if "codes" not in groups:
+    if "codes" not in groups and "network" not in groups:
       return "field"
-    return jax.tree_util.tree_map_with_path(
-        lambda path, _: "codes" if getattr(path[-1], "key", None) == "appearance" else "field",
-        tree)
+    return jax.tree_util.tree_map_with_path(lambda path, _: label(path), tree)
   return {name: "poses" if name == "poses" else network(tree) for name, tree in params.items()}
 
 

@@ -1,0 +1,52 @@
+"""The optimiser's parameter groups and Adam's settings (experiment.make_optimizer)."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from nerf_jax import config_lib, experiment
+
+
+def _train_config(**fields):
+  config = config_lib.default()
+  config.train.warmup_steps = 0  # the first step at the full rate
+  config.train.lr = 1e-2
+  for name, value in fields.items():
+    config.train[name] = value
+  return config.train
+
+
+def _params():
+  return {"coarse": {"Dense_0": {"kernel": jnp.ones((3, 4)), "bias": jnp.zeros(4)},
+                     "grid_32": jnp.ones((2, 2, 2, 4))}}
+
+
+def _first_update(train_config):
+  tx = experiment.make_optimizer(train_config)
+  params = _params()
+  grads = {"coarse": {"Dense_0": {"kernel": jnp.full((3, 4), 0.3), "bias": jnp.full(4, -2.0)},
+                      "grid_32": jnp.full((2, 2, 2, 4), 5.0)}}
+  updates, state = tx.update(grads, tx.init(params), params)
+  return updates, state
+
+
+@pytest.mark.parametrize("network_lr", [1e-4, 3e-2])
+def test_network_lr_moves_the_mlp_at_its_own_rate_and_the_tables_at_lr(network_lr):
+  # Adam's first step moves every parameter by its rate times the gradient's sign (m/√v = ±1).
+  updates, _ = _first_update(_train_config(network_lr=network_lr))
+  np.testing.assert_allclose(updates["coarse"]["Dense_0"]["kernel"], -network_lr, rtol=1e-4)
+  np.testing.assert_allclose(updates["coarse"]["Dense_0"]["bias"], network_lr, rtol=1e-4)
+  np.testing.assert_allclose(updates["coarse"]["grid_32"], -1e-2, rtol=1e-4)
+
+
+def test_network_lr_off_is_one_adam_for_everything():
+  updates, _ = _first_update(_train_config(network_lr=0.0))
+  for leaf in (updates["coarse"]["Dense_0"]["kernel"], updates["coarse"]["grid_32"]):
+    np.testing.assert_allclose(jnp.abs(leaf), 1e-2, rtol=1e-4)
+
+
+@pytest.mark.parametrize("b2", [0.999, 0.99])
+def test_adam_b2_sets_the_second_moment_decay(b2):
+  _, state = _first_update(_train_config(adam_b2=b2))
+  nu = [s for s in state if hasattr(s, "nu")][0].nu  # ν = (1 - b2) g² after one step
+  np.testing.assert_allclose(nu["coarse"]["grid_32"], (1 - b2) * 25.0, rtol=1e-5)
