@@ -329,3 +329,18 @@ def test_profile_times_every_stage_of_the_step(capsys):
   assert "GFLOP/s" in rows[-1][2]
   assert "| train step (all) |" in capsys.readouterr().out
   assert profile.median_ms(lambda x: x + 1, jnp.zeros(3), repeats=1) > 0
+
+
+def test_profile_lists_the_steps_xla_operations_by_kind(capsys):
+  values, spec, given = _parse(bench_cli.define_profile_flags, "nerf_jax.bench.profile",
+                               "--config=debug", "--config.train.batch_rays=32", "--repeats=1",
+                               "--ops=4")
+  bench_cli.profile_table(values, spec, given)
+  out = capsys.readouterr().out
+  table = out.split("| XLA operation kind |")[1].splitlines()[2:]
+  kinds = [line.split("|")[1].strip() for line in table if line.startswith("|")]
+  assert len(kinds) == 5 and kinds[-1] == "all"  # the 4 asked for, then the total
+  assert all(not kind[-1].isdigit() and "::" not in kind for kind in kinds)
+  times = [float(line.split("|")[2]) for line in table if line.startswith("|")]
+  assert all(t > 0 for t in times) and times[:4] == sorted(times[:4], reverse=True)
+  assert times[-1] >= sum(times[:4])

@@ -184,6 +184,9 @@ def define_profile_flags(values, argv):
                  "configs/), with --config.FIELD=VALUE overrides.")
   flags.DEFINE_integer("repeats", 10, "Timed calls per stage.", flag_values=values,
                        lower_bound=1)
+  flags.DEFINE_integer("ops", 0, "Also list this many of the step's costliest kinds of XLA "
+                       "operation, from a profiler trace (0 = no trace).", flag_values=values,
+                       lower_bound=0)
 
 
 def profile_table(values, spec, argv=None):
@@ -194,6 +197,12 @@ def profile_table(values, spec, argv=None):
   rows = profile.profile(values.config, values.repeats)
   for stage, ms, note in rows:
     print(f"| {stage} | {'' if np.isnan(ms) else f'{ms:.1f}'} | {note} |")
+  if values.ops:
+    kinds = profile.op_kinds(values.config, values.repeats)
+    print("\n| XLA operation kind | ms per step (all threads) |\n|---|---|")
+    for kind, ms in kinds[:values.ops]:
+      print(f"| {kind} | {ms:.2f} |")
+    print(f"| all | {sum(ms for _, ms in kinds):.1f} |")
   return rows
 
 

@@ -11,8 +11,19 @@ compositing forward + backward; and plain matmuls with the MLP's shapes, [rays·
 step), but they show which one dominates and how far the MLP (fwd + bwd ≈ 3 × the forward FLOPs)
 is from the matmul speed of its own shapes and from the large-square matmul peak. The flags are
 in bench/cli.py.
+
+With --ops=N it also lists the N costliest kinds of XLA operation in the whole step (a profiler
+trace of --repeats steps: fusions named by their root op, e.g. every gather fusion together),
+which shows what the stages cannot: the zero-filled gradient tables, the scatters, the sorts.
 """
 
+import collections
+import glob
+import gzip
+import json
+import os
+import re
+import tempfile
 import time
 
 import jax
@@ -95,6 +106,40 @@ def profile(config, repeats=10):
   peak = max(measure.matmul_gflops(repeats=repeats).values())
   rows.append(("dense matmul peak", float("nan"), f"{peak:.1f} GFLOP/s (large square)"))
   return rows
+
+
+# Trace events that hold other events (the executor, control flow, Python frames): not counted.
+_CONTAINERS = ("ThunkExecutor", "PjitFunction", "$", "cond", "while", "call", "conditional")
+
+
+def op_kinds(config, repeats=10):
+  """[(kind, ms per step)] of the XLA operations of `config`'s train step, costliest first:
+  a profiler trace of `repeats` steps after a warm-up, each operation's time summed by its name
+  without the trailing number (copy_gather_fusion.3 -> copy_gather_fusion). On a CPU the
+  operations of one step may run on several threads at once, so the sum can exceed the step."""
+  exp = experiment.setup(config)
+  state = experiment.init_state(exp)
+  data = train_batches.make_train_data(exp)
+  key = jax.random.PRNGKey(0)
+  step = train_step.make_train_step(exp)
+  state, stats = step(state, data, key)
+  jax.block_until_ready(stats)
+  with tempfile.TemporaryDirectory() as folder:
+    jax.profiler.start_trace(folder, create_perfetto_trace=True)
+    for _ in range(repeats):
+      state, stats = step(state, data, key)
+      jax.block_until_ready(stats)
+    jax.profiler.stop_trace()
+    trace, = glob.glob(os.path.join(folder, "**", "*.trace.json.gz"), recursive=True)
+    with gzip.open(trace) as f:
+      events = json.load(f)
+  events = events["traceEvents"] if isinstance(events, dict) else events
+  totals = collections.Counter()
+  for event in events:
+    name = event.get("name", "")
+    if event.get("ph") == "X" and not name.startswith(_CONTAINERS) and "::" not in name:
+      totals[re.sub(r"[.\d]+$", "", name)] += event.get("dur", 0) / 1e3 / repeats
+  return totals.most_common()
 
 
 if __name__ == "__main__":
