@@ -90,6 +90,7 @@ def get_config():
   train.max_seconds = 0.0  # wall-clock budget in seconds; alone, the run lasts exactly this long
   train.default_steps = 2500  # step budget when neither max_steps nor max_seconds is set
   train.batch_rays = 512  # rays per step (random rays over all training images)
+  train.sample_budget = 0  # occupancy: samples a step queries (valid ones, compacted); 0 = all
   train.batching = "rays"  # 'rays' (random rays) or 'images' (whole images, as the reference)
   train.images_per_step = 5  # whole images per step when batching == 'images'
   train.image_order = "random"  # 'images' batching: 'random' draws per step, 'epochs' shuffles

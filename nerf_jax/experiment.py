@@ -287,10 +287,19 @@ def make_sampler(config):
 
 def make_ray_renderer(config, num_images=1):
   """The RayRenderer of `config`: its field, its sampler and the fine pass (num_images: see
-  `make_field`)."""
+  `make_field`). Its sample budget is 0 (every slot): training sets config.train.sample_budget
+  (`training_renderer`)."""
+  if config.train.sample_budget and not config.occupancy.enabled:
+    raise ValueError("config.train.sample_budget needs config.occupancy.enabled: the budget "
+                     "is spent on the samples the occupancy grid places (0 = off)")
   return RayRenderer(make_field(config, num_images), make_sampler(config),
                      config.num_fine_samples, config.model.shared_fine,
                      config.model.colour_fraction)
+
+
+def training_renderer(exp):
+  """exp.renderer with the config's training sample budget (renderer.RayRenderer)."""
+  return dataclasses.replace(exp.renderer, sample_budget=exp.config.train.sample_budget)
 
 
 def image_settings(config):

@@ -111,12 +111,16 @@ def lookup(mask, points, bound):
   return mask[idx[..., 0], idx[..., 1], idx[..., 2]]
 
 
-def _occupied_indices(occupied, size):
-  """int32 [..., size]: positions of the True entries of bool [..., M] in order, then M."""
+def _candidates_of_ranks(occupied, ranks):
+  """int32 [..., J]: the candidate holding each rank (0-based, in order) among the True entries
+  of bool [..., M]; M - 1 for a rank past the last. A binary search of the running count of
+  occupied candidates, rank r held by the first candidate whose count exceeds r: log2(M) small
+  gathers per rank, where listing every occupied candidate (nonzero) scatters all M."""
   m = occupied.shape[-1]
-  flat = occupied.reshape(-1, m)
-  idx = jax.vmap(lambda row: jnp.nonzero(row, size=size, fill_value=m)[0])(flat)
-  return idx.reshape(*occupied.shape[:-1], size).astype(jnp.int32)
+  count = jnp.cumsum(occupied, axis=-1, dtype=jnp.int32).reshape(-1, m)  # exact: <= M
+  flat_ranks = ranks.reshape(-1, ranks.shape[-1])
+  idx = jax.vmap(lambda c, r: jnp.searchsorted(c, r, side="right"))(count, flat_ranks)
+  return jnp.minimum(idx, m - 1).reshape(ranks.shape).astype(jnp.int32)
 
 
 def sample_occupied(mask, origins, directions, t_min, t_max, bound, num_candidates, num_samples):
@@ -133,7 +137,29 @@ def sample_occupied(mask, origins, directions, t_min, t_max, bound, num_candidat
   mids = 0.5 * (edges[..., 1:] + edges[..., :-1])
   points = origins[..., None, :] + directions[..., None, :] * mids[..., None]
   occupied = lookup(mask, points, bound) & (t_max > t_min)[..., None]
-  return occupied_slots(edges, occupied, num_samples, t_max)
+  first, last, valid = slot_candidates(occupied, num_samples)
+  # Equal candidates: a slot's edges are arithmetic on its candidates, not a gather.
+  width = ((t_max - t_min) / num_candidates)[..., None]
+  far = t_max[..., None]
+  edge = lambda i: jnp.minimum(t_min[..., None] + width * i.astype(jnp.float32), far)
+  return jnp.where(valid, edge(first), far), jnp.where(valid, edge(last + 1), far), valid
+
+
+def slot_candidates(occupied, num_samples):
+  """Which occupied candidates each of K slots spans (see the module docstring).
+
+  occupied: bool [..., M]. num_samples: int K.
+  Returns (first, last, valid): int32 [..., K] candidates (slot k spans candidate first_k's
+  start to candidate last_k's end) and bool [..., K], the slots that hold any.
+  """
+  n = jnp.sum(occupied, axis=-1, dtype=jnp.int32)[..., None]  # [..., 1]
+  slots = jnp.arange(num_samples, dtype=jnp.int32)
+  # Integer group bounds: slot k holds ranks [first_k, next_k) of max(n, K) ranks.
+  per = jnp.maximum(n, num_samples)
+  first = slots * per // num_samples
+  last = jnp.minimum((slots + 1) * per // num_samples - 1, n - 1)
+  held_by = _candidates_of_ranks(occupied, jnp.concatenate([first, last], axis=-1))
+  return held_by[..., :num_samples], held_by[..., num_samples:], first < n
 
 
 def occupied_slots(edges, occupied, num_samples, t_max):
@@ -144,34 +170,26 @@ def occupied_slots(edges, occupied, num_samples, t_max):
   the ray's segment, where invalid slots sit.
   Returns (starts, ends, valid) as `sample_occupied`; invalid slots are [t_max, t_max].
   """
-  num_candidates = occupied.shape[-1]
-  order = _occupied_indices(occupied, num_candidates)  # [..., M]: candidate of each rank
-  n = jnp.sum(occupied, axis=-1, dtype=jnp.int32)[..., None]  # [..., 1]
-  slots = jnp.arange(num_samples, dtype=jnp.int32)
-  # Integer group bounds: slot k holds ranks [first_k, next_k) of max(n, K) ranks.
-  per = jnp.maximum(n, num_samples)
-  first = slots * per // num_samples
-  last = (slots + 1) * per // num_samples - 1
-  valid = first < n
-  last = jnp.minimum(last, n - 1)
-  take = lambda a, rank: jnp.take_along_axis(
-      a, jnp.take_along_axis(order, jnp.clip(rank, 0, num_candidates - 1), axis=-1), axis=-1)
+  first, last, valid = slot_candidates(occupied, num_samples)
   far = t_max[..., None]
-  starts = jnp.where(valid, take(edges[..., :-1], first), far)
-  ends = jnp.where(valid, take(edges[..., 1:], last), far)
-  return _computed_once(starts), _computed_once(ends), valid
+  starts = jnp.where(valid, jnp.take_along_axis(edges[..., :-1], first, axis=-1), far)
+  ends = jnp.where(valid, jnp.take_along_axis(edges[..., 1:], last, axis=-1), far)
+  return starts, ends, valid
 
 
-def _computed_once(slots):
-  """slots float32 [..., K], sorted along the last axis, unchanged, but computed once.
+def computed_once(distances):
+  """distances float32 [..., S], sorted along the last axis (placed samples), unchanged, but
+  computed once: readers of the placed samples call it before querying a field at them.
 
-  Without it XLA's CPU compiler fuses the nested gathers above (nonzero's ranks, then the edges)
-  into every consumer, so each of the grids' 8 corner gathers per level, forward and backward,
-  recomputes them: measured on configs/detail.py, a train step took 332 ms instead of 174.
-  A sort is not fused into its consumers (an optimisation barrier is dropped before fusion),
-  and sorting values already in order returns them as they are.
+  Without it XLA's CPU compiler fuses the placement (the edges of each slot's candidates, and
+  the ray-box cut before them) into every consumer, so each of the grids' 8 corner gathers per
+  level, forward and backward, recomputes it: measured on configs/detail.py (when the ranks
+  were listed by nonzero), a train step took 332 ms instead of 174. A sort is not fused into
+  its consumers (an optimisation barrier is dropped before fusion), and sorting values already
+  in order returns them as they are. A compacting gather (a sample budget) is the one consumer
+  itself and needs no sort.
   """
-  return jnp.sort(slots, axis=-1)
+  return jnp.sort(distances, axis=-1)
 
 
 def interleave_gaps(starts, ends, t_max):

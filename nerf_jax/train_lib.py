@@ -115,6 +115,8 @@ def train_and_evaluate(config, workdir):
         wall = now - t_start
         record = {"step": step, "wall_seconds": round(wall, 3), "loss": float(stats["loss"]),
                   "train_psnr": float(stats["psnr"]), "rays_per_second": round(rays_s)}
+        if "rays_in_loss" in stats:  # a sample budget: the rays it held whole, this step
+          record["rays_in_loss"] = int(stats["rays_in_loss"])
         if tc.eval_every and step % tc.eval_every == 0:
           images = {}
           record["eval_psnr"] = float(evaluate(

@@ -40,6 +40,16 @@ def _render_split(render, rays, key, background, image, posed):
   return jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), *outs)
 
 
+def _mse(rgb, target, complete=None):
+  """Mean squared error of rgb float32 [B, 3] against target float32 [B, 3], over the rays
+  with complete bool [B] (None: all rays). A sample budget always completes its first ray
+  unless that ray alone has more valid samples than the budget: max(count, 1) keeps it finite."""
+  if complete is None:
+    return jnp.mean((rgb - target) ** 2)
+  squared = jnp.where(complete[:, None], (rgb - target) ** 2, 0.0)
+  return jnp.sum(squared) / (3.0 * jnp.maximum(jnp.sum(complete), 1))
+
+
 def make_train_step(exp, mesh=None):
   """The jitted train step: (state, data, key[, planned_steps]) -> (state, stats). `state` is
   donated. planned_steps: int32 [], the length of a time budget's fitted schedule (see
@@ -48,7 +58,7 @@ def make_train_step(exp, mesh=None):
   mesh: a `parallel.make_mesh` Mesh to split each batch over its devices (data and state
   replicated on it), or None for one device.
   """
-  ray_renderer, tx, config = exp.renderer, exp.tx, exp.config
+  ray_renderer, tx, config = experiment.training_renderer(exp), exp.tx, exp.config
   oc = ray_renderer.sampler.occupancy
   fixed_background = jnp.asarray(background.parse(config.data.background))
   random_background = background.trains_on_random(config.train.random_background,
@@ -95,7 +105,8 @@ def make_train_step(exp, mesh=None):
       outs = render(rays, render_key, bg, image_of(batch))
     else:  # only the first `posed` rays' gradient reaches the poses
       outs = _render_split(render, rays, render_key, bg, image_of(batch), posed)
-    mses = {name: jnp.mean((out["rgb"] - target) ** 2) for name, out in outs.items()}
+    complete = outs["coarse"].get("complete")  # a sample budget: only whole rays count
+    mses = {name: _mse(out["rgb"], target, complete) for name, out in outs.items()}
     loss = mses["coarse"] if "fine" not in mses else (
         mses["fine"] + config.train.coarse_loss_weight * mses["coarse"])
     best = mses.get("fine", mses["coarse"])
@@ -112,7 +123,10 @@ def make_train_step(exp, mesh=None):
       tables = model.lattice_tables(params)
       loss = loss + config.train.tv_weight * sum(
           regularizers.total_variation(table, axes) for table, axes in tables)
-    return loss, {"loss": loss, "psnr": metrics.mse_to_psnr(best)}
+    stats = {"loss": loss, "psnr": metrics.mse_to_psnr(best)}
+    if complete is not None:  # how many rays the budget held whole
+      stats["rays_in_loss"] = jnp.sum(complete, dtype=jnp.int32)
+    return loss, stats
 
   def refresh_occupancy(state, run_key):
     """Every `update_every` steps, probe the density field at jittered positions (drawn from the

@@ -102,6 +102,27 @@ def test_sparse_grid_samples_exactly_the_occupied_candidates():
   assert np.all(np.diff(t, axis=-1) >= 0)  # slots and gaps: sorted, disjoint
 
 
+def test_more_occupied_candidates_than_slots_are_grouped_in_rank_order():
+  m, k = 40, 6
+  occupied = np.asarray(jax.random.bernoulli(jax.random.PRNGKey(3), 0.5, (50, m)))
+  occupied = np.concatenate([occupied, np.zeros((1, m), bool), np.ones((1, m), bool)])
+  edges = np.cumsum(np.asarray(jax.random.uniform(jax.random.PRNGKey(4), (len(occupied), m + 1),
+                                                  minval=0.1, maxval=1.0)), axis=-1)
+  t_max = edges[:, -1]
+  starts, ends, valid = map(np.asarray, occupancy.occupied_slots(
+      jnp.asarray(edges, jnp.float32), jnp.asarray(occupied), k, jnp.asarray(t_max, jnp.float32)))
+  assert (occupied.sum(-1) > k).sum() > 10  # most rays group several candidates per slot
+  for r, row in enumerate(occupied):  # brute force: slot j spans ranks [j·n/K, (j+1)·n/K)
+    hits = np.flatnonzero(row)
+    per = max(len(hits), k)
+    for j in range(k):
+      ranks = [i for i in range(j * per // k, (j + 1) * per // k) if i < len(hits)]
+      assert valid[r, j] == bool(ranks)
+      want = (edges[r, hits[ranks[0]]], edges[r, hits[ranks[-1]] + 1]) if ranks else (
+          t_max[r], t_max[r])
+      np.testing.assert_allclose((starts[r, j], ends[r, j]), want, rtol=1e-6)
+
+
 class _AnalyticField:
   """Stands in for the Flax model: a dense sphere with position-dependent colour."""
 
@@ -169,26 +190,32 @@ def test_occupancy_config_errors_name_the_field():
     experiment.make_sampler(config)
 
 
-def _placement_mentions_in_gradient(levels, num_rays=64):
-  """How often the compiled gradient of a few grid levels read at occupancy-placed samples
-  mentions the placement's gathers (take_along_axis)."""
-  origins, directions = _rays(num_rays)
-  t_min, t_max = jnp.full((num_rays,), 2.5), jnp.full((num_rays,), 5.5)
-  mask = jnp.ones((8, 8, 8), bool)
-  tables = [jnp.zeros((r, r, r, 1)) for r in (4, 8, 16)[:levels]]
+def _compiled_gradient(levels, contracted):
+  """The compiled text of the gradient of a render through occupancy-placed samples, by a
+  field of `levels` grid levels: candidates of equal width in a box, or contracted ones
+  (spaced in disparity: their edges are gathered)."""
+  config = small_config(base="fast", **{
+      "model.grid.resolutions": (4, 8, 16)[:levels], "occupancy.enabled": True,
+      "occupancy.resolution": 8, "occupancy.candidates": 64, "num_samples": 16,
+      "data.contraction": "linf" if contracted else ""})
+  ray_renderer = experiment.make_ray_renderer(config)
+  variables = ray_renderer.init(jax.random.PRNGKey(0))
+  origins, directions = _rays(64)
+  rays = rays_lib.Rays.create(origins, directions, 2.0, 6.0)
 
-  def loss(tables):
-    starts, ends, _ = occupancy.sample_occupied(mask, origins, directions, t_min, t_max, BOUND,
-                                                64, 16)
-    points = origins[:, None] + directions[:, None] * (0.5 * (starts + ends))[..., None]
-    unit = grid.to_unit_cube(points, BOUND)
-    return jnp.sum(jnp.exp(sum(grid.trilinear(t, unit) for t in tables)))
-
-  return jax.jit(jax.grad(loss)).lower(tables).compile().as_text().count("take_along_axis")
+  def loss(params):
+    out = ray_renderer.render({**variables, "params": params}, rays)["coarse"]
+    return jnp.sum(out["rgb"])
+  return jax.jit(jax.grad(loss)).lower(variables["params"]).compile().as_text()
 
 
-def test_placed_slots_are_computed_once_not_inside_every_corner_gather():
+@pytest.mark.parametrize("contracted", [False, True])
+def test_placed_slots_are_computed_once_not_inside_every_corner_gather(contracted):
   # Each trilinear level gathers 8 corners forward and scatters them backward. Were the
-  # placement's gathers fused into those (XLA's CPU default), three levels would mention them
-  # far more often than one (2277 against 868 when measured); computed once, equally often.
-  assert _placement_mentions_in_gradient(3) == _placement_mentions_in_gradient(1)
+  # placement fused into those (XLA's CPU default), three levels would mention its search
+  # loop's results and gathers far more often than one (2277 against 868 take_along_axis when
+  # measured); computed once, equally often.
+  one, three = (_compiled_gradient(levels, contracted) for levels in (1, 3))
+  for name in ("take_along_axis", "searchsorted"):
+    assert one.count(name) == three.count(name), name
+  assert one.count("searchsorted") > 0
