@@ -174,7 +174,7 @@ def train_and_evaluate(config, workdir):
   print(f"test PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.4f}, {lpips.describe(result)} "
         f"over {len(result['per_view'])} views after {step} steps ({train_seconds:.0f} s)",
         flush=True)
-  if config.render.after_training:
+  if config.render.after_training and config.render.video_frames > 0:
     outputs.render_video(exp, variables, os.path.join(workdir, "video"))
   return result
 

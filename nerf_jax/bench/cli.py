@@ -187,6 +187,9 @@ def define_profile_flags(values, argv):
   flags.DEFINE_integer("ops", 0, "Also list this many of the step's costliest kinds of XLA "
                        "operation, from a profiler trace (0 = no trace).", flag_values=values,
                        lower_bound=0)
+  flags.DEFINE_integer("warm_steps", 0, "Train this many steps before timing, so that an "
+                       "occupancy grid has found the empty space (0 = time the first state).",
+                       flag_values=values, lower_bound=0)
 
 
 def profile_table(values, spec, argv=None):
@@ -194,11 +197,11 @@ def profile_table(values, spec, argv=None):
   del argv
   print(f"{spec}: {jax.devices()[0].device_kind}, jax {jax.__version__}")
   print("| stage | median ms | note |\n|---|---|---|")
-  rows = profile.profile(values.config, values.repeats)
+  rows = profile.profile(values.config, values.repeats, values.warm_steps)
   for stage, ms, note in rows:
     print(f"| {stage} | {'' if np.isnan(ms) else f'{ms:.1f}'} | {note} |")
   if values.ops:
-    kinds = profile.op_kinds(values.config, values.repeats)
+    kinds = profile.op_kinds(values.config, values.repeats, values.warm_steps)
     print("\n| XLA operation kind | ms per step (all threads) |\n|---|---|")
     for kind, ms in kinds[:values.ops]:
       print(f"| {kind} | {ms:.2f} |")

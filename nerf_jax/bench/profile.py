@@ -2,6 +2,7 @@
 
   python -m nerf_jax.bench.profile                          # configs/default.py
   python -m nerf_jax.bench.profile --config=fast --config.train.batch_rays=2048
+  python -m nerf_jax.bench.profile --config=detail --warm_steps=300   # occupancy grid filled in
 
 Stages (each jitted on its own, median of --repeats calls after a warm-up): the library's whole
 train step (train_step.make_train_step); drawing the batch; sampling + encoding (forward only:
@@ -46,14 +47,23 @@ def _kernels(params):
   return [x for path, x in leaves if getattr(path[-1], "key", None) == "kernel"]
 
 
-def profile(config, repeats=10):
-  """[(stage, ms, note)] for one train step of `config` on its dataset."""
+def _warmed(config, warm_steps):
+  """(exp, state, data, key, step): `config`'s experiment and its state after `warm_steps`
+  train steps (an occupancy grid then holds what the field has found, as in a real run)."""
   exp = experiment.setup(config)
   state = experiment.init_state(exp)
   data = train_batches.make_train_data(exp)
   key = jax.random.PRNGKey(0)
-  rays, samples = train_batches.rays_per_step(config, exp.train_ds), config.num_samples
   step = train_step.make_train_step(exp)
+  for _ in range(warm_steps):
+    state, _ = step(state, data, key)
+  return exp, jax.block_until_ready(state), data, key, step
+
+
+def profile(config, repeats=10, warm_steps=0):
+  """[(stage, ms, note)] for one train step of `config` on its dataset, after `warm_steps`."""
+  exp, state, data, key, step = _warmed(config, warm_steps)
+  rays, samples = train_batches.rays_per_step(config, exp.train_ds), config.num_samples
   compiled = step.lower(state, data, key).compile()
   times = []
   for _ in range(repeats + 1):
@@ -112,16 +122,13 @@ def profile(config, repeats=10):
 _CONTAINERS = ("ThunkExecutor", "PjitFunction", "$", "cond", "while", "call", "conditional")
 
 
-def op_kinds(config, repeats=10):
+def op_kinds(config, repeats=10, warm_steps=0):
   """[(kind, ms per step)] of the XLA operations of `config`'s train step, costliest first:
-  a profiler trace of `repeats` steps after a warm-up, each operation's time summed by its name
-  without the trailing number (copy_gather_fusion.3 -> copy_gather_fusion). On a CPU the
-  operations of one step may run on several threads at once, so the sum can exceed the step."""
-  exp = experiment.setup(config)
-  state = experiment.init_state(exp)
-  data = train_batches.make_train_data(exp)
-  key = jax.random.PRNGKey(0)
-  step = train_step.make_train_step(exp)
+  a profiler trace of `repeats` steps after `warm_steps` and a warm-up, each operation's time
+  summed by its name without the trailing number (copy_gather_fusion.3 -> copy_gather_fusion).
+  On a CPU the operations of one step may run on several threads at once, so the sum can
+  exceed the step."""
+  _, state, data, key, step = _warmed(config, warm_steps)
   state, stats = step(state, data, key)
   jax.block_until_ready(stats)
   with tempfile.TemporaryDirectory() as folder:
