@@ -78,7 +78,7 @@ class RayRenderer:
     if self.colour_fraction > 0 and self.field.splits_density:
       if budget:
         density = lambda pts, k: _at_slots(
-            lambda p: self.field.query_density(params, p[:, None], k)[:, 0], slots, points)
+            lambda p: self.field.query_density(params, p[:, None], k)[:, 0], slots, pts)
       else:
         density = lambda pts, k: self.field.query_density(params, pts, k)
       out = self._shade_where_it_matters(params, rays, samples, points, background, key,
