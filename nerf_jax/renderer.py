@@ -77,12 +77,12 @@ class RayRenderer:
       slots, complete = budgeted_slots(samples.valid, budget)
     if self.colour_fraction > 0 and self.field.splits_density:
       if budget:
-        density = lambda pts, k: _at_slots(
-            lambda p: self.field.query_density(params, p[:, None], k)[:, 0], slots, pts)
+        sigma = _at_slots(lambda p: self.field.query_density(params, p[:, None], key)[:, 0],
+                          slots, points)
       else:
-        density = lambda pts, k: self.field.query_density(params, pts, k)
-      out = self._shade_where_it_matters(params, rays, samples, points, background, key,
-                                         density, complete if budget else None)
+        sigma = self.field.query_density(params, points, key)
+      out = self._shade_where_it_matters(params, rays, samples, points, sigma, background,
+                                         complete if budget else None)
     else:
       if budget:
         rgb, sigma = self._query_at_slots(params, rays, points, slots, key, image, bands)
@@ -110,18 +110,18 @@ class RayRenderer:
     both = _at_slots(query, slots, points)
     return both[..., :3], both[..., 3]
 
-  def _shade_where_it_matters(self, params, rays, samples, points, background, key, density,
+  def _shade_where_it_matters(self, params, rays, samples, points, sigma, background,
                               complete=None):
     """`_shade` with colour only where it counts (TensoRF's and DVGO's saving): density for all
     samples first; then the K = ceil(colour_fraction · samples) samples of largest compositing
     weight (over the whole batch, a fixed K so the shapes stay static) get their colour, and
     every other sample is composited black. A sample left out has at most the K-th largest
     weight, so the colour it would add is bounded by that weight (tests/test_colour_budget.py).
-    density: (points float32 [R, S, 3], key) -> σ float32 [R, S]. complete: bool [R] or None,
+    sigma: float32 [R, S], the field's density at `points`. complete: bool [R] or None,
     the rays whose density is whole (a sample budget: K is then a share of the budget, and
     incomplete rays get no colour).
     """
-    sigma = sampler_lib.per_unit_t(density(points, key), rays)
+    sigma = sampler_lib.per_unit_t(sigma, rays)
     black = jnp.zeros(points.shape, jnp.float32)
     black_e, sigma_e = samples.intervals(black, sigma)
     weights = compositing.composite(black_e, jax.lax.stop_gradient(sigma_e), samples.t)["weights"]
