@@ -127,6 +127,7 @@ def get_config():
   render.march_probes = 4  # skip-grid probes per cell side: keeps structure >= √3/4 cell thick
   render.march_group = 16  # samples per ray offered in each marching round
   render.min_transmittance = 1e-4  # a ray stops once less light than this gets through
+  render.num_samples = 0  # samples per ray when rendering (0 = num_samples, as in training)
   render.video_frames = 60  # frames in the 360° orbit video (0: no video after training)
   render.video_path = "auto"  # 'orbit' (NDC: spiral), 'trajectory' (the capture's); auto: by data
   render.fps = 30  # video frame rate

@@ -10,7 +10,9 @@ rows): +0.17 dB on lego in ten minutes. Adam's second moment decays at 0.99 and 
 a tenth of its start (not a fortieth): +0.36 dB on lego. A step draws 16384 rays and queries
 the field at the first 131072 valid samples among them (a fixed sample budget: empty slots and
 background rays cost nothing): +0.6 dB on lego. Renders with the occupancy sampler (no
-marching: its plain 64 samples do not match training's).
+marching: its plain 64 samples do not match training's) and twice training's samples per ray:
+the field learnt the integral the jittered training samples estimate, and 64 deterministic
+samples estimate it better than 32 (+0.42 dB on lego, +1.07 dB on `detail`, same checkpoints).
 
   python train.py --config=configs/detail.py --config.data.path=DIR --workdir=runs/mine
 """
@@ -36,4 +38,5 @@ def get_config():
   config.train.lr_final = 2e-3  # a tenth of lr at the end: the last steps still learn (measured)
   config.train.adam_b2 = 0.99  # instant-ngp's second-moment decay for sparse tables (measured)
   config.train.max_seconds = 600.0  # ten minutes; the step budget and schedule follow from it
+  config.render.num_samples = 64  # renders: twice training's samples, a finer quadrature (measured)
   return config

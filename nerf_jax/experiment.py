@@ -308,7 +308,7 @@ def image_settings(config):
   return ImageSettings(chunk=rc.chunk, march=rc.march and not config.data.ndc,
                        march_grid=rc.march_grid, march_threshold=rc.march_threshold,
                        march_probes=rc.march_probes, march_group=rc.march_group,
-                       min_transmittance=rc.min_transmittance)
+                       min_transmittance=rc.min_transmittance, num_samples=rc.num_samples)
 
 
 def pixel_center(config, dataset):
