@@ -303,8 +303,12 @@ def training_renderer(exp):
 
 
 def image_settings(config):
-  """ImageSettings of `config.render` (no marching in NDC: the skip grid is in world space)."""
+  """ImageSettings of `config.render` (no marching in NDC: the skip grid is in world space);
+  ValueError naming the field for a negative sample count."""
   rc = config.render
+  if rc.num_samples < 0:
+    raise ValueError(f"config.render.num_samples={rc.num_samples}: use 0 (training's "
+                     "num_samples) or a positive count of samples per ray")
   return ImageSettings(chunk=rc.chunk, march=rc.march and not config.data.ndc,
                        march_grid=rc.march_grid, march_threshold=rc.march_threshold,
                        march_probes=rc.march_probes, march_group=rc.march_group,

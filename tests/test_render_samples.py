@@ -9,6 +9,7 @@ than those drawn with the training's count.
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from nerf_jax import experiment, image_renderer, renderer
 from nerf_jax.rays import Rays, get_rays, pose_spherical
@@ -64,3 +65,8 @@ def test_more_render_samples_approach_the_brute_force_image_on_both_paths():
       np.testing.assert_allclose(more[k], same_count[k], atol=1e-5)
       error = lambda image: float(np.mean(np.abs(image[k] - np.asarray(reference[k]))))
       assert error(more) < 0.5 * error(as_trained), (march, k, error(more), error(as_trained))
+
+
+def test_a_negative_count_is_refused_naming_the_field():
+  with pytest.raises(ValueError, match="config.render.num_samples=-4"):
+    experiment.image_settings(small_config(**{"render.num_samples": -4}))
