@@ -102,7 +102,7 @@ def get_config():
   train.network_lr = 0.0  # the MLP's Adam learning rate on the same schedule (0 = train.lr)
   train.remat_chunk = 128  # rays per cache-sized, recomputed field chunk in a step (0 = off)
   train.coarse_loss_weight = 1.0  # weight of the coarse pass loss when a fine pass exists
-  train.distortion_weight = 0.0  # mip-NeRF 360's distortion loss on the final pass (0 = off)
+  train.distortion_weight = 0.0  # mip-NeRF 360's distortion loss, ray distance in [0, 1] (0 = off)
   train.tv_weight = 0.0  # grid encodings: total variation of the lattice tables (0 = off)
   train.random_background = False  # data with opacity: composite on random colours (no floaters)
   train.pose_refinement = False  # learn an SE(3) correction of each training camera (BARF)

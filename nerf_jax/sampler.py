@@ -119,6 +119,19 @@ class Sampler:
     return sampling.stratified_unbounded(t_near, t_inner, t_far, count, rays.shape, key,
                                          self.inner_fraction)
 
+  def unit_distance(self, t, rays):
+    """s float32 [..., K]: distances t float32 [..., K] along `rays` [...] as a normalised ray
+    distance, mip-NeRF 360's s, in which its distortion loss is measured so that the loss does
+    not depend on the scene's units. Bounded: the share of the rays' [near, far] before t
+    (NDC's t already is one); unbounded: `sampling.unbounded_unit`, the share of the samples
+    before t (linear inside the inner box, in disparity beyond, as the samples are spaced)."""
+    if self.contraction:
+      t_inner = contraction.inner_exit(rays.origins, rays.directions, self.scene_bound,
+                                       self.contraction)
+      return sampling.unbounded_unit(t, rays.near, t_inner, jnp.inf, self.inner_fraction)
+    near, far = rays.near[..., None], rays.far[..., None]
+    return (t - near) / jnp.maximum(far - near, 1e-6)  # far > near for any data; never 1/0
+
   @property
   def grid_bound(self):
     """Half-size of the box an occupancy grid covers: the scene box, or in an unbounded scene

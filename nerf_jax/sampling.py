@@ -5,7 +5,7 @@ A ray's samples are described by sorted interval edges `t: float32 [..., S + 1]`
 and is always float32, whatever precision the network runs in.
 `stratified` spaces edges between near and far; `stratified_unbounded` does so for rays into an
 unbounded scene (linear in t inside the contraction's inner region, linear in disparity beyond it,
-out to far = inf); `sample_pdf` draws new edges from the weights of a first pass.
+out to far = inf; `unbounded_unit` is its inverse); `sample_pdf` draws new edges from the weights of a first pass.
 """
 
 import jax
@@ -117,6 +117,29 @@ def stratified_unbounded(near, t_inner, far, num_samples, batch_shape, key=None,
   disparity = jnp.clip(1.0 / (inv_start + (inv_far - inv_start) * v), t_in, far)
   t = jnp.where(s <= f, linear, disparity)
   return t.at[..., 0].set(near[..., 0]).at[..., -1].set(far[..., 0])
+
+
+def unbounded_unit(t, near, t_inner, far, inner_fraction=0.5):
+  """The inverse of `stratified_unbounded`'s map s -> t: s float32 [..., K] in [0, 1] at
+  distances t float32 [..., K] (clipped to [near, min(far, MAX_FAR)]). near, t_inner, far,
+  inner_fraction: as `stratified_unbounded`, broadcastable to t's batch shape [...]. Its edges
+  map back onto evenly spaced s (key None), and every distance onto the share of the ray's
+  samples before it: the normalised ray distance of mip-NeRF 360's distortion loss.
+  """
+  shape = lambda a: jnp.broadcast_to(jnp.asarray(a, jnp.float32), t.shape[:-1])[..., None]
+  near = shape(near)
+  far = jnp.minimum(shape(far), MAX_FAR)
+  t_in = jnp.clip(shape(t_inner), near, far)
+  f = jnp.where(t_in <= near, 0.0, jnp.where(t_in >= far, 1.0, shape(inner_fraction)))
+  t = jnp.clip(t, near, far)
+  # The safe divisors are only used where their branch is discarded: t_in = near gives f = 0
+  # (the linear branch only at t = near), t_in = far means no t beyond t_in.
+  linear = f * (t - near) / jnp.where(t_in > near, t_in - near, 1.0)
+  inv_start = 1.0 / jnp.maximum(t_in, _MIN_NEAR_LINDISP)
+  inv_far = 1.0 / jnp.maximum(far, _MIN_NEAR_LINDISP)
+  span = jnp.where(inv_start > inv_far, inv_start - inv_far, 1.0)
+  disparity = f + (1.0 - f) * (inv_start - 1.0 / jnp.maximum(t, _MIN_NEAR_LINDISP)) / span
+  return jnp.clip(jnp.where(t <= t_in, linear, disparity), 0.0, 1.0)
 
 
 def sample_pdf(t, weights, num_samples, key=None, padding=0.01):

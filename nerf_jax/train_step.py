@@ -111,9 +111,13 @@ def make_train_step(exp, mesh=None):
         mses["fine"] + config.train.coarse_loss_weight * mses["coarse"])
     best = mses.get("fine", mses["coarse"])
     if config.train.distortion_weight > 0:  # keep each ray's weight in one place: no floaters
+      # In normalised ray distance (mip-NeRF 360's s): the same weight at any scene scale, and
+      # finite for an unbounded scene's edges out to 1e10. It shapes the weights only: no
+      # gradient reaches the cameras (pose refinement) through the edges.
       last = renderer.final(outs)
+      s = jax.lax.stop_gradient(ray_renderer.sampler.unit_distance(last["t"], rays))
       loss = loss + config.train.distortion_weight * jnp.mean(
-          regularizers.distortion(last["t"], last["weights"]))
+          regularizers.distortion(s, last["weights"]))
     if refine and config.train.pose_prior > 0:
       # A zero-mean Gaussian prior on each camera's correction (rotation in radians, move in
       # scene units): directions the images barely constrain stay near the given poses

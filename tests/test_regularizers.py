@@ -1,11 +1,13 @@
-"""The distortion loss against its O(S^2) definition, its analytic values, and its place in the
-training loss; total variation against closed forms and its place in the loss."""
+"""The distortion loss against its O(S^2) definition, its analytic values, the normalised ray
+distance it is measured in, and its place in the training loss; total variation against closed
+forms and its place in the loss."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
-from nerf_jax import experiment, model, regularizers, train_batches, train_step
+from nerf_jax import experiment, model, rays, regularizers, sampler, sampling, train_batches, train_step
 from tests.helpers import small_config
 
 
@@ -62,6 +64,53 @@ def test_the_train_loss_adds_the_weighted_distortion_and_nothing_else():
   # Same render, same photometric error: only the loss grows, by a positive amount.
   np.testing.assert_allclose(stats[0.5]["psnr"], stats[0.0]["psnr"], rtol=1e-6)
   assert float(stats[0.5]["loss"]) > float(stats[0.0]["loss"]) * 1.001
+
+
+@pytest.mark.parametrize("near,t_inner,far", [
+    (0.5, 2.5, np.inf),  # starts inside the inner box: linear, then disparity out to 1e10
+    (3.0, 1.0, np.inf),  # starts beyond it: all in disparity
+    (0.5, 6.0, 4.0),  # ends inside it: all linear
+])
+def test_unbounded_unit_inverts_the_unbounded_strata(near, t_inner, far):
+  num, shape = 24, (5,)
+  for key in (None, jax.random.PRNGKey(7)):
+    t = sampling.stratified_unbounded(near, t_inner, far, num, shape, key, 0.5)
+    s = np.asarray(sampling.unbounded_unit(t, near, t_inner, far, 0.5))
+    strata = np.asarray(sampling.stratified(0.0, 1.0, num, shape, key))  # the same s, in [0, 1]
+    np.testing.assert_allclose(s, strata, atol=2e-5)
+
+
+def test_unit_distance_does_not_depend_on_the_scene_scale():
+  rng = np.random.default_rng(1)
+  origins = rng.normal(size=(6, 3)).astype(np.float32)
+  directions = rng.normal(size=(6, 3)).astype(np.float32)
+  t = np.sort(rng.uniform(2.0, 6.0, (6, 17)), axis=-1).astype(np.float32)
+  w = rng.uniform(0.0, 0.1, (6, 16)).astype(np.float32)
+  bounded = sampler.Sampler(16, scene_bound=3.0)
+  losses = []
+  for k in (1.0, 40.0):  # the same scene in units 40 times smaller: t, near, far scale by k
+    scaled = rays.Rays.create(k * origins, directions, k * 2.0, k * 6.0)
+    s = bounded.unit_distance(jnp.asarray(k * t), scaled)
+    np.testing.assert_allclose(s, (t - 2.0) / 4.0, atol=1e-6)
+    losses.append(regularizers.distortion(s, jnp.asarray(w)))
+  np.testing.assert_allclose(losses[0], losses[1], rtol=1e-5)
+  # In world units the loss would grow with the scale: what the normalisation removes.
+  assert float(jnp.mean(regularizers.distortion(jnp.asarray(40.0 * t), jnp.asarray(w)))) > 30 * float(
+      jnp.mean(losses[0]))
+
+
+def test_the_distortion_term_of_an_unbounded_scene_stays_below_its_weight():
+  # Edges run out to 1e10: in t the term would be ~1e9 and drown the photometric loss; in s,
+  # a ray's distortion is at most (sum of weights)^2 · 1 <= 1.
+  stats = {}
+  for weight in (0.0, 0.5):
+    exp = experiment.setup(small_config({"data.scene_bound": 0.5, "data.contraction": "linf",
+                                         "train.distortion_weight": weight}))
+    step = train_step.make_train_step(exp)
+    _, stats[weight] = step(experiment.init_state(exp), train_batches.make_train_data(exp),
+                            jax.random.PRNGKey(3))
+  extra = float(stats[0.5]["loss"]) - float(stats[0.0]["loss"])
+  assert 0.0 < extra <= 0.5
 
 
 def test_total_variation_of_ramps_and_constants():
