@@ -5,7 +5,8 @@ A ray's samples are described by sorted interval edges `t: float32 [..., S + 1]`
 and is always float32, whatever precision the network runs in.
 `stratified` spaces edges between near and far; `stratified_unbounded` does so for rays into an
 unbounded scene (linear in t inside the contraction's inner region, linear in disparity beyond it,
-out to far = inf; `unbounded_unit` is its inverse); `sample_pdf` draws new edges from the weights of a first pass.
+out to far = inf; `unbounded_unit` is its inverse); `sample_pdf` draws new edges from the
+weights of a first pass.
 """
 
 import jax

@@ -7,7 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import experiment, model, rays, regularizers, sampler, sampling, train_batches, train_step
+from nerf_jax import (experiment, model, rays, regularizers, sampler, sampling, train_batches,
+                      train_step)
 from tests.helpers import small_config
 
 
@@ -95,8 +96,8 @@ def test_unit_distance_does_not_depend_on_the_scene_scale():
     losses.append(regularizers.distortion(s, jnp.asarray(w)))
   np.testing.assert_allclose(losses[0], losses[1], rtol=1e-5)
   # In world units the loss would grow with the scale: what the normalisation removes.
-  assert float(jnp.mean(regularizers.distortion(jnp.asarray(40.0 * t), jnp.asarray(w)))) > 30 * float(
-      jnp.mean(losses[0]))
+  in_world_units = regularizers.distortion(jnp.asarray(40.0 * t), jnp.asarray(w))
+  assert float(jnp.mean(in_world_units)) > 30 * float(jnp.mean(losses[0]))
 
 
 def test_the_distortion_term_of_an_unbounded_scene_stays_below_its_weight():
