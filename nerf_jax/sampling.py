@@ -74,6 +74,18 @@ def _unit_strata(num_samples, batch_shape, key):
   return s
 
 
+def _unbounded_split(near, t_inner, far, inner_fraction, batch_shape):
+  """(near, t_in, far, f), each float32 [*batch_shape, 1]: a ray's bounds (far capped at
+  MAX_FAR), where it leaves the inner region (clamped into [near, far]) and the share f of s
+  given to [near, t_in], as `stratified_unbounded` defines them."""
+  shape = lambda a: jnp.broadcast_to(jnp.asarray(a, jnp.float32), batch_shape)[..., None]
+  near = shape(near)
+  far = jnp.minimum(shape(far), MAX_FAR)
+  t_in = jnp.clip(shape(t_inner), near, far)
+  f = jnp.where(t_in <= near, 0.0, jnp.where(t_in >= far, 1.0, shape(inner_fraction)))
+  return near, t_in, far, f
+
+
 def stratified_unbounded(near, t_inner, far, num_samples, batch_shape, key=None,
                          inner_fraction=0.5):
   """Stratified edges for rays into an unbounded scene: linear in t, then linear in disparity.
@@ -100,11 +112,7 @@ def stratified_unbounded(near, t_inner, far, num_samples, batch_shape, key=None,
   linear, as `stratified`) where t_inner >= far. The disparity part starts at max(t_inner, 1e-3)
   inside the formula (1/0 = inf, as `stratified`'s lindisp) and is clipped to [t_inner, far].
   """
-  shape = lambda a: jnp.broadcast_to(jnp.asarray(a, jnp.float32), batch_shape)[..., None]
-  near = shape(near)
-  far = jnp.minimum(shape(far), MAX_FAR)
-  t_in = jnp.clip(shape(t_inner), near, far)
-  f = jnp.where(t_in <= near, 0.0, jnp.where(t_in >= far, 1.0, shape(inner_fraction)))
+  near, t_in, far, f = _unbounded_split(near, t_inner, far, inner_fraction, batch_shape)
   s = _unit_strata(num_samples, batch_shape, key)
   # Each branch is a composition of monotone roundings of s, clipped to its own range, and the
   # ranges [near, t_in] and [t_in, far] meet at t_in: the edges stay sorted. The safe divisors
@@ -127,11 +135,7 @@ def unbounded_unit(t, near, t_inner, far, inner_fraction=0.5):
   map back onto evenly spaced s (key None), and every distance onto the share of the ray's
   samples before it: the normalised ray distance of mip-NeRF 360's distortion loss.
   """
-  shape = lambda a: jnp.broadcast_to(jnp.asarray(a, jnp.float32), t.shape[:-1])[..., None]
-  near = shape(near)
-  far = jnp.minimum(shape(far), MAX_FAR)
-  t_in = jnp.clip(shape(t_inner), near, far)
-  f = jnp.where(t_in <= near, 0.0, jnp.where(t_in >= far, 1.0, shape(inner_fraction)))
+  near, t_in, far, f = _unbounded_split(near, t_inner, far, inner_fraction, t.shape[:-1])
   t = jnp.clip(t, near, far)
   # The safe divisors are only used where their branch is discarded: t_in = near gives f = 0
   # (the linear branch only at t = near), t_in = far means no t beyond t_in.

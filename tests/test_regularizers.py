@@ -55,13 +55,17 @@ def test_distortion_gradient_is_finite_and_analytic():
   assert grad[3] > grad[12]
 
 
+def one_step_stats(overrides):
+  """The stats of one train step from a fresh state of small_config(overrides)."""
+  exp = experiment.setup(small_config(overrides))
+  step = train_step.make_train_step(exp)
+  _, stats = step(experiment.init_state(exp), train_batches.make_train_data(exp),
+                  jax.random.PRNGKey(3))
+  return stats
+
+
 def test_the_train_loss_adds_the_weighted_distortion_and_nothing_else():
-  stats = {}
-  for weight in (0.0, 0.5):
-    exp = experiment.setup(small_config({"train.distortion_weight": weight}))
-    step = train_step.make_train_step(exp)
-    _, stats[weight] = step(experiment.init_state(exp), train_batches.make_train_data(exp),
-                            jax.random.PRNGKey(3))
+  stats = {w: one_step_stats({"train.distortion_weight": w}) for w in (0.0, 0.5)}
   # Same render, same photometric error: only the loss grows, by a positive amount.
   np.testing.assert_allclose(stats[0.5]["psnr"], stats[0.0]["psnr"], rtol=1e-6)
   assert float(stats[0.5]["loss"]) > float(stats[0.0]["loss"]) * 1.001
@@ -103,13 +107,8 @@ def test_unit_distance_does_not_depend_on_the_scene_scale():
 def test_the_distortion_term_of_an_unbounded_scene_stays_below_its_weight():
   # Edges run out to 1e10: in t the term would be ~1e9 and drown the photometric loss; in s,
   # a ray's distortion is at most (sum of weights)^2 · 1 <= 1.
-  stats = {}
-  for weight in (0.0, 0.5):
-    exp = experiment.setup(small_config({"data.scene_bound": 0.5, "data.contraction": "linf",
-                                         "train.distortion_weight": weight}))
-    step = train_step.make_train_step(exp)
-    _, stats[weight] = step(experiment.init_state(exp), train_batches.make_train_data(exp),
-                            jax.random.PRNGKey(3))
+  unbounded = {"data.scene_bound": 0.5, "data.contraction": "linf"}
+  stats = {w: one_step_stats({**unbounded, "train.distortion_weight": w}) for w in (0.0, 0.5)}
   extra = float(stats[0.5]["loss"]) - float(stats[0.0]["loss"])
   assert 0.0 < extra <= 0.5
 
