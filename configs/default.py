@@ -74,6 +74,7 @@ def get_config():
   model.colour_fraction = 0.0  # density grid: colour only for this share of samples (top weights)
   model.shared_fine = False  # one network for coarse and fine passes instead of two
   model.dtype = "float32"  # matmul dtype: float32, bfloat16 or float16
+  model.matmul_precision = "default"  # networks' f32 matmuls: default (TF32 on GPUs), high, highest
   model.appearance_dims = 0  # per-training-image appearance code (GLO) for colour; 0 = off
 
   config.occupancy = occ = ml_collections.ConfigDict()
@@ -118,6 +119,7 @@ def get_config():
   train.keep_checkpoints = 2  # checkpoints kept in the workdir
   train.data_parallel = True  # split each batch over all devices (no-op on one device)
   train.tensorboard = True  # write TensorBoard events into <workdir>/tb
+  train.deterministic = False  # repeatable GPU runs: XLA's deterministic ops (CPUs repeat anyway)
 
   config.render = render = ml_collections.ConfigDict()
   render.chunk = 4096  # rays per jitted render call

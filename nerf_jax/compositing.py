@@ -21,6 +21,8 @@ Stability (see docs/numerics.md):
 import jax
 import jax.numpy as jnp
 
+from nerf_jax import precision
+
 # A ray with opacity acc <= EMPTY_ACC counts as empty; its depth is then `far` (t_S).
 EMPTY_ACC = 1e-10
 
@@ -94,7 +96,7 @@ def composite(rgb, sigma, t, background=None):
   # d acc / d sigma_i = delta_i·exp(-total) comes out exactly (sum(weights) gives it only up to
   # an absolute error of ~2e-7·delta_i, which swamps it once the ray is opaque).
   acc = one_minus_exp_neg(total)
-  colour = jnp.einsum("...s,...sc->...c", weights, rgb.astype(jnp.float32))
+  colour = precision.einsum("...s,...sc->...c", weights, rgb.astype(jnp.float32))
   if background is not None:
     # Remaining transmittance; acc <= 1 by construction, max(0, .) guards any future change.
     bg_weight = jnp.maximum(0.0, 1.0 - acc)

@@ -78,23 +78,26 @@ def _norm_and_direction(x, kind):
   x: float32 [..., 3], finite. Returns (norm: float32 [...] >= 0; direction: float32 [..., 3],
   x / norm, or 0 where x = 0).
   """
-  m = jnp.max(jnp.abs(x), axis=-1)  # the L-infinity norm, exact
+  norm_inf = jnp.max(jnp.abs(x), axis=-1)  # the L-infinity norm, exact
   # XLA on CPU flushes subnormal numbers to 0, and divides as x·(1/m): for m > 8.5e37, 1/m is
   # subnormal and x/m would be 0. Scaling such points by 2^-64 (exact) keeps 1/m normal.
-  scale = jnp.where(m > 2.0 ** 64, 2.0 ** -64, 1.0)
-  m = m * scale
+  scale = jnp.where(norm_inf > 2.0 ** 64, 2.0 ** -64, 1.0)
+  m = norm_inf * scale
   # Double where: at x = 0, divide by 1 instead of 0 (the result is 0 either way, but 0/0 in the
   # discarded branch would give a NaN gradient).
   nonzero = m > 0.0
   safe_m = jnp.where(nonzero, m, 1.0)
   u = x * scale[..., None] / safe_m[..., None]  # max_k |u_k| = 1 (or u = 0): no overflow below
+  # The largest components are +-1 exactly, not m/m: an approximate division (GPUs) can round
+  # m/m to 1 + 2^-23, and the linf contraction would then leave its cube. Where x = 0, sign = 0.
+  u = jnp.where(jnp.abs(x) == norm_inf[..., None], jnp.sign(x), u)
   if kind == "linf":
-    return m / scale, u
+    return norm_inf, u
   s = jnp.sum(u * u, axis=-1)
   # s >= 1 wherever x != 0; the safe value keeps sqrt away from 0, whose derivative is infinite.
   length = jnp.sqrt(jnp.where(nonzero, s, 1.0))
   # May overflow to inf for |x| > 3.4e38 / sqrt(3): then 1/norm = 0, the outer boundary.
-  return m * length / scale, u / length[..., None]
+  return norm_inf * length, u / length[..., None]
 
 
 def contract(points, radius=1.0, kind="l2"):
@@ -107,15 +110,16 @@ def contract(points, radius=1.0, kind="l2"):
   """
   _check(kind)
   points = jnp.asarray(points, jnp.float32)
-  x, infinite = _at_infinity(points / radius)
+  x, infinite = _at_infinity(points)
   norm, direction = _norm_and_direction(x, kind)
-  outside = infinite | (norm > 1.0)
-  # Double where: 1/norm only where norm > 1 (1/0 at the origin would poison the gradient). At
-  # infinity 1/norm is 0: the point lands on the outer boundary.
-  inv_norm = jnp.where(infinite, 0.0, 1.0 / jnp.where(outside, norm, 1.0))
+  # In world units, with no division: points / radius rounded by an approximate division (GPUs)
+  # would put a point on the inner boundary outside it.
+  outside = infinite | (norm > radius)
+  # Double where: radius/norm only where norm > radius (a division by 0 at the origin would
+  # poison the gradient). At infinity it is 0: the point lands on the outer boundary.
+  inv_norm = jnp.where(infinite, 0.0, radius / jnp.where(outside, norm, radius))
   squeezed = radius * (OUTER - inv_norm)[..., None] * direction
-  # Inside, the points themselves: x·radius would round them (x is points / radius).
-  return jnp.where(outside[..., None], squeezed, points)
+  return jnp.where(outside[..., None], squeezed, points)  # inside, the points themselves
 
 
 def uncontract(contracted, radius=1.0, kind="l2"):

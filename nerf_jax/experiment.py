@@ -14,7 +14,7 @@ import ml_collections
 import numpy as np
 import optax
 
-from nerf_jax import auto, checkpoints, config_lib, model, occupancy, visual_hull
+from nerf_jax import auto, checkpoints, config_lib, model, occupancy, precision, visual_hull
 from nerf_jax.data import loaders
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.field import Field
@@ -221,7 +221,9 @@ def make_field(config, num_images=1):
   if m.appearance_dims < 0:
     raise ValueError(f"config.model.appearance_dims={m.appearance_dims}: use 0 (off) or the "
                      "length of each training image's appearance code (e.g. 8)")
-  head = dict(view_dependent=m.view_dependent, view_width=m.view_width, dtype=m.dtype)
+  precision.network_precision(m.matmul_precision)  # ValueError naming the field if unknown
+  head = dict(view_dependent=m.view_dependent, view_width=m.view_width, dtype=m.dtype,
+              matmul_precision=m.matmul_precision)
   if m.appearance_dims:  # only then, so the networks of runs without codes stay as they were
     head.update(appearance_images=max(int(num_images), 1), appearance_dims=m.appearance_dims)
   if m.encoding == "posenc":

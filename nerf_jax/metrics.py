@@ -3,6 +3,8 @@
 import jax
 import jax.numpy as jnp
 
+from nerf_jax import precision
+
 
 def mse_to_psnr(mse):
   """PSNR in dB for a peak of 1; mse clamped at 1e-10 so a perfect match gives 100 dB, not inf."""
@@ -22,7 +24,7 @@ def _gaussian_kernel(size=11, sigma=1.5):
 
 def _blur(x, kernel):
   """'Valid' separable filtering of x: float32 [H, W, C] with kernel: float32 [K]."""
-  conv = lambda v: jnp.convolve(v, kernel, mode="valid")
+  conv = lambda v: precision.convolve(v, kernel, mode="valid")  # full float32: a metric
   x = jax.vmap(jax.vmap(conv, in_axes=1, out_axes=1), in_axes=2, out_axes=2)(x)  # along H
   return jax.vmap(jax.vmap(conv, in_axes=0, out_axes=0), in_axes=2, out_axes=2)(x)  # along W
 

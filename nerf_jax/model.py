@@ -18,7 +18,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from nerf_jax import grid, hashgrid, tensorf
+from nerf_jax import grid, hashgrid, precision, tensorf
 
 
 def _appearance_codes(module, image, shape):
@@ -40,7 +40,8 @@ class NerfMLP(nn.Module):
   view_dependent=True is the paper's 5D model: density from position only; colour from a `width`
   feature plus the encoded direction through one ReLU layer of `view_width`.
   dtype is the matmul dtype (float32, bfloat16 or float16); parameters stay float32 and the
-  outputs are cast back to float32 so compositing is always done in float32.
+  outputs are cast back to float32 so compositing is always done in float32. matmul_precision
+  is the float32 matmuls' precision (nerf_jax.precision: 'default' is TF32 on recent GPUs).
   """
   depth: int = 8
   width: int = 256
@@ -48,11 +49,13 @@ class NerfMLP(nn.Module):
   view_dependent: bool = False
   view_width: int = 128
   dtype: str = "float32"
+  matmul_precision: str = "default"  # precision.NETWORK_PRECISIONS: 'default', 'high', 'highest'
   appearance_images: int = 1
   appearance_dims: int = 0
 
   def _dense(self, features, name):
-    return nn.Dense(features, dtype=jnp.dtype(self.dtype), param_dtype=jnp.float32, name=name)
+    return nn.Dense(features, dtype=jnp.dtype(self.dtype), param_dtype=jnp.float32, name=name,
+                    precision=precision.network_precision(self.matmul_precision))
 
   @nn.compact
   def __call__(self, pos_features, dir_features=None, image=None):
@@ -89,12 +92,14 @@ class _GridHead(nn.Module):
   view_dependent: bool = False
   view_width: int = 32
   dtype: str = "float32"
+  matmul_precision: str = "default"  # precision.NETWORK_PRECISIONS: 'default', 'high', 'highest'
   appearance_images: int = 1
   appearance_dims: int = 0
   cell_aspect: Sequence[float] = (1.0, 1.0, 1.0)  # relative x, y, z sides of a lattice cell
 
   def _dense(self, features, name):
-    return nn.Dense(features, dtype=jnp.dtype(self.dtype), param_dtype=jnp.float32, name=name)
+    return nn.Dense(features, dtype=jnp.dtype(self.dtype), param_dtype=jnp.float32, name=name,
+                    precision=precision.network_precision(self.matmul_precision))
 
   def _unit(self, points):
     """Positions float32 [..., 3] in the grids' unit cube: of `box` if set, else of the cube."""

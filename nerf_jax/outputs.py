@@ -7,6 +7,7 @@ the PNGs map [near, far] to a colour map. With NDC rays (forward-facing data) de
 ray parameter in [0, 1] instead.
 """
 
+import importlib.util
 import os
 import warnings
 
@@ -39,6 +40,13 @@ def follows_trajectory(exp):
   return kind == "trajectory"
 
 
+def video_writer_missing():
+  """Why no mp4 can be written here (one line naming the install command), or None."""
+  if importlib.util.find_spec("imageio_ffmpeg") is None:
+    return "no mp4 writer: imageio-ffmpeg is not installed (pip install imageio-ffmpeg)"
+  return None
+
+
 def render_video(exp, variables, out_dir, depth_npy=False, show_progress=True, scale=1.0,
                  poses=None):
   """A video as rgb.mp4 and depth.mp4 in `out_dir`: of `poses` (float32 [F, 4, 4]), or of the
@@ -47,8 +55,10 @@ def render_video(exp, variables, out_dir, depth_npy=False, show_progress=True, s
   depth_npy: also save the float depth of every frame as `depth_frames.npy`, float32 [F, H, W]
   (z-depth in scene units, see the module docstring). scale: frames have `scale` times the
   training images' pixels per side (see Experiment.camera). Returns the paths:
-  {'rgb', 'depth'[, 'depth_npy']}.
+  {'rgb', 'depth'[, 'depth_npy']}. FileNotFoundError (one line) without an mp4 writer.
   """
+  if video_writer_missing():
+    raise FileNotFoundError(video_writer_missing())
   os.makedirs(out_dir, exist_ok=True)
   rc = exp.config.render
   if poses is None:

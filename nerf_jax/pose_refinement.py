@@ -16,7 +16,7 @@ field was learnt in, and `transform` applies it to the held-out poses
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax import rays
+from nerf_jax import precision, rays
 
 SMALL_ANGLE_SQ = 1e-2  # θ² below which the series are used: (θ - sin θ)/θ³ cancels in float32
 
@@ -50,10 +50,10 @@ def se3_exp(xi):
   c = jnp.where(small, 1.0 / 6.0 - theta_sq / 120.0 + theta_sq ** 2 / 5040.0,
                 (theta - jnp.sin(theta)) / (safe_sq * theta))
   big_w = hat(w)
-  w_sq = big_w @ big_w
+  w_sq = precision.matmul(big_w, big_w)
   eye = jnp.eye(3, dtype=xi.dtype)
   rot = eye + a * big_w + b * w_sq
-  trans = (eye + b * big_w + c * w_sq) @ v[..., None]
+  trans = precision.matmul(eye + b * big_w + c * w_sq, v[..., None])
   top = jnp.concatenate([rot, trans], axis=-1)
   bottom = jnp.broadcast_to(jnp.array([0.0, 0.0, 0.0, 1.0], xi.dtype), (*xi.shape[:-1], 1, 4))
   return jnp.concatenate([top, bottom], axis=-2)
@@ -61,7 +61,7 @@ def se3_exp(xi):
 
 def corrected(c2w, xi):
   """The corrected cameras c2w @ exp(xi): float32 [..., 4, 4] (module docstring)."""
-  return jnp.asarray(c2w, jnp.float32) @ se3_exp(xi)
+  return precision.matmul(jnp.asarray(c2w, jnp.float32), se3_exp(xi))
 
 
 def align(src, dst, with_scale=True):

@@ -10,6 +10,7 @@
 slow first item (JIT compilation) does not inflate it.
 """
 
+import contextlib
 import sys
 import time
 
@@ -121,6 +122,38 @@ class Progress:
 
   def __exit__(self, *exc):
     self.close()
+
+
+class RateWindow:
+  """Items per second of the work between two reads, less the time spent in `excluded()`.
+
+  On an asynchronous device (a GPU) the host runs ahead of the device, so a clock read between
+  two host-side prints times whatever happened to block. The caller blocks on the device's
+  result (`jax.block_until_ready`) before each `rate` call, so every window starts and ends with
+  the device idle; evaluations and checkpoints inside `excluded()` are left out of the window.
+  """
+
+  def __init__(self, count=0, clock=time.perf_counter):
+    self._clock = clock
+    self._count, self._start, self._excluded = int(count), clock(), 0.0
+
+  @contextlib.contextmanager
+  def excluded(self):
+    """A block of work that does not count in the window (an evaluation, a checkpoint)."""
+    start = self._clock()
+    try:
+      yield
+    finally:
+      self._excluded += self._clock() - start
+
+  def rate(self, count):
+    """Items per second from the window's start to now, count being the items done so far;
+    starts the next window."""
+    now = self._clock()
+    seconds = max(now - self._start - self._excluded, 1e-9)
+    rate = (int(count) - self._count) / seconds
+    self._count, self._start, self._excluded = int(count), now, 0.0
+    return rate
 
 
 def track(iterable, total=None, desc="", **kwargs):

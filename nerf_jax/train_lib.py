@@ -17,8 +17,8 @@ import jax
 import jax.numpy as jnp
 import ml_collections
 
-from nerf_jax import (budget, checkpoints, config_lib, evaluation, experiment, lpips, outputs,
-                      parallel, progress, summary, train_batches, visuals)
+from nerf_jax import (budget, checkpoints, config_lib, determinism, evaluation, experiment, lpips,
+                      outputs, parallel, progress, summary, train_batches, visuals)
 from nerf_jax import train_step as step_lib
 from nerf_jax.experiment import TrainingError, TrainState  # noqa: F401  (re-exported)
 from nerf_jax.viewer import training as live_viewer
@@ -56,8 +56,10 @@ def train_and_evaluate(config, workdir):
   fitted to the steps expected in it (budget.py), else train.default_steps steps; the run's
   config.json holds the schedule it used.
   """
-  main = parallel.is_main_process()
   config = config_lib.upgrade(config)
+  if config.train.deterministic:
+    determinism.require()  # before the first computation starts jax's backends
+  main = parallel.is_main_process()
   parallel.check_time_budget(config.train.max_seconds)
   if main:
     os.makedirs(workdir, exist_ok=True)
@@ -90,7 +92,7 @@ def train_and_evaluate(config, workdir):
   schedule = experiment.make_schedule(tc)
   writer = summary.Writer(workdir, enabled=main and tc.tensorboard)
   start_step = int(state.step)
-  last_log, last_log_step = time.perf_counter(), start_step
+  window = progress.RateWindow(start_step)  # steps per second of training alone
   step = start_step
   planned = experiment.schedule_steps(tc)
   clocked = last_step == sys.maxsize  # a time budget: the clock, not a step count, is the total
@@ -107,22 +109,23 @@ def train_and_evaluate(config, workdir):
       budget_over = tc.max_seconds > 0 and time.perf_counter() - t_start >= tc.max_seconds
       log_now = step % tc.log_every == 0 or step == last_step or budget_over or stop.signum
       if log_now:
+        # The window ends when the device has done every step dispatched (module RateWindow).
+        state, stats = jax.block_until_ready((state, stats))
+        rays_s = window.rate(step) * step_rays
         stats = jax.device_get(stats)
         _check_finite(state, workdir)
-        now = time.perf_counter()
-        rays_s = (step - last_log_step) * step_rays / max(now - last_log, 1e-9)
-        last_log, last_log_step = now, step
-        wall = now - t_start
+        wall = time.perf_counter() - t_start
         record = {"step": step, "wall_seconds": round(wall, 3), "loss": float(stats["loss"]),
                   "train_psnr": float(stats["psnr"]), "rays_per_second": round(rays_s)}
         if "rays_in_loss" in stats:  # a sample budget: the rays it held whole, this step
           record["rays_in_loss"] = int(stats["rays_in_loss"])
         if tc.eval_every and step % tc.eval_every == 0:
           images = {}
-          record["eval_psnr"] = float(evaluate(
-              _one_device(state.variables, mesh), max_views=tc.eval_views,
-              on_view=_first_view_into(images, near, far))["psnr"])
-          writer.images(step, images)
+          with window.excluded():
+            record["eval_psnr"] = float(evaluate(
+                _one_device(state.variables, mesh), max_views=tc.eval_views,
+                on_view=_first_view_into(images, near, far))["psnr"])
+            writer.images(step, images)
         if main:
           _log(workdir, record)
         writer.scalars(step, {"train/loss": record["loss"], "train/psnr": record["train_psnr"],
@@ -143,8 +146,9 @@ def train_and_evaluate(config, workdir):
         jax.block_until_ready(state.step)  # show steps done, not steps queued (a scalar sync)
         bar.update(position())
       if step % tc.checkpoint_every == 0 or step == last_step or budget_over or stop.signum:
-        _check_finite(state, workdir)  # never checkpoint a state that has seen a bad step
-        _save(workdir, state, signature, tc, time.perf_counter() - t_start)
+        with window.excluded():
+          _check_finite(state, workdir)  # never checkpoint a state that has seen a bad step
+          _save(workdir, state, signature, tc, time.perf_counter() - t_start)
       if stop.signum:
         bar.close()
         raise KeyboardInterrupt(f"stopped by signal {stop.signum} at step {step}; "
@@ -175,7 +179,10 @@ def train_and_evaluate(config, workdir):
         f"over {len(result['per_view'])} views after {step} steps ({train_seconds:.0f} s)",
         flush=True)
   if config.render.after_training and config.render.video_frames > 0:
-    outputs.render_video(exp, variables, os.path.join(workdir, "video"))
+    if outputs.video_writer_missing():  # the run and its scores are kept; only the video is not
+      print(f"{outputs.video_writer_missing()}; skipped the video", flush=True)
+    else:
+      outputs.render_video(exp, variables, os.path.join(workdir, "video"))
   return result
 
 

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax import occupancy
+from nerf_jax import occupancy, precision
 
 OPAQUE = 0.01  # a pixel counts as covered from this opacity (anti-aliased edges included)
 
@@ -31,7 +31,7 @@ def project(points, pose, intrinsics, pixel_center=0.5):
   front of the camera along its -z axis (<= 0 behind it).
   """
   fx, fy, cx, cy = intrinsics
-  local = (points - pose[:3, 3]) @ pose[:3, :3]  # R^T (x - o), as row vectors
+  local = precision.matmul(points - pose[:3, 3], pose[:3, :3])  # R^T (x - o), as row vectors
   depth = -local[..., 2]
   # Points at or behind the camera get depth 1e-9 here only to keep the division finite;
   # callers mask them out by `depth`.

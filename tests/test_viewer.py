@@ -18,7 +18,7 @@ from nerf_jax import camera_paths, config_lib, experiment, image_renderer, outpu
 from nerf_jax.rays import Rays, pose_spherical, project
 from nerf_jax.viewer import camera, paths, policy, scene, server, training
 from nerf_jax.visuals import to_uint8
-from tests.helpers import small_config
+from tests.helpers import requires_viser, small_config
 
 
 def _rodrigues(axis, angle):
@@ -339,6 +339,7 @@ def _until(condition, seconds, what):
     time.sleep(0.02)
 
 
+@requires_viser
 def test_server_sends_frames_of_ready_heights_before_the_warm_up_ends(tiny_run, monkeypatch):
   _, view, variables = tiny_run
   aspect, real_steps, gate, waited = 1000 / 600, view.compile_steps, threading.Event(), []

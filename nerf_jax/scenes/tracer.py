@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from nerf_jax import precision
 from nerf_jax.scenes import raycast, textures
 
 
@@ -108,7 +109,7 @@ def shade(scene, index, points, normals, viewdirs):
   light = scene.light
   to_light = _unit(jnp.asarray(light.direction, jnp.float32))
   albedo = textures.albedo(mats, index, points, normals)
-  cosine = normals @ to_light
+  cosine = precision.matmul(normals, to_light)
   rgb = albedo * (jnp.asarray(light.ambient, jnp.float32)
                   + jnp.maximum(cosine, 0.0)[..., None] * jnp.asarray(light.color, jnp.float32))
   if scene.effects.view_dependent:
@@ -169,11 +170,11 @@ def _render_pixels(scene, supersample, c2w, row, col, height, width, focal, pixe
   x = (col[:, None] + pixel_center + ox - 0.5 * width) / focal
   y = -(row[:, None] + pixel_center + oy - 0.5 * height) / focal
   cam = jnp.stack([x, y, -jnp.ones_like(x)], -1)  # [P, S, 3], camera-space z = -1
-  directions = jnp.einsum("pij,psj->psi", c2w[:, :3, :3], cam)
+  directions = precision.einsum("pij,psj->psi", c2w[:, :3, :3], cam)
   origins = jnp.broadcast_to(c2w[:, None, :3, 3], directions.shape)
   rgb, t, hit = trace(scene, origins, directions, near, far)
-  acc = hit.astype(jnp.float32) @ weight
-  rgb = jnp.einsum("psc,s->pc", rgb, weight)
+  acc = precision.matmul(hit.astype(jnp.float32), weight)
+  rgb = precision.einsum("psc,s->pc", rgb, weight)
   rgb = rgb + (1.0 - acc)[:, None] * jnp.asarray(scene.background, jnp.float32)
   t_centre = t[:, centre]
   depth = jnp.where(jnp.isfinite(t_centre), t_centre, far)
