@@ -16,7 +16,9 @@ import sys
 from absl import app, flags, logging
 from ml_collections import config_flags
 
-from nerf_jax import checkpoints, config_lib, experiment, outputs, parallel, train_lib
+from nerf_jax.run import config_lib, experiment, outputs
+from nerf_jax.train import checkpoints, parallel
+from nerf_jax.run import train_lib
 from nerf_jax.data import DataError
 
 # Exceptions whose message is the whole story for the user.

@@ -1,4 +1,8 @@
-"""The old import path of compositing.py (`nerf_jax.rendering.composite` stays importable)."""
+"""The old path of `nerf_jax.render.compositing` (`nerf_jax.rendering.composite` stays
+importable): `import nerf_jax.rendering` gives that very module."""
 
-from nerf_jax.compositing import (EMPTY_ACC, MAX_DENSITY, composite, compute_weights,  # noqa: F401
-                                  disparity, exclusive_cumsum, one_minus_exp_neg)
+import sys
+
+from nerf_jax.render import compositing as _module
+
+sys.modules[__name__] = _module

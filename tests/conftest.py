@@ -13,14 +13,17 @@ import os
 # holds with a CPU's exact arithmetic fails here as it would on a GPU; and XLA's deterministic
 # ops (train.deterministic), so the bitwise-resume tests hold on a GPU too.
 os.environ.setdefault("NERF_JAX_EMULATE", "tf32,div")
-from nerf_jax import determinism  # noqa: E402  (imports jax; starts no backend)
+from nerf_jax.backend import determinism  # noqa: E402  (imports jax; starts no backend)
 determinism.require()
 
 import jax  # noqa: E402  (after the environment above)
 import numpy as np
 import pytest
 
-from nerf_jax import background, experiment, metrics, train_lib
+from nerf_jax.evaluate import metrics
+from nerf_jax.render import background
+from nerf_jax.run import experiment
+from nerf_jax.run import train_lib
 from nerf_jax.configs import debug
 from tests.helpers import small_config
 

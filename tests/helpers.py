@@ -11,8 +11,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import config_lib, experiment, renderer as renderer_lib
-from nerf_jax.rays import Rays, get_rays, pose_spherical
+from nerf_jax.render import renderer as renderer_lib
+from nerf_jax.run import config_lib, experiment
+from nerf_jax.cameras.rays import Rays, get_rays, pose_spherical
 from nerf_jax.data import DataError
 
 # Tolerances for the least accurate backend we support, stated once (nerf_jax/precision.py; the

@@ -4,7 +4,8 @@ import jax
 import numpy as np
 import pytest
 
-from nerf_jax import activations, experiment
+from nerf_jax.fields import activations
+from nerf_jax.run import experiment
 from tests.helpers import small_config
 
 RAW = np.array([-30.0, -3.0, -1.0, 0.0, 0.5, 1.0, 4.0, 30.0, 87.0, 88.0, 89.0, 200.0])

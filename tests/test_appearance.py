@@ -6,9 +6,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import evaluation, experiment, metrics, train_lib
+from nerf_jax.evaluate import evaluation, metrics
+from nerf_jax.run import experiment
+from nerf_jax.run import train_lib
 from nerf_jax.data import loaders
-from nerf_jax.scenes import photos
+from nerf_jax.data.scenes import photos
 from tests.conftest import restored_variables
 from tests.helpers import small_config
 

@@ -6,10 +6,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from nerf_jax import auto, characterise, cli, config_lib, experiment, rays, scenes
+from nerf_jax import cli
+from nerf_jax.cameras import rays
+from nerf_jax.data import scenes
+from nerf_jax.run import auto, characterise, config_lib, experiment
 from nerf_jax.data import loaders
 from nerf_jax.data.dataset import Dataset
-from nerf_jax.scenes import photos
+from nerf_jax.data.scenes import photos
 
 
 def _capture(poses, accs=None, images=None):

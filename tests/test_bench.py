@@ -17,7 +17,9 @@ import jax.numpy as jnp
 import pytest
 from absl import flags
 
-from nerf_jax import cli, config_lib, scenes
+from nerf_jax import cli
+from nerf_jax.data import scenes
+from nerf_jax.run import config_lib
 from nerf_jax.bench import cli as bench_cli
 from nerf_jax.bench import measure, profile, report, runner, sweeps, timed_run
 

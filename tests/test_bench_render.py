@@ -9,10 +9,13 @@ import jax.numpy as jnp
 import numpy as np
 from absl import flags
 
-from nerf_jax import cli, experiment, renderer, train_lib
+from nerf_jax import cli
+from nerf_jax.render import renderer
+from nerf_jax.run import experiment
+from nerf_jax.run import train_lib
 from nerf_jax.bench import cli as bench_cli
 from nerf_jax.bench import render
-from nerf_jax.rays import Rays, get_rays
+from nerf_jax.cameras.rays import Rays, get_rays
 from tests.helpers import PATHS_RTOL, requires_ffmpeg, small_config
 
 

@@ -1,5 +1,5 @@
 """The transforms.json loader (nerf_jax.data.nerfstudio): intrinsics, distortion, splits,
-re-orientation, one-line errors. Photos come from nerf_jax.scenes.capture's own ray tracer."""
+re-orientation, one-line errors. Photos come from nerf_jax.data.scenes.capture's own ray tracer."""
 
 import itertools
 import json
@@ -8,9 +8,9 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from nerf_jax.scenes import capture as capture_scene
+from nerf_jax.data.scenes import capture as capture_scene
 from helpers import assert_data_error
-from nerf_jax import rays as rays_lib
+from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.data import loaders, nerfstudio, orient, pointcloud
 
 SIZE = (48, 56)  # (height, width)

@@ -16,10 +16,10 @@ import pytest
 import scipy.optimize
 import scipy.spatial.transform
 
-from nerf_jax.scenes import capture as capture_scene
+from nerf_jax.data.scenes import capture as capture_scene
 from helpers import assert_data_error
-from nerf_jax import experiment
-from nerf_jax import rays as rays_lib
+from nerf_jax.run import experiment
+from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.bench import capture as capture_bench
 from nerf_jax.data import lens, nerfstudio, pointcloud, process, sfm
 

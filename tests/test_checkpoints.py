@@ -6,7 +6,7 @@ import os
 import numpy as np
 import pytest
 
-from nerf_jax import checkpoints
+from nerf_jax.train import checkpoints
 
 SEED = 15  # the truncation point and the states are drawn from this: a failure reproduces
 SIGNATURE = {"width": 8}

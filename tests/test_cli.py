@@ -18,7 +18,9 @@ import pytest
 from absl import flags, logging
 from ml_collections import config_flags
 
-from nerf_jax import checkpoints, cli, config_lib, experiment, outputs
+from nerf_jax import cli
+from nerf_jax.run import config_lib, experiment, outputs
+from nerf_jax.train import checkpoints
 from nerf_jax.configs import debug, default
 from nerf_jax.data import DataError
 from tests.conftest import shipped_configs

@@ -7,8 +7,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import experiment, grid, model, renderer
-from nerf_jax.rays import get_rays, pose_spherical, Rays
+from nerf_jax.fields import model
+from nerf_jax.fields.encodings import grid
+from nerf_jax.render import renderer
+from nerf_jax.run import experiment
+from nerf_jax.cameras.rays import get_rays, pose_spherical, Rays
 from tests.helpers import small_config
 
 SPLIT = {"model.grid.density_resolutions": (8, 16), "model.grid.resolutions": (8, 16),

@@ -1,4 +1,4 @@
-"""Tests of nerf_jax.contraction against the closed form (numpy float64, written here).
+"""Tests of nerf_jax.fields.contraction against the closed form (numpy float64, written here).
 
 jax_debug_nans is on for the whole module: a NaN anywhere, a discarded `where` branch or a
 backward pass included, fails the test.
@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import contraction
+from nerf_jax.fields import contraction
 
 KINDS = contraction.KINDS
 RADIUS = 1.5

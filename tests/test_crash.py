@@ -14,7 +14,9 @@ import jax
 import numpy as np
 import pytest
 
-from nerf_jax import checkpoints, cli, train_lib
+from nerf_jax import cli
+from nerf_jax.train import checkpoints
+from nerf_jax.run import train_lib
 from tests.conftest import params_equal, restored_variables
 from tests.helpers import small_config
 

@@ -9,7 +9,7 @@ import ml_collections
 import numpy as np
 import pytest
 
-from nerf_jax import scenes
+from nerf_jax.data import scenes
 from nerf_jax.data import DataError, export, load_blender, load_dataset, load_npz
 from tests.helpers import assert_data_error as _error, blender_folder as _blender
 from tests.helpers import small_config

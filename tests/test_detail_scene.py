@@ -7,11 +7,11 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from nerf_jax import config_lib
-from nerf_jax import rays as rays_lib
-from nerf_jax import scenes
+from nerf_jax.run import config_lib
+from nerf_jax.cameras import rays as rays_lib
+from nerf_jax.data import scenes
 from nerf_jax.data import export, loaders
-from nerf_jax.scenes import cache, detail, raycast, tracer
+from nerf_jax.data.scenes import cache, detail, raycast, tracer
 from tests.helpers import small_config
 
 SCENE = detail.SCENE

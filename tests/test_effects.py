@@ -7,10 +7,16 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import (background, compositing, encoding, evaluation, experiment, field, renderer,
-                      scenes, train_batches, train_lib, train_step)
-from nerf_jax.rays import Rays
-from nerf_jax.scenes import simulator
+from nerf_jax.data import scenes
+from nerf_jax.evaluate import evaluation
+from nerf_jax.fields import field
+from nerf_jax.fields.encodings import encoding
+from nerf_jax.render import background, compositing, renderer
+from nerf_jax.run import experiment
+from nerf_jax.train import train_batches
+from nerf_jax.run import train_lib
+from nerf_jax.cameras.rays import Rays
+from nerf_jax.data.scenes import simulator
 from tests.conftest import assert_beats_trivial
 from tests.helpers import small_config
 
@@ -49,7 +55,7 @@ def _spy_one_step(monkeypatch, config):
   exp = experiment.setup(config)
   data = train_batches.make_train_data(exp)
   with jax.disable_jit():  # concrete values reach the spies
-    train_step.make_train_step(exp)(experiment.init_state(exp), data, jax.random.PRNGKey(0))
+    experiment.make_train_step(exp)(experiment.init_state(exp), data, jax.random.PRNGKey(0))
   return calls
 
 
@@ -115,7 +121,7 @@ def _loss(monkeypatch, rendered, acc, pixel=0.3, spelling="random"):
   exp = experiment.setup(small_config({"data.background": bg, "train.random_background": switch}))
   data = train_batches.make_train_data(exp)
   data = data.replace(rgb=jnp.full_like(data.rgb, pixel), acc=jnp.full_like(data.acc, acc))
-  _, stats = train_step.make_train_step(exp)(experiment.init_state(exp), data,
+  _, stats = experiment.make_train_step(exp)(experiment.init_state(exp), data,
                                              jax.random.PRNGKey(0))
   return float(stats["loss"])
 

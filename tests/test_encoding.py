@@ -1,11 +1,11 @@
-"""Tests of nerf_jax.encoding against a float64 numpy loop in the reference's feature order."""
+"""Tests of nerf_jax.fields.encodings.encoding against a float64 numpy loop in the reference's feature order."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import encoding
+from nerf_jax.fields.encodings import encoding
 
 # Jitted once per shape: op-by-op dispatch compiles every primitive separately and is slow.
 positional_encoding = jax.jit(encoding.positional_encoding, static_argnums=1)

@@ -7,9 +7,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax import grid, renderer
-from nerf_jax import rays as rays_lib
-from nerf_jax.rays import Rays, get_rays, pose_spherical
+from nerf_jax.fields.encodings import grid
+from nerf_jax.render import renderer
+from nerf_jax.cameras import rays as rays_lib
+from nerf_jax.cameras.rays import Rays, get_rays, pose_spherical
 from tests.helpers import ray_renderer, small_config
 
 

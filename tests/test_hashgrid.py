@@ -10,8 +10,9 @@ import numpy as np
 import optax
 import pytest
 
-from nerf_jax import experiment, grid, hashgrid
-from nerf_jax.model import HashNeRF
+from nerf_jax.fields.encodings import grid, hashgrid
+from nerf_jax.run import experiment
+from nerf_jax.fields.model import HashNeRF
 from tests.helpers import grey_view_loss, ray_renderer, small_config
 
 P1, P2 = 2654435761, 805459861

@@ -7,8 +7,8 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from nerf_jax import rays as rays_lib
-from nerf_jax import scenes
+from nerf_jax.cameras import rays as rays_lib
+from nerf_jax.data import scenes
 from nerf_jax.data import DataError, Dataset, export, export_llff, load_dataset, load_llff
 from tests.helpers import assert_data_error as _error
 
@@ -193,7 +193,7 @@ def test_llff_config_grids_hold_every_training_ray_in_ndc(forward, tmp_path):
   # must fall inside the grids' box found from the data, or parts of the photos would render
   # empty; and the box is no larger than the rays need. NDC rays are straight, so their ends
   # (t = 0 and t = 1) bound them; here they are checked at every pixel, not only the corners.
-  from nerf_jax import experiment  # pylint: disable=import-outside-toplevel
+  from nerf_jax.run import experiment  # pylint: disable=import-outside-toplevel
   from tests.helpers import small_config  # pylint: disable=import-outside-toplevel
   export_llff(forward, str(tmp_path))
   config = small_config({"data.path": str(tmp_path), "data.factor": 1}, base="llff")

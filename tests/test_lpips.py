@@ -1,4 +1,4 @@
-"""nerf_jax.lpips against a NumPy LPIPS written here (float64, direct sums over kernel offsets)
+"""nerf_jax.evaluate.lpips against a NumPy LPIPS written here (float64, direct sums over kernel offsets)
 from the same weights file, read here with plain pickle; known pairs; the evaluator's LPIPS."""
 
 import importlib.util
@@ -9,7 +9,9 @@ import pickle
 import numpy as np
 import pytest
 
-from nerf_jax import evaluation, experiment, image_renderer, lpips, metrics
+from nerf_jax.evaluate import evaluation, lpips, metrics
+from nerf_jax.render import image_renderer
+from nerf_jax.run import experiment
 from tests.helpers import requires_lpips, small_config
 
 

@@ -9,8 +9,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import background, empty_space, experiment, image_renderer, rendering, sampling
-from nerf_jax import train_lib
+from nerf_jax import rendering
+from nerf_jax.render import background, empty_space, image_renderer
+from nerf_jax.run import experiment
+from nerf_jax.samplers import sampling
+from nerf_jax.run import train_lib
 from tests.conftest import assert_beats_trivial
 from tests.helpers import ray_renderer, small_config
 

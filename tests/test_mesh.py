@@ -9,8 +9,11 @@ import jax
 import numpy as np
 import pytest
 
-from nerf_jax import checkpoints, experiment, scenes, surface
-from nerf_jax.scenes.geometry import Box, Cylinder, Sphere
+from nerf_jax.data import scenes
+from nerf_jax.render import surface
+from nerf_jax.run import experiment
+from nerf_jax.train import checkpoints
+from nerf_jax.data.scenes.geometry import Box, Cylinder, Sphere
 from tests.helpers import small_config
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

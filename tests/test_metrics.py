@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nerf_jax import metrics
+from nerf_jax.evaluate import metrics
 
 
 def _ssim_brute(x, y, size=11, sigma=1.5):

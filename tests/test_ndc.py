@@ -5,8 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import ndc
-from nerf_jax import rays as rays_lib
+from nerf_jax.cameras import ndc
+from nerf_jax.cameras import rays as rays_lib
 
 W, H, FX, FY, NEAR = 40, 30, 35.0, 33.0, 1.5
 

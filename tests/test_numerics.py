@@ -18,7 +18,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import activations, encoding, rays, rendering, sampling
+from nerf_jax import rendering
+from nerf_jax.cameras import rays
+from nerf_jax.fields import activations
+from nerf_jax.fields.encodings import encoding
+from nerf_jax.samplers import sampling
 
 LOW_PRECISION = [jnp.bfloat16, jnp.float16]
 # Unit roundoff u of each low-precision dtype (half its machine epsilon).
@@ -395,7 +399,7 @@ def test_case08_axis_parallel_and_zero_directions():
 
 
 def _box_bounds_sum(origins, directions):
-  from nerf_jax import grid  # pylint: disable=g-import-not-at-top
+  from nerf_jax.fields.encodings import grid  # pylint: disable=g-import-not-at-top
   t_min, t_max = rays.ray_box_bounds(origins, directions, 1.5, 2.0, 6.0)
   return jnp.sum(t_min) + jnp.sum(t_max), (t_min, t_max)
 
@@ -548,7 +552,7 @@ def test_case11_low_precision_inputs_composite_in_float32(dtype):
 
 
 def _tiny_model(dtype):
-  from nerf_jax import model as model_lib  # pylint: disable=g-import-not-at-top
+  from nerf_jax.fields import model as model_lib  # pylint: disable=g-import-not-at-top
   return model_lib.NerfMLP(depth=3, width=32, skip_layers=(1,), dtype=dtype)
 
 
@@ -612,10 +616,11 @@ def test_case11_low_precision_mlp_composited():
 @functools.lru_cache(maxsize=None)
 def _train_setup():
   """The debug config's model, optimizer and jitted train step (compiled once), and 2 views."""
-  from nerf_jax import experiment, train_batches, train_step  # pylint: disable=g-import-not-at-top
+  from nerf_jax.run import experiment
+  from nerf_jax.train import train_batches  # pylint: disable=g-import-not-at-top
   from tests.helpers import small_config  # pylint: disable=g-import-not-at-top
   exp = experiment.setup(small_config({"train.batch_rays": 64}))
-  step = train_step.make_train_step(exp)
+  step = experiment.make_train_step(exp)
   # Two views of a random 8x8 target from cameras 4 units from the origin; near 2, far 6.
   ray_list = [rays.get_rays(8, 8, 10.0, pose) for pose in rays.orbit_poses(num_frames=2)]
   data = train_batches.TrainData(
@@ -628,7 +633,7 @@ def _train_setup():
 
 @functools.lru_cache(maxsize=None)
 def _jitted_init_state():
-  from nerf_jax import experiment  # pylint: disable=g-import-not-at-top
+  from nerf_jax.run import experiment  # pylint: disable=g-import-not-at-top
   exp, _, _ = _train_setup()
   return jax.jit(lambda: experiment.init_state(exp))  # one compile, not op by op
 

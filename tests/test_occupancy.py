@@ -8,9 +8,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import checkpoints, experiment, grid, occupancy, renderer, train_lib
-from nerf_jax import rays as rays_lib
-from nerf_jax.rays import Rays
+from nerf_jax.fields.encodings import grid
+from nerf_jax.render import renderer
+from nerf_jax.run import experiment
+from nerf_jax.samplers import occupancy
+from nerf_jax.train import checkpoints
+from nerf_jax.run import train_lib
+from nerf_jax.cameras import rays as rays_lib
+from nerf_jax.cameras.rays import Rays
 from tests.conftest import params_equal, restored_variables
 from tests.helpers import ray_renderer, small_config
 

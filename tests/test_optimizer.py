@@ -4,7 +4,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import config_lib, experiment
+from nerf_jax.run import config_lib, experiment
 
 
 def _train_config(**fields):

@@ -14,9 +14,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import background, camera_paths, experiment, outputs, renderer
-from nerf_jax.visuals import to_uint8
-from nerf_jax.rays import Rays, get_rays
+from nerf_jax.cameras import camera_paths
+from nerf_jax.render import background, renderer
+from nerf_jax.run import experiment, outputs
+from nerf_jax.evaluate.visuals import to_uint8
+from nerf_jax.cameras.rays import Rays, get_rays
 from tests.conftest import tensorboard_scalars
 from tests.helpers import PATHS_RTOL, requires_ffmpeg
 

@@ -18,7 +18,9 @@ import jax
 import numpy as np
 import pytest
 
-from nerf_jax import checkpoints, experiment, parallel, train_lib
+from nerf_jax.run import experiment
+from nerf_jax.train import checkpoints, parallel
+from nerf_jax.run import train_lib
 from tests.conftest import restored_variables
 from tests.helpers import small_config
 
@@ -30,7 +32,8 @@ import json, sys
 import jax
 import numpy as np
 from nerf_jax.configs import debug
-from nerf_jax import experiment, parallel, train_batches, train_step
+from nerf_jax.run import experiment
+from nerf_jax.train import parallel, train_batches, train_step
 
 config = debug.get_config()
 exp = experiment.setup(config)
@@ -40,7 +43,7 @@ key = jax.random.PRNGKey(1)
 def run(mesh):
   state = parallel.replicate(experiment.init_state(exp), mesh)
   replicated = parallel.replicate(data, mesh)
-  step = train_step.make_train_step(exp, mesh)
+  step = experiment.make_train_step(exp, mesh)
   hlo = step.lower(state, replicated, key).compile().as_text()
   losses = []
   for _ in range(STEPS):
@@ -86,7 +89,8 @@ def test_four_devices_match_one():
 TWO_PROCESS_SCRIPT = r"""
 import json, sys
 import jax
-from nerf_jax import cli, train_lib
+from nerf_jax import cli
+from nerf_jax.run import train_lib
 
 results = []
 train = train_lib.train_and_evaluate

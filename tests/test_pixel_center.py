@@ -5,10 +5,12 @@ tiny_nerf pin corners; built-in data and rays always agree."""
 import numpy as np
 import pytest
 
-from nerf_jax import experiment, rays as rays_lib, scenes
+from nerf_jax.cameras import rays as rays_lib
+from nerf_jax.data import scenes
+from nerf_jax.run import experiment
 from nerf_jax.data import export
 from nerf_jax.data.llff import export_llff
-from nerf_jax.scenes import simulator
+from nerf_jax.data.scenes import simulator
 from tests.helpers import small_config
 
 SMALL = {"data.num_views": 5, "data.image_size": 8, "data.holdout_from": 4}  # 4 + 1 views of 8²

@@ -12,10 +12,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import (compositing, determinism, metrics, pose_refinement, precision, rays,
-                      visual_hull)
-from nerf_jax.scenes import builtin, tracer
-from nerf_jax.model import NerfMLP
+from nerf_jax.backend import determinism, precision
+from nerf_jax.cameras import pose_refinement, rays
+from nerf_jax.evaluate import metrics
+from nerf_jax.render import compositing
+from nerf_jax.samplers import visual_hull
+from nerf_jax.data.scenes import builtin, tracer
+from nerf_jax.fields.model import NerfMLP
 
 EMULATING_TF32 = jax.default_backend() != "cpu" or "tf32" in precision.emulated()
 EMULATING_DIV = jax.default_backend() != "cpu" or "div" in precision.emulated()
@@ -139,7 +142,7 @@ def test_network_precision_setting():
 
 def test_tests_run_with_deterministic_ops_inherited_by_subprocesses():
   assert determinism.enabled()
-  out = subprocess.run([sys.executable, "-c", "from nerf_jax import determinism; "
+  out = subprocess.run([sys.executable, "-c", "from nerf_jax.backend import determinism; "
                         "print(determinism.enabled())"], capture_output=True, text=True,
                        check=True, env=os.environ.copy())
   assert out.stdout.strip() == "True"

@@ -5,7 +5,8 @@ import json
 
 import pytest
 
-from nerf_jax import progress, train_lib
+from nerf_jax.train import progress
+from nerf_jax.run import train_lib
 from tests.helpers import small_config
 
 
@@ -93,15 +94,32 @@ def test_rate_window_leaves_out_excluded_work_and_restarts():
   assert window.rate(90) == 10.0
 
 
-@pytest.mark.slow  # trains, and reads the wall clock
-def test_steady_training_logs_steady_rates(tmp_path):
-  # Log windows that hold an evaluation or a checkpoint report the same rate as those that do
-  # not (within 2x: a CPU has no asynchronous queue, so this checks the exclusion, not the sync).
-  config = small_config({"train.max_steps": 80, "train.log_every": 10, "train.eval_every": 20,
-                         "train.eval_views": 2, "train.checkpoint_every": 20})
+class _RecordingWindow(progress.RateWindow):
+  """A RateWindow that records its calls: ('rate', count) and ('excluded',)."""
+  calls = []
+
+  def rate(self, count):
+    self.calls.append(("rate", int(count)))
+    return super().rate(count)
+
+  def excluded(self):
+    self.calls.append(("excluded",))
+    return super().excluded()
+
+
+@pytest.mark.slow  # trains
+def test_training_times_its_windows_without_evaluations_and_checkpoints(tmp_path, monkeypatch):
+  # Each log line reads the window once, and every evaluation and checkpoint runs inside
+  # `excluded()`, so the rays/s of a window that holds one is the training rate alone.
+  monkeypatch.setattr(progress, "RateWindow", _RecordingWindow)
+  _RecordingWindow.calls = []
+  config = small_config({"train.max_steps": 40, "train.log_every": 10, "train.eval_every": 20,
+                         "train.eval_views": 1, "train.checkpoint_every": 20})
   train_lib.train_and_evaluate(config, str(tmp_path))
-  lines = (tmp_path / "metrics.jsonl").read_text().splitlines()
-  records = [json.loads(line) for line in lines]
-  rates = [r["rays_per_second"] for r in records if "rays_per_second" in r][2:]  # compiled
-  assert len(rates) >= 4
-  assert max(rates) < 2.0 * min(rates), rates
+  calls = _RecordingWindow.calls
+  assert [c for c in calls if c[0] == "rate"] == [("rate", s) for s in (10, 20, 30, 40)]
+  # Steps 20 and 40: an evaluation, then a checkpoint, each excluded, after that step's rate.
+  after = lambda step: calls[calls.index(("rate", step)) + 1:][:2]
+  assert after(20) == after(40) == [("excluded",), ("excluded",)]
+  records = [json.loads(line) for line in (tmp_path / "metrics.jsonl").read_text().splitlines()]
+  assert all(r["rays_per_second"] > 0 for r in records if "rays_per_second" in r)

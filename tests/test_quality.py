@@ -10,7 +10,8 @@ import json
 import numpy as np
 import pytest
 
-from nerf_jax import evaluation, experiment
+from nerf_jax.evaluate import evaluation
+from nerf_jax.run import experiment
 from tests.conftest import assert_beats_trivial, trivial_psnrs
 from tests.helpers import small_config
 

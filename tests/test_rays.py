@@ -1,4 +1,4 @@
-"""Tests of nerf_jax.rays against closed forms and brute-force loops."""
+"""Tests of nerf_jax.cameras.rays against closed forms and brute-force loops."""
 
 import math
 
@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import rays
+from nerf_jax.cameras import rays
 
 # One image size for every test and jitted entry points: few compilations keep the suite fast.
 HEIGHT, WIDTH = 4, 6

@@ -7,8 +7,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import (experiment, model, rays, regularizers, sampler, sampling, train_batches,
-                      train_step)
+from nerf_jax.cameras import rays
+from nerf_jax.fields import model
+from nerf_jax.run import experiment
+from nerf_jax.samplers import sampler, sampling
+from nerf_jax.train import regularizers, train_batches
 from tests.helpers import small_config
 
 
@@ -58,7 +61,7 @@ def test_distortion_gradient_is_finite_and_analytic():
 def one_step_stats(overrides):
   """The stats of one train step from a fresh state of small_config(overrides)."""
   exp = experiment.setup(small_config(overrides))
-  step = train_step.make_train_step(exp)
+  step = experiment.make_train_step(exp)
   _, stats = step(experiment.init_state(exp), train_batches.make_train_data(exp),
                   jax.random.PRNGKey(3))
   return stats
@@ -139,7 +142,7 @@ def test_lattice_tables_and_the_weighted_tv_in_the_train_loss():
     state = experiment.init_state(exp)
     tv = sum(float(regularizers.total_variation(t, a))
              for t, a in model.lattice_tables(state.params))
-    _, stats[weight] = train_step.make_train_step(exp)(
+    _, stats[weight] = experiment.make_train_step(exp)(
         state, train_batches.make_train_data(exp), jax.random.PRNGKey(3))
   # Same render: only the loss grows, by the weight times the random start's variation.
   np.testing.assert_allclose(stats[10.0]["psnr"], stats[0.0]["psnr"], rtol=1e-6)

@@ -11,8 +11,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import experiment, image_renderer, renderer
-from nerf_jax.rays import Rays, get_rays, pose_spherical
+from nerf_jax.render import image_renderer, renderer
+from nerf_jax.run import experiment
+from nerf_jax.cameras.rays import Rays, get_rays, pose_spherical
 from tests.helpers import ray_renderer, small_config
 
 GRID = {"model.encoding": "grid", "model.grid.resolutions": (8, 16), "model.grid_bound": 1.5,

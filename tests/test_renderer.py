@@ -7,8 +7,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import field, image_renderer, renderer
-from nerf_jax.rays import Rays, get_rays, pose_spherical
+from nerf_jax.fields import field
+from nerf_jax.render import image_renderer, renderer
+from nerf_jax.cameras.rays import Rays, get_rays, pose_spherical
 from tests.helpers import PATHS_RTOL, ray_renderer, small_config
 
 

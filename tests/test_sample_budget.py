@@ -9,7 +9,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import experiment, renderer, train_step
+from nerf_jax.render import renderer
+from nerf_jax.run import experiment
+from nerf_jax.train import losses
 from tests.helpers import small_config
 from tests.test_colour_budget import SPLIT, _rays, _trained_like
 
@@ -110,10 +112,10 @@ def test_the_loss_leaves_out_incomplete_rays():
   complete = jnp.array([True, True, False, True, False, False])
   keep = np.asarray(complete)
   want = np.mean((np.asarray(rgb)[keep] - np.asarray(target)[keep]) ** 2)
-  np.testing.assert_allclose(train_step._mse(rgb, target, complete), want, rtol=1e-6)
-  np.testing.assert_allclose(train_step._mse(rgb, target), np.mean(
+  np.testing.assert_allclose(losses._mse(rgb, target, complete), want, rtol=1e-6)
+  np.testing.assert_allclose(losses._mse(rgb, target), np.mean(
       (np.asarray(rgb) - np.asarray(target)) ** 2), rtol=1e-6)
-  assert float(train_step._mse(rgb, target, jnp.zeros(6, bool))) == 0.0  # finite, not 0/0
+  assert float(losses._mse(rgb, target, jnp.zeros(6, bool))) == 0.0  # finite, not 0/0
 
 
 def test_a_budget_needs_the_occupancy_grid():

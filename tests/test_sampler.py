@@ -6,9 +6,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import occupancy, sampler, sampling
-from nerf_jax.occupancy import OccupancySettings
-from nerf_jax.rays import Rays
+from nerf_jax.samplers import occupancy, sampler, sampling
+from nerf_jax.samplers.occupancy import OccupancySettings
+from nerf_jax.cameras.rays import Rays
 
 BOUND, NEAR, FAR = 1.5, 1.0, 9.0  # every ray's box segment lies inside [NEAR, FAR]
 

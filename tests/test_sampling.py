@@ -1,11 +1,11 @@
-"""Tests of nerf_jax.sampling: stratified edges and inverse-CDF resampling."""
+"""Tests of nerf_jax.samplers.sampling: stratified edges and inverse-CDF resampling."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import sampling
+from nerf_jax.samplers import sampling
 
 # One batch of RAYS rays with S samples and N resamples for every test, and jitted entry points:
 # few compilations keep the suite fast.

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from nerf_jax import config_lib, train_lib
+from nerf_jax.run import config_lib
+from nerf_jax.run import train_lib
 from tests.helpers import small_config
 
 SCENES = ["diffuse", "glossy", "fog", "white", "forward"]

@@ -5,11 +5,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from nerf_jax import rays as rays_lib
-from nerf_jax import scenes
-from nerf_jax.scenes import garden, simulator
-from nerf_jax.scenes import scene as scene_lib
-from nerf_jax.scenes.geometry import Box, Cylinder, Sphere
+from nerf_jax.cameras import rays as rays_lib
+from nerf_jax.data import scenes
+from nerf_jax.data.scenes import garden, simulator
+from nerf_jax.data.scenes import scene as scene_lib
+from nerf_jax.data.scenes.geometry import Box, Cylinder, Sphere
 
 LOOK_DOWN = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4.0], [0, 0, 0, 1]])  # at z = 4
 

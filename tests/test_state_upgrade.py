@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from flax import serialization
 
-from nerf_jax import checkpoints, experiment, train_batches, train_step
+from nerf_jax.run import experiment
+from nerf_jax.train import checkpoints, train_batches
 from tests.conftest import params_equal
 from tests.helpers import small_config
 
@@ -39,7 +40,7 @@ def trained():
   """(config, Experiment, TrainState after 3 steps: the grid and the moments are not zero)."""
   config = small_config(OCCUPANCY)
   exp = experiment.setup(config)
-  step, data = train_step.make_train_step(exp), train_batches.make_train_data(exp)
+  step, data = experiment.make_train_step(exp), train_batches.make_train_data(exp)
   state = experiment.init_state(exp)
   for _ in range(3):
     state, _ = step(state, data, jax.random.PRNGKey(0))
@@ -87,7 +88,7 @@ def test_a_run_saved_before_appearance_lr_keeps_what_it_trained_with():
   """A config.json without train.appearance_lr (saved before it existed) completes to what
   that run did: codes at train.lr, in the field's Adam (the checkpoint's state); a current
   save keeps its own value, and its codes have an Adam of their own."""
-  from nerf_jax import config_lib
+  from nerf_jax.run import config_lib
   saved = small_config({"model.appearance_dims": 4, "train.pose_refinement": True}).to_dict()
   del saved["train"]["appearance_lr"]
   old = config_lib.complete(saved)
@@ -116,7 +117,7 @@ def test_pose_refinement_keeps_the_optimiser_state_its_checkpoints_saved():
 
 
 def test_a_run_saved_before_pose_prior_keeps_its_corrections_free():
-  from nerf_jax import config_lib
+  from nerf_jax.run import config_lib
   saved = small_config({"train.pose_refinement": True}).to_dict()
   del saved["train"]["pose_prior"]
   assert config_lib.complete(saved).train.pose_prior == 0.0

@@ -6,9 +6,10 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from nerf_jax import experiment, grid, tensorf
+from nerf_jax.fields.encodings import grid, tensorf
+from nerf_jax.run import experiment
 from nerf_jax.bench import encodings as bench_encodings
-from nerf_jax.model import TensoRFNeRF
+from nerf_jax.fields.model import TensoRFNeRF
 from tests.helpers import grey_view_loss, ray_renderer, small_config
 from tests.test_grid import trilinear_brute
 

@@ -6,8 +6,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax import experiment, image_renderer, occupancy
-from nerf_jax.rays import Rays
+from nerf_jax.render import image_renderer
+from nerf_jax.run import experiment
+from nerf_jax.samplers import occupancy
+from nerf_jax.cameras.rays import Rays
 from tests.helpers import ray_renderer, small_config
 
 BOUND = 1.5

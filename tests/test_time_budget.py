@@ -9,7 +9,9 @@ import re
 import numpy as np
 import pytest
 
-from nerf_jax import budget, checkpoints, config_lib, experiment, train_lib
+from nerf_jax.run import config_lib, experiment
+from nerf_jax.train import budget, checkpoints
+from nerf_jax.run import train_lib
 from tests.conftest import shipped_configs
 from tests.helpers import small_config
 

@@ -11,9 +11,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import (background, camera_paths, checkpoints, config_lib, evaluation, experiment,
-                      outputs, train_batches, train_lib, train_step)
-from nerf_jax.rays import Rays
+from nerf_jax.cameras import camera_paths
+from nerf_jax.evaluate import evaluation
+from nerf_jax.render import background
+from nerf_jax.run import config_lib, experiment, outputs
+from nerf_jax.train import checkpoints, train_batches
+from nerf_jax.run import train_lib
+from nerf_jax.cameras.rays import Rays
 from tests.conftest import params_equal as _params_equal
 from tests.conftest import restored_variables
 from tests.helpers import small_config
@@ -113,7 +117,7 @@ def test_epoch_image_order_visits_every_image_once_per_epoch():
   rays = Rays(ids, ids, ids, ids[..., 0], ids[..., 0])
   data = train_batches.TrainData(rays, ids, ids[..., 0])  # every pixel holds its image id
   run_key = jax.random.PRNGKey(7)
-  draw = jax.jit(lambda step: train_batches.draw_batch(data, config, None, step, run_key).rgb)
+  draw = jax.jit(lambda step: train_batches.draw_batch(data, experiment.batch_settings(config), None, step, run_key).rgb)
   epochs = []
   for epoch in range(3):
     ids = [np.asarray(draw(epoch * 3 + s))[::2, 0].astype(int) for s in range(3)]
@@ -130,7 +134,7 @@ def test_whole_image_batching_draws_whole_images():
   exp = experiment.setup(config)
   train_ds = exp.train_ds
   data = train_batches.make_train_data(exp)
-  rgb = train_batches.draw_batch(data, config, jax.random.PRNGKey(0)).rgb
+  rgb = train_batches.draw_batch(data, experiment.batch_settings(config), jax.random.PRNGKey(0)).rgb
   pixels = train_ds.height * train_ds.width
   assert rgb.shape == (2 * pixels, 3)
   flat = np.asarray(data.rgb)
@@ -219,7 +223,7 @@ def test_random_background_does_nothing_on_data_without_opacity():
   for switch in (False, True):
     exp = experiment.setup(small_config({"train.random_background": switch}))
     exp.train_ds.accs = None
-    step = train_step.make_train_step(exp)
+    step = experiment.make_train_step(exp)
     _, stats = step(experiment.init_state(exp), train_batches.make_train_data(exp),
                     jax.random.PRNGKey(0))
     losses[switch] = float(stats["loss"])
@@ -289,7 +293,7 @@ def test_rays_made_per_step_equal_every_pixels_stored_ray(batching, ndc):
   per_image = [exp.rays(pose).reshape(-1) for pose in exp.train_ds.poses]
   stored = data.replace(rays=jax.tree_util.tree_map(lambda *a: jnp.stack(a), *per_image))
   key = jax.random.PRNGKey(5)
-  made, reference = (train_batches.draw_batch(d, config, key) for d in (data, stored))
+  made, reference = (train_batches.draw_batch(d, experiment.batch_settings(config), key) for d in (data, stored))
   np.testing.assert_array_equal(made.rgb, reference.rgb)
   for field in ("origins", "directions", "viewdirs", "near", "far"):
     np.testing.assert_allclose(getattr(made.rays, field), getattr(reference.rays, field),

@@ -8,9 +8,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import contraction, experiment, model, sampler, sampling
-from nerf_jax.field import Field
-from nerf_jax.rays import Rays
+from nerf_jax.fields import contraction, model
+from nerf_jax.run import experiment
+from nerf_jax.samplers import sampler, sampling
+from nerf_jax.fields.field import Field
+from nerf_jax.cameras.rays import Rays
 from tests.helpers import small_config
 
 
@@ -110,7 +112,7 @@ def test_occupancy_in_contracted_space_samples_only_occupied_cells():
 
 
 def test_a_capture_video_follows_its_own_trajectory():
-  from nerf_jax import camera_paths  # pylint: disable=import-outside-toplevel
+  from nerf_jax.cameras import camera_paths  # pylint: disable=import-outside-toplevel
   angles = np.linspace(0.0, np.pi, 30)
   poses = np.tile(np.eye(4, dtype=np.float32), (30, 1, 1))
   poses[:, 0, 3], poses[:, 1, 3] = 3 * np.cos(angles), 3 * np.sin(angles)  # an arc, in order
@@ -136,7 +138,7 @@ def test_an_automatic_bounded_box_is_the_grids_box_too():
 
 
 def test_the_video_path_is_chosen_by_the_data():
-  from nerf_jax import outputs  # pylint: disable=import-outside-toplevel
+  from nerf_jax.run import outputs  # pylint: disable=import-outside-toplevel
   exp = experiment.setup(small_config())
   assert not outputs.follows_trajectory(exp)  # built-in scene: the orbit
   box = np.array([[-1.0] * 3, [1.0] * 3], np.float32)

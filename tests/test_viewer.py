@@ -14,10 +14,12 @@ import jax
 import numpy as np
 import pytest
 
-from nerf_jax import camera_paths, config_lib, experiment, image_renderer, outputs
-from nerf_jax.rays import Rays, pose_spherical, project
+from nerf_jax.cameras import camera_paths
+from nerf_jax.render import image_renderer
+from nerf_jax.run import config_lib, experiment, outputs
+from nerf_jax.cameras.rays import Rays, pose_spherical, project
 from nerf_jax.viewer import camera, paths, policy, scene, server, training
-from nerf_jax.visuals import to_uint8
+from nerf_jax.evaluate.visuals import to_uint8
 from tests.helpers import requires_viser, small_config
 
 

@@ -16,7 +16,7 @@ import time
 import numpy as np
 import pytest
 
-from nerf_jax import train_lib
+from nerf_jax.run import train_lib
 from tests.helpers import small_config
 
 CHROMIUM = os.environ.get("NERF_JAX_CHROMIUM", "/usr/bin/chromium")

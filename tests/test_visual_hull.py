@@ -6,8 +6,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax import (experiment, grid, model, occupancy, rays, sampler, train_batches,
-                      train_step, visual_hull)
+from nerf_jax.cameras import rays
+from nerf_jax.fields import model
+from nerf_jax.fields.encodings import grid
+from nerf_jax.run import experiment
+from nerf_jax.samplers import occupancy, sampler, visual_hull
+from nerf_jax.train import train_batches
 from tests.helpers import small_config
 from tests.test_grid import trilinear_brute
 
@@ -141,7 +145,7 @@ def test_a_run_with_the_visual_hull_samples_only_inside_it():
   assert np.all(box[0] > -exp.config.data.scene_bound - 1e-6) and np.all(box[1] > box[0])
   state = experiment.init_state(exp)
   np.testing.assert_array_equal(np.asarray(state.buffers["occupancy"]), hull)
-  step = train_step.make_train_step(exp)
+  step = experiment.make_train_step(exp)
   data = train_batches.make_train_data(exp)
   for _ in range(2):  # step 0 refreshes the grid from the field (update_every = 1)
     state, _ = step(state, data, jax.random.PRNGKey(0))

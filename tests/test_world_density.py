@@ -9,10 +9,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax import empty_space, experiment, image_renderer, renderer
-from nerf_jax import rays as rays_lib
-from nerf_jax.rays import Rays
-from nerf_jax.scenes import builtin, simulator
+from nerf_jax.render import empty_space, image_renderer, renderer
+from nerf_jax.run import experiment
+from nerf_jax.cameras import rays as rays_lib
+from nerf_jax.cameras.rays import Rays
+from nerf_jax.data.scenes import builtin, simulator
 from tests.helpers import ray_renderer, small_config
 
 FOG = builtin.SCENES["fog"].medium  # a sphere of radius 0.75, density 1.2, at the origin

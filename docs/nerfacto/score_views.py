@@ -5,7 +5,7 @@ train.py's metrics.json). Runs in nerf_jax's environment:
 """
 import sys
 import numpy as np
-from nerf_jax import lpips, metrics
+from nerf_jax.evaluate import lpips, metrics
 d = np.load(sys.argv[1])
 rows = []
 for v, p, r in zip(d["views"], d["preds"], d["refs"]):

@@ -3,7 +3,7 @@
   python -m nerf_jax.bench.capture --out=runs/capture_bench --train_seconds=300
 
 1. photographs `--views` JPEG views (`--size` pixels, quality 95) of the noise-textured scene
-   `nerf_jax.scenes.capture` (or a built-in scene, `--scene=detail`) on a ring;
+   `nerf_jax.data.scenes.capture` (or a built-in scene, `--scene=detail`) on a ring;
 2. runs the first command, `python -m nerf_jax.data.process --images=... --out=...`, and scores
    the recovered cameras against the true ones after one similarity alignment (median rotation
    error, camera-centre error relative to the camera distance, focal error);
@@ -34,7 +34,7 @@ import imageio.v3 as iio
 import numpy as np
 
 from nerf_jax.data import nerfstudio, orient, pointcloud
-from nerf_jax.scenes import capture
+from nerf_jax.data.scenes import capture
 
 RUNS = ("sfm", "true_poses", "true_cameras")
 
@@ -47,7 +47,7 @@ def photograph(folder, num_views, size, scene="capture"):
     poses = capture.ring_poses(num_views)
     images = [capture.render(p, size, size, (focal, focal, size / 2, size / 2)) for p in poses]
   else:
-    from nerf_jax import scenes  # pylint: disable=import-outside-toplevel
+    from nerf_jax.data import scenes  # pylint: disable=import-outside-toplevel
     focal = scenes.TINY_NERF_FOCAL * size / 100
     dataset = scenes.make_dataset(scene, num_views, size, size, focal, pixel_center=0.5)
     poses, images = dataset.poses, dataset.images
@@ -134,7 +134,7 @@ def write_true_folder(folder, processed, true, camera=None):
 def held_out(workdir, folder):
   """The held-out views of the transforms.json `folder`, loaded as the run in `workdir` loads
   its data (its factor, background, split): a Dataset."""
-  from nerf_jax import config_lib  # pylint: disable=import-outside-toplevel
+  from nerf_jax.run import config_lib  # pylint: disable=import-outside-toplevel
   from nerf_jax.data import loaders  # pylint: disable=import-outside-toplevel
   data = config_lib.load_saved(workdir).data.to_dict()
   data["path"] = folder
@@ -144,7 +144,8 @@ def held_out(workdir, folder):
 def evaluate_at(workdir, test_ds):
   """The newest checkpoint of `workdir` scored on the views of `test_ds` (a Dataset in the run's
   world frame, at its image size): evaluation.make_evaluator's {'psnr', 'ssim', ...}."""
-  from nerf_jax import evaluation, experiment  # pylint: disable=import-outside-toplevel
+  from nerf_jax.evaluate import evaluation
+  from nerf_jax.run import experiment  # pylint: disable=import-outside-toplevel
   exp, state = experiment.restore(workdir)
   return evaluation.make_evaluator(dataclasses.replace(exp, test_ds=test_ds))(state.variables)
 

@@ -21,7 +21,8 @@ import numpy as np
 from absl import app, flags
 from ml_collections import config_flags
 
-from nerf_jax import cli, config_lib
+from nerf_jax import cli
+from nerf_jax.run import config_lib
 from nerf_jax.bench import profile, render, report, runner, sweeps, timed_run
 
 

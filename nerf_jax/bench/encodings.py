@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from nerf_jax import grid, tensorf
+from nerf_jax.fields.encodings import grid, tensorf
 from nerf_jax.bench import measure
 
 # (label, kind, level resolutions, features per point or rank)

@@ -29,7 +29,7 @@ SHRINK = {"data.num_views": 6, "data.image_size": 16, "data.holdout_from": 5,
 
 def shrunk_config(name):
   """configs/<name>.py, on a small built-in scene, for a few steps."""
-  from nerf_jax import config_lib  # pylint: disable=import-outside-toplevel
+  from nerf_jax.run import config_lib  # pylint: disable=import-outside-toplevel
   config = config_lib.load(name)
   fields = dict(SHRINK)
   if name in SCENES:
@@ -43,7 +43,8 @@ def shrunk_config(name):
 
 def fingerprint(name):
   """(sha256 hex of the trained variables and one rendered test view, that view's PSNR)."""
-  from nerf_jax import experiment, train_lib  # pylint: disable=import-outside-toplevel
+  from nerf_jax.run import experiment
+  from nerf_jax.run import train_lib  # pylint: disable=import-outside-toplevel
   with tempfile.TemporaryDirectory() as workdir:
     result = train_lib.train_and_evaluate(shrunk_config(name), workdir)
     state = experiment.restore(workdir)[1]

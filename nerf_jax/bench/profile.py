@@ -31,7 +31,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax import compositing, encoding, experiment, sampler, train_batches, train_step
+from nerf_jax.fields.encodings import encoding
+from nerf_jax.render import compositing
+from nerf_jax.run import experiment
+from nerf_jax.samplers import sampler
+from nerf_jax.train import train_batches
 from nerf_jax.bench import measure
 
 
@@ -54,7 +58,7 @@ def _warmed(config, warm_steps):
   state = experiment.init_state(exp)
   data = train_batches.make_train_data(exp)
   key = jax.random.PRNGKey(0)
-  step = train_step.make_train_step(exp)
+  step = experiment.make_train_step(exp)
   for _ in range(warm_steps):
     state, _ = step(state, data, key)
   return exp, jax.block_until_ready(state), data, key, step
@@ -63,7 +67,7 @@ def _warmed(config, warm_steps):
 def profile(config, repeats=10, warm_steps=0):
   """[(stage, ms, note)] for one train step of `config` on its dataset, after `warm_steps`."""
   exp, state, data, key, step = _warmed(config, warm_steps)
-  rays, samples = train_batches.rays_per_step(config, exp.train_ds), config.num_samples
+  rays, samples = experiment.rays_per_step(config, exp.train_ds), config.num_samples
   compiled = step.lower(state, data, key).compile()
   times = []
   for _ in range(repeats + 1):
@@ -73,9 +77,9 @@ def profile(config, repeats=10, warm_steps=0):
     times.append(time.perf_counter() - start)
   rows = [("train step (all)", 1e3 * float(np.median(times[1:])), f"{rays} rays × {samples}")]
 
-  batch = train_batches.draw_batch(data, config, key).rays
+  batch = train_batches.draw_batch(data, experiment.batch_settings(config), key).rays
   rows.append(("draw batch (gathers)", median_ms(
-      lambda k: train_batches.draw_batch(data, config, k), key, repeats=repeats), ""))
+      lambda k: train_batches.draw_batch(data, experiment.batch_settings(config), k), key, repeats=repeats), ""))
 
   field = exp.renderer.field
 

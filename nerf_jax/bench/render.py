@@ -26,7 +26,8 @@ import time
 
 import numpy as np
 
-from nerf_jax import background, experiment, image_renderer, outputs
+from nerf_jax.render import background, image_renderer
+from nerf_jax.run import experiment, outputs
 from nerf_jax.bench import measure
 
 

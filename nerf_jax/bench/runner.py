@@ -10,7 +10,7 @@ import subprocess
 import sys
 import tempfile
 
-from nerf_jax import progress
+from nerf_jax.train import progress
 from nerf_jax.bench import measure, report, sweeps, timed_run
 
 # The directory holding the nerf_jax package: the subprocess imports the same code as its parent.

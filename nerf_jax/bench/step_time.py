@@ -16,7 +16,9 @@ import jax
 import numpy as np
 from absl import app, flags
 
-from nerf_jax import cli, experiment, train_batches, train_step
+from nerf_jax import cli
+from nerf_jax.run import experiment
+from nerf_jax.train import train_batches
 from nerf_jax.bench import sweeps
 
 
@@ -34,7 +36,7 @@ def step_times(named_configs, steps, num_views=None):
     exp = experiment.setup(config)
     state = experiment.init_state(exp)
     data = train_batches.make_train_data(exp)
-    step = train_step.make_train_step(exp)
+    step = experiment.make_train_step(exp)
     key = jax.random.PRNGKey(0)
     state, _ = jax.block_until_ready(step(state, data, key))  # compile + one warm-up step
     runs[name] = [step, state, data, key, [], num_params(state.params)]

@@ -13,7 +13,9 @@ from typing import NamedTuple
 
 import ml_collections
 
-from nerf_jax import config_lib, scenes, train_lib
+from nerf_jax.data import scenes
+from nerf_jax.run import config_lib
+from nerf_jax.run import train_lib
 
 
 class Entry(NamedTuple):

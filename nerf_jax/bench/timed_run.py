@@ -21,8 +21,11 @@ import traceback
 import jax
 import numpy as np
 
-from nerf_jax import (background, evaluation, experiment, image_renderer, train_batches, train_lib,
-                      train_step)
+from nerf_jax.evaluate import evaluation
+from nerf_jax.render import background, image_renderer
+from nerf_jax.run import experiment
+from nerf_jax.train import train_batches
+from nerf_jax.run import train_lib
 from nerf_jax.bench import measure, sweeps
 
 SEGMENT_SECONDS = 0.25  # steps between host syncs: about this long (bounds budget overshoot)
@@ -77,7 +80,7 @@ def _build(exp):
   so every loop needs a state of its own."""
   # One compiled init instead of dozens of eagerly compiled small ops: same values, less setup.
   state = jax.jit(lambda: experiment.init_state(exp))()
-  return train_step.make_train_step(exp), state
+  return experiment.make_train_step(exp), state
 
 
 def frame_seconds(exp, variables, repeats):
@@ -103,7 +106,7 @@ def run_config(config, options):
   if tc.max_seconds > 0 and options.fit_schedule:
     # The schedule spans the steps expected to fit in the budget (the benchmark's clock counts
     # the compile, not the calibration); the clock alone ends the run.
-    config = train_lib.fit_to_time(exp, train_step.make_train_step(exp), data, key,
+    config = train_lib.fit_to_time(exp, experiment.make_train_step(exp), data, key,
                                    lambda compile_seconds: tc.max_seconds - compile_seconds)
     tc = config.train
     exp = dataclasses.replace(exp, config=config, tx=experiment.optimizer_for(config))
@@ -137,7 +140,7 @@ def run_config(config, options):
   eval_seconds = time.perf_counter() - start
   render_times, render_size = frame_seconds(exp, state.variables, options.render_repeats)
   step_seconds = measure.median_step_seconds(segments)
-  rays = train_batches.rays_per_step(config, exp.train_ds)
+  rays = experiment.rays_per_step(config, exp.train_ds)
   flops = measure.mlp_flops_per_step(state.params, config, rays)
   bad = int(state.bad_step)
   return {

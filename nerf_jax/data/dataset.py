@@ -12,7 +12,7 @@ class DataError(ValueError):
 
 @dataclasses.dataclass
 class Dataset:
-  """Posed images of one scene (conventions of `nerf_jax.rays`).
+  """Posed images of one scene (conventions of `nerf_jax.cameras.rays`).
 
   images: float32 [N, H, W, 3] in [0, 1], composited on the background.
   poses: float32 [N, 4, 4], camera-to-world.
@@ -26,8 +26,8 @@ class Dataset:
     `images + (1 - accs) * (new - background)` re-composites them on `new`; (0, 0, 0) when
     unknown.
   forward_facing: bool, all cameras look roughly down world -z at content beyond z = -near
-    (LLFF captures, the 'forward' scene): the case for NDC rays (`nerf_jax.ndc`).
-  pixel_center: float, where in its pixel each image was sampled (`nerf_jax.rays`): 0.5 (pixel
+    (LLFF captures, the 'forward' scene): the case for NDC rays (`nerf_jax.cameras.ndc`).
+  pixel_center: float, where in its pixel each image was sampled (`cameras.rays`): 0.5 (pixel
     centres: rendered or photographed images, the default), 0 (pixel corners: tiny_nerf's .npz
     as the Keras reference reads it).
   aabb: float32 [2, 3] or None, (min, max) corner in world units of the box the data says holds

@@ -20,7 +20,7 @@ import sys
 import imageio.v3 as iio
 import numpy as np
 
-from nerf_jax import scenes
+from nerf_jax.data import scenes
 from nerf_jax.data.llff import export_llff
 
 

@@ -7,7 +7,7 @@ Names and conventions:
   dist — `(k1, k2, p1, p2)` or `(k1, k2, p1, p2, k3)`: OpenCV's model (nerfstudio's 'OPENCV')
     x' = x (1 + k1 r² + k2 r⁴ + k3 r⁶) + 2 p1 x y + p2 (r² + 2 x²),
     y' = y (1 + k1 r² + k2 r⁴ + k3 r⁶) + p1 (r² + 2 y²) + 2 p2 x y,   r² = x² + y².
-`nerf_jax.rays` casts the ray of pixel (i, j) through (i + pixel_center - cx, ...) / f, so a
+`nerf_jax.cameras.rays` casts the ray of pixel (i, j) through (i + pixel_center - cx, ...) / f, so a
 Dataset built from COLMAP-convention intrinsics stores (fx, fy, cx - 0.5, cy - 0.5): with the
 pixel_center = 0 (what such a Dataset records) its rays pass through pixel centres
 (`dataset_intrinsics`).

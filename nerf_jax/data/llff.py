@@ -4,7 +4,7 @@ poses_bounds.npy: float [N, 17]. Row k is the 3 x 5 matrix [R | t | hwf] of view
 row-major, then the near and far depth bounds of what view k sees:
   R — the camera's axes in world space as columns, in LLFF's order [down, right, backwards];
   t — the camera centre; hwf — (height, width, focal) in pixels of the images in `images/`.
-NeRF's order (`nerf_jax.rays`) is [right, up, backwards], so on the column axis
+NeRF's order (`nerf_jax.cameras.rays`) is [right, up, backwards], so on the column axis
   nerf = [llff_1, -llff_0, llff_2]      and back      llff = [-nerf_1, nerf_0, nerf_2].
 images/: one image per view, matched to the rows in the order of their sorted file names.
 images_{factor}/: the same downsampled by `factor`, as LLFF's tools write them.

@@ -12,7 +12,8 @@ import zipfile
 
 import numpy as np
 
-from nerf_jax import config_lib, scenes
+from nerf_jax.data import scenes
+from nerf_jax.run import config_lib
 from nerf_jax.data import nerfstudio, validate
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.data.llff import load_llff

@@ -7,7 +7,7 @@ Fields read (top level for one camera, or per frame for several; a frame's own v
   convention (`nerf_jax.data.lens`); camera_model ('OPENCV' or absent: pinhole + k1, k2, k3,
   p1, p2; fisheye and equirectangular models are refused);
   frames[].file_path (relative to the folder), frames[].transform_matrix (camera-to-world,
-  OpenGL axes, as `nerf_jax.rays`);
+  OpenGL axes, as `nerf_jax.cameras.rays`);
   frames[].sharpness (optional, instant-ngp's colmap2nerf: the variance of the Laplacian),
     read when `min_sharpness` > 0 (`sharp_frames`);
   train_filenames / test_filenames (optional split, nerfstudio's names);

@@ -9,7 +9,7 @@ A capture comes in the arbitrary frame and units of structure from motion. `norm
 Without points the centre is the point nearest all optical axes and the cameras end up at a mean
 distance of 4 (the built-in scenes' rig).
 
-poses: float [N, 4, 4] camera-to-world, OpenGL axes (`nerf_jax.rays`); points: float [P, 3];
+poses: float [N, 4, 4] camera-to-world, OpenGL axes (`nerf_jax.cameras.rays`); points: float [P, 3];
 transform: float64 [4, 4], a similarity x -> s R x + t.
 """
 
@@ -123,7 +123,7 @@ def depth_bounds(poses, points):
 
 
 def orbit(poses):
-  """(radius, phi) of `nerf_jax.rays.orbit_poses` matching the cameras: their median distance
+  """(radius, phi) of `nerf_jax.cameras.rays.orbit_poses` matching the cameras: their median distance
   to the origin and median elevation (negative = above the horizon, as `pose_spherical`)."""
   centres = np.asarray(poses, np.float64)[:, :3, 3]
   radius = np.linalg.norm(centres, axis=-1)

@@ -5,7 +5,7 @@ pycolmap 4.x (`extract_features`, `match_exhaustive`, `match_sequential`,
 `incremental_mapping`, `Image.cam_from_world()`).
 
 Output conventions (`Reconstruction`): COLMAP's world frame and units; poses converted to
-`nerf_jax.rays`' camera-to-world with OpenGL axes (x right, y up, looking down -z); intrinsics
+`cameras.rays`' camera-to-world with OpenGL axes (x right, y up, looking down -z); intrinsics
 in COLMAP's pixel convention (`nerf_jax.data.lens`).
 """
 

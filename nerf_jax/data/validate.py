@@ -7,7 +7,7 @@ field at fault) when its input is malformed.
 import imageio.v3 as iio
 import numpy as np
 
-from nerf_jax import background as background_lib
+from nerf_jax.render import background as background_lib
 from nerf_jax.data.dataset import DataError
 
 

@@ -172,7 +172,7 @@ def training_overhead(pairs=2, steps=60):
   """
   import tempfile  # pylint: disable=import-outside-toplevel
   from nerf_jax.configs import fast  # pylint: disable=import-outside-toplevel
-  from nerf_jax import train_lib  # pylint: disable=import-outside-toplevel
+  from nerf_jax.run import train_lib  # pylint: disable=import-outside-toplevel
   rates = {False: [], True: []}
   for _ in range(pairs):
     for enabled in (False, True):

@@ -10,7 +10,10 @@ import os
 import jax
 import numpy as np
 
-from nerf_jax import background, experiment, image_renderer, rays, visuals
+from nerf_jax.cameras import rays
+from nerf_jax.evaluate import visuals
+from nerf_jax.render import background, image_renderer
+from nerf_jax.run import experiment
 from nerf_jax.viewer import camera, policy
 
 colorize, to_uint8 = visuals.colorize, visuals.to_uint8

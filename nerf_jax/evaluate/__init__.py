@@ -1,0 +1,1 @@
+"""Scores and images: test-view evaluation, PSNR/SSIM, LPIPS, image conversion."""

@@ -1,0 +1,238 @@
+"""Scoring a trained model on the test views: PSNR, SSIM, LPIPS and, where the data has them,
+geometry scores (depth error, floaters); the evaluator used while training, by render.py and by
+the benchmark.
+"""
+
+import json
+import os
+
+import imageio.v2 as imageio
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from nerf_jax.cameras import pose_refinement
+from nerf_jax.evaluate import lpips, metrics, visuals
+from nerf_jax.render import background, image_renderer, renderer
+
+# What metrics.json says about how held-out views were rendered (see `protocols`).
+APPEARANCE_PROTOCOLS = {
+    "mean": "mean code: the mean of the training images' appearance codes",
+    "left_half": ("left half: a code fitted to each test image's left half (the field frozen), "
+                  "every score over its right half (NeRF-W)")}
+NO_CODE_HALF = ("right half: no appearance codes to fit, every score over each test image's "
+                "right half (to compare with left_half runs)")
+FIT_STEPS, FIT_RAYS, FIT_LR = 100, 1024, 1e-2  # left_half: Adam steps, rays a step, step size
+POSE_PROTOCOL = ("similarity: the given test poses moved by the similarity (Umeyama) that takes "
+                 "the given training cameras (centres and axes) to the refined ones")
+
+
+def make_evaluator(exp):
+  """fn(variables, max_views=None, out_dir=None, on_view=None) -> {'psnr', 'ssim', 'lpips',
+  'per_view'} (variables: a TrainState's, renderer.py); without LPIPS (the `lpips` extra missing, or
+  images under 31 px a side) the 'lpips' keys are absent and 'lpips_skipped' says why in one line.
+  Where the data has true opacity (and depth) the view means of `geometry_errors` come too:
+  'empty_opacity', 'floaters' (and 'depth_error').
+
+  With appearance codes or refined poses the result also holds the protocol used for the test
+  views (`protocols`) and, where the data knows the true poses, `pose_scores`.
+
+  Evaluates the test views of `exp` (an experiment.Experiment). With `out_dir`, writes per view
+  a PNG of [prediction | depth | ground truth] and depth `.npy`. on_view(index, out, truth) is
+  called for every view with the rendered numpy dict (rgb [H, W, 3], depth [H, W], acc [H, W])
+  and the true image float32 [H, W, 3] on the configured background (see
+  `background.images_on_background`; the trainer sends the first one to TensorBoard).
+  """
+  make_draw = image_renderer.make_image_renderer(exp.renderer, exp.image)
+  bg = background.parse(exp.config.data.background)
+  test_ds = exp.test_ds
+  camera = (test_ds.height, test_ds.width, test_ds.intrinsics)
+  truths = background.images_on_background(test_ds, bg)[1]
+  half = appearance_protocol(exp) == "left_half"
+  scored = ((lambda a: a[:, test_ds.width // 2:]) if exp.config.render.appearance_protocol ==
+            "left_half" else (lambda a: a))
+  lpips_skipped = lpips.unavailable_reason(test_ds.height, scored(truths[0]).shape[1])
+  fit_code = make_code_fitter(exp.renderer) if half else None
+
+  def evaluate(variables, max_views=None, out_dir=None, on_view=None):
+    count = len(test_ds) if max_views is None else min(max_views, len(test_ds))
+    per_view = []
+    draw = make_draw(variables)
+    poses = held_out_poses(exp, variables)
+    for i in range(count):
+      rays = exp.rays(poses[i], camera)
+      if fit_code is not None:  # this view's own code, from its left half
+        left = jax.tree_util.tree_map(lambda a: a[:, :test_ds.width // 2].reshape(
+            -1, *a.shape[2:]), rays)
+        target = jnp.asarray(truths[i][:, :test_ds.width // 2].reshape(-1, 3))
+        draw = make_draw(fit_code(variables, left, target, jnp.asarray(bg, jnp.float32)))
+      out = draw(rays, bg)
+      truth = truths[i]
+      view = {"view": i, "psnr": float(metrics.psnr(scored(out["rgb"]), scored(truth))),
+              "ssim": float(metrics.ssim(scored(out["rgb"]), scored(truth))),
+              **geometry_errors(out, test_ds, i)}
+      if lpips_skipped is None:
+        view["lpips"] = float(lpips.lpips(scored(out["rgb"]), scored(truth)))
+      per_view.append(view)
+      if on_view is not None:
+        on_view(i, out, truth)
+      if out_dir:
+        _write_eval_view(out_dir, i, out, truth, exp.near, exp.far)
+    names = dict.fromkeys(name for v in per_view for name in v if name != "view")
+    result = {name: float(np.mean([v[name] for v in per_view if name in v])) for name in names}
+    if lpips_skipped is not None:
+      result["lpips_skipped"] = lpips_skipped
+    result.update(protocols(exp, variables))
+    result.update(pose_scores(exp, variables))
+    result["per_view"] = per_view
+    if out_dir:
+      with open(os.path.join(out_dir, "metrics.json"), "w") as f:
+        json.dump(result, f, indent=2)
+    return result
+
+  return evaluate
+
+
+def appearance_protocol(exp):
+  """config.render.appearance_protocol where the field has appearance codes, else None;
+  ValueError naming the field for an unknown protocol."""
+  protocol = exp.config.render.appearance_protocol
+  if protocol not in APPEARANCE_PROTOCOLS:
+    raise ValueError(f"config.render.appearance_protocol={protocol!r}: use "
+                     f"{' or '.join(map(repr, APPEARANCE_PROTOCOLS))}")
+  return protocol if exp.renderer.field.uses_images else None
+
+
+def with_codes(variables, codes):
+  """`variables` with every row of each network's appearance table set to its code in `codes`
+  ({network: float32 [D]}): rendered without an image index (the mean code), it shows `codes`."""
+  params = dict(variables["params"])
+  for name, code in codes.items():
+    table = params[name]["appearance"]
+    params[name] = {**params[name], "appearance": jnp.broadcast_to(code, table.shape)}
+  return {**variables, "params": params}
+
+
+def make_code_fitter(ray_renderer):
+  """fn(variables, rays: Rays [P], target float32 [P, 3], background float32 [3]) -> variables
+  showing the codes (one per network) fitted to `target` from the training codes' mean: FIT_STEPS
+  Adam steps on FIT_RAYS rays drawn from the P each step, the field frozen (NeRF-W's protocol
+  for held-out views; jitted once for every view of one size)."""
+  tx = optax.adam(FIT_LR)
+
+  @jax.jit
+  def fit(variables, rays, target, bg):
+    codes = {name: jnp.mean(p["appearance"], axis=0)
+             for name, p in variables["params"].items() if isinstance(p, dict) and
+             "appearance" in p}
+
+    def loss(codes, key):
+      pick = jax.random.randint(key, (FIT_RAYS,), 0, target.shape[0])
+      batch = jax.tree_util.tree_map(lambda a: a[pick], rays)
+      out = renderer.final(ray_renderer.render(with_codes(variables, codes), batch,
+                                               background=bg))
+      return jnp.mean((out["rgb"] - target[pick]) ** 2)
+
+    def step(carry, key):
+      codes, opt = carry
+      updates, opt = tx.update(jax.grad(loss)(codes, key), opt)
+      return (optax.apply_updates(codes, updates), opt), None
+
+    keys = jax.random.split(jax.random.PRNGKey(0), FIT_STEPS)
+    (codes, _), _ = jax.lax.scan(step, (codes, tx.init(codes)), keys)
+    return with_codes(variables, codes)
+  return fit
+
+
+def refined_poses(exp, variables):
+  """The training cameras float32 [N, 4, 4] as refined (train.pose_refinement: params['poses']
+  holds their corrections), or None without refinement."""
+  corrections = variables["params"].get("poses")
+  if corrections is None:
+    return None
+  return np.asarray(pose_refinement.corrected(exp.train_ds.poses, corrections))
+
+
+def held_out_poses(exp, variables):
+  """The test views' cameras float32 [T, 4, 4] in the frame the field was learnt in: as given,
+  or with refined training cameras moved by POSE_PROTOCOL's similarity."""
+  refined = refined_poses(exp, variables)
+  if refined is None:
+    return exp.test_ds.poses
+  similarity = pose_refinement.align_cameras(exp.train_ds.poses, refined)
+  return pose_refinement.transform(exp.test_ds.poses, similarity)
+
+
+def protocols(exp, variables):
+  """{'appearance': ..., 'held_out_poses': ...}: how the test views were rendered and scored,
+  for the models or protocols that need saying (appearance codes or left_half, refined poses);
+  {} otherwise."""
+  out = {}
+  if exp.renderer.field.uses_images:
+    out["appearance"] = APPEARANCE_PROTOCOLS[appearance_protocol(exp)]
+  elif exp.config.render.appearance_protocol == "left_half":
+    out["appearance"] = NO_CODE_HALF
+  if refined_poses(exp, variables) is not None:
+    out["held_out_poses"] = POSE_PROTOCOL
+  return out
+
+
+def pose_scores(exp, variables):
+  """Where the training data knows its true poses (`Dataset.true_poses`, a simulated pose
+  error): how far the given and the refined training cameras are from them, aligned
+  (pose_refinement.pose_errors): pose_error_given_degrees, pose_error_given_translation and,
+  with refinement, pose_error_degrees, pose_error_translation; where the data has true depth
+  and opacity, pose_error_given_reprojection_px and pose_error_reprojection_px. {} otherwise."""
+  true = exp.train_ds.true_poses
+  if true is None:
+    return {}
+  ds = exp.train_ds
+  surface = None if ds.depths is None or ds.accs is None else (ds.depths, ds.accs,
+                                                                 ds.intrinsics)
+  scores = {f"pose_error_given_{k}": v
+            for k, v in pose_refinement.pose_errors(ds.poses, true, surface).items()}
+  refined = refined_poses(exp, variables)
+  if refined is not None:
+    scores.update({f"pose_error_{k}": v
+                   for k, v in pose_refinement.pose_errors(refined, true, surface).items()})
+  return scores
+
+
+OPAQUE, EMPTY = 0.99, 0.01  # true opacity of pixels scored for depth, and of empty pixels
+
+
+FLOATER_ACC = 0.1  # rendered opacity from which an empty pixel counts as showing a floater
+
+
+GEOMETRY_SCORES = ("depth_error", "empty_opacity", "floaters")  # what geometry_errors gives
+
+
+def geometry_errors(out, dataset, index):
+  """Geometry scores of one rendered view where the data has them, {} otherwise.
+
+  depth_error: median |depth - true depth| over pixels the truth covers (opacity > OPAQUE), in
+  scene units (needs `dataset.depths`). empty_opacity: the mean rendered opacity over pixels
+  the truth leaves empty (opacity < EMPTY); floaters: the fraction of those that render with
+  opacity > FLOATER_ACC (need `dataset.accs`). out: the render's numpy dict (depth, acc [H, W]).
+  """
+  scores = {}
+  if dataset.accs is None:
+    return scores
+  true_acc = dataset.accs[index]
+  empty = true_acc < EMPTY
+  if np.any(empty):
+    scores["empty_opacity"] = float(np.mean(out["acc"][empty]))
+    scores["floaters"] = float(np.mean(out["acc"][empty] > FLOATER_ACC))
+  opaque = true_acc > OPAQUE
+  if dataset.depths is not None and np.any(opaque):
+    scores["depth_error"] = float(np.median(np.abs(out["depth"] - dataset.depths[index])[opaque]))
+  return scores
+
+
+def _write_eval_view(out_dir, index, out, truth, near, far):
+  os.makedirs(out_dir, exist_ok=True)
+  panel = np.concatenate([visuals.to_uint8(out["rgb"]), visuals.colorize(out["depth"], near, far),
+                          visuals.to_uint8(truth)], axis=1)
+  imageio.imwrite(os.path.join(out_dir, f"view_{index:03d}.png"), panel)
+  np.save(os.path.join(out_dir, f"depth_{index:03d}.npy"), out["depth"].astype(np.float32))

@@ -1,0 +1,2 @@
+"""Position encodings: positional (frequency) encoding, dense grids, hash grids, TensoRF
+factorisations."""

@@ -1,0 +1,177 @@
+"""The radiance field: a network's parameters and its queries at sample points.
+
+A field maps points float32 [..., S, 3] and unit view directions float32 [..., 3] to colour
+rgb float32 [..., S, 3] and density sigma float32 [..., S] (per unit of world length). It wraps
+a Flax network (model.py) with the encoding of its inputs (encoding.py; the grid networks take
+raw positions, the grids are their encoding) and the density activation (activations.py).
+`Field` is built once (experiment.make_field) and queried as field.query(params, points,
+viewdirs, key). Two optional per-query inputs: `image`, int32 [...] the training image of each
+ray, selects its appearance code (appearance_dims > 0; None = the mean code, as for held-out
+views), and `bands`, float32 [], how many positional-encoding bands, or grid levels after the
+coarsest, are open (BARF's coarse-to-fine α while poses are refined; None = all, as after
+training).
+"""
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from nerf_jax.fields import activations, contraction
+from nerf_jax.fields.encodings import encoding
+
+
+@dataclasses.dataclass(frozen=True)
+class Field:
+  """A network and how its inputs and outputs are treated.
+
+  network: the Flax module (model.NerfMLP, GridNeRF or HashNeRF), applied to encoded inputs.
+  pos_encode_dims: frequency bands of the positions' encoding; None = raw positions (the grid
+    networks: the grids are the encoding). dir_encode_dims: bands of the directions' encoding.
+  view_dependent: colour takes the encoded viewing direction.
+  density_activation: 'relu', 'softplus' or 'exp' (activations.py). density_noise: std of the
+    noise added to raw density when a query has a key (training only).
+  contraction: '' (world positions), or 'l2' / 'linf': positions are contracted about the inner
+    region of half-size `inner_radius` first (contraction.py), so the network sees all of space
+    inside [-2·inner_radius, 2·inner_radius]^3.
+  """
+  network: Any
+  pos_encode_dims: Any = None
+  dir_encode_dims: int = 4
+  view_dependent: bool = False
+  density_activation: str = "relu"
+  density_noise: float = 0.0
+  contraction: str = ""
+  inner_radius: float = 1.0
+  appearance_dims: int = 0
+
+  @property
+  def uses_images(self):
+    """Whether a query takes each ray's training image (its appearance code)."""
+    return self.appearance_dims > 0
+
+  def init(self, key):
+    """The network's parameters, from PRNG key `key`."""
+    pos_width = 3 if self.pos_encode_dims is None else encoding.encoded_width(
+        3, self.pos_encode_dims)
+    pos = jnp.zeros((1, pos_width), jnp.float32)
+    dirs = jnp.zeros((1, encoding.encoded_width(3, self.dir_encode_dims)), jnp.float32)
+    return self.network.init(key, pos, dirs)["params"]
+
+  @property
+  def coarse_to_fine_stages(self):
+    """What opens coarse to fine while poses are refined (the most `bands` means): the
+    positional encoding's bands, or a grid network's levels after the coarsest (always open);
+    0 for a network whose density has grids of its own (model.DensityGridNeRF)."""
+    if self.pos_encode_dims is not None:
+      return self.pos_encode_dims
+    if self.splits_density:
+      return 0
+    return self.network.num_levels - 1
+
+  def level_weights(self, bands):
+    """float32 [levels] weights of a grid network's levels with `bands` open (None: all)."""
+    if bands is None or self.pos_encode_dims is not None or not self.coarse_to_fine_stages:
+      return None
+    rest = encoding.coarse_to_fine_weights(bands, self.coarse_to_fine_stages)
+    return jnp.concatenate([jnp.ones((1,), jnp.float32), rest])
+
+  def encode_positions(self, points, bands=None):
+    """The network's position input for points float32 [..., 3]: encoded (with `bands` open,
+    see the module docstring), or the points (contracted first in an unbounded scene)."""
+    if self.contraction:
+      points = contraction.contract(points, self.inner_radius, self.contraction)
+    if self.pos_encode_dims is None:
+      return points  # the grids are the encoding
+    if bands is None:
+      return encoding.positional_encoding(points, self.pos_encode_dims)
+    weights = encoding.coarse_to_fine_weights(bands, self.pos_encode_dims)
+    return encoding.positional_encoding(points, self.pos_encode_dims, weights)
+
+  def query(self, params, points, viewdirs, key=None, image=None, bands=None):
+    """Colour and density at sample points.
+
+    params: the network's parameters. points: float32 [..., S, 3]. viewdirs: float32 [..., 3]
+    unit directions. key: PRNG key for the density noise (None = no noise). image, bands: see
+    the module docstring (image is ignored without appearance codes).
+    Returns rgb float32 [..., S, 3], sigma float32 [..., S].
+    """
+    dir_features = None
+    if self.view_dependent:
+      dirs = jnp.broadcast_to(viewdirs[..., None, :], points.shape)
+      dir_features = encoding.positional_encoding(dirs, self.dir_encode_dims)
+    args = (self.encode_positions(points, bands), dir_features)
+    if self.uses_images:
+      args += (image,)
+    weights = self.level_weights(bands)
+    kwargs = {} if weights is None else {"level_weights": weights}
+    rgb, raw_sigma = self.network.apply({"params": params}, *args, **kwargs)
+    return rgb, self._activate(raw_sigma, key)
+
+  @property
+  def splits_density(self):
+    """Whether the network gives density and colour separately (model.DensityGridNeRF)."""
+    return bool(getattr(self.network, "density_resolutions", ()))
+
+  def _activate(self, raw_sigma, key):
+    if key is not None and self.density_noise > 0:
+      # The paper's regulariser: noise on the raw output, before the activation keeps sigma >= 0.
+      raw_sigma = raw_sigma + self.density_noise * jax.random.normal(key, raw_sigma.shape)
+    return activations.density_activation(self.density_activation)(raw_sigma)
+
+  def query_density(self, params, points, key=None):
+    """sigma float32 [...] at points float32 [..., 3]: the density half alone where the network
+    has one (`splits_density`), else `query`'s density (direction-independent)."""
+    if not self.splits_density:
+      dirs = jnp.zeros(points.shape[:-2] + (3,), points.dtype)
+      return self.query(params, points, dirs, key)[1]
+    raw = self.network.apply({"params": params}, self.encode_positions(points), part="density")
+    return self._activate(raw, key)
+
+  def query_colour(self, params, points, viewdirs):
+    """rgb float32 [P, 3] at points float32 [P, 3] seen along unit directions float32 [P, 3]:
+    the colour half alone (needs `splits_density`)."""
+    dir_features = (encoding.positional_encoding(viewdirs, self.dir_encode_dims)
+                    if self.view_dependent else None)
+    return self.network.apply({"params": params}, self.encode_positions(points), dir_features,
+                              part="colour")
+
+  def query_in_chunks(self, params, points, viewdirs, key=None, chunk=0, image=None,
+                      bands=None):
+    """`query` over chunks of `chunk` rays, each rematerialised in the backward pass.
+
+    points: float32 [R, S, 3], viewdirs: float32 [R, 3]. chunk: rays per chunk, dividing R (0,
+    R or a non-divisor = one call). A chunk's activations fit in the CPU's cache, and the
+    backward pass recomputes them instead of reading them back from memory: about a third more
+    FLOPs for less memory traffic. The density noise of chunk c is drawn from fold_in(key, c).
+    image: int32 [R] or None; bands: float32 [] or None (see `query`).
+    Returns rgb float32 [R, S, 3], sigma float32 [R, S], equal to `query`'s up to rounding.
+    """
+    num_rays = points.shape[0]
+    if not self.uses_images:
+      image = None
+    if not chunk or chunk >= num_rays or num_rays % chunk or points.ndim != 3:
+      return self.query(params, points, viewdirs, key, image, bands)
+    count = num_rays // chunk
+    split = lambda a: None if a is None else a.reshape(count, chunk, *a.shape[1:])
+
+    @jax.checkpoint
+    def one_chunk(args):
+      pts, dirs, index, images = args
+      chunk_key = None if key is None else jax.random.fold_in(key, index)
+      return self.query(params, pts, dirs, chunk_key, images, bands)
+
+    rgb, sigma = jax.lax.map(one_chunk, (split(points), split(viewdirs), jnp.arange(count),
+                                         split(image)))
+    return rgb.reshape(*points.shape[:-1], 3), sigma.reshape(points.shape[:-1])
+
+  def at_points(self, params, points, viewdirs):
+    """(rgb float32 [P, 3], sigma float32 [P]) at single points float32 [P, 3], each seen along
+    its unit direction viewdirs float32 [P, 3]."""
+    rgb, sigma = self.query(params, points[:, None, :], viewdirs)
+    return rgb[:, 0], sigma[:, 0]
+
+  def density(self, params):
+    """fn: points float32 [P, 3] -> σ float32 [P] (density does not depend on the direction)."""
+    return lambda points: self.query_density(params, points[:, None, :])[:, 0]

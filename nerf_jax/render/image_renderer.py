@@ -1,0 +1,222 @@
+"""Rendering images: any number of rays in fixed-size padded chunks (no recompiles, bounded
+memory), on the plain path (renderer.RayRenderer.render) or, for models that allow it, with
+empty-space skipping and early ray termination (empty_space.py).
+
+A draw function takes `rays.Rays` with any batch shape `...` and a background RGB and returns
+a numpy dict rgb float32 [..., 3], depth float32 [...], acc float32 [...].
+"""
+
+import dataclasses
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from nerf_jax.render import compositing, empty_space, renderer
+from nerf_jax.samplers import sampler, sampling
+from nerf_jax.cameras.rays import Rays
+
+
+@dataclasses.dataclass(frozen=True)
+class ImageSettings:
+  """How whole images are rendered (config.render; the march_* fields: empty_space.py)."""
+  chunk: int = 4096  # rays per jitted render call
+  march: bool = True  # skip empty space and stop at opaque surfaces where the model allows
+  march_grid: int = 48  # cells per side of the skip grid computed from the trained density
+  march_threshold: float = 0.1  # density (per scene unit) below which a cell is skipped
+  march_probes: int = 4  # skip-grid probes per cell side
+  march_group: int = 16  # samples per ray offered in each marching round
+  min_transmittance: float = 1e-4  # a ray stops once less light than this gets through
+  num_samples: int = 0  # samples per ray (coarse pass) when rendering; 0 = the renderer's own
+
+
+def make_chunk_renderer(ray_renderer):
+  """A jitted deterministic renderer for one fixed-size chunk of rays.
+
+  ray_renderer: renderer.RayRenderer. Returns fn(variables, rays: Rays [C], background float32
+  [3]) -> dict of rgb [C, 3], depth [C], acc [C] (variables: see renderer.py).
+  """
+  @jax.jit
+  def render_chunk(variables, rays, background):
+    out = renderer.final(ray_renderer.render(variables, rays, key=None, background=background))
+    return {k: out[k] for k in ("rgb", "depth", "acc")}
+  return render_chunk
+
+
+def render_image(render_chunk, variables, rays, background=(0.0, 0.0, 0.0), chunk=4096):
+  """Render `rays` (Rays [...]) with `render_chunk` (from `make_chunk_renderer`) in chunks of
+  `chunk` rays. background: RGB. Returns numpy dict rgb [..., 3], depth [...], acc [...]."""
+  num_rays, flat = _padded(rays, chunk)
+  background = jnp.asarray(background, jnp.float32)
+  pieces = [render_chunk(variables, _rows(flat, i, chunk), background)
+            for i in range(0, len(flat.origins), chunk)]
+  return _joined(pieces, num_rays, rays.shape)
+
+
+def _padded(rays, chunk):
+  """(num_rays, Rays [P] as numpy): `rays` flattened, P the next multiple of `chunk`. Padding
+  rays are copies of ray 0, so they are as well-behaved as a real ray."""
+  num_rays = int(np.prod(rays.shape))
+  padded = -(-num_rays // chunk) * chunk
+
+  def pad(a):
+    a = np.asarray(a, np.float32).reshape(num_rays, *a.shape[len(rays.shape):])
+    return np.concatenate([a, np.repeat(a[:1], padded - num_rays, axis=0)])
+  return num_rays, jax.tree_util.tree_map(pad, rays)
+
+
+def _rows(rays, start, chunk):
+  return jax.tree_util.tree_map(lambda a: a[start:start + chunk], rays)
+
+
+def _joined(pieces, num_rays, batch_shape):
+  """Per-chunk output dicts -> one numpy dict with leading shape batch_shape (padding dropped)."""
+  out = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs)[:num_rays], *pieces)
+  return {k: v.reshape(*batch_shape, *v.shape[1:]) for k, v in out.items()}
+
+
+def marches(ray_renderer, settings):
+  """Whether rendering skips empty space and stops at opaque surfaces.
+
+  `settings.march` applies to single-pass renderers sampling a scene box (scene_bound > 0) with
+  plain stratified samples; any other renderer renders on the plain path.
+  """
+  rs = ray_renderer.sampler
+  return bool(settings.march and rs.scene_bound > 0 and ray_renderer.num_fine_samples == 0
+              and rs.occupancy is None and not rs.contraction)
+
+
+class Draw:
+  """A draw function: draw(rays, background=(0, 0, 0)) -> numpy dict rgb [..., 3], depth [...],
+  acc [...] of Rays [...]; and what it compiles.
+
+  draw.compile_steps() -> iterator: compiles the shapes a call may need, one at a time,
+  smallest first, yielding after each the most rays a call may now hold without compiling
+  anything (math.inf after the last step).
+  """
+
+  def __init__(self, draw, compile_steps):
+    self._draw, self.compile_steps = draw, compile_steps
+
+  def __call__(self, rays, background=(0.0, 0.0, 0.0)):
+    return self._draw(rays, background)
+
+
+def make_image_renderer(ray_renderer, settings):
+  """fn(variables) -> Draw, rendering Rays [...] in chunks of `settings.chunk` rays.
+
+  ray_renderer: renderer.RayRenderer. settings: ImageSettings. The plain path
+  (`make_chunk_renderer` + `render_image`) or, where `marches`, the marching one
+  (empty_space.py: the same samples, the field queried only where they matter); the skip grid
+  of the marching path is computed once per call with new variables.
+  """
+  ray_renderer = with_samples(ray_renderer, settings.num_samples)
+  if not marches(ray_renderer, settings):
+    render_chunk = make_chunk_renderer(ray_renderer)
+
+    def bind(variables):
+      # Parameters go to the device once, not with every chunk (restored ones are numpy).
+      draw = functools.partial(render_image, render_chunk, jax.device_put(variables),
+                               chunk=settings.chunk)
+
+      def compile_steps():  # every call is padded to one chunk: one shape
+        draw(_probe_ray())
+        yield math.inf
+      return Draw(draw, compile_steps)
+    return bind
+  return _Marcher(ray_renderer, settings).bind
+
+
+def with_samples(ray_renderer, num_samples):
+  """ray_renderer drawing `num_samples` samples per ray (its coarse pass); itself for 0.
+
+  A field trained on jittered samples has learnt the integral they estimate on average; a
+  deterministic render with more samples estimates it with less error (configs/detail.py:
+  32 in training, 64 in renders, docs/quality_per_second.md)."""
+  if not num_samples or num_samples == ray_renderer.sampler.num_samples:
+    return ray_renderer
+  return dataclasses.replace(ray_renderer, sampler=dataclasses.replace(
+      ray_renderer.sampler, num_samples=num_samples))
+
+
+def _probe_ray():
+  """One ray, Rays [1] (numpy), to compile with: its values do not matter, only its kind."""
+  ones = np.ones((1,), np.float32)
+  direction = np.array([[0.0, 0.0, -1.0]], np.float32)
+  return Rays(np.zeros((1, 3), np.float32), direction, direction, ones, 2.0 * ones)
+
+
+class _Marcher:
+  """The jitted pieces of empty_space.py for one renderer and settings (compiled once)."""
+
+  def __init__(self, ray_renderer, settings):
+    self.settings = settings
+    rs, field = ray_renderer.sampler, ray_renderer.field
+    query = lambda params, points, viewdirs: field.at_points(params["coarse"], points, viewdirs)
+    self.skip_grid = jax.jit(lambda params: empty_space.skip_grid(
+        field.density(params["coarse"]), settings.march_grid, rs.scene_bound,
+        settings.march_threshold, settings.march_probes))
+    self.query_round = empty_space.make_query_round(query)
+
+    @jax.jit
+    def plan(mask, rays):
+      """(t, t_world, points, occupied, rank): the plain path's edges t (z-depth) and the same
+      edges in world length (for the stop test), float32 [C, S + 1]; the rest as in
+      empty_space.occupied_ranks."""
+      t = rs.stratified(rays)
+      points = sampler.points(rays, sampling.midpoints(t))
+      return (t, sampler.world_t(t, rays),
+              points, *empty_space.occupied_ranks(mask, points, rs.scene_bound))
+
+    @jax.jit
+    def finish(sigma, rgb, t, rays, background):
+      out = compositing.composite(rgb, sampler.per_unit_t(sigma, rays), t, background)
+      return {"rgb": out["rgb"], "depth": renderer.empty_depth_is_far(out, rays.far),
+              "acc": out["acc"]}
+
+    self.plan, self.finish = plan, finish
+
+  def bind(self, variables):
+    """The Draw of `make_image_renderer` for `variables`."""
+    params = jax.device_put(variables["params"])  # once, not with every query
+    mask = self.skip_grid(params)
+    return Draw(functools.partial(self.draw, params, mask),
+                functools.partial(self.compile_steps, params, mask))
+
+  def compile_steps(self, params, mask):
+    """Draw.compile_steps: the per-chunk functions, then the query round at every buffer size,
+    called as `draw` calls them. A call of n rays selects at most min(n, chunk)·g samples per
+    round (g samples of each ray: the group, or all S when fewer)."""
+    rc, chunk = self.settings, self.settings.chunk
+    _, part = _padded(_probe_ray(), chunk)
+    t, t_world, points, occupied, rank = self.plan(mask, part)
+    sigma = jnp.zeros(occupied.shape, jnp.float32)
+    rgb = jnp.zeros((*occupied.shape, 3), jnp.float32)
+    depth = jnp.zeros(occupied.shape[:1], jnp.float32)
+    empty_space.select_round(occupied, rank, depth, np.arange(chunk) < 1, 0,
+                             empty_space.max_optical_depth(rc.min_transmittance), rc.march_group)
+    self.finish(sigma, rgb, t, part, jnp.asarray(np.zeros(3), jnp.float32))
+    group = min(rc.march_group, occupied.shape[1])
+    sizes = empty_space.buffer_sizes(chunk * group)
+    for size in sizes:
+      index = np.full(size, sigma.size, np.int32)  # all padding: nothing is written
+      sigma, rgb, depth = self.query_round(params, t_world, points, part.viewdirs, index, sigma,
+                                           rgb)
+      yield math.inf if size == sizes[-1] else size // group
+
+  def draw(self, params, mask, rays, background=(0.0, 0.0, 0.0)):
+    rc, chunk = self.settings, self.settings.chunk
+    num_rays, flat = _padded(rays, chunk)
+    live = np.arange(len(flat.origins)) < num_rays  # padding rays query nothing
+    background = jnp.asarray(background, jnp.float32)
+    pieces = []
+    for i in range(0, len(flat.origins), chunk):
+      part = _rows(flat, i, chunk)
+      t, t_world, points, occupied, rank = self.plan(mask, part)
+      sigma, rgb, _ = empty_space.march(self.query_round, params, t_world, points,
+                                        part.viewdirs, occupied, rank, live[i:i + chunk],
+                                        rc.march_group, rc.min_transmittance)
+      pieces.append(self.finish(sigma, rgb, t, part, background))
+    return _joined(pieces, num_rays, rays.shape)

@@ -1,0 +1,229 @@
+"""Rendering rays: sample -> query the field -> composite, with an optional fine pass.
+
+rays: `rays.Rays` (origins, directions, viewdirs, near, far) with batch shape `...`.
+variables: {'params': {'coarse': ..., ['fine': ...]}, ['occupancy': float32 [R, R, R]]}, the
+trained parameters of each network and, beside them, the state that is not trained (the
+occupancy grid, kept by training: occupancy.py), as Flax keeps `batch_stats` beside `params`.
+A pass's output (a dict): rgb float32 [..., 3], depth float32 [...], acc float32 [...],
+weights float32 [..., E], t float32 [..., E + 1].
+The field's density is per unit of world length; t is z-depth along un-normalised directions,
+so every pass composites `sampler.per_unit_t(sigma, rays)` = σ·|d| (as the original NeRF,
+jaxnerf and multinerf scale their intervals by |d|), and depth stays z-depth.
+Rendering whole images in fixed-size chunks is image_renderer.py.
+"""
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+
+from nerf_jax.fields import contraction
+from nerf_jax.render import compositing
+from nerf_jax.samplers import occupancy, sampler as sampler_lib, sampling
+from nerf_jax.fields.field import Field
+from nerf_jax.samplers.sampler import Sampler
+
+
+@dataclasses.dataclass(frozen=True)
+class RayRenderer:
+  """A field, how its first pass is sampled, and the optional fine pass.
+
+  num_fine_samples: samples drawn from the first pass's weights for a second pass (0 = none).
+  shared_fine: the fine pass queries the coarse network instead of a network of its own.
+  colour_fraction: with a field that gives density alone (Field.splits_density), a pass
+    computes the density of every sample, then colour only for this share of the batch's
+    samples, those of largest weight (`_shade_where_it_matters`); 0 = colour everywhere.
+  sample_budget: with occupancy-placed samples, the field is queried at most at this many of
+    the batch's valid samples, compacted (`budgeted_slots`; training sets it, nerfacc's fixed
+    sample budget): empty slots cost nothing, so a batch can hold more rays. A ray whose
+    samples did not all fit is marked incomplete (out['complete']) and left out of the loss;
+    the colour budget is then a share of the budget. 0 = every slot of every ray.
+  """
+  field: Field
+  sampler: Sampler
+  num_fine_samples: int = 0
+  shared_fine: bool = False
+  colour_fraction: float = 0.0
+  sample_budget: int = 0
+
+  @property
+  def networks(self):
+    """Parameter groups: a fine network exists only with a fine pass and unshared nets."""
+    if self.num_fine_samples > 0 and not self.shared_fine:
+      return ("coarse", "fine")
+    return ("coarse",)
+
+  def init(self, key):
+    """variables (module docstring): each network's parameters from `key`; the occupancy grid
+    at zeros, which counts as occupied everywhere (occupancy.py)."""
+    keys = jax.random.split(key, 2)
+    variables = {"params": {name: self.field.init(k) for name, k in zip(self.networks, keys)}}
+    if self.sampler.occupancy is not None:
+      variables["occupancy"] = self.sampler.occupancy.empty_grid()
+    return variables
+
+  def final_params(self, variables):
+    """The parameters of the network that renders the final pass."""
+    return variables["params"][self.networks[-1]]
+
+  def _shade(self, params, rays, samples, background, key, remat_chunk=0, image=None,
+             bands=None):
+    """One pass over `samples` (sampler.Samples) with one network's `params`."""
+    budget = self.sample_budget if samples.gapped and rays.near.ndim == 1 else 0
+    distances = samples.distances
+    if samples.gapped and not budget:  # not recomputed in every reader (occupancy.computed_once)
+      distances = occupancy.computed_once(distances)
+    points = sampler_lib.points(rays, distances)
+    if budget:
+      slots, complete = budgeted_slots(samples.valid, budget)
+    if self.colour_fraction > 0 and self.field.splits_density:
+      if budget:
+        sigma = _at_slots(lambda p: self.field.query_density(params, p[:, None], key)[:, 0],
+                          slots, points)
+      else:
+        sigma = self.field.query_density(params, points, key)
+      out = self._shade_where_it_matters(params, rays, samples, points, sigma, background,
+                                         complete if budget else None)
+    else:
+      if budget:
+        rgb, sigma = self._query_at_slots(params, rays, points, slots, key, image, bands)
+      else:
+        rgb, sigma = self.field.query_in_chunks(params, points, rays.viewdirs, key,
+                                                remat_chunk, image, bands)
+      rgb, sigma = samples.intervals(rgb, sampler_lib.per_unit_t(sigma, rays))
+      out = compositing.composite(rgb, sigma, samples.t, background)
+      out["t"] = samples.t
+    if budget:
+      out["complete"] = complete
+    return out
+
+  def _query_at_slots(self, params, rays, points, slots, key, image, bands):
+    """`Field.query` at the compacted `slots` (int32 [B], from `budgeted_slots`) of points
+    float32 [R, S, 3] only. Returns rgb float32 [R, S, 3] and sigma float32 [R, S], zero at
+    every other slot."""
+    num_samples = points.shape[1]
+    ray = jnp.minimum(slots, points.shape[0] * num_samples - 1) // num_samples
+    images = None if image is None or not self.field.uses_images else image[ray][:, None]
+
+    def query(p):
+      rgb, sigma = self.field.query(params, p[:, None], rays.viewdirs[ray], key, images, bands)
+      return jnp.concatenate([rgb[:, 0], sigma], axis=-1)
+    both = _at_slots(query, slots, points)
+    return both[..., :3], both[..., 3]
+
+  def _shade_where_it_matters(self, params, rays, samples, points, sigma, background,
+                              complete=None):
+    """`_shade` with colour only where it counts (TensoRF's and DVGO's saving): density for all
+    samples first; then the K = ceil(colour_fraction · samples) samples of largest compositing
+    weight (over the whole batch, a fixed K so the shapes stay static) get their colour, and
+    every other sample is composited black. A sample left out has at most the K-th largest
+    weight, so the colour it would add is bounded by that weight (tests/test_colour_budget.py).
+    sigma: float32 [R, S], the field's density at `points`. complete: bool [R] or None,
+    the rays whose density is whole (a sample budget: K is then a share of the budget, and
+    incomplete rays get no colour).
+    """
+    sigma = sampler_lib.per_unit_t(sigma, rays)
+    black = jnp.zeros(points.shape, jnp.float32)
+    black_e, sigma_e = samples.intervals(black, sigma)
+    weights = compositing.composite(black_e, jax.lax.stop_gradient(sigma_e), samples.t)["weights"]
+    if samples.gapped:  # interval 2k is sample k
+      weights = weights[..., ::2]
+    samples_shaded = weights.size
+    if complete is not None:
+      weights = jnp.where(complete[:, None], weights, -1.0)
+      samples_shaded = self.sample_budget
+    flat_weights = weights.reshape(-1)
+    count = max(1, min(flat_weights.size, math.ceil(self.colour_fraction * samples_shaded)))
+    _, chosen = jax.lax.top_k(flat_weights, count)  # [K] flat sample indices
+    per_ray = points.shape[-2]
+    viewdirs = rays.viewdirs.reshape(-1, 3)[chosen // per_ray]
+    colour = self.field.query_colour(params, points.reshape(-1, 3)[chosen], viewdirs)
+    rgb = black.reshape(-1, 3).at[chosen].set(colour).reshape(points.shape)
+    rgb, sigma = samples.intervals(rgb, sigma)
+    out = compositing.composite(rgb, sigma, samples.t, background)
+    out["t"] = samples.t
+    return out
+
+  def render(self, variables, rays, key=None, background=None, remat_chunk=0, image=None,
+             bands=None):
+    """Render a batch of rays with the coarse and (optionally) fine passes.
+
+    variables: see the module docstring. rays: Rays [...]. key: PRNG key for stratified jitter,
+    resampling and density noise; None renders deterministically. background: None or float32
+    broadcastable to [..., 3]. remat_chunk: rays per recomputed field chunk of a pass
+    (Field.query_in_chunks; training sets it, 0 = one call). image: int32 [...] or None, the
+    training image of each ray (its appearance code; None = the mean code). bands: float32 []
+    or None, positional-encoding bands open (BARF; None = all). See field.py.
+    Returns {'coarse': pass_output, ['fine': pass_output]}.
+    """
+    keys = jax.random.split(key, 4) if key is not None else [None] * 4
+    params = variables["params"]
+    samples = self.sampler.place(rays, keys[0], variables.get("occupancy"))
+    if samples.gapped:  # occupancy-placed slots: few per ray, no chunks needed
+      remat_chunk = 0
+    outputs = {"coarse": self._shade(params["coarse"], rays, samples, background, keys[1],
+                                     remat_chunk, image, bands)}
+    if self.num_fine_samples > 0:
+      t = samples.t
+      extra = sampling.sample_pdf(t, outputs["coarse"]["weights"], self.num_fine_samples,
+                                  keys[2])
+      fine = sampler_lib.on_edges(sampling.merge_edges(t, extra))
+      outputs["fine"] = self._shade(self.final_params(variables), rays, fine, background,
+                                    keys[3], remat_chunk, image, bands)
+    if self.sampler.scene_bound > 0:
+      for out in outputs.values():
+        out["depth"] = empty_depth_is_far(out, rays.far)
+    return outputs
+
+  def occupancy_grid(self, variables, key=None):
+    """The occupancy grid of the coarse network's density: float32 [R, R, R] (occupancy.py),
+    probed at `probes` per cell side, jittered from `key` (None: not jittered)."""
+    oc, rs = self.sampler.occupancy, self.sampler
+    density = self.field.density(variables["params"]["coarse"])
+    if rs.contraction:  # the grid's cells are cells of contracted space: probe their world points
+      world = lambda cells: contraction.uncontract(cells, rs.scene_bound, rs.contraction)
+      density = lambda cells, fn=density: fn(world(cells))
+    return occupancy.density_grid(density, oc.resolution, rs.grid_bound, oc.probes, key)
+
+
+def budgeted_slots(valid, budget):
+  """The first `budget` valid samples of a batch, in ray order (a fixed sample budget).
+
+  valid: bool [R, S]. budget: int B.
+  Returns (slots int32 [B], complete bool [R]): the flat indices (r·S + s) of the first B valid
+  samples, padded with R·S where fewer are valid; and the rays all of whose valid samples are
+  among them (a prefix of the rays: the ones after the budget ran out are incomplete).
+  """
+  flat = valid.reshape(-1)
+  slots = jnp.nonzero(flat, size=budget, fill_value=flat.size)[0].astype(jnp.int32)
+  # Counts are at most R·S < 2^31: exact in int32.
+  valid_through = jnp.cumsum(jnp.sum(valid, axis=-1, dtype=jnp.int32))
+  return slots, valid_through <= budget
+
+
+def _at_slots(fn, slots, points):
+  """fn's values at the points of `slots` only, scattered back to every slot (zero elsewhere).
+
+  fn: points float32 [B, 3] -> float32 [B, ...]. slots: int32 [B] flat indices into points
+  float32 [R, S, 3], R·S where unused (those are dropped). Returns float32 [R, S, ...].
+  """
+  num_rays, num_samples = points.shape[:2]
+  total = num_rays * num_samples
+  values = fn(points.reshape(total, 3)[jnp.minimum(slots, total - 1)])
+  out = jnp.zeros((total,) + values.shape[1:], values.dtype)
+  return out.at[slots].set(values, mode="drop").reshape(num_rays, num_samples, *values.shape[1:])
+
+
+def empty_depth_is_far(out, far):
+  """float32 [...]: out['depth'] with `far` (float32 [...]) for empty rays (acc <= EMPTY_ACC).
+
+  In a scene box composite gives an empty ray the box exit t_S; this makes it `far` on every
+  code path, as without a box.
+  """
+  return jnp.where(out["acc"] > compositing.EMPTY_ACC, out["depth"], far)
+
+
+def final(outputs):
+  """The best pass of `render` outputs: fine if present, else coarse."""
+  return outputs.get("fine", outputs["coarse"])

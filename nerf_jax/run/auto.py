@@ -1,0 +1,96 @@
+"""`--config=auto`: a config decided from the training views (characterise.py's rules) and the
+user's flags, which win over the decisions.
+"""
+
+import ml_collections
+
+from nerf_jax.run import characterise, config_lib
+
+APPEARANCE_DIMS = 8  # the appearance codes' length auto switches on (NeRF-W: 48, nerfacto: 32)
+LARGE_IMAGES = 400  # auto: object captures from this many pixels a side use configs/detail.py
+_OWN = ("auto", "auto_decisions", "auto_flags")  # auto's own fields, set by auto_config itself
+
+
+def _flat(config):
+  """{dotted name: value} of every leaf field of a ConfigDict."""
+  out = {}
+  def walk(node, prefix):
+    for key, value in node.items():
+      if isinstance(value, ml_collections.ConfigDict):
+        walk(value, f"{prefix}{key}.")
+      else:
+        out[prefix + key] = tuple(value) if isinstance(value, list) else value
+  walk(config, "")
+  return out
+
+
+def auto_config(config, dataset):
+  """`config` (config.auto: configs/auto.py and the user's flags) decided from the training
+  views `dataset` by characterise.decide: the representation of the config that suits the
+  kind of capture (fast.py for an object on a background, detail.py from LARGE_IMAGES pixels,
+  configs/llff.py (grids in NDC) for a forward-facing one, capture.py otherwise or
+  when there are too few cameras) and the effects it calls for (view dependence only where it
+  is measured: the views need depth; else the representation's setting stands). A field the
+  user set (named in config.auto_flags by the command line, or differing from
+  configs/auto.py's) wins over the decision, with one line saying so. Prints one line per
+  decision with its reason; the lines go to config.auto_decisions (config.json), and auto is
+  off in the result (a restored run keeps what was decided)."""
+  base = _flat(config_lib.load("auto"))
+  given = _flat(config)
+  user = {k: v for k, v in given.items()
+          if (base.get(k) != v or k in config.auto_flags) and k not in _OWN}
+  decisions = characterise.decide(dataset)
+  effects, lines = {}, []
+  if decisions is None:
+    chosen = "capture"
+    lines.append(f"{len(dataset)} cameras are too few to characterise (< "
+                 f"{characterise.MIN_CAMERAS}): using configs/capture.py's defaults")
+  else:
+    found = {d.name: d for d in decisions}
+    if found["forward"].found:
+      chosen = "llff"  # the winner on fern (docs/quality_per_second.md)
+      effects.update({"data.ndc": True, "data.lindisp": False})
+    elif found["background"].found:
+      chosen = "detail" if max(dataset.height, dataset.width) >= LARGE_IMAGES else "fast"
+      effects["train.random_background"] = True
+    else:
+      chosen = "capture"
+  result = config_lib.load(chosen)
+  if decisions is not None:
+    bg = tuple(float(c) for c in dataset.background)
+    effects["data.background"] = ("white" if bg == (1.0, 1.0, 1.0) else
+                                  "black" if bg == (0.0, 0.0, 0.0) else bg)
+    effects["model.appearance_dims"] = APPEARANCE_DIMS if found["appearance"].found else 0
+    if found["view_dependence"].found is not None:  # else the representation's own setting
+      effects["model.view_dependent"] = found["view_dependence"].found
+    settings = {"background": "an object on a background: a box, random backgrounds while "
+                              "training",
+                "forward": "forward-facing: NDC rays (data.ndc)",
+                "unbounded": "unbounded: the scene box from the data (data.scene_bound=-1)",
+                "appearance": f"per-photo appearance codes (model.appearance_dims="
+                              f"{APPEARANCE_DIMS})",
+                "view_dependence": "view dependence: colour from the viewing direction too "
+                                   "(model.view_dependent)"}
+    for d in decisions:
+      if d.found is None:  # the representation's own setting
+        lines.append(f"view dependence {'on' if result.model.view_dependent else 'off'} as "
+                     f"in configs/{chosen}.py: {d.reason}")
+      else:
+        lines.append(f"{settings[d.name] if d.found else 'no ' + d.name.replace('_', ' ')}: "
+                     f"{d.reason}")
+    lines.append("pose refinement: off (nothing in the photos measures a pose error; "
+                 "train.pose_refinement=True switches it on)")
+  lines.append(f"representation: configs/{chosen}.py")
+  values = {**_flat(result), **effects}
+  for name, value in user.items():
+    if name in effects and effects[name] != value:
+      lines.append(f"{name}={value!r} from your flags, not auto's {effects[name]!r}")
+    values[name] = value
+  for name, value in values.items():
+    if name not in _OWN:
+      config_lib.set_field(result, name, value)
+  result.auto = False
+  result.auto_decisions = tuple(lines)
+  for line in lines:
+    print(f"auto: {line}", flush=True)
+  return result

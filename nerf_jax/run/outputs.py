@@ -1,0 +1,170 @@
+"""What render.py writes from a trained model: videos, views from a pose file, the surface mesh,
+and the render command (test-view evaluation is evaluation.py, camera paths camera_paths.py).
+
+Depth images are z-depth (distance along the camera's optical axis, see rays.py); the float
+arrays are saved as `.npy` (float32, scene units; a ray that hits nothing has depth = far), and
+the PNGs map [near, far] to a colour map. With NDC rays (forward-facing data) depth is the NDC
+ray parameter in [0, 1] instead.
+"""
+
+import importlib.util
+import os
+import warnings
+
+import imageio.v2 as imageio
+import numpy as np
+
+from nerf_jax.cameras import camera_paths
+from nerf_jax.evaluate import evaluation, lpips, visuals
+from nerf_jax.render import background, image_renderer, surface
+from nerf_jax.run import experiment
+from nerf_jax.train import progress
+
+
+def render_frames(exp, variables, poses, scale=1.0):
+  """Render `poses` (float32 [F, 4, 4]) through the training camera with `scale` times its pixels
+  per side: yields numpy dicts rgb [H, W, 3], depth [H, W], acc [H, W]."""
+  draw = image_renderer.make_image_renderer(exp.renderer, exp.image)(variables)
+  bg = background.parse(exp.config.data.background)
+  camera = exp.camera(scale)
+  for pose in poses:
+    yield draw(exp.rays(pose, camera), bg)
+
+
+def follows_trajectory(exp):
+  """Whether the video follows the capture's own path (render.video_path; 'auto': for
+  unbounded scenes and transforms.json captures, whose data found its own box, where an orbit
+  about the origin could fly through walls) instead of an orbit or a spiral."""
+  kind = exp.config.render.video_path
+  if kind not in ("auto", "orbit", "trajectory"):
+    raise ValueError(f"config.render.video_path={kind!r}: use 'auto', 'orbit' or 'trajectory'")
+  if kind == "auto":
+    return bool(exp.config.data.contraction or exp.train_ds.aabb is not None)
+  return kind == "trajectory"
+
+
+def video_writer_missing():
+  """Why no mp4 can be written here (one line naming the install command), or None."""
+  if importlib.util.find_spec("imageio_ffmpeg") is None:
+    return "no mp4 writer: imageio-ffmpeg is not installed (pip install imageio-ffmpeg)"
+  return None
+
+
+def render_video(exp, variables, out_dir, depth_npy=False, show_progress=True, scale=1.0,
+                 poses=None):
+  """A video as rgb.mp4 and depth.mp4 in `out_dir`: of `poses` (float32 [F, 4, 4]), or of the
+  default path (see `camera_paths.video_poses`).
+
+  depth_npy: also save the float depth of every frame as `depth_frames.npy`, float32 [F, H, W]
+  (z-depth in scene units, see the module docstring). scale: frames have `scale` times the
+  training images' pixels per side (see Experiment.camera). Returns the paths:
+  {'rgb', 'depth'[, 'depth_npy']}. FileNotFoundError (one line) without an mp4 writer.
+  """
+  if video_writer_missing():
+    raise FileNotFoundError(video_writer_missing())
+  os.makedirs(out_dir, exist_ok=True)
+  rc = exp.config.render
+  if poses is None:
+    poses = camera_paths.video_poses(exp.train_ds, rc.video_frames, exp.config.data.ndc,
+                                     rc.orbit_phi, rc.orbit_radius,
+                                     trajectory=follows_trajectory(exp))
+  near, far = exp.near, exp.far
+  rgb_frames, depth_frames, depths = [], [], []
+  frames = render_frames(exp, variables, poses, scale)
+  if show_progress:
+    frames = progress.track(frames, total=len(poses), desc="video")
+  for out in frames:
+    rgb_frames.append(visuals.to_uint8(out["rgb"]))
+    depth_frames.append(visuals.colorize(out["depth"], near, far))
+    if depth_npy:
+      depths.append(out["depth"].astype(np.float32))
+  paths = {}
+  if depth_npy:
+    paths["depth_npy"] = os.path.join(out_dir, "depth_frames.npy")
+    np.save(paths["depth_npy"], np.stack(depths))
+  for name, frames in (("rgb", rgb_frames), ("depth", depth_frames)):
+    paths[name] = os.path.join(out_dir, f"{name}.mp4")
+    with warnings.catch_warnings():  # imageio-ffmpeg forks ffmpeg; JAX warns about any fork
+      warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
+      imageio.mimwrite(paths[name], frames, fps=exp.config.render.fps, macro_block_size=1)
+  return paths
+
+
+def render_views(exp, variables, poses, out_dir, scale=1.0):
+  """Render `poses` to `out_dir/view_XXX.png` (+ depth PNG and .npy). Returns the count.
+
+  scale: images have `scale` times the training images' pixels per side.
+  """
+  os.makedirs(out_dir, exist_ok=True)
+  near, far = exp.near, exp.far
+  for i, out in enumerate(render_frames(exp, variables, poses, scale)):
+    imageio.imwrite(os.path.join(out_dir, f"view_{i:03d}.png"), visuals.to_uint8(out["rgb"]))
+    imageio.imwrite(os.path.join(out_dir, f"depth_{i:03d}.png"),
+                    visuals.colorize(out["depth"], near, far))
+    np.save(os.path.join(out_dir, f"depth_{i:03d}.npy"), out["depth"].astype(np.float32))
+  return len(poses)
+
+
+MODES = ("eval", "video", "views", "path", "mesh")
+
+
+def mesh_bound(config):
+  """Half-size of the mesh export box: the scene box, else the grid's box, else 1.5 (the 360°
+  built-in scenes fit in a ball of radius 1.2)."""
+  if config.data.scene_bound > 0:
+    return float(config.data.scene_bound)
+  if config.model.encoding != "posenc":
+    return float(config.model.grid_bound)
+  return 1.5
+
+
+def export_mesh(exp, variables, resolution=128, threshold=50.0, bound=0.0):
+  """The coloured surface (surface.extract) of the final network of a trained `exp`; bound 0 =
+  `mesh_bound`. ValueError for NDC runs."""
+  if exp.config.data.ndc:
+    raise ValueError("mesh export needs world-space rays: this run uses NDC (config.data.ndc), "
+                     "whose density lives in a warped space")
+  return surface.extract(exp.renderer.field, exp.renderer.final_params(variables),
+                         bound or mesh_bound(exp.config), resolution, threshold)
+
+
+def render(workdir, mode, poses_path="", out_dir="", depth_npy=False, resolution=128,
+           threshold=50.0, bound=0.0, scale=1.0, path_frames=30):
+  """Render `mode` (one of MODES) from the newest checkpoint of `workdir`; returns what it wrote.
+
+  depth_npy: video mode also writes float depth_frames.npy. resolution, threshold, bound: mesh
+  mode (see surface.extract). scale: video and views modes render `scale` times the training
+  images' pixels per side. path_frames: path mode, frames from one key camera to the next.
+  """
+  if not os.path.isdir(workdir):
+    raise FileNotFoundError(f"--workdir={workdir}: no such directory")
+  if scale <= 0:
+    raise ValueError(f"--scale={scale}: must be positive")
+  if mode in ("views", "path") and not poses_path:
+    raise ValueError(f"--mode={mode} needs --poses=FILE (.npy [N,4,4] or .json with frames)")
+  if mode in ("views", "path") and not os.path.exists(poses_path):
+    raise FileNotFoundError(f"{poses_path}: no such poses file")
+  exp, state = experiment.restore(workdir)
+  variables = state.variables
+  print(f"restored step {int(state.step)} from {workdir}", flush=True)
+  out_dir = out_dir or os.path.join(workdir, mode)
+  if mode == "mesh":
+    mesh = export_mesh(exp, variables, resolution, threshold, bound)
+    os.makedirs(out_dir, exist_ok=True)
+    path = os.path.join(out_dir, "mesh.ply")
+    surface.write_ply(path, mesh["vertices"], mesh["faces"], mesh["colors"])
+    print(f"wrote {len(mesh['vertices'])} vertices and {len(mesh['faces'])} faces to {path}")
+    return path
+  if mode == "eval":
+    result = evaluation.make_evaluator(exp)(variables, out_dir=out_dir)
+    print(f"test PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.4f}, "
+          f"{lpips.describe(result)} over {len(result['per_view'])} views -> {out_dir}")
+    return result
+  if mode in ("video", "path"):
+    poses = camera_paths.path_poses(poses_path, path_frames) if mode == "path" else None
+    paths = render_video(exp, variables, out_dir, depth_npy=depth_npy, scale=scale, poses=poses)
+    print(f"wrote {', '.join(paths.values())}")
+    return paths
+  count = render_views(exp, variables, camera_paths.load_poses(poses_path), out_dir, scale)
+  print(f"wrote {count} views to {out_dir}")
+  return out_dir

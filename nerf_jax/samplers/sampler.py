@@ -1,0 +1,163 @@
+"""Where along each ray the field is queried: bounds, sample placement, points.
+
+One place for what every renderer (training, image rendering, marching), the mesh export and
+the profiler do between rays and the field: cut each ray to the scene box (`Sampler.bounds`),
+place samples (`Sampler.place`: stratified, or in the occupied cells of an occupancy grid), and
+turn distances into points (`points`, the only `o + d·t`) and into world length (`per_unit_t`,
+`world_t`, the only |d| scaling).
+
+rays: `rays.Rays` with batch shape `...`; t is z-depth along un-normalised directions (rays.py),
+so a ray's t advances |d| world units per unit.
+A placement (`Samples`) gives the edges t float32 [..., E + 1] that compositing sees and the
+distances float32 [..., S] where the field is queried; `Samples.intervals` turns the field's
+values at the S samples into values of the E intervals (E = S, or 2S with empty gaps between
+occupied slots, see occupancy.py).
+"""
+
+import dataclasses
+from typing import Optional
+
+import flax.struct
+import jax
+import jax.numpy as jnp
+
+from nerf_jax.fields import contraction
+from nerf_jax.samplers import occupancy, sampling
+from nerf_jax.samplers.occupancy import OccupancySettings
+from nerf_jax.cameras.rays import ray_box_bounds
+
+
+def points(rays, distances):
+  """float32 [..., S, 3]: o + d·t at distances float32 [..., S] along `rays` [...]."""
+  return rays.origins[..., None, :] + rays.directions[..., None, :] * distances[..., None]
+
+
+def per_unit_t(sigma, rays):
+  """Density per unit of t: sigma float32 [..., S] (per unit of world length) times |d| of
+  `rays` [...]. A ray's t advances |d| world units per unit, so its optical depth over [t_i,
+  t_{i+1}] is σ·|d|·(t_{i+1} - t_i)."""
+  return sigma * jnp.linalg.norm(rays.directions, axis=-1)[..., None]
+
+
+def world_t(t, rays):
+  """float32 [..., K]: distances t float32 [..., K] along `rays` [...] in world length (t·|d|)."""
+  return t * jnp.linalg.norm(rays.directions, axis=-1)[..., None]
+
+
+@flax.struct.dataclass
+class Samples:
+  """One placement of samples along rays [...].
+
+  t: float32 [..., E + 1], sorted edges of the intervals composited.
+  distances: float32 [..., S], where the field is queried (z-depth).
+  valid: bool [..., S], samples that count (unused occupancy slots do not).
+  gapped: static bool, interval 2k is sample k and interval 2k + 1 an empty gap after it
+    (E = 2S); else interval k is sample k (E = S).
+  """
+  t: jnp.ndarray
+  distances: jnp.ndarray
+  valid: jnp.ndarray
+  gapped: bool = flax.struct.field(pytree_node=False, default=False)
+
+  def intervals(self, rgb, sigma):
+    """(rgb float32 [..., E, 3], sigma float32 [..., E]) of the intervals from the samples'
+    rgb float32 [..., S, 3] and density sigma float32 [..., S] (per unit of t)."""
+    sigma = jnp.where(self.valid, sigma, 0.0)  # unused slots: zero-width and empty
+    if not self.gapped:
+      return rgb, sigma
+    return occupancy.with_gaps(rgb, axis=-2), occupancy.with_gaps(sigma)
+
+
+def on_edges(t):
+  """Samples at the midpoints of the intervals of t float32 [..., S + 1]."""
+  distances = sampling.midpoints(t)
+  return Samples(t, distances, jnp.ones(distances.shape, bool))
+
+
+@dataclasses.dataclass(frozen=True)
+class Sampler:
+  """How a ray's first pass is sampled.
+
+  num_samples: samples per ray. scene_bound: half-size of the box [-b, b]^3 holding the scene;
+  samples only inside it (0 = the whole of [near, far]). lindisp: space stratified samples
+  linearly in 1/t. occupancy: where set, samples go only to occupied cells of an occupancy grid
+  over the scene box (occupancy.py), passed to `place` as `grid`.
+  contraction: '' (bounded), or 'l2' / 'linf' for an unbounded scene (contraction.py): the box
+  of half-size scene_bound is the inner region, sampled linearly in t; beyond it samples are
+  linear in disparity out to far = infinity (sampling.stratified_unbounded), `inner_fraction`
+  of them inside.
+  """
+  num_samples: int
+  scene_bound: float = 0.0
+  lindisp: bool = False
+  occupancy: Optional[OccupancySettings] = None
+  contraction: str = ""
+  inner_fraction: float = 0.5
+
+  def bounds(self, rays):
+    """(t_near, t_far) float32 [...]: the rays' [near, far], cut to the scene box if any (an
+    unbounded scene's rays run from near to infinity)."""
+    if self.contraction:
+      return rays.near, jnp.full_like(rays.far, jnp.inf)
+    if self.scene_bound > 0:  # sample only the part of each ray inside the scene box
+      return ray_box_bounds(rays.origins, rays.directions, self.scene_bound, rays.near,
+                            rays.far)
+    return rays.near, rays.far
+
+  def stratified(self, rays, key=None):
+    """Edges t float32 [..., S + 1] of stratified samples over `bounds` (key None: even)."""
+    if self.contraction:
+      return self._unbounded_edges(rays, self.num_samples, key)
+    t_near, t_far = self.bounds(rays)
+    return sampling.stratified(t_near, t_far, self.num_samples, rays.shape, key,
+                               lindisp=self.lindisp)
+
+  def _unbounded_edges(self, rays, count, key=None):
+    """Edges float32 [..., count + 1]: linear in t inside the inner box, in disparity beyond."""
+    t_near, t_far = self.bounds(rays)
+    t_inner = contraction.inner_exit(rays.origins, rays.directions, self.scene_bound,
+                                     self.contraction)
+    return sampling.stratified_unbounded(t_near, t_inner, t_far, count, rays.shape, key,
+                                         self.inner_fraction)
+
+  def unit_distance(self, t, rays):
+    """s float32 [..., K]: distances t float32 [..., K] along `rays` [...] as a normalised ray
+    distance, mip-NeRF 360's s, in which its distortion loss is measured so that the loss does
+    not depend on the scene's units. Bounded: the share of the rays' [near, far] before t
+    (NDC's t already is one); unbounded: `sampling.unbounded_unit`, the share of the samples
+    before t (linear inside the inner box, in disparity beyond, as the samples are spaced)."""
+    if self.contraction:
+      t_inner = contraction.inner_exit(rays.origins, rays.directions, self.scene_bound,
+                                       self.contraction)
+      return sampling.unbounded_unit(t, rays.near, t_inner, jnp.inf, self.inner_fraction)
+    near, far = rays.near[..., None], rays.far[..., None]
+    return (t - near) / jnp.maximum(far - near, 1e-6)  # far > near for any data; never 1/0
+
+  @property
+  def grid_bound(self):
+    """Half-size of the box an occupancy grid covers: the scene box, or in an unbounded scene
+    the contracted space (twice the inner box)."""
+    return contraction.OUTER * self.scene_bound if self.contraction else self.scene_bound
+
+  def place(self, rays, key=None, grid=None):
+    """Samples of `rays` [...]: stratified, or with `occupancy` in the occupied cells of `grid`
+    (float32 [R, R, R], occupancy.py). key: PRNG key for the jitter (None: deterministic)."""
+    if self.occupancy is None:
+      return on_edges(self.stratified(rays, key))
+    oc = self.occupancy
+    mask = occupancy.occupied_mask(jax.lax.stop_gradient(grid), oc.threshold)
+    if self.contraction:  # candidates spaced as the unbounded samples, looked up contracted
+      edges = self._unbounded_edges(rays, oc.candidates)
+      t_far = edges[..., -1]
+      cells = contraction.contract(points(rays, sampling.midpoints(edges)), self.scene_bound,
+                                   self.contraction)
+      occupied = occupancy.lookup(mask, cells, self.grid_bound)
+      starts, ends, valid = occupancy.occupied_slots(edges, occupied, self.num_samples, t_far)
+    else:
+      t_near, t_far = self.bounds(rays)
+      starts, ends, valid = occupancy.sample_occupied(
+          mask, rays.origins, rays.directions, t_near, t_far, self.scene_bound, oc.candidates,
+          self.num_samples)
+    u = 0.5 if key is None else jax.random.uniform(key, starts.shape, jnp.float32)
+    return Samples(occupancy.interleave_gaps(starts, ends, t_far),
+                   starts + (ends - starts) * u, valid, gapped=True)

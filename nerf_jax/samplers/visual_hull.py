@@ -1,0 +1,96 @@
+"""The visual hull: the space that the training masks do not rule out, found before any step.
+
+A point can hold the scene only if every view that sees it sees opacity there. Carving the cells
+of a grid over the scene box [-bound, bound]^3 against the masks (the alpha of RGBA data) gives
+the hull; its bounding box is where the grids need their resolution, and the cells outside it
+never need a sample (VaxNeRF). Names:
+  accs:  float32 [N, H, W]  opacity of each pixel of the N training views
+  poses: float32 [N, 4, 4]  camera-to-world (nerf_jax.cameras.rays conventions: the camera looks down -z)
+  hull:  float32 [R, R, R]  1 where a cell may hold the scene, 0 where the masks rule it out
+The carving is conservative: each mask is dilated by the largest radius in pixels that a cell
+projects to, so a cell that any structure touches (however thin) is never carved away.
+"""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from nerf_jax.backend import precision
+from nerf_jax.samplers import occupancy
+
+OPAQUE = 0.01  # a pixel counts as covered from this opacity (anti-aliased edges included)
+
+
+def project(points, pose, intrinsics, pixel_center=0.5):
+  """Pixel coordinates of world points in one camera.
+
+  points: float32 [..., 3]. pose: float32 [4, 4] camera-to-world. intrinsics: (fx, fy, cx, cy).
+  Returns (column, row, depth): float32 [...] each; column and row are the continuous pixel
+  indices whose ray passes through the point (`rays.pixel_rays` inverted), depth the distance in
+  front of the camera along its -z axis (<= 0 behind it).
+  """
+  fx, fy, cx, cy = intrinsics
+  local = precision.matmul(points - pose[:3, 3], pose[:3, :3])  # R^T (x - o), as row vectors
+  depth = -local[..., 2]
+  # Points at or behind the camera get depth 1e-9 here only to keep the division finite;
+  # callers mask them out by `depth`.
+  safe = jnp.maximum(depth, 1e-9)
+  column = cx + fx * local[..., 0] / safe - pixel_center
+  row = cy - fy * local[..., 1] / safe - pixel_center
+  return column, row, depth
+
+
+def dilation_radius(poses, intrinsics, bound, resolution):
+  """Pixels (int) by which masks are dilated so that no touched cell is carved: the radius of a
+  cell's circumscribed sphere, (√3/2)·cell, seen from the nearest distance any camera can have
+  to a point of the box; None when a camera is inside the box's circumscribed sphere (no
+  conservative radius exists: nothing is carved)."""
+  cell = 2.0 * bound / resolution
+  nearest = float(np.min(np.linalg.norm(np.asarray(poses)[:, :3, 3], axis=-1))) - math.sqrt(3) * bound
+  if nearest <= cell:
+    return None
+  focal = max(intrinsics[0], intrinsics[1])
+  return int(math.ceil(0.5 * math.sqrt(3) * cell * focal / nearest)) + 1
+
+
+def carve(accs, poses, intrinsics, bound, resolution, pixel_center=0.5):
+  """The visual hull on the R^3 cells of the box [-bound, bound]^3 (module docstring).
+
+  A cell is carved when some view sees its centre inside the image and the mask, dilated by
+  `dilation_radius`, is empty there. Cells no view sees are kept. Returns float32 [R, R, R]
+  (all ones when no conservative dilation exists, see `dilation_radius`).
+  """
+  radius = dilation_radius(poses, intrinsics, bound, resolution)
+  if radius is None:
+    return jnp.ones((resolution,) * 3, jnp.float32)
+  centres = occupancy.cell_centres(resolution, bound).reshape(-1, 3)
+  height, width = accs.shape[1:]
+  window = (2 * radius + 1, 2 * radius + 1)
+
+  def keep_in_view(args):  # one view: bool [R^3], False where it rules the cell out
+    acc, pose = args
+    covered = jax.lax.reduce_window(acc, -jnp.inf, jax.lax.max, window, (1, 1), "SAME") > OPAQUE
+    column, row, depth = project(centres, pose, intrinsics, pixel_center)
+    i, j = jnp.floor(column + 0.5).astype(jnp.int32), jnp.floor(row + 0.5).astype(jnp.int32)
+    seen = (depth > 0) & (i >= 0) & (i < width) & (j >= 0) & (j < height)
+    return ~seen | covered[jnp.clip(j, 0, height - 1), jnp.clip(i, 0, width - 1)]
+
+  keep = jax.jit(lambda a, p: jnp.all(jax.lax.map(keep_in_view, (a, p)), axis=0))(
+      jnp.asarray(accs, jnp.float32), jnp.asarray(poses, jnp.float32))
+  return keep.reshape((resolution,) * 3).astype(jnp.float32)
+
+
+def bounding_box(hull, bound, margin=1):
+  """float32 [2, 3]: (min, max) corners of the kept cells of `hull` [R, R, R] over the box
+  [-bound, bound]^3, grown by `margin` cells on each side and clipped to the box; the whole box
+  when nothing is kept."""
+  res = hull.shape[0]
+  kept = np.argwhere(np.asarray(hull) > 0)
+  if len(kept) == 0:
+    return np.array([[-bound] * 3, [bound] * 3], np.float32)
+  cell = 2.0 * bound / res
+  low = -bound + (kept.min(axis=0) - margin) * cell
+  high = -bound + (kept.max(axis=0) + 1 + margin) * cell
+  return np.clip(np.stack([low, high]), -bound, bound).astype(np.float32)

@@ -1,0 +1,2 @@
+"""Training: the loop, the jitted step, batches, regularisers, the time budget, devices,
+checkpoints, progress and summaries."""

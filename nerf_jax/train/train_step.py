@@ -1,0 +1,175 @@
+"""The jitted train step: draw a batch, refresh the occupancy grid, render, add the loss terms,
+take a gradient step of the optimiser; a non-finite step is not applied and is reported.
+
+The step never sees a config: `make_train_step(ray_renderer, tx, settings, ...)` takes the
+renderer, the optimiser, the loss terms (train/losses.py) and `StepSettings`, all built once by
+the entry layer (run/experiment.py).
+
+With appearance codes each ray is rendered with its training image's code; with pose refinement
+each ray is made from its camera's corrected pose (cameras/pose_refinement.py), so the
+corrections params['poses'] take a gradient, and the positional encoding's bands open coarse to
+fine.
+
+With several devices each batch is split over them (see parallel.py); the parameters are
+replicated.
+"""
+
+import dataclasses
+import math
+from typing import Tuple
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from nerf_jax.cameras import pose_refinement
+from nerf_jax.render import background as background_lib
+from nerf_jax.samplers import occupancy
+from nerf_jax.train import losses, parallel, train_batches
+from nerf_jax.train.state import TrainState
+
+
+@dataclasses.dataclass(frozen=True)
+class StepSettings:
+  """What a train step does besides rendering and the loss terms.
+
+  batch: train_batches.BatchSettings, how each step's rays are drawn.
+  background: float32 (r, g, b), the background the targets are composited on.
+  random_background: a fresh random background per ray (targets recomposited on it).
+  planned_steps: the steps the learning-rate schedule spans (BARF's coarse-to-fine share is of
+    these when the step is not given a fitted length).
+  remat_chunk: rays per rematerialised chunk of the field's queries (0 = one call).
+  pose_refinement: rays are made from the corrected cameras (params['poses']).
+  pose_coarse_to_fine: (start, end) shares of the planned steps over which the positional
+    encoding's bands (or grid levels) open while poses are refined.
+  pose_ray_share: share of each batch's rays whose gradient reaches the poses.
+  """
+  batch: train_batches.BatchSettings
+  background: Tuple[float, float, float] = (0.0, 0.0, 0.0)
+  random_background: bool = False
+  planned_steps: int = 1
+  remat_chunk: int = 0
+  pose_refinement: bool = False
+  pose_coarse_to_fine: Tuple[float, float] = (0.0, 0.0)
+  pose_ray_share: float = 1.0
+
+
+def _render_split(render, rays, key, background, image, posed):
+  """`render(rays, key, background, image)` of a batch of rays [B] in two parts: the first
+  `posed` rays as they are, the rest from stop_gradient(rays), so the backward pass computes
+  no gradient with respect to their samples' positions (with pose refinement that gradient,
+  through every sample's interpolation, is most of the extra cost of a step). background:
+  float32 [3] or [B, 3]; image: int32 [B] or None. Returns the two parts' outputs joined along
+  the rays, in the rays' order."""
+  parts = (slice(None, posed), slice(posed, None))
+  keys = jax.random.split(key)
+  outs = []
+  for part, part_key, stop in zip(parts, keys, (False, True)):
+    part_rays = jax.tree_util.tree_map(lambda a: a[part], rays)
+    if stop:
+      part_rays = jax.lax.stop_gradient(part_rays)
+    part_bg = background[part] if jnp.ndim(background) == 2 else background
+    outs.append(render(part_rays, part_key, part_bg, None if image is None else image[part]))
+  return jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), *outs)
+
+
+def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=None):
+  """The jitted train step: (state, data, key[, planned_steps]) -> (state, stats). `state` is
+  donated.
+
+  ray_renderer: the training RayRenderer (render/renderer.py). tx: the optimiser. terms: the
+  loss terms (train/losses.py), added in order; stats holds 'loss' and every stat they return.
+  settings: StepSettings. optimizer_for: planned_steps -> the optimiser on a schedule of that
+  length, for a time budget's fitted schedule (planned_steps: int32 [], traced: one compiled
+  step for any length); None when the step is always called without planned_steps.
+  mesh: a `parallel.make_mesh` Mesh to split each batch over its devices (data and state
+  replicated on it), or None for one device.
+  """
+  oc = ray_renderer.sampler.occupancy
+  fixed_background = jnp.asarray(settings.background)
+  refine = settings.pose_refinement
+  image_of = lambda batch: batch.image if ray_renderer.field.uses_images else None
+
+  def bands_at(step, planned_steps):
+    """BARF's α: positional-encoding bands (or grid levels) open between the shares
+    pose_coarse_to_fine of the planned steps (None without pose refinement: all open)."""
+    dims = ray_renderer.field.coarse_to_fine_stages
+    if not refine or not dims:
+      return None
+    start, end = settings.pose_coarse_to_fine
+    planned = settings.planned_steps if planned_steps is None else planned_steps
+    share = step.astype(jnp.float32) / jnp.maximum(planned, 1)
+    return dims * jnp.clip((share - start) / max(end - start, 1e-6), 0.0, 1.0)
+
+  def posed_rays(num_rays):
+    """How many of a batch's rays carry the poses' gradient: ceil(pose_ray_share · num_rays),
+    or None for all of them (or without refinement): a share that rounds up to the whole batch
+    renders it in one part, not with an empty second part."""
+    posed = max(1, math.ceil(settings.pose_ray_share * num_rays))
+    if not refine or posed >= num_rays:
+      return None
+    return posed
+
+  def loss_fn(params, buffers, batch, key, data=None, bands=None):
+    render_key, bg_key = jax.random.split(key)
+    bg, target = fixed_background, batch.rgb
+    if settings.random_background:
+      # A fresh background per ray: the field cannot bake the background into density.
+      bg = jax.random.uniform(bg_key, batch.rgb.shape)
+      target = background_lib.recomposite(batch.rgb, batch.acc, fixed_background, bg)
+    rays = batch.rays
+    if refine:  # the rays of the corrected cameras: the corrections take a gradient
+      rays = train_batches.pixel_rays_of(
+          data, batch.image, batch.pixel, pose_refinement.corrected(data.poses, params["poses"]))
+    render = lambda rays, key, bg, image: ray_renderer.render(
+        {"params": params, **buffers}, rays, key, bg, settings.remat_chunk, image, bands)
+    posed = posed_rays(rays.near.shape[0])
+    if posed is None:
+      outs = render(rays, render_key, bg, image_of(batch))
+    else:  # only the first `posed` rays' gradient reaches the poses
+      outs = _render_split(render, rays, render_key, bg, image_of(batch), posed)
+    return losses.total(terms, losses.LossInputs(outs, target, rays, params))
+
+  def refresh_occupancy(state, run_key):
+    """Every `update_every` steps, probe the density field at jittered positions (drawn from the
+    step: a resumed run probes where the uninterrupted one did) and accumulate them into the
+    occupancy grid with decay (occupancy.accumulate). Returns the buffers."""
+    if oc is None:
+      return state.buffers
+    # A stream of its own: fold_in(run_key, n) is step n's key, and step 2^32 - 1 never comes.
+    key = jax.random.fold_in(jax.random.fold_in(run_key, 0xFFFFFFFF), state.step)
+    refresh = lambda s: occupancy.accumulate(
+        s.buffers["occupancy"], ray_renderer.occupancy_grid(s.variables, key), oc.decay
+    ) * s.buffers.get("hull", 1.0)  # what the masks rule out stays empty
+    grid = jax.lax.cond(state.step % oc.update_every == 0, refresh,
+                        lambda s: s.buffers["occupancy"], state)
+    return {**state.buffers, "occupancy": grid}
+
+  def step(state, data, run_key, planned_steps=None):
+    key = jax.random.fold_in(run_key, state.step)
+    batch_key, render_key = jax.random.split(key)
+    batch = parallel.shard_batch(
+        train_batches.draw_batch(data, settings.batch, batch_key, state.step, run_key), mesh)
+    buffers = refresh_occupancy(state, run_key)
+    grads, stats = jax.grad(loss_fn, has_aux=True)(state.params, buffers, batch, render_key,
+                                                   data, bands_at(state.step, planned_steps))
+    finite = jnp.isfinite(stats["loss"]) & jnp.all(jnp.array(
+        [jnp.all(jnp.isfinite(g)) for g in jax.tree_util.tree_leaves(grads)]))
+    step_tx = tx if planned_steps is None else optimizer_for(planned_steps)
+
+    def apply(params_and_state):
+      params, opt_state = params_and_state
+      updates, opt_state = step_tx.update(grads, opt_state, params)
+      return optax.apply_updates(params, updates), opt_state
+    # A non-finite step is not applied (the state stays the last good one) and is reported.
+    # A cond, not a select of new and old: the select kept both copies of the parameters and
+    # Adam's moments and cost 3-4x the update itself (45 ms of a 245 ms detail.py step).
+    params, opt_state = jax.lax.cond(finite, apply, lambda same: same,
+                                     (state.params, state.opt_state))
+    buffers = jax.tree_util.tree_map(lambda n, o: jnp.where(finite, n, o), buffers, state.buffers)
+    bad_step = jnp.where((state.bad_step < 0) & ~finite, state.step, state.bad_step)
+    new_state = TrainState(step=state.step + 1, params=params, opt_state=opt_state,
+                           bad_step=bad_step, buffers=buffers)
+    return parallel.replicated_constraint(new_state, mesh), stats
+
+  return jax.jit(step, donate_argnums=0)
