@@ -34,6 +34,13 @@ def _appearance_codes(module, image, shape):
   return jnp.broadcast_to(code, (*shape[:-1], module.appearance_dims))
 
 
+def _dense(network, features, name):
+  """A Dense layer of `network` (inside its compact call): float32 parameters, the network's
+  matmul dtype and float32 matmul precision (its `dtype` and `matmul_precision` fields)."""
+  return nn.Dense(features, dtype=jnp.dtype(network.dtype), param_dtype=jnp.float32, name=name,
+                  precision=precision.network_precision(network.matmul_precision))
+
+
 class NerfMLP(nn.Module):
   """NeRF's MLP: `depth` ReLU layers of `width` with the input re-injected after `skip_layers`.
 
@@ -54,35 +61,31 @@ class NerfMLP(nn.Module):
   appearance_images: int = 1
   appearance_dims: int = 0
 
-  def _dense(self, features, name):
-    return nn.Dense(features, dtype=jnp.dtype(self.dtype), param_dtype=jnp.float32, name=name,
-                    precision=precision.network_precision(self.matmul_precision))
-
   @nn.compact
   def __call__(self, pos_features, dir_features=None, image=None):
     x = pos_features.astype(jnp.dtype(self.dtype))
     inputs = x
     for i in range(self.depth):
-      x = nn.relu(self._dense(self.width, f"layer_{i}")(x))
+      x = nn.relu(_dense(self, self.width, f"layer_{i}")(x))
       if i in self.skip_layers:
         x = jnp.concatenate([x, inputs], axis=-1)
     if not self.view_dependent:
       if not self.appearance_dims:
-        out = self._dense(4, "output")(x).astype(jnp.float32)
+        out = _dense(self, 4, "output")(x).astype(jnp.float32)
         return nn.sigmoid(out[..., :3]), out[..., 3]
       # The reference's head split in two: density from x alone, colour from x and the code.
-      raw_sigma = self._dense(1, "sigma")(x)[..., 0].astype(jnp.float32)
+      raw_sigma = _dense(self, 1, "sigma")(x)[..., 0].astype(jnp.float32)
       code = _appearance_codes(self, image, x.shape).astype(x.dtype)
-      rgb = self._dense(3, "rgb")(jnp.concatenate([x, code], axis=-1)).astype(jnp.float32)
+      rgb = _dense(self, 3, "rgb")(jnp.concatenate([x, code], axis=-1)).astype(jnp.float32)
       return nn.sigmoid(rgb), raw_sigma
-    raw_sigma = self._dense(1, "sigma")(x)[..., 0].astype(jnp.float32)
-    feature = self._dense(self.width, "feature")(x)
+    raw_sigma = _dense(self, 1, "sigma")(x)[..., 0].astype(jnp.float32)
+    feature = _dense(self, self.width, "feature")(x)
     extra = [dir_features]
     if self.appearance_dims:  # the code joins the direction in the colour branch
       extra.append(_appearance_codes(self, image, feature.shape))
     h = jnp.concatenate([feature, *(e.astype(feature.dtype) for e in extra)], axis=-1)
-    h = nn.relu(self._dense(self.view_width, "view")(h))
-    rgb = self._dense(3, "rgb")(h).astype(jnp.float32)
+    h = nn.relu(_dense(self, self.view_width, "view")(h))
+    rgb = _dense(self, 3, "rgb")(h).astype(jnp.float32)
     return nn.sigmoid(rgb), raw_sigma
 
 
@@ -93,14 +96,10 @@ class _GridHead(nn.Module):
   view_dependent: bool = False
   view_width: int = 32
   dtype: str = "float32"
-  matmul_precision: str = "default"  # precision.NETWORK_PRECISIONS: 'default', 'high', 'highest'
   appearance_images: int = 1
   appearance_dims: int = 0
   cell_aspect: Sequence[float] = (1.0, 1.0, 1.0)  # relative x, y, z sides of a lattice cell
-
-  def _dense(self, features, name):
-    return nn.Dense(features, dtype=jnp.dtype(self.dtype), param_dtype=jnp.float32, name=name,
-                    precision=precision.network_precision(self.matmul_precision))
+  matmul_precision: str = "default"  # precision.NETWORK_PRECISIONS: 'default', 'high', 'highest'
 
   def _unit(self, points):
     """Positions float32 [..., 3] in the grids' unit cube: of `box` if set, else of the cube."""
@@ -116,8 +115,8 @@ class _GridHead(nn.Module):
   def _head(self, h, unit, dir_features, image=None):
     """Density and a feature from one hidden layer, colour from the feature (and direction,
     and appearance code)."""
-    h = nn.relu(self._dense(self.hidden, "hidden")(h))
-    raw_sigma = self._dense(1, "sigma")(h)[..., 0].astype(jnp.float32)
+    h = nn.relu(_dense(self, self.hidden, "hidden")(h))
+    raw_sigma = _dense(self, 1, "sigma")(h)[..., 0].astype(jnp.float32)
     raw_sigma = jnp.where(grid.inside_box(unit), raw_sigma, -1e5)
     extra = [dir_features] if self.view_dependent else []
     if self.appearance_dims:  # colour only: the code joins h after density is taken from it
@@ -125,8 +124,8 @@ class _GridHead(nn.Module):
     if extra:
       h = jnp.concatenate([h, *(e.astype(h.dtype) for e in extra)], axis=-1)
     if self.view_dependent:
-      h = nn.relu(self._dense(self.view_width, "view")(h))
-    rgb = self._dense(3, "rgb")(h).astype(jnp.float32)
+      h = nn.relu(_dense(self, self.view_width, "view")(h))
+    rgb = _dense(self, 3, "rgb")(h).astype(jnp.float32)
     return nn.sigmoid(rgb), raw_sigma
 
   @property
@@ -293,11 +292,11 @@ class DensityGridNeRF(_GridHead):
         fine = self._hashed_level("hashed_colour", init, self.features, unit,
                                   self.colour_hash_resolution, self.colour_hash_log2_size)
         h = jnp.concatenate([h, fine], axis=-1)
-      h = nn.relu(self._dense(self.hidden, "hidden")(h.astype(jnp.dtype(self.dtype))))
+      h = nn.relu(_dense(self, self.hidden, "hidden")(h.astype(jnp.dtype(self.dtype))))
       if self.view_dependent:
         h = jnp.concatenate([h, dir_features.astype(h.dtype)], axis=-1)
-        h = nn.relu(self._dense(self.view_width, "view")(h))
-      rgb = nn.sigmoid(self._dense(3, "rgb")(h).astype(jnp.float32))
+        h = nn.relu(_dense(self, self.view_width, "view")(h))
+      rgb = nn.sigmoid(_dense(self, 3, "rgb")(h).astype(jnp.float32))
     return {"all": (rgb, raw_sigma), "density": raw_sigma, "colour": rgb}[part]
 
 
