@@ -29,7 +29,6 @@ LAYERS = ("backend", "cameras", "fields", "samplers", "render", "data", "evaluat
 # Imports that still run up a layer (issue 39: hooks and settings instead), as
 # (importing module, imported module).
 UPWARD = {
-    ("cameras/camera_paths.py", "nerf_jax.viewer"),  # keyframe paths live in viewer/paths.py
     ("data/loaders.py", "nerf_jax.run"),  # the loader completes a config (config_lib)
     ("data/process.py", "nerf_jax.cli"),  # nerf-process shares the CLI's one-line errors
     ("run/train_lib.py", "nerf_jax.viewer"),  # the live viewer, not yet a step hook

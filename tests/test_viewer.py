@@ -18,7 +18,8 @@ from nerf_jax.cameras import camera_paths
 from nerf_jax.render import image_renderer
 from nerf_jax.run import config_lib, experiment, outputs
 from nerf_jax.cameras.rays import Rays, pose_spherical, project
-from nerf_jax.viewer import camera, paths, policy, scene, server, training
+from nerf_jax.cameras import keyframes
+from nerf_jax.viewer import camera, policy, scene, server, training
 from nerf_jax.evaluate.visuals import to_uint8
 from tests.helpers import requires_viser, small_config
 
@@ -145,13 +146,13 @@ def test_path_passes_through_key_cameras_and_turns_evenly():
   keys[1, :3, :3] = _rodrigues((0, 0, 1), math.pi / 2)
   keys[2, :3, :3] = _rodrigues((0, 0, 1), math.pi)
   keys[:, :3, 3] = [[0, 0, 0], [1, 0, 0], [2, 0, 0]]  # evenly spaced on a line
-  poses = paths.interpolate(keys, 4)
+  poses = keyframes.interpolate(keys, 4)
   assert poses.shape == (9, 4, 4)
   np.testing.assert_allclose(poses[::4], keys, atol=1e-6)
   for i, pose in enumerate(poses):
     np.testing.assert_allclose(pose[:3, :3], _rodrigues((0, 0, 1), i * math.pi / 8), atol=1e-6)
     np.testing.assert_allclose(pose[:3, 3], [i / 4, 0, 0], atol=1e-6)  # constant speed
-  looped = paths.interpolate(keys, 4, loop=True)
+  looped = keyframes.interpolate(keys, 4, loop=True)
   assert looped.shape == (12, 4, 4)
   np.testing.assert_allclose(looped[::4], keys, atol=1e-6)  # through the keys, then back
   np.testing.assert_allclose(looped[:9, :3, :3], poses[:, :3, :3], atol=1e-6)
@@ -159,13 +160,13 @@ def test_path_passes_through_key_cameras_and_turns_evenly():
   assert angle(looped[10], keys[2]) == pytest.approx(math.pi / 2, abs=1e-6)  # halfway home
   assert angle(looped[10], keys[0]) == pytest.approx(math.pi / 2, abs=1e-6)
   with pytest.raises(ValueError, match="at least 2"):
-    paths.interpolate(keys[:1], 4)
+    keyframes.interpolate(keys[:1], 4)
 
 
 def test_saved_path_is_what_render_py_loads(tmp_path):
   keys = np.stack([pose_spherical(th, -30, 4.0) for th in (0, 60, 150)])
-  poses = paths.interpolate(keys, 5)
-  json_path, npy_path = paths.save_path(str(tmp_path / "camera_path.json"), keys, poses, 24)
+  poses = keyframes.interpolate(keys, 5)
+  json_path, npy_path = keyframes.save_path(str(tmp_path / "camera_path.json"), keys, poses, 24)
   np.testing.assert_allclose(camera_paths.load_poses(json_path), poses, atol=1e-6)
   np.testing.assert_array_equal(camera_paths.load_poses(npy_path), poses)
   rot = poses[:, :3, :3]

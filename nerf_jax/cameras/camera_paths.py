@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 
+from nerf_jax.cameras import keyframes
 from nerf_jax.cameras.rays import orbit_poses, spiral_poses
 
 
@@ -37,14 +38,13 @@ def video_poses(dataset, frames, ndc=False, orbit_phi=-30.0, orbit_radius=4.0,
 def trajectory_poses(poses, frames):
   """float32 [~frames, 4, 4]: a smooth path along the cameras `poses` float [N, 4, 4] in their
   order (a capture's order): through up to TRAJECTORY_KEYS of them, evenly spread, with
-  Catmull-Rom positions and slerped rotations (viewer/paths.py)."""
-  from nerf_jax.viewer import paths  # pylint: disable=import-outside-toplevel  (pure numpy)
+  Catmull-Rom positions and slerped rotations (cameras/keyframes.py)."""
   keys = np.asarray(poses, np.float32)[
       np.unique(np.round(np.linspace(0, len(poses) - 1, min(len(poses), TRAJECTORY_KEYS))))
       .astype(int)]
   if len(keys) < 2:
     return np.repeat(keys, max(frames, 1), axis=0)
-  return paths.interpolate(keys, max(1, frames // (len(keys) - 1)))
+  return keyframes.interpolate(keys, max(1, frames // (len(keys) - 1)))
 
 
 def load_poses(path):
@@ -65,11 +65,10 @@ def load_poses(path):
 
 def path_poses(path, frames_per_segment, loop=False):
   """The poses float32 [F, 4, 4] of a camera path through the key cameras in `path`: a .json
-  with 'keyframes' (what the viewer saves) or 'frames', or a .npy [K, 3|4, 4] (viewer.paths)."""
-  from nerf_jax.viewer import paths  # pylint: disable=import-outside-toplevel  (pure numpy)
+  with 'keyframes' (what the viewer saves) or 'frames', or a .npy [K, 3|4, 4] (keyframes.py)."""
   keys = None
   if path.endswith(".json"):
     with open(path) as f:
       keys = json.load(f).get("keyframes")
   keys = load_poses(path) if not keys else np.asarray(keys, np.float32)
-  return paths.interpolate(keys, frames_per_segment, loop)
+  return keyframes.interpolate(keys, frames_per_segment, loop)

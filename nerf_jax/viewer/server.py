@@ -20,7 +20,8 @@ import time
 
 import numpy as np
 
-from nerf_jax.viewer import camera, paths, policy
+from nerf_jax.cameras import keyframes
+from nerf_jax.viewer import camera, policy
 from nerf_jax.viewer.scene import colorize, to_uint8
 
 OUTPUTS = ("RGB", "Depth", "Opacity")
@@ -250,10 +251,10 @@ class Viewer:
     if len(self._keyframes) < 2:
       self.gui_saved.value = "add at least 2 key cameras"
       return None
-    poses = paths.interpolate(np.stack(self._keyframes), int(self.gui_per_segment.value),
+    poses = keyframes.interpolate(np.stack(self._keyframes), int(self.gui_per_segment.value),
                               bool(self.gui_loop.value))
     path = os.path.join(self.out_dir, "camera_path.json")
-    paths.save_path(path, np.stack(self._keyframes), poses, self.scene.config.render.fps)
+    keyframes.save_path(path, np.stack(self._keyframes), poses, self.scene.config.render.fps)
     self.gui_saved.value = f"{len(poses)} poses: render.py --mode=views --poses={path}"
     return path
 

@@ -1,4 +1,4 @@
-"""Camera paths: key cameras recorded in the viewer, interpolated into a video's poses.
+"""Key cameras (recorded in the viewer) interpolated into a video's poses; rotations as quaternions.
 
 keyframes: float32 [K, 4, 4] camera-to-world (rays.py conventions). Between consecutive key
 cameras the rotation turns at a constant rate (quaternion slerp) and the position follows a
@@ -7,11 +7,44 @@ Catmull-Rom spline through the key positions, so the path passes through every k
 """
 
 import json
+import math
 import os
 
 import numpy as np
 
-from nerf_jax.viewer.camera import matrix_to_quaternion, quaternion_to_matrix
+
+
+def quaternion_to_matrix(wxyz):
+  """Rotation float64 [3, 3] of a quaternion float [4] (w, x, y, z; normalised here)."""
+  w, x, y, z = np.asarray(wxyz, np.float64) / np.linalg.norm(wxyz)
+  return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                   [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                   [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def matrix_to_quaternion(rotation):
+  """Unit quaternion float64 [4] (w, x, y, z; w >= 0) of a rotation float [3, 3].
+
+  Shepperd's method: divides by the largest of the four candidate magnitudes, so it stays
+  accurate near 180° turns, where dividing by w (≈ 0) would not.
+  """
+  r = np.asarray(rotation, np.float64)
+  trace = np.trace(r)
+  candidates = [trace, r[0, 0], r[1, 1], r[2, 2]]
+  k = int(np.argmax(candidates))
+  if k == 0:
+    s = 2.0 * math.sqrt(1.0 + trace)
+    q = [0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s]
+  else:
+    i, j, l = k - 1, k % 3, (k + 1) % 3
+    s = 2.0 * math.sqrt(1.0 + r[i, i] - r[j, j] - r[l, l])
+    q = np.zeros(4)
+    q[0] = (r[l, j] - r[j, l]) / s
+    q[1 + i] = 0.25 * s
+    q[1 + j] = (r[j, i] + r[i, j]) / s
+    q[1 + l] = (r[l, i] + r[i, l]) / s
+  q = np.asarray(q, np.float64)
+  return q if q[0] >= 0 else -q
 
 
 def slerp(q0, q1, u):
