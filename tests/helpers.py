@@ -25,9 +25,6 @@ NETWORK_RTOL = 1e-2
 # inputs differ by float32 rounding, which can move an input across a TF32 rounding step (2^-11
 # relative); the outputs move by a fraction of a step: half a step, 2^-12 ~ 2.4e-4, covers it.
 PATHS_RTOL = 2.0 ** -12
-# An approximate float32 division is off by up to 2 ulps (the emulation: up to 3.3), where a
-# CPU's is correctly rounded (0.5 ulp); 4 ulps of float32 relative covers it.
-DIVISION_RTOL = 4 * 2.0 ** -24
 
 
 def requires(module, install):
