@@ -115,13 +115,15 @@ def main(_):
   print(f"checking on {machine}; logs in {FLAGS.out}", flush=True)
   # The README's main job (the default config on the built-in scene), then each scene given.
   rows = [train_row("main job", "default", {}, FLAGS.out, min(left(), 300))]
+  print(table(rows, machine).splitlines()[-1], flush=True)
   for name, (config, overrides) in SCENES.items():
     folder = getattr(FLAGS, name)
-    if folder:
-      fields = {"data.path": folder, "train.max_seconds": FLAGS.seconds,
-                "render.video_frames": 0, **overrides}
-      # Setup, compilation and the final evaluation come on top of the training seconds.
-      rows.append(train_row(name, config, fields, FLAGS.out, min(left(), FLAGS.seconds + 150)))
+    if not folder:
+      continue
+    fields = {"data.path": folder, "train.max_seconds": FLAGS.seconds,
+              "render.video_frames": 0, **overrides}
+    # Setup, compilation and the final evaluation come on top of the training seconds.
+    rows.append(train_row(name, config, fields, FLAGS.out, min(left(), FLAGS.seconds + 150)))
     print(table(rows, machine).splitlines()[-1], flush=True)
   if FLAGS.tests:
     rows.append(suite_row(FLAGS.out, FLAGS.tests, FLAGS.workers, left()))

@@ -60,8 +60,9 @@ def render_video(exp, variables, out_dir, depth_npy=False, show_progress=True, s
   training images' pixels per side (see Experiment.camera). Returns the paths:
   {'rgb', 'depth'[, 'depth_npy']}. FileNotFoundError (one line) without an mp4 writer.
   """
-  if video_writer_missing():
-    raise FileNotFoundError(video_writer_missing())
+  missing = video_writer_missing()
+  if missing:
+    raise FileNotFoundError(missing)
   os.makedirs(out_dir, exist_ok=True)
   rc = exp.config.render
   if poses is None:

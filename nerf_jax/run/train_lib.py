@@ -184,8 +184,9 @@ def train_and_evaluate(config, workdir):
         f"over {len(result['per_view'])} views after {step} steps ({train_seconds:.0f} s)",
         flush=True)
   if config.render.after_training and config.render.video_frames > 0:
-    if outputs.video_writer_missing():  # the run and its scores are kept; only the video is not
-      print(f"{outputs.video_writer_missing()}; skipped the video", flush=True)
+    missing = outputs.video_writer_missing()
+    if missing:  # the run and its scores are kept; only the video is not
+      print(f"{missing}; skipped the video", flush=True)
     else:
       outputs.render_video(exp, variables, os.path.join(workdir, "video"))
   return result
