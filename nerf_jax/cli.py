@@ -13,26 +13,20 @@ checkpoint, diverged training) are printed as one line and exit with status 1; `
 import os
 import sys
 
-from absl import app, flags, logging
+from absl import app, flags
 from ml_collections import config_flags
 
+from nerf_jax.backend import errors
+from nerf_jax.backend.errors import parse_flags  # noqa: F401  (re-exported: cli.parse_flags)
 from nerf_jax.run import config_lib, experiment, outputs
 from nerf_jax.train import checkpoints, parallel
 from nerf_jax.run import train_lib
 from nerf_jax.data import DataError
+from nerf_jax.viewer import training as live_viewer
 
 # Exceptions whose message is the whole story for the user.
 USER_ERRORS = (DataError, checkpoints.CheckpointError, experiment.TrainingError,
                config_lib.ConfigError, FileNotFoundError, ValueError)
-
-
-def _wants_traceback(argv):
-  return any(a.lstrip("-").split("=")[0] in ("verbosity", "v") for a in argv[1:])
-
-
-def _fail(message):
-  print(f"error: {message}", file=sys.stderr)
-  sys.exit(1)
 
 
 def _config_spec(argv):
@@ -54,16 +48,16 @@ def resolve_config_argv(argv):
     path = config_lib.resolve(spec)
     config = config_lib.load(spec)
   except config_lib.ConfigError as e:
-    if _wants_traceback(argv):
+    if errors.wants_traceback(argv):
       raise
-    _fail(str(e))
+    errors.fail(str(e))
   out = []
   for arg in argv:
     if arg.startswith("--config."):
       arg = _current_spelling(arg)
       problem = config_lib.unknown_override(config, arg[len("--config."):].split("=", 1)[0])
       if problem:
-        _fail(problem)
+        errors.fail(problem)
     if not arg.startswith(("--config=", "-config=")):
       out.append(arg)
   return [out[0], f"--config={path}", *out[1:]], spec
@@ -79,37 +73,10 @@ def _current_spelling(arg):
   return f"--config.{config_lib.renamed(field)}{equals}{value}"
 
 
-def parse_flags(argv, flag_values=flags.FLAGS):
-  """`app.run`'s flags_parser: a bad flag or override exits 1 with one line.
-
-  Returns the positional arguments; refuses any (every setting is a flag).
-  """
-  try:
-    rest = flag_values(argv)
-  except flags.Error as e:
-    if _wants_traceback(argv):
-      raise
-    lines = [l.strip() for l in str(e).splitlines() if l.strip()] or [type(e).__name__]
-    _fail(lines[0] if len(lines) == 1 else f"{lines[0]} {lines[-1]}")
-  if len(rest) > 1:
-    _fail(f"unexpected argument {rest[1]!r}: settings are flags, e.g. --config.data.path=...")
-  return rest
-
-
 def run_main(fn):
-  """Run fn() for its effects; turn user errors into one line on stderr and exit status 1."""
-  if not flags.FLAGS["verbosity"].present:
-    logging.set_verbosity(logging.WARNING)  # hide JAX's backend-probing INFO lines by default
-  try:
-    fn()
-  except KeyboardInterrupt as e:
-    print(f"interrupted: {e}" if str(e) else "interrupted", file=sys.stderr)
-    sys.exit(130)
-  except USER_ERRORS as e:
-    if logging.get_verbosity() >= logging.DEBUG:
-      raise
-    print(f"error: {e}", file=sys.stderr)
-    sys.exit(1)
+  """Run fn() for its effects; turn user errors (USER_ERRORS) into one line on stderr and exit
+  status 1 (backend/errors.run_main)."""
+  errors.run_main(fn, USER_ERRORS)
 
 
 def default_workdir(config, config_spec):
@@ -126,14 +93,15 @@ def override_names(argv):
 
 def train(config, workdir, config_spec="", overrides=()):
   """Train `config` into `workdir` (default: `default_workdir`); returns the final metrics.
-  overrides: the fields set on the command line, which config.auto keeps as they are."""
+  overrides: the fields set on the command line, which config.auto keeps as they are. The live
+  viewer (config.viewer.enabled) watches the run as a step hook (viewer/training.py)."""
   if config.auto:
     config.auto_flags = tuple(overrides)
   parallel.initialize_distributed()
   workdir = workdir or default_workdir(config, config_spec)
   if parallel.is_main_process():
     print(f"workdir: {workdir}", flush=True)
-  return train_lib.train_and_evaluate(config, workdir)
+  return train_lib.train_and_evaluate(config, workdir, hooks=(live_viewer.start,))
 
 
 def train_main(argv=None):

@@ -1,5 +1,6 @@
-"""Shared test helpers: small configs with dotted overrides, a renderer around a stand-in
-network, a one-view loss, one-line data errors and a minimal Blender folder."""
+"""Shared test helpers: small configs with dotted overrides, data loaded as a run loads it, a
+renderer around a stand-in network, a one-view loss, one-line data errors and a minimal Blender
+folder."""
 
 import dataclasses
 import importlib.util
@@ -14,7 +15,7 @@ import pytest
 from nerf_jax.render import renderer as renderer_lib
 from nerf_jax.run import config_lib, experiment
 from nerf_jax.cameras.rays import Rays, get_rays, pose_spherical
-from nerf_jax.data import DataError
+from nerf_jax.data import DataError, loaders
 
 # Tolerances for the least accurate backend we support, stated once (nerf_jax/precision.py; the
 # tests emulate it on the CPU). A network's float32 matmuls at the default precision are TF32 on
@@ -58,6 +59,13 @@ def small_config(overrides=None, /, base="debug", **fields):
       raise KeyError(problem)
     config_lib.set_field(config, name, value)
   return config
+
+
+def load_data(data):
+  """(train, test) Datasets of a `data` section as a run loads them: loaders.load_dataset of
+  experiment.data_settings(data) (data: a ConfigDict or dict; the fields it lacks take
+  configs/default.py's values)."""
+  return loaders.load_dataset(experiment.data_settings(data))
 
 
 def ray_renderer(config, network=None):

@@ -12,7 +12,7 @@ from nerf_jax.run import train_lib
 from nerf_jax.data import loaders
 from nerf_jax.data.scenes import photos
 from tests.conftest import restored_variables
-from tests.helpers import small_config
+from tests.helpers import load_data, small_config
 
 
 def _field_and_params(base, dims, num_images=5):
@@ -57,21 +57,21 @@ def test_off_by_default_leaves_the_network_as_it_was():
 
 def test_the_exposure_capture_has_the_stated_gains_on_training_views_only():
   data = {"scene": "exposure", "num_views": 10, "image_size": 16, "holdout_from": 8}
-  train, test = loaders.load_dataset(data)
-  plain_train, plain_test = loaders.load_dataset({**data, "scene": "diffuse"})
+  train, test = load_data(data)
+  plain_train, plain_test = load_data({**data, "scene": "diffuse"})
   gains = photos.gains(8)
   np.testing.assert_array_equal(test.images, plain_test.images)
   np.testing.assert_allclose(train.images, np.clip(plain_train.images * gains[:, None, None],
                                                    0, 1), atol=1e-6)
   assert np.ptp(np.log2(gains.mean(axis=1))) > 0.5  # exposures differ by over half a stop
-  _, own_test = loaders.load_dataset({**data, "held_out_looks": "own"})
+  _, own_test = load_data({**data, "held_out_looks": "own"})
   own_gains = photos.gains(10)[8:]  # drawn after the training photos' from the same stream
   np.testing.assert_allclose(own_test.images, np.clip(plain_test.images * own_gains[:, None, None],
                                                       0, 1), atol=1e-6)
-  _, diffuse_test = loaders.load_dataset({**data, "scene": "diffuse", "held_out_looks": "own"})
+  _, diffuse_test = load_data({**data, "scene": "diffuse", "held_out_looks": "own"})
   np.testing.assert_array_equal(diffuse_test.images, plain_test.images)  # no looks to give
   with pytest.raises(loaders.DataError, match="held_out_looks='mine'"):
-    loaders.load_dataset({**data, "held_out_looks": "mine"})
+    load_data({**data, "held_out_looks": "mine"})
 
 
 def test_left_half_without_codes_scores_the_right_half_and_says_so():
@@ -82,7 +82,7 @@ def test_left_half_without_codes_scores_the_right_half_and_says_so():
   exp = experiment.setup(config)
   variables = {"params": experiment.init_state(exp).params}
   rendered = {}
-  result = evaluation.make_evaluator(exp)(variables, on_view=lambda i, out, truth: rendered.update(
+  result = experiment.make_evaluator(exp)(variables, on_view=lambda i, out, truth: rendered.update(
       {i: (out["rgb"], truth)}))
   assert result["appearance"] == evaluation.NO_CODE_HALF
   for view in result["per_view"]:
@@ -142,11 +142,11 @@ def test_codes_absorb_known_per_photo_gains(tmp_path, monkeypatch):
   exp = experiment.setup(config)
   exp.test_ds.images[:] = np.clip(1.5 * exp.test_ds.images, 0, 1)
   variables = restored_variables(workdir)
-  fitted = evaluation.make_evaluator(exp)(variables)
+  fitted = experiment.make_evaluator(exp)(variables)
   monkeypatch.setattr(evaluation, "FIT_STEPS", 0)  # the code stays the mean: the same half
-  unfitted = evaluation.make_evaluator(exp)(variables)
+  unfitted = experiment.make_evaluator(exp)(variables)
   assert fitted["appearance"].startswith("left half")
   assert fitted["psnr"] > unfitted["psnr"] + 0.5, (fitted["psnr"], unfitted["psnr"])
   config.render.appearance_protocol = "whole"
   with pytest.raises(ValueError, match="appearance_protocol='whole'"):
-    evaluation.make_evaluator(experiment.setup(config))
+    experiment.make_evaluator(experiment.setup(config))

@@ -10,9 +10,9 @@ from nerf_jax import cli
 from nerf_jax.cameras import rays
 from nerf_jax.data import scenes
 from nerf_jax.run import auto, characterise, config_lib, experiment
-from nerf_jax.data import loaders
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.data.scenes import photos
+from tests.helpers import load_data
 
 
 def _capture(poses, accs=None, images=None):
@@ -56,7 +56,7 @@ def test_cameras_around_a_frame_filling_scene_are_unbounded():
 
 
 def test_per_photo_gains_call_for_appearance_codes():
-  train, _ = loaders.load_dataset({"scene": "diffuse", "num_views": 40, "image_size": 16})
+  train, _ = load_data({"scene": "diffuse", "num_views": 40, "image_size": 16})
   assert not _found(train)["appearance"]
   gained = dataclasses.replace(train, images=photos.with_gains(train.images,
                                                                photos.gains(len(train))))
@@ -67,7 +67,7 @@ def test_per_photo_gains_call_for_appearance_codes():
 def test_highlights_that_move_call_for_view_dependence():
   """glossy's Blinn-Phong highlights against diffuse's Lambertian objects (the same scene
   without them), also with per-photo gains, which are exposure, not highlights."""
-  load = lambda scene: loaders.load_dataset({"scene": scene, "num_views": 40,
+  load = lambda scene: load_data({"scene": scene, "num_views": 40,
                                              "image_size": 24})[0]
   glossy, diffuse = load("glossy"), load("diffuse")
   assert _found(glossy)["view_dependence"] and not _found(diffuse)["view_dependence"]
@@ -145,7 +145,7 @@ def _auto(scene, capsys=None, **fields):
       config[f"auto_{field}"] = value
     else:
       config[section][field] = value
-  train, _ = loaders.load_dataset(config.data)
+  train, _ = load_data(config.data)
   return auto.auto_config(config, train)
 
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from nerf_jax.data.scenes import capture as capture_scene
-from helpers import assert_data_error
+from helpers import assert_data_error, load_data
 from nerf_jax.cameras import rays as rays_lib
-from nerf_jax.data import loaders, nerfstudio, orient, pointcloud
+from nerf_jax.data import nerfstudio, orient, pointcloud
 
 SIZE = (48, 56)  # (height, width)
 
@@ -89,13 +89,13 @@ def test_split_every_8th_or_as_the_file_says(tmp_path):
   photos = [np.full((4, 4, 3), k, np.uint8) for k in range(10)]
   frames = [(np.eye(4), {}) for _ in range(10)]
   config = {"path": _write(tmp_path, frames, {"fl_x": 5.0}, photos)}
-  train, test = loaders.load_dataset(config)
+  train, test = load_data(config)
   assert [round(im[0, 0, 0] * 255) for im in test.images] == [0, 8]
   assert len(train) == 8
   meta = json.loads((tmp_path / "transforms.json").read_text())
   meta["test_filenames"] = ["images/f_03.png", "./images/f_05.png"]
   (tmp_path / "transforms.json").write_text(json.dumps(meta))
-  train, test = loaders.load_dataset(config)
+  train, test = load_data(config)
   assert [round(im[0, 0, 0] * 255) for im in test.images] == [3, 5] and len(train) == 8
 
 
@@ -240,9 +240,9 @@ def test_min_sharpness_drops_frames_at_load(tmp_path, capsys):
   values = [30.0, 31.0, 29.0, 5.0, 30.0, 32.0, 28.0]
   fields = [{"sharpness": v} for v in values]
   config = {"path": _numbered(tmp_path, 7, fields=fields), "holdout_from": 3}
-  train, test = loaders.load_dataset(config)  # default 0: all kept, nothing printed
+  train, test = load_data(config)  # default 0: all kept, nothing printed
   assert len(train) + len(test) == 7 and capsys.readouterr().out == ""
-  train, test = loaders.load_dataset({**config, "min_sharpness": 0.5})
+  train, test = load_data({**config, "min_sharpness": 0.5})
   kept = np.concatenate([train.images, test.images])[:, 0, 0, 0] * 255
   np.testing.assert_array_equal(kept, [0, 1, 2, 4, 5, 6])
   out = capsys.readouterr().out.splitlines()
@@ -334,7 +334,7 @@ def test_ns_process_data_folder_loads(tmp_path):
           "applied_transform": [[0, 1, 0, 0], [1, 0, 0, 0], [0, 0, -1, 0]],
           "ply_file_path": "sparse_pc.ply"}
   (tmp_path / "transforms.json").write_text(json.dumps(meta))
-  train, test = loaders.load_dataset({"path": str(tmp_path), "factor": 2})
+  train, test = load_data({"path": str(tmp_path), "factor": 2})
   assert (len(train), len(test)) == (5, 1) and (train.height, train.width) == (4, 6)
   np.testing.assert_allclose(test.images[0, 0, 0, 0] * 255, 1, atol=1e-4)  # images_2/
   np.testing.assert_allclose(train.intrinsics, (5.5, 5.5, 2.5, 1.5), atol=1e-9)

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax.fields import model
+from nerf_jax.fields.networks import grid as grid_network
 from nerf_jax.fields.encodings import grid
 from nerf_jax.render import renderer
 from nerf_jax.run import experiment
@@ -29,7 +29,7 @@ def _trained_like(params):
   res = params[names[0]].shape[0]
   c = np.linspace(-1.5, 1.5, res)
   x, y, z = np.meshgrid(c, c, c, indexing="ij")
-  ball = np.where(x ** 2 + y ** 2 + z ** 2 < 0.8 ** 2, 4.0, -5.0) / model.DENSITY_GAIN
+  ball = np.where(x ** 2 + y ** 2 + z ** 2 < 0.8 ** 2, 4.0, -5.0) / grid_network.DENSITY_GAIN
   params[names[0]] = jnp.asarray(ball[..., None], jnp.float32)
   return params
 
@@ -40,7 +40,7 @@ def _rays():
 
 
 def test_each_half_of_the_split_network_equals_the_whole():
-  net = model.DensityGridNeRF(resolutions=(4, 8), features=2, density_resolutions=(8,),
+  net = grid_network.DensityGridNeRF(resolutions=(4, 8), features=2, density_resolutions=(8,),
                               view_dependent=True)
   points = jax.random.uniform(jax.random.PRNGKey(0), (50, 3), minval=-1.6, maxval=1.6)
   dirs = jax.random.normal(jax.random.PRNGKey(1), (50, 27))
@@ -50,12 +50,12 @@ def test_each_half_of_the_split_network_equals_the_whole():
   np.testing.assert_array_equal(net.apply(variables, points, dirs, part="colour"), rgb)
   unit = grid.to_unit_cube(points, 1.5)
   inside = np.asarray(grid.inside_box(unit))
-  np.testing.assert_allclose(np.asarray(raw)[inside], model.INITIAL_RAW_DENSITY, rtol=1e-6)
+  np.testing.assert_allclose(np.asarray(raw)[inside], grid_network.INITIAL_RAW_DENSITY, rtol=1e-6)
   assert np.all(np.asarray(raw)[~inside] == -1e5)  # a nearly empty start, empty outside
   density = jax.random.normal(jax.random.PRNGKey(4), variables["params"]["density_8"].shape)
   variables["params"]["density_8"] = density
   raw = net.apply(variables, points, part="density")
-  np.testing.assert_allclose(np.asarray(raw)[inside], model.DENSITY_GAIN * np.asarray(
+  np.testing.assert_allclose(np.asarray(raw)[inside], grid_network.DENSITY_GAIN * np.asarray(
       grid.trilinear(density, unit)[..., 0])[inside], rtol=1e-5, atol=1e-5)
 
 
@@ -147,7 +147,7 @@ def _hashed_brute(table, point, resolution, log2_size):
 def _hashed_network(part):
   """(network, points float32 [40, 3], variables): a split network whose `part` ('density' or
   'colour') has a hashed level of 32^3 points in 2^8 rows, and random points in its box."""
-  net = model.DensityGridNeRF(resolutions=(4,), features=2, density_resolutions=(8,),
+  net = grid_network.DensityGridNeRF(resolutions=(4,), features=2, density_resolutions=(8,),
                               **{f"{part}_hash_resolution": 32, f"{part}_hash_log2_size": 8})
   points = jax.random.uniform(jax.random.PRNGKey(0), (40, 3), minval=-1.4, maxval=1.4)
   return net, points, net.init(jax.random.PRNGKey(2), points, jnp.zeros((40, 3)))
@@ -159,14 +159,14 @@ def test_a_hashed_density_level_adds_its_hash_lookup_to_the_dense_levels():
   assert params["hashed_density"].shape == (256, 1)  # 32^3 points share 2^8 rows
   unit = grid.to_unit_cube(points, 1.5)
   np.testing.assert_allclose(net.apply(variables, points, part="density"),
-                             model.INITIAL_RAW_DENSITY, rtol=1e-6)  # the same faint start
+                             grid_network.INITIAL_RAW_DENSITY, rtol=1e-6)  # the same faint start
   params["density_8"] = jax.random.normal(jax.random.PRNGKey(3), params["density_8"].shape)
   params["hashed_density"] = jax.random.normal(jax.random.PRNGKey(4), (256, 1))
   raw = np.asarray(net.apply(variables, points, part="density"))
   dense = np.asarray(grid.trilinear(params["density_8"], unit)[..., 0])
   hashed = [_hashed_brute(np.asarray(params["hashed_density"]), u, 32, 8)
             for u in np.asarray(unit)]
-  np.testing.assert_allclose(raw, model.DENSITY_GAIN * (dense + np.array(hashed)),
+  np.testing.assert_allclose(raw, grid_network.DENSITY_GAIN * (dense + np.array(hashed)),
                              rtol=1e-5, atol=1e-5)
   # Its gradient reaches only the rows the points' corners hash to.
   grad = jax.grad(lambda p: jnp.sum(net.apply({"params": p}, points, part="density")))(params)

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from nerf_jax.data import scenes
-from nerf_jax.data import DataError, export, load_blender, load_dataset, load_npz
+from nerf_jax.data import DataError, export, load_blender, load_npz
 from tests.helpers import assert_data_error as _error, blender_folder as _blender
-from tests.helpers import small_config
+from tests.helpers import load_data, small_config
 
 Q = 1.0 / 255 + 1e-6  # 8-bit quantisation
 
@@ -110,7 +110,7 @@ def test_opaque_blender_export_has_unit_accs(fog, tmp_path):
 
 
 def test_load_dataset_builtin():
-  train, test = load_dataset(small_config(DATA).data)
+  train, test = load_data(small_config(DATA).data)
   assert (len(train), len(test)) == (8, 2) and train.images.shape == (8, 20, 20, 3)
   assert train.focal == pytest.approx(scenes.TINY_NERF_FOCAL / 5)
   assert train.accs is not None and train.depths.shape == (8, 20, 20)
@@ -118,19 +118,19 @@ def test_load_dataset_builtin():
 
 def test_load_dataset_npz_and_blender(fog, tmp_path):
   export.export_npz(fog, str(tmp_path / "fog.npz"))
-  train, test = load_dataset(small_config(
+  train, test = load_data(small_config(
       {**DATA, "data.path": str(tmp_path / "fog.npz"), "data.holdout_from": 4}).data)
   np.testing.assert_array_equal(test.images, fog.images[4:])
   np.testing.assert_array_equal(train.poses, fog.poses[:4])
   export.export_blender(fog, str(tmp_path / "blender"), split_at=5)
-  train, test = load_dataset(small_config(
+  train, test = load_data(small_config(
       {**DATA, "data.path": str(tmp_path / "blender"), "data.half_res": True}).data)
   assert (len(train), len(test)) == (5, 1) and train.images.shape == (5, 8, 8, 3)
   assert train.focal == pytest.approx(fog.focal / 2)
 
 
 def test_missing_config_fields_use_defaults():
-  train, test = load_dataset(ml_collections.ConfigDict({"num_views": 5, "image_size": 8}))
+  train, test = load_data(ml_collections.ConfigDict({"num_views": 5, "image_size": 8}))
   assert (len(train), len(test)) == (4, 1)
 
 
@@ -154,7 +154,7 @@ def _npz(tmp_path, **arrays):
 
 
 def test_npz_errors(tmp_path):
-  _error(["nope.npz", "no such"], load_dataset,
+  _error(["nope.npz", "no such"], load_data,
          small_config({**DATA, "data.path": str(tmp_path / "nope.npz")}).data)
   _error(["'focal'", "has: images, poses"], load_npz, _npz(tmp_path, focal=None))
   _error(["'poses' has 3", "2 views"], load_npz, _npz(tmp_path, poses=np.zeros((3, 4, 4))))
@@ -167,12 +167,12 @@ def test_npz_errors(tmp_path):
   _error(["bad.npz", "'images'", "channels"], load_npz,
          _npz(tmp_path, images=np.zeros((2, 4, 4, 2))))
   (tmp_path / "notes.txt").write_text("hi")
-  _error(["unknown dataset format", "notes.txt"], load_dataset,
+  _error(["unknown dataset format", "notes.txt"], load_data,
          small_config({**DATA, "data.path": str(tmp_path / "notes.txt")}).data)
-  _error(["unknown dataset format"], load_dataset,
+  _error(["unknown dataset format"], load_data,
          small_config({**DATA, "data.path": str(tmp_path)}).data)
-  _error(["data.scene", "'lego'"], load_dataset, small_config({**DATA, "data.scene": "lego"}).data)
-  _error(["background"], load_dataset,
+  _error(["data.scene", "'lego'"], load_data, small_config({**DATA, "data.scene": "lego"}).data)
+  _error(["background"], load_data,
          small_config({**DATA, "data.path": _npz(tmp_path), "data.background": "pink"}).data)
 
 

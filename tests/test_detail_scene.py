@@ -12,7 +12,7 @@ from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.data import scenes
 from nerf_jax.data import export, loaders
 from nerf_jax.data.scenes import cache, detail, raycast, tracer
-from tests.helpers import small_config
+from tests.helpers import load_data, small_config
 
 SCENE = detail.SCENE
 S = SCENE.supersample
@@ -261,6 +261,6 @@ def test_default_size_and_config():
 
 def test_detail_config_loads_the_scene():
   config = small_config({"data.num_views": 5, "data.image_size": 12}, base="scenes/detail")
-  train, test = loaders.load_dataset(config.data)
+  train, test = load_data(config.data)
   assert (len(train), len(test)) == (4, 1) and train.images.shape[1:] == (12, 12, 3)
   assert train.name == "detail" and 0 < train.accs.mean() < 1

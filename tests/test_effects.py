@@ -8,12 +8,10 @@ import numpy as np
 import pytest
 
 from nerf_jax.data import scenes
-from nerf_jax.evaluate import evaluation
 from nerf_jax.fields import field
 from nerf_jax.fields.encodings import encoding
 from nerf_jax.render import background, compositing, renderer
 from nerf_jax.run import experiment
-from nerf_jax.train import train_batches
 from nerf_jax.run import train_lib
 from nerf_jax.cameras.rays import Rays
 from nerf_jax.data.scenes import simulator
@@ -53,7 +51,7 @@ def _spy_one_step(monkeypatch, config):
   monkeypatch.setattr(encoding, "positional_encoding", spy_encode)
   monkeypatch.setattr(compositing, "composite", spy_composite)
   exp = experiment.setup(config)
-  data = train_batches.make_train_data(exp)
+  data = experiment.make_train_data(exp)
   with jax.disable_jit():  # concrete values reach the spies
     experiment.make_train_step(exp)(experiment.init_state(exp), data, jax.random.PRNGKey(0))
   return calls
@@ -119,7 +117,7 @@ def _loss(monkeypatch, rendered, acc, pixel=0.3, spelling="random"):
   monkeypatch.setattr(renderer.RayRenderer, "render", fake_render)
   bg, switch = RANDOM_SPELLINGS[spelling]
   exp = experiment.setup(small_config({"data.background": bg, "train.random_background": switch}))
-  data = train_batches.make_train_data(exp)
+  data = experiment.make_train_data(exp)
   data = data.replace(rgb=jnp.full_like(data.rgb, pixel), acc=jnp.full_like(data.acc, acc))
   _, stats = experiment.make_train_step(exp)(experiment.init_state(exp), data,
                                              jax.random.PRNGKey(0))
@@ -230,7 +228,7 @@ def test_ndc_rendering_of_the_forward_scene_learns_it_with_depth_in_unit_range(
   # image already scores 15.8 dB; the run scores 17.9 (measured, 600 steps, 4 bands).
   assert_beats_trivial(result["psnr"], exp, margin=1.5)
   depths = []
-  evaluation.make_evaluator(exp)(variables,
+  experiment.make_evaluator(exp)(variables,
                                  on_view=lambda i, out, truth: depths.append(out["depth"]))
   depths = np.stack(depths)
   assert depths.min() >= 0.0 and depths.max() <= 1.0  # NDC depth is the ray parameter t

@@ -12,7 +12,7 @@ import pytest
 
 from nerf_jax.fields.encodings import grid, hashgrid
 from nerf_jax.run import experiment
-from nerf_jax.fields.model import HashNeRF
+from nerf_jax.fields.networks.hash import HashNeRF
 from tests.helpers import grey_view_loss, ray_renderer, small_config
 
 P1, P2 = 2654435761, 805459861
@@ -226,3 +226,47 @@ def test_config_signature_and_errors():
     experiment.make_field(config)
   with pytest.raises(ValueError, match="model.hash.gather_dtype"):
     hashgrid.encode(jnp.zeros((64, 1)), jnp.zeros((1, 3)), (4,), 6, "float64")
+
+
+# Unit roundoff u of round-to-nearest: bfloat16 keeps 8 significant bits (7 stored), float16 11
+# (10 stored), so a rounded value errs by at most u = 2^-8 or 2^-11 of itself.
+UNIT_ROUNDOFF = {"bfloat16": 2.0 ** -8, "float16": 2.0 ** -11}
+
+
+@pytest.mark.parametrize("dtype", sorted(UNIT_ROUNDOFF))
+def test_low_precision_gather_is_within_its_rounding_of_float32(dtype):
+  """model.hash.gather_dtype against float32, values and the table's gradient.
+
+  Values: each feature is sum_c w_c·row_c over a level's 8 corners, with the rows and weights
+  rounded to `dtype` (2 roundings), each product (1) and each of the 7 additions (7): by the
+  classic bound for a dot product, |low - f32| <= g_10 · sum_c w_c·|row_c|, g_n = n·u / (1 - n·u),
+  and sum_c w_c·|row_c| is the float32 encoding of |table| (w >= 0).
+  Gradient: computed in float32 from the float32 rows (`_interpolate_low`), so only the
+  cotangent differs: for 0.5·sum((features - target)^2) / N it carries the features' error,
+  |Δg| <= bound / N, and the table's gradient (a scatter-add of w·g) moves by at most the
+  float32 gradient of the cotangent bound / N; plus float32's own rounding of the sums (2^-20
+  of the sum of |w·g|, far above its 2^-24 per addition for these few hits per row).
+  """
+  resolutions = hashgrid.level_resolutions(4, 4, 64)  # 4, 10 dense; 25, 64 hashed into 2^10
+  log2_size = 10
+  rows = sum(hashgrid.level_rows(resolutions, log2_size))
+  k1, k2, k3 = jax.random.split(jax.random.PRNGKey(11), 3)
+  table = 0.1 * jax.random.normal(k1, (rows, 2))  # a trained table's scale, not the 1e-4 init
+  unit = jax.random.uniform(k2, (512, 3))
+  target = jax.random.normal(k3, (512, len(resolutions) * 2))
+  encode = lambda t, dt: hashgrid.encode(t, unit, resolutions, log2_size, dt)
+  n = 10 * UNIT_ROUNDOFF[dtype]
+  bound = n / (1 - n) * encode(jnp.abs(table), "float32")  # float32 [512, L·F]
+  low, f32 = encode(table, dtype), encode(table, "float32")
+  assert low.dtype == jnp.float32
+  error = jnp.abs(low - f32)
+  assert bool(jnp.all(error <= bound)), float(jnp.max(error / bound))
+  assert float(jnp.max(error)) > 0  # the rows really were rounded to `dtype`
+
+  loss = lambda t, dt: 0.5 * jnp.sum((encode(t, dt) - target) ** 2) / len(unit)
+  g_low, g32 = jax.grad(loss)(table, dtype), jax.grad(loss)(table, "float32")
+  _, pull = jax.vjp(lambda t: encode(t, "float32"), table)
+  moved = pull(bound / len(unit))[0]  # float32 [rows, F]: the gradient's error bound
+  scale = pull(jnp.abs(encode(table, "float32") - target) / len(unit))[0]  # sum of |w·g|
+  assert bool(jnp.all(jnp.abs(g_low - g32) <= moved + 2.0 ** -20 * scale))
+  np.testing.assert_array_equal(g_low != 0, g32 != 0)  # no gradient flushed to zero

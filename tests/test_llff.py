@@ -9,8 +9,8 @@ import pytest
 
 from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.data import scenes
-from nerf_jax.data import DataError, Dataset, export, export_llff, load_dataset, load_llff
-from tests.helpers import assert_data_error as _error
+from nerf_jax.data import DataError, Dataset, export, export_llff, load_llff
+from tests.helpers import assert_data_error as _error, load_data
 
 Q = 1.0 / 255 + 1e-6  # 8-bit quantisation
 
@@ -115,17 +115,17 @@ def test_factor_downsamples_or_reads_images_n(forward, tmp_path):
 def test_load_dataset_detects_llff_and_holds_out_every_8th(forward, tmp_path):
   export_llff(forward, str(tmp_path))
   config = {"path": str(tmp_path), "holdout_from": -1}
-  train, test = load_dataset(config)
+  train, test = load_data(config)
   np.testing.assert_allclose(test.images, forward.images[[0, 8]], atol=Q)
   np.testing.assert_allclose(train.images, forward.images[[1, 2, 3, 4, 5, 6, 7, 9]], atol=Q)
-  train, test = load_dataset({**config, "holdout_from": 7})
+  train, test = load_data({**config, "holdout_from": 7})
   assert (len(train), len(test)) == (7, 3)
   np.testing.assert_allclose(test.images, forward.images[7:], atol=Q)
-  train, test = load_dataset({**config, "factor": 2})
+  train, test = load_data({**config, "factor": 2})
   assert train.height == 6 and train.near == pytest.approx(1 / 0.75)  # default bd_factor 0.75
   centres = np.concatenate([train.poses, test.poses])[:, :3, 3]
   np.testing.assert_allclose(centres.mean(0), 0.0, atol=1e-6)  # recentred by default
-  train, test = load_dataset({**config, "bd_factor": 0.0, "recenter": False})  # the file as is
+  train, test = load_data({**config, "bd_factor": 0.0, "recenter": False})  # the file as is
   assert (train.near, train.far) == (forward.near, forward.far)
   np.testing.assert_allclose(test.poses, forward.poses[[0, 8]], atol=1e-5)
 
@@ -149,7 +149,7 @@ def test_errors(forward, tmp_path):
   np.save(table_path, table)
   os.rename(root / "images", root / "pictures")
   _error([str(root), "no images folder images/"], load_llff, str(root))
-  _error(["no images folder images/"], load_dataset, {"path": str(root)})
+  _error(["no images folder images/"], load_data, {"path": str(root)})
   _error(["factor=1.5"], load_llff, str(root), factor=1.5)
   (root / "poses_bounds.npy").write_text("not an array")
   _error([table_path, "not a readable .npy"], load_llff, str(root))

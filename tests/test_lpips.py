@@ -9,7 +9,7 @@ import pickle
 import numpy as np
 import pytest
 
-from nerf_jax.evaluate import evaluation, lpips, metrics
+from nerf_jax.evaluate import lpips, metrics
 from nerf_jax.render import image_renderer
 from nerf_jax.run import experiment
 from tests.helpers import requires_lpips, small_config
@@ -169,7 +169,7 @@ def _evaluate(image_size, out_dir):
   exp = experiment.setup(small_config({"data.image_size": image_size}))
   variables = experiment.init_state(exp).variables
   seen = []
-  evaluate = evaluation.make_evaluator(exp)
+  evaluate = experiment.make_evaluator(exp)
   return evaluate(variables, max_views=1, out_dir=out_dir,
                   on_view=lambda i, out, truth: seen.append((out["rgb"], truth))), seen
 

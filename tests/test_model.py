@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax.fields.model import NerfMLP
+from nerf_jax.fields.networks.mlp import NerfMLP
 from tests.helpers import NETWORK_RTOL
 
 

@@ -552,8 +552,8 @@ def test_case11_low_precision_inputs_composite_in_float32(dtype):
 
 
 def _tiny_model(dtype):
-  from nerf_jax.fields import model as model_lib  # pylint: disable=g-import-not-at-top
-  return model_lib.NerfMLP(depth=3, width=32, skip_layers=(1,), dtype=dtype)
+  from nerf_jax.fields.networks import mlp  # pylint: disable=g-import-not-at-top
+  return mlp.NerfMLP(depth=3, width=32, skip_layers=(1,), dtype=dtype)
 
 
 def _numpy_init(model, inputs, seed):

@@ -33,11 +33,11 @@ import jax
 import numpy as np
 from nerf_jax.configs import debug
 from nerf_jax.run import experiment
-from nerf_jax.train import parallel, train_batches, train_step
+from nerf_jax.train import parallel, train_step
 
 config = debug.get_config()
 exp = experiment.setup(config)
-data = train_batches.make_train_data(exp)
+data = experiment.make_train_data(exp)
 key = jax.random.PRNGKey(1)
 
 def run(mesh):
@@ -94,7 +94,8 @@ from nerf_jax.run import train_lib
 
 results = []
 train = train_lib.train_and_evaluate
-train_lib.train_and_evaluate = lambda *args: results.append(train(*args)) or results[-1]
+train_lib.train_and_evaluate = (lambda *args, **kw: results.append(train(*args, **kw))
+                                or results[-1])
 try:
   cli.train_main(["train.py", *sys.argv[1:]])
 except SystemExit as e:

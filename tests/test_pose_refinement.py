@@ -12,7 +12,7 @@ import scipy.linalg
 from nerf_jax.cameras import pose_refinement
 from nerf_jax.fields.encodings import encoding, hashgrid
 from nerf_jax.run import experiment
-from nerf_jax.train import train_batches, train_step
+from nerf_jax.train import train_step
 from nerf_jax.cameras.rays import Rays
 from nerf_jax.data.scenes import photos
 from tests.helpers import ray_renderer, small_config
@@ -167,7 +167,7 @@ def _train_corrections(exp, start, steps):
                                 opt_state=exp.tx.init(params),
                                 bad_step=jnp.array(-1, jnp.int32))
   step = experiment.make_train_step(exp)
-  data = train_batches.make_train_data(exp)
+  data = experiment.make_train_data(exp)
   for _ in range(steps):
     state, _ = step(state, data, jax.random.PRNGKey(0))
   return np.asarray(state.params["poses"])

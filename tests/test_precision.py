@@ -18,7 +18,7 @@ from nerf_jax.evaluate import metrics
 from nerf_jax.render import compositing
 from nerf_jax.samplers import visual_hull
 from nerf_jax.data.scenes import builtin, tracer
-from nerf_jax.fields.model import NerfMLP
+from nerf_jax.fields.networks.mlp import NerfMLP
 
 EMULATING_TF32 = jax.default_backend() != "cpu" or "tf32" in precision.emulated()
 EMULATING_DIV = jax.default_backend() != "cpu" or "div" in precision.emulated()

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from nerf_jax.cameras import rays
-from nerf_jax.fields import model
+from nerf_jax.fields import registry
 from nerf_jax.run import experiment
 from nerf_jax.samplers import sampler, sampling
-from nerf_jax.train import regularizers, train_batches
+from nerf_jax.train import regularizers
 from tests.helpers import small_config
 
 
@@ -62,7 +62,7 @@ def one_step_stats(overrides):
   """The stats of one train step from a fresh state of small_config(overrides)."""
   exp = experiment.setup(small_config(overrides))
   step = experiment.make_train_step(exp)
-  _, stats = step(experiment.init_state(exp), train_batches.make_train_data(exp),
+  _, stats = step(experiment.init_state(exp), experiment.make_train_data(exp),
                   jax.random.PRNGKey(3))
   return stats
 
@@ -133,7 +133,11 @@ def test_lattice_tables_and_the_weighted_tv_in_the_train_loss():
   params = {"coarse": {"grid_8": jnp.zeros((8, 8, 8, 2)), "plane_8_0": jnp.zeros((8, 8, 4)),
                        "line_8_0": jnp.zeros((8, 4)), "hidden": {"kernel": jnp.zeros((6, 4))}},
             "poses": jnp.zeros((3, 6))}
-  assert sorted(axes for _, axes in model.lattice_tables(params)) == [1, 2, 3]
+  every = {"grid_": 3, "density_": 3, "plane_": 2, "line_": 1}
+  assert sorted(axes for _, axes in registry.lattice_tables(params, every)) == [1, 2, 3]
+  # A family's own prefixes only (registry.Encoding.table_axes): the grid family's dense grids.
+  grid_axes = registry.lookup("grid").table_axes
+  assert [axes for _, axes in registry.lattice_tables(params, grid_axes)] == [3]
   stats = {}
   for weight in (0.0, 10.0):
     config = small_config({"train.tv_weight": weight}, base="fast",
@@ -141,9 +145,9 @@ def test_lattice_tables_and_the_weighted_tv_in_the_train_loss():
     exp = experiment.setup(config)
     state = experiment.init_state(exp)
     tv = sum(float(regularizers.total_variation(t, a))
-             for t, a in model.lattice_tables(state.params))
+             for t, a in registry.lattice_tables(state.params, grid_axes))
     _, stats[weight] = experiment.make_train_step(exp)(
-        state, train_batches.make_train_data(exp), jax.random.PRNGKey(3))
+        state, experiment.make_train_data(exp), jax.random.PRNGKey(3))
   # Same render: only the loss grows, by the weight times the random start's variation.
   np.testing.assert_allclose(stats[10.0]["psnr"], stats[0.0]["psnr"], rtol=1e-6)
   np.testing.assert_allclose(float(stats[10.0]["loss"] - stats[0.0]["loss"]), 10.0 * tv,

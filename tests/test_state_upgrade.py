@@ -9,7 +9,7 @@ import pytest
 from flax import serialization
 
 from nerf_jax.run import experiment
-from nerf_jax.train import checkpoints, train_batches
+from nerf_jax.train import checkpoints
 from tests.conftest import params_equal
 from tests.helpers import small_config
 
@@ -40,7 +40,7 @@ def trained():
   """(config, Experiment, TrainState after 3 steps: the grid and the moments are not zero)."""
   config = small_config(OCCUPANCY)
   exp = experiment.setup(config)
-  step, data = experiment.make_train_step(exp), train_batches.make_train_data(exp)
+  step, data = experiment.make_train_step(exp), experiment.make_train_data(exp)
   state = experiment.init_state(exp)
   for _ in range(3):
     state, _ = step(state, data, jax.random.PRNGKey(0))

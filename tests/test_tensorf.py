@@ -1,4 +1,4 @@
-"""The vector-matrix factorised field (tensorf.py, model.TensoRFNeRF): its reads against a dense
+"""The vector-matrix factorised field (tensorf.py, networks/tensorf.TensoRFNeRF): its reads against a dense
 grid built from the same factors, its gradients, and a training step through the renderer."""
 
 import jax
@@ -9,7 +9,7 @@ import optax
 from nerf_jax.fields.encodings import grid, tensorf
 from nerf_jax.run import experiment
 from nerf_jax.bench import encodings as bench_encodings
-from nerf_jax.fields.model import TensoRFNeRF
+from nerf_jax.fields.networks.tensorf import TensoRFNeRF
 from tests.helpers import grey_view_loss, ray_renderer, small_config
 from tests.test_grid import trilinear_brute
 

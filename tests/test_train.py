@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from nerf_jax.cameras import camera_paths
-from nerf_jax.evaluate import evaluation
 from nerf_jax.render import background
 from nerf_jax.run import config_lib, experiment, outputs
 from nerf_jax.train import checkpoints, train_batches
@@ -53,7 +52,7 @@ def test_checkpoint_restore_render_gives_the_same_image(tmp_path):
   config = small_config({"train.max_steps": 10})
   train_lib.train_and_evaluate(config, workdir)
   exp, state = experiment.restore(workdir)
-  again = evaluation.make_evaluator(exp)(state.variables)
+  again = experiment.make_evaluator(exp)(state.variables)
   stored = json.loads((tmp_path / "run" / "metrics.json").read_text())
   assert again["per_view"] == stored["per_view"]
 
@@ -133,7 +132,7 @@ def test_whole_image_batching_draws_whole_images():
   config.train.images_per_step = 2
   exp = experiment.setup(config)
   train_ds = exp.train_ds
-  data = train_batches.make_train_data(exp)
+  data = experiment.make_train_data(exp)
   rgb = train_batches.draw_batch(data, experiment.batch_settings(config), jax.random.PRNGKey(0)).rgb
   pixels = train_ds.height * train_ds.width
   assert rgb.shape == (2 * pixels, 3)
@@ -190,7 +189,7 @@ def test_targets_are_recomposited_on_the_configured_background():
   train_ds = exp.train_ds
   empty = train_ds.accs == 0
   assert empty.any() and np.all(train_ds.images[empty] == 1.0)
-  acc, rgb = train_batches._targets(exp)  # pylint: disable=protected-access
+  rgb = np.asarray(experiment.make_train_data(exp).rgb).reshape(train_ds.images.shape)
   assert np.all(rgb[empty] == 0.0)
   opaque = train_ds.accs == 1
   np.testing.assert_allclose(rgb[opaque], train_ds.images[opaque], atol=1e-6)
@@ -224,7 +223,7 @@ def test_random_background_does_nothing_on_data_without_opacity():
     exp = experiment.setup(small_config({"train.random_background": switch}))
     exp.train_ds.accs = None
     step = experiment.make_train_step(exp)
-    _, stats = step(experiment.init_state(exp), train_batches.make_train_data(exp),
+    _, stats = step(experiment.init_state(exp), experiment.make_train_data(exp),
                     jax.random.PRNGKey(0))
     losses[switch] = float(stats["loss"])
   assert np.isfinite(losses[True]) and losses[True] == losses[False]
@@ -271,7 +270,7 @@ def test_evaluation_scores_against_truth_on_the_configured_background():
   test_ds = exp.test_ds
   variables = experiment.init_state(exp).variables
   seen = []
-  evaluation.make_evaluator(exp)(
+  experiment.make_evaluator(exp)(
       variables, max_views=1, on_view=lambda i, out, truth: seen.append(truth))
   empty = test_ds.accs[0] == 0
   assert empty.any() and np.all(seen[0][empty] == 1.0)
@@ -288,7 +287,7 @@ def test_rays_made_per_step_equal_every_pixels_stored_ray(batching, ndc):
   if ndc:
     config.data.scene, config.data.ndc = "forward", True
   exp = experiment.setup(config)
-  data = train_batches.make_train_data(exp)
+  data = experiment.make_train_data(exp)
   assert data.rays is None and data.poses.shape == (len(exp.train_ds), 4, 4)
   per_image = [exp.rays(pose).reshape(-1) for pose in exp.train_ds.poses]
   stored = data.replace(rays=jax.tree_util.tree_map(lambda *a: jnp.stack(a), *per_image))

@@ -8,7 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax.fields import contraction, model
+from nerf_jax.fields import contraction
+from nerf_jax.fields.networks import grid as grid_network
 from nerf_jax.run import experiment
 from nerf_jax.samplers import sampler, sampling
 from nerf_jax.fields.field import Field
@@ -41,7 +42,7 @@ def test_contracted_placement_is_linear_inside_and_in_disparity_beyond(kind):
 
 
 def test_the_field_sees_contracted_positions():
-  network = model.GridNeRF(resolutions=(4,), features=2, bound=3.0, hidden=8)
+  network = grid_network.GridNeRF(resolutions=(4,), features=2, bound=3.0, hidden=8)
   field = Field(network, None, 2, contraction="linf", inner_radius=1.5)
   points = jnp.array([[0.5, -0.2, 0.1], [30.0, 0.0, -2.0], [1e8, 1e8, 0.0]], jnp.float32)
   encoded = field.encode_positions(points)

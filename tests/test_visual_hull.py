@@ -7,11 +7,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from nerf_jax.cameras import rays
-from nerf_jax.fields import model
+from nerf_jax.fields.networks import grid as grid_network
 from nerf_jax.fields.encodings import grid
 from nerf_jax.run import experiment
 from nerf_jax.samplers import occupancy, sampler, visual_hull
-from nerf_jax.train import train_batches
 from tests.helpers import small_config
 from tests.test_grid import trilinear_brute
 
@@ -122,7 +121,7 @@ def test_a_grid_field_with_long_cells_along_z_has_fewer_lattice_points_there():
 
 
 def test_grid_field_over_a_box_is_empty_outside_it():
-  net = model.GridNeRF(resolutions=(8,), features=2, box=(-0.5, -1.0, 0.0, 0.5, 1.0, 0.5))
+  net = grid_network.GridNeRF(resolutions=(8,), features=2, box=(-0.5, -1.0, 0.0, 0.5, 1.0, 0.5))
   points = jnp.array([[0.0, 0.0, 0.25], [0.6, 0.0, 0.25], [0.0, 0.0, -0.1]])
   params = net.init(jax.random.PRNGKey(0), points)
   assert params["params"]["grid_8"].shape == (5, 8, 3, 2)
@@ -146,7 +145,7 @@ def test_a_run_with_the_visual_hull_samples_only_inside_it():
   state = experiment.init_state(exp)
   np.testing.assert_array_equal(np.asarray(state.buffers["occupancy"]), hull)
   step = experiment.make_train_step(exp)
-  data = train_batches.make_train_data(exp)
+  data = experiment.make_train_data(exp)
   for _ in range(2):  # step 0 refreshes the grid from the field (update_every = 1)
     state, _ = step(state, data, jax.random.PRNGKey(0))
   grid_after = np.asarray(state.buffers["occupancy"])

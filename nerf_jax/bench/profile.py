@@ -56,7 +56,7 @@ def _warmed(config, warm_steps):
   train steps (an occupancy grid then holds what the field has found, as in a real run)."""
   exp = experiment.setup(config)
   state = experiment.init_state(exp)
-  data = train_batches.make_train_data(exp)
+  data = experiment.make_train_data(exp)
   key = jax.random.PRNGKey(0)
   step = experiment.make_train_step(exp)
   for _ in range(warm_steps):

@@ -18,7 +18,6 @@ from absl import app, flags
 
 from nerf_jax import cli
 from nerf_jax.run import experiment
-from nerf_jax.train import train_batches
 from nerf_jax.bench import sweeps
 
 
@@ -35,7 +34,7 @@ def step_times(named_configs, steps, num_views=None):
       config.data.num_views = num_views
     exp = experiment.setup(config)
     state = experiment.init_state(exp)
-    data = train_batches.make_train_data(exp)
+    data = experiment.make_train_data(exp)
     step = experiment.make_train_step(exp)
     key = jax.random.PRNGKey(0)
     state, _ = jax.block_until_ready(step(state, data, key))  # compile + one warm-up step

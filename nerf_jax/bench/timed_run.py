@@ -1,8 +1,8 @@
 """One configuration trained under the benchmark's clock and measured: its record.
 
-The run is built and stepped by the library (experiment.setup / init_state,
-train_batches.make_train_data, train_step.make_train_step, evaluation.make_evaluator,
-Experiment.camera; the time budget fitted by train_lib.fit_to_time, as for training); only
+The run is built and stepped by the library (experiment.setup / init_state /
+make_train_data / make_train_step / make_evaluator, Experiment.camera; the time budget
+fitted by train_lib.fit_to_time, as for training); only
 the loop around the step is the bench's own: it syncs once per segment of steps, times the
 segments, and probes PSNR with the clock paused (see measure.py for the time words), which is
 not what train_lib.train_and_evaluate measures.
@@ -24,7 +24,6 @@ import numpy as np
 from nerf_jax.evaluate import evaluation
 from nerf_jax.render import background, image_renderer
 from nerf_jax.run import experiment
-from nerf_jax.train import train_batches
 from nerf_jax.run import train_lib
 from nerf_jax.bench import measure, sweeps
 
@@ -99,7 +98,7 @@ def run_config(config, options):
   """Train `config` under its budget in this process and measure it. Returns the record."""
   start = time.perf_counter()
   exp = experiment.setup(config)
-  data = train_batches.make_train_data(exp)
+  data = experiment.make_train_data(exp)
   key = jax.random.PRNGKey(config.seed + 1)  # as train_lib.train_and_evaluate
   tc = config.train
   max_steps = experiment.schedule_steps(tc)
@@ -112,7 +111,7 @@ def run_config(config, options):
     exp = dataclasses.replace(exp, config=config, tx=experiment.optimizer_for(config))
     max_steps = sys.maxsize
   jitted, state = _build(exp)
-  evaluate = evaluation.make_evaluator(exp)
+  evaluate = experiment.make_evaluator(exp)
   clock = measure.Clock()
 
   def probe(state):

@@ -2,4 +2,5 @@
 
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.data.llff import export_llff, load_llff
-from nerf_jax.data.loaders import load_blender, load_dataset, load_npz, parse_background
+from nerf_jax.data.loaders import (DataSettings, load_blender, load_dataset, load_npz,
+                                   parse_background)

@@ -5,15 +5,16 @@ Every loader fills `Dataset.accs` and `Dataset.background` where the input tells
 images give the opacity (alpha) and are composited on the `background` argument.
 """
 
+import dataclasses
 import json
 import math
 import os
 import zipfile
+from typing import Any
 
 import numpy as np
 
 from nerf_jax.data import scenes
-from nerf_jax.run import config_lib
 from nerf_jax.data import nerfstudio, validate
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.data.llff import load_llff
@@ -138,9 +139,27 @@ def load_blender(path, background=(0.0, 0.0, 0.0), half_res=False, split="train"
                  accs=accs, background=tuple(bg.tolist()))
 
 
-def load_dataset(config):
-  """(train, test) Datasets from a `data` ConfigDict or dict (fields it lacks take the defaults
-  of configs/default.py, which documents every field).
+@dataclasses.dataclass(frozen=True)
+class DataSettings:
+  """What `load_dataset` loads: the config's data section, completed with configs/default.py's
+  values (which document each field) by run/experiment.data_settings."""
+  path: str  # .npz file, Blender, LLFF or transforms.json folder; '' = the built-in `scene`
+  scene: str  # built-in scene name (data/scenes)
+  num_views: int  # built-in scene: views rendered
+  image_size: int  # built-in scene: height = width in pixels
+  pixel_center: float  # built-in scene: where in its pixel each ray passes; -1 = 0.5 (centres)
+  held_out_looks: str  # built-in scene with per-photo looks: test views 'neutral' or 'own'
+  holdout_from: int  # views[holdout_from:] are the test views; -1 = the format's own split
+  background: Any  # 'black', 'white' or an RGB triple in [0, 1]: what RGBA is composited on
+  half_res: bool  # Blender: load at half resolution
+  factor: int  # LLFF and transforms.json: downscale the images by this integer (0 = 1)
+  bd_factor: float  # LLFF: scale so the nearest bound is 1/bd_factor (0 = the file's units)
+  recenter: bool  # LLFF: move the mean camera pose to the origin
+  min_sharpness: float  # transforms.json: drop frames < this x neighbours' sharpness (0 = off)
+
+
+def load_dataset(settings):
+  """(train, test) Datasets as `settings` (DataSettings) say.
 
   path '' = the built-in `scene` (image_size, num_views and pixel_center apply, -1 = 0.5; focal
   keeps tiny_nerf's field of view; held_out_looks 'own' gives the test views of a scene with
@@ -155,23 +174,21 @@ def load_dataset(config):
   factor also downscales transforms.json folders (nerfstudio / nerf-process output), and
   min_sharpness drops their blurry frames.
   """
-  saved = config.to_dict() if hasattr(config, "to_dict") else dict(config)
-  config = config_lib.complete({"data": saved}).data  # a partial one gets the defaults
-  path, holdout_from = config.path, config.holdout_from
-  background = parse_background(config.background)
+  path, holdout_from = settings.path, settings.holdout_from
+  background = parse_background(settings.background)
   if not path:
-    name, size = config.scene, config.image_size
+    name, size = settings.scene, settings.image_size
     if name not in scenes.SCENES:
       raise DataError(f"data.scene: unknown scene {name!r} (valid: {', '.join(scenes.SCENES)})")
     dataset = scenes.make_dataset(
-        name, num_views=config.num_views, height=size, width=size,
+        name, num_views=settings.num_views, height=size, width=size,
         focal=scenes.TINY_NERF_FOCAL * size / 100,
-        pixel_center=0.5 if config.pixel_center == -1 else config.pixel_center)
+        pixel_center=0.5 if settings.pixel_center == -1 else settings.pixel_center)
     train, test = dataset.split(holdout_from)
     effects = scenes.get_scene(name).effects
-    if config.held_out_looks not in ("neutral", "own"):
-      raise DataError(f"data.held_out_looks={config.held_out_looks!r}: use 'neutral' or 'own'")
-    if config.held_out_looks == "own":
+    if settings.held_out_looks not in ("neutral", "own"):
+      raise DataError(f"data.held_out_looks={settings.held_out_looks!r}: use 'neutral' or 'own'")
+    if settings.held_out_looks == "own":
       test = scenes.held_out_with_own_looks(test, effects, len(train))
     return scenes.photographed(train, effects), test
   if not os.path.exists(path):
@@ -179,13 +196,13 @@ def load_dataset(config):
   if os.path.isfile(path) and path.endswith(".npz"):
     return load_npz(path, background).split(holdout_from)
   if path.endswith(nerfstudio.FILENAME) or os.path.isfile(os.path.join(path, nerfstudio.FILENAME)):
-    return nerfstudio.load_split(path, background, config.factor or 1, holdout_from,
-                                 config.min_sharpness)
+    return nerfstudio.load_split(path, background, settings.factor or 1, holdout_from,
+                                 settings.min_sharpness)
   if os.path.isfile(os.path.join(path, "transforms_train.json")):
-    return tuple(load_blender(path, background, config.half_res, s) for s in ("train", "test"))
+    return tuple(load_blender(path, background, settings.half_res, s) for s in ("train", "test"))
   if os.path.isfile(os.path.join(path, "poses_bounds.npy")):
-    dataset = load_llff(path, factor=config.factor or 1, bd_factor=config.bd_factor or None,
-                        recenter=config.recenter)
+    dataset = load_llff(path, factor=settings.factor or 1, bd_factor=settings.bd_factor or None,
+                        recenter=settings.recenter)
     return dataset.split_every(8) if holdout_from == -1 else dataset.split(holdout_from)
   raise DataError(f"unknown dataset format at {path} (expected a .npz file or a directory with "
                   "transforms.json, transforms_train.json or poses_bounds.npy)")

@@ -172,10 +172,14 @@ def process(out_dir, images="", video="", num_frames=100, matcher="auto",
   return summary
 
 
+# Exceptions whose message is the whole story for the user of nerf-process (as for nerf-train).
+USER_ERRORS = (DataError, FileNotFoundError, ValueError)
+
+
 def main():
-  """Define the flags, parse them (one-line errors) and process."""
+  """Define the flags, parse them (one-line errors: backend/errors.py) and process."""
   from absl import app, flags  # pylint: disable=import-outside-toplevel
-  from nerf_jax import cli  # pylint: disable=import-outside-toplevel
+  from nerf_jax.backend import errors  # pylint: disable=import-outside-toplevel
   images = flags.DEFINE_string("images", "", "Directory of photos (.jpg, .jpeg, .png).")
   video = flags.DEFINE_string("video", "", "A video file to sample frames from.")
   num_frames = flags.DEFINE_integer("num_frames", 100, "--video: frames sampled evenly.")
@@ -191,11 +195,11 @@ def main():
 
   def run(argv):
     del argv
-    cli.run_main(lambda: process(out.value, images.value, video.value, num_frames.value,
-                                 matcher.value, camera_model.value, single_camera.value,
-                                 min_registered.value))
+    errors.run_main(lambda: process(out.value, images.value, video.value, num_frames.value,
+                                    matcher.value, camera_model.value, single_camera.value,
+                                    min_registered.value), USER_ERRORS)
 
-  app.run(run, flags_parser=cli.parse_flags)
+  app.run(run, flags_parser=errors.parse_flags)
 
 
 if __name__ == "__main__":

@@ -3,6 +3,7 @@ geometry scores (depth error, floaters); the evaluator used while training, by r
 the benchmark.
 """
 
+import dataclasses
 import json
 import os
 
@@ -28,7 +29,14 @@ POSE_PROTOCOL = ("similarity: the given test poses moved by the similarity (Umey
                  "the given training cameras (centres and axes) to the refined ones")
 
 
-def make_evaluator(exp):
+@dataclasses.dataclass(frozen=True)
+class EvalSettings:
+  """How the test views are rendered and scored (run/experiment.eval_settings builds them)."""
+  background: tuple  # (r, g, b) in [0, 1]: the colour rendered and scored on (data.background)
+  appearance_protocol: str  # the held-out views' codes: a key of APPEARANCE_PROTOCOLS
+
+
+def make_evaluator(exp, settings):
   """fn(variables, max_views=None, out_dir=None, on_view=None) -> {'psnr', 'ssim', 'lpips',
   'per_view'} (variables: a TrainState's, renderer.py); without LPIPS (the `lpips` extra missing, or
   images under 31 px a side) the 'lpips' keys are absent and 'lpips_skipped' says why in one line.
@@ -38,20 +46,21 @@ def make_evaluator(exp):
   With appearance codes or refined poses the result also holds the protocol used for the test
   views (`protocols`) and, where the data knows the true poses, `pose_scores`.
 
-  Evaluates the test views of `exp` (an experiment.Experiment). With `out_dir`, writes per view
-  a PNG of [prediction | depth | ground truth] and depth `.npy`. on_view(index, out, truth) is
-  called for every view with the rendered numpy dict (rgb [H, W, 3], depth [H, W], acc [H, W])
-  and the true image float32 [H, W, 3] on the configured background (see
-  `background.images_on_background`; the trainer sends the first one to TensorBoard).
+  Evaluates the test views of `exp` (an experiment.Experiment) as `settings` (EvalSettings)
+  say. With `out_dir`, writes per view a PNG of [prediction | depth | ground truth] and depth
+  `.npy`. on_view(index, out, truth) is called for every view with the rendered numpy dict
+  (rgb [H, W, 3], depth [H, W], acc [H, W]) and the true image float32 [H, W, 3] on
+  settings.background (see `background.images_on_background`; the trainer sends the first one
+  to TensorBoard).
   """
   make_draw = image_renderer.make_image_renderer(exp.renderer, exp.image)
-  bg = background.parse(exp.config.data.background)
+  bg = np.asarray(settings.background, np.float32)
+  protocol = settings.appearance_protocol
   test_ds = exp.test_ds
   camera = (test_ds.height, test_ds.width, test_ds.intrinsics)
   truths = background.images_on_background(test_ds, bg)[1]
-  half = appearance_protocol(exp) == "left_half"
-  scored = ((lambda a: a[:, test_ds.width // 2:]) if exp.config.render.appearance_protocol ==
-            "left_half" else (lambda a: a))
+  half = appearance_protocol(protocol, exp.renderer.field.uses_images) == "left_half"
+  scored = (lambda a: a[:, test_ds.width // 2:]) if protocol == "left_half" else (lambda a: a)
   lpips_skipped = lpips.unavailable_reason(test_ds.height, scored(truths[0]).shape[1])
   fit_code = make_code_fitter(exp.renderer) if half else None
 
@@ -83,7 +92,7 @@ def make_evaluator(exp):
     result = {name: float(np.mean([v[name] for v in per_view if name in v])) for name in names}
     if lpips_skipped is not None:
       result["lpips_skipped"] = lpips_skipped
-    result.update(protocols(exp, variables))
+    result.update(protocols(exp, variables, protocol))
     result.update(pose_scores(exp, variables))
     result["per_view"] = per_view
     if out_dir:
@@ -94,14 +103,13 @@ def make_evaluator(exp):
   return evaluate
 
 
-def appearance_protocol(exp):
-  """config.render.appearance_protocol where the field has appearance codes, else None;
-  ValueError naming the field for an unknown protocol."""
-  protocol = exp.config.render.appearance_protocol
+def appearance_protocol(protocol, uses_images):
+  """`protocol` (render.appearance_protocol) where the field has appearance codes (`uses_images`),
+  else None; ValueError naming the field for an unknown protocol."""
   if protocol not in APPEARANCE_PROTOCOLS:
     raise ValueError(f"config.render.appearance_protocol={protocol!r}: use "
                      f"{' or '.join(map(repr, APPEARANCE_PROTOCOLS))}")
-  return protocol if exp.renderer.field.uses_images else None
+  return protocol if uses_images else None
 
 
 def with_codes(variables, codes):
@@ -164,14 +172,14 @@ def held_out_poses(exp, variables):
   return pose_refinement.transform(exp.test_ds.poses, similarity)
 
 
-def protocols(exp, variables):
-  """{'appearance': ..., 'held_out_poses': ...}: how the test views were rendered and scored,
-  for the models or protocols that need saying (appearance codes or left_half, refined poses);
-  {} otherwise."""
+def protocols(exp, variables, protocol):
+  """{'appearance': ..., 'held_out_poses': ...}: how the test views were rendered and scored
+  under the appearance protocol `protocol` (EvalSettings'), for the models or protocols that
+  need saying (appearance codes or left_half, refined poses); {} otherwise."""
   out = {}
   if exp.renderer.field.uses_images:
-    out["appearance"] = APPEARANCE_PROTOCOLS[appearance_protocol(exp)]
-  elif exp.config.render.appearance_protocol == "left_half":
+    out["appearance"] = APPEARANCE_PROTOCOLS[appearance_protocol(protocol, True)]
+  elif protocol == "left_half":
     out["appearance"] = NO_CODE_HALF
   if refined_poses(exp, variables) is not None:
     out["held_out_poses"] = POSE_PROTOCOL

@@ -2,8 +2,9 @@
 
 A field maps points float32 [..., S, 3] and unit view directions float32 [..., 3] to colour
 rgb float32 [..., S, 3] and density sigma float32 [..., S] (per unit of world length). It wraps
-a Flax network (model.py) with the encoding of its inputs (encoding.py; the grid networks take
-raw positions, the grids are their encoding) and the density activation (activations.py).
+a Flax network (network.py: the calling convention; networks/: the built-in families) with the
+encoding of its inputs (encodings/encoding.py; the grid networks take raw positions, the grids
+are their encoding) and the density activation (activations.py).
 `Field` is built once (experiment.make_field) and queried as field.query(params, points,
 viewdirs, key). Two optional per-query inputs: `image`, int32 [...] the training image of each
 ray, selects its appearance code (appearance_dims > 0; None = the mean code, as for held-out
@@ -26,7 +27,8 @@ from nerf_jax.fields.encodings import encoding
 class Field:
   """A network and how its inputs and outputs are treated.
 
-  network: the Flax module (model.NerfMLP, GridNeRF or HashNeRF), applied to encoded inputs.
+  network: the Flax module (network.Network: an encoding family's, registry.py), applied to
+    encoded inputs.
   pos_encode_dims: frequency bands of the positions' encoding; None = raw positions (the grid
     networks: the grids are the encoding). dir_encode_dims: bands of the directions' encoding.
   view_dependent: colour takes the encoded viewing direction.
@@ -63,12 +65,10 @@ class Field:
   def coarse_to_fine_stages(self):
     """What opens coarse to fine while poses are refined (the most `bands` means): the
     positional encoding's bands, or a grid network's levels after the coarsest (always open);
-    0 for a network whose density has grids of its own (model.DensityGridNeRF)."""
+    0 for a network that weighs no levels (network.Network.num_levels)."""
     if self.pos_encode_dims is not None:
       return self.pos_encode_dims
-    if self.splits_density:
-      return 0
-    return self.network.num_levels - 1
+    return max(self.network.num_levels - 1, 0)
 
   def level_weights(self, bands):
     """float32 [levels] weights of a grid network's levels with `bands` open (None: all)."""
@@ -111,8 +111,8 @@ class Field:
 
   @property
   def splits_density(self):
-    """Whether the network gives density and colour separately (model.DensityGridNeRF)."""
-    return bool(getattr(self.network, "density_resolutions", ()))
+    """Whether the network gives density and colour separately (network.Network)."""
+    return self.network.splits_density
 
   def _activate(self, raw_sigma, key):
     if key is not None and self.density_noise > 0:

@@ -18,11 +18,10 @@ import jax.numpy as jnp
 import ml_collections
 
 from nerf_jax.backend import determinism
-from nerf_jax.evaluate import evaluation, lpips, visuals
+from nerf_jax.evaluate import lpips, visuals
 from nerf_jax.run import config_lib, experiment, outputs
-from nerf_jax.train import budget, checkpoints, parallel, progress, summary, train_batches
+from nerf_jax.train import budget, checkpoints, parallel, progress, summary
 from nerf_jax.run.experiment import TrainingError, TrainState  # noqa: F401  (re-exported)
-from nerf_jax.viewer import training as live_viewer
 
 
 class _StopRequest:
@@ -48,7 +47,7 @@ def _log(workdir, record):
     f.write(json.dumps(record) + "\n")
 
 
-def train_and_evaluate(config, workdir):
+def train_and_evaluate(config, workdir, hooks=()):
   """Train on `config.data`, checkpoint into `workdir`, evaluate the test views at the end.
 
   Resumes from the newest checkpoint in `workdir`. Returns the final metrics dict (also written to
@@ -56,6 +55,12 @@ def train_and_evaluate(config, workdir):
   The run lasts train.max_steps steps if set, else until train.max_seconds with the schedule
   fitted to the steps expected in it (budget.py), else train.default_steps steps; the run's
   config.json holds the schedule it used.
+
+  hooks: step hooks, each given as a factory fn(exp, workdir, main) -> hook (exp: the run's
+  experiment.Experiment; main: whether this is process 0), called once the run is set up; a
+  hook has after_step(step, variables_fn), called after every step (variables_fn() -> the
+  current variables on one device), and close(), called after the last step. nerf-train passes
+  the live viewer's (viewer/training.start).
   """
   config = config_lib.upgrade(config)
   if config.train.deterministic:
@@ -75,7 +80,7 @@ def train_and_evaluate(config, workdir):
   mesh = parallel.make_mesh(config.train.data_parallel)
   step_rays = experiment.rays_per_step(config, exp.train_ds)
   parallel.check_batch(step_rays, mesh)
-  data = parallel.replicate(train_batches.make_train_data(exp), mesh)
+  data = parallel.replicate(experiment.make_train_data(exp), mesh)
   key = jax.random.PRNGKey(config.seed + 1)
   train_step = experiment.cached_train_step(exp, mesh)
   last_step = experiment.schedule_steps(config.train)
@@ -89,7 +94,7 @@ def train_and_evaluate(config, workdir):
                              config.to_json(indent=2).encode())
   tc = config.train
   state = parallel.replicate(state, mesh)
-  evaluate = evaluation.make_evaluator(exp)
+  evaluate = experiment.make_evaluator(exp)
   schedule = experiment.make_schedule(tc)
   writer = summary.Writer(workdir, enabled=main and tc.tensorboard)
   start_step = int(state.step)
@@ -101,12 +106,13 @@ def train_and_evaluate(config, workdir):
   bar = progress.Progress(int(tc.max_seconds) if clocked else planned,
                           "train (seconds)" if clocked else "train", start=position(),
                           stream=None if main else io.StringIO())
-  viewer = live_viewer.start(exp, workdir, enabled=main)
+  hooks = [make_hook(exp, workdir, main) for make_hook in hooks]
   with _StopRequest() as stop:
     while step < last_step:
       state, stats = train_step(state, data, key)
       step += 1
-      viewer.after_step(step, lambda: _one_device(state.variables, mesh))
+      for hook in hooks:
+        hook.after_step(step, lambda: _one_device(state.variables, mesh))
       budget_over = tc.max_seconds > 0 and time.perf_counter() - t_start >= tc.max_seconds
       log_now = step % tc.log_every == 0 or step == last_step or budget_over or stop.signum
       if log_now:
@@ -161,7 +167,8 @@ def train_and_evaluate(config, workdir):
       if budget_over:
         break
   bar.close()
-  viewer.close()
+  for hook in hooks:
+    hook.close()
   train_seconds = time.perf_counter() - t_start
   _check_finite(state, workdir)
   variables = _one_device(state.variables, mesh)

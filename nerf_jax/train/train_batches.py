@@ -53,14 +53,15 @@ class TrainData:
   camera: tuple = flax.struct.field(pytree_node=False, default=None)
 
 
-def make_train_data(exp):
-  """TrainData of every pixel of the training images, targets on `config.data.background`;
-  rays are made per step from the poses (Experiment.rays' camera and conventions)."""
-  ds = exp.train_ds
-  height, width, intrinsics = exp.camera()
-  camera = (height, width, tuple(float(v) for v in intrinsics), float(exp.near), float(exp.far),
-            float(exp.pixel_center), bool(exp.config.data.ndc))
-  acc, rgb = _targets(exp)
+def make_train_data(ds, camera, rgb_background):
+  """TrainData of every pixel of the images of `ds` (a Dataset), targets on `rgb_background`
+  (float32 [3], background.parse's); rays are made per step from the poses and `camera`:
+  (height, width, intrinsics, near, far, pixel_center, use_ndc), see TrainData.camera
+  (run/experiment.make_train_data passes the training camera's)."""
+  height, width, intrinsics, near, far, pixel_center, use_ndc = camera
+  camera = (height, width, tuple(float(v) for v in intrinsics), float(near), float(far),
+            float(pixel_center), bool(use_ndc))
+  acc, rgb = _targets(ds, rgb_background)
   return TrainData(rays=None, rgb=jnp.asarray(rgb, jnp.float32).reshape(len(ds), -1, 3),
                    acc=jnp.asarray(acc, jnp.float32).reshape(len(ds), -1),
                    poses=jnp.asarray(ds.poses, jnp.float32), camera=camera)
@@ -79,11 +80,10 @@ def pixel_rays_of(data, image, pixel, poses=None):
   return jax.vmap(one)(i, j, poses[image])
 
 
-def _targets(exp):
-  """(acc [N, H, W], rgb [N, H, W, 3]): targets on the configured background (see
-  background.images_on_background)."""
-  return background.images_on_background(exp.train_ds,
-                                         background.parse(exp.config.data.background))
+def _targets(ds, rgb_background):
+  """(acc float32 [N, H, W], rgb float32 [N, H, W, 3]): the images of `ds` (a Dataset) on
+  `rgb_background` (float32 [3]; see background.images_on_background)."""
+  return background.images_on_background(ds, rgb_background)
 
 
 def draw_batch(data, settings, key, step=0, run_key=None):

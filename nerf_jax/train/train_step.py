@@ -1,9 +1,10 @@
-"""The jitted train step: draw a batch, refresh the occupancy grid, render, add the loss terms,
-take a gradient step of the optimiser; a non-finite step is not applied and is reported.
+"""The jitted train step: draw a batch, update the buffers (its hooks: the occupancy grid's
+refresh), render, add the loss terms, take a gradient step of the optimiser; a non-finite step
+is not applied and is reported.
 
-The step never sees a config: `make_train_step(ray_renderer, tx, settings, ...)` takes the
-renderer, the optimiser, the loss terms (train/losses.py) and `StepSettings`, all built once by
-the entry layer (run/experiment.py).
+The step never sees a config: `make_train_step(ray_renderer, tx, terms, settings, ...)` takes
+the renderer, the optimiser, the loss terms (train/losses.py), `StepSettings` and the buffer
+hooks, all built once by the entry layer (run/experiment.py).
 
 With appearance codes each ray is rendered with its training image's code; with pose refinement
 each ray is made from its camera's corrected pose (cameras/pose_refinement.py), so the
@@ -73,7 +74,31 @@ def _render_split(render, rays, key, background, image, posed):
   return jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), *outs)
 
 
-def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=None):
+@dataclasses.dataclass(frozen=True)
+class OccupancyRefresh:
+  """A buffer hook: every `update_every` steps, probe the renderer's density field at jittered
+  positions (drawn from the step: a resumed run probes where the uninterrupted one did) and
+  accumulate them into buffers['occupancy'] with decay (occupancy.accumulate); cells that
+  buffers['hull'] (the visual hull, when carved) rules out stay empty.
+
+  ray_renderer: the training RayRenderer, whose sampler has occupancy settings."""
+  ray_renderer: object
+
+  def __call__(self, state, run_key):
+    """The buffers of `state` (a TrainState) after this step's refresh."""
+    oc = self.ray_renderer.sampler.occupancy
+    # A stream of its own: fold_in(run_key, n) is step n's key, and step 2^32 - 1 never comes.
+    key = jax.random.fold_in(jax.random.fold_in(run_key, 0xFFFFFFFF), state.step)
+    refresh = lambda s: occupancy.accumulate(
+        s.buffers["occupancy"], self.ray_renderer.occupancy_grid(s.variables, key), oc.decay
+    ) * s.buffers.get("hull", 1.0)  # what the masks rule out stays empty
+    grid = jax.lax.cond(state.step % oc.update_every == 0, refresh,
+                        lambda s: s.buffers["occupancy"], state)
+    return {**state.buffers, "occupancy": grid}
+
+
+def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=None,
+                    buffer_hooks=()):
   """The jitted train step: (state, data, key[, planned_steps]) -> (state, stats). `state` is
   donated.
 
@@ -84,8 +109,10 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
   step for any length); None when the step is always called without planned_steps.
   mesh: a `parallel.make_mesh` Mesh to split each batch over its devices (data and state
   replicated on it), or None for one device.
+  buffer_hooks: (state, run_key) -> buffers, each called in order at the start of a step on
+  the state with the previous hook's buffers (e.g. `OccupancyRefresh`); the step renders with
+  the buffers they return.
   """
-  oc = ray_renderer.sampler.occupancy
   fixed_background = jnp.asarray(settings.background)
   refine = settings.pose_refinement
   image_of = lambda batch: batch.image if ray_renderer.field.uses_images else None
@@ -130,27 +157,17 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
       outs = _render_split(render, rays, render_key, bg, image_of(batch), posed)
     return losses.total(terms, losses.LossInputs(outs, target, rays, params))
 
-  def refresh_occupancy(state, run_key):
-    """Every `update_every` steps, probe the density field at jittered positions (drawn from the
-    step: a resumed run probes where the uninterrupted one did) and accumulate them into the
-    occupancy grid with decay (occupancy.accumulate). Returns the buffers."""
-    if oc is None:
-      return state.buffers
-    # A stream of its own: fold_in(run_key, n) is step n's key, and step 2^32 - 1 never comes.
-    key = jax.random.fold_in(jax.random.fold_in(run_key, 0xFFFFFFFF), state.step)
-    refresh = lambda s: occupancy.accumulate(
-        s.buffers["occupancy"], ray_renderer.occupancy_grid(s.variables, key), oc.decay
-    ) * s.buffers.get("hull", 1.0)  # what the masks rule out stays empty
-    grid = jax.lax.cond(state.step % oc.update_every == 0, refresh,
-                        lambda s: s.buffers["occupancy"], state)
-    return {**state.buffers, "occupancy": grid}
+  def update_buffers(state, run_key):
+    for hook in buffer_hooks:
+      state = state.replace(buffers=hook(state, run_key))
+    return state.buffers
 
   def step(state, data, run_key, planned_steps=None):
     key = jax.random.fold_in(run_key, state.step)
     batch_key, render_key = jax.random.split(key)
     batch = parallel.shard_batch(
         train_batches.draw_batch(data, settings.batch, batch_key, state.step, run_key), mesh)
-    buffers = refresh_occupancy(state, run_key)
+    buffers = update_buffers(state, run_key)
     grads, stats = jax.grad(loss_fn, has_aux=True)(state.params, buffers, batch, render_key,
                                                    data, bands_at(state.step, planned_steps))
     finite = jnp.isfinite(stats["loss"]) & jnp.all(jnp.array(

@@ -49,7 +49,8 @@ class Scene:
 
   @property
   def chunk(self):
-    return self.config.render.chunk
+    """Rays per piece of a frame's rays (config.render.chunk; a device-sized 0: the fallback)."""
+    return self.config.render.chunk or image_renderer.FALLBACK_CHUNK
 
   def fov(self):
     """Vertical field of view (radians) of the training cameras."""
@@ -80,7 +81,8 @@ class Scene:
     """Render a `height`×`width` frame of camera `c2w` float [4, 4] with vertical `fov`
     (radians), in chunks (see policy.render_in_chunks). Returns numpy dict rgb [H, W, 3],
     depth [H, W], acc [H, W], or None when `cancelled()` turned true."""
-    return policy.render_in_chunks(draw, self.frame_rays(c2w, height, width, fov), self.chunk,
+    chunk = getattr(draw, "chunk", self.chunk)  # the rays each call of `draw` is padded to
+    return policy.render_in_chunks(draw, self.frame_rays(c2w, height, width, fov), chunk,
                                    self.background, cancelled)
 
 

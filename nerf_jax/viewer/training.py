@@ -1,4 +1,5 @@
-"""The live viewer during training (`--config.viewer.enabled=True`): the hook train_lib calls.
+"""The live viewer during training (`--config.viewer.enabled=True`): a step hook, which nerf-train
+passes to train_lib.train_and_evaluate as `hooks=(start,)`.
 
 Nobody watching costs one call and one boolean test per step. With a browser connected, every
 `refresh_s` seconds the step's parameters are copied (they are donated to the next step) and
@@ -41,8 +42,9 @@ class LiveViewer:
 
 
 def start(exp, workdir, enabled=True):
-  """The hook for a run of `exp` (experiment.Experiment): a LiveViewer serving
-  `config.viewer.port`, or one doing nothing."""
+  """The hook for a run of `exp` (experiment.Experiment) in `workdir`: a LiveViewer serving
+  `config.viewer.port` where config.viewer.enabled and `enabled` (train_lib passes whether this
+  is process 0), or one doing nothing."""
   config = exp.config
   if not (enabled and config.viewer.enabled):
     return _Off()
