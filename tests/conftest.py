@@ -37,7 +37,7 @@ def shipped_configs():
   for all configs use this list, so a new config file is checked without editing them."""
   root = os.path.dirname(debug.__file__)  # the installed configs/ package
   names = []
-  for sub in ("", "scenes/"):
+  for sub in ("", "scenes/", "gpu/"):
     names += sorted(sub + f[:-3] for f in os.listdir(os.path.join(root, sub))
                     if f.endswith(".py") and f != "__init__.py")
   return names

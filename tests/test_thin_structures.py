@@ -21,6 +21,9 @@ class _Field:
   def __init__(self, sigma_fn):
     self.sigma_fn = sigma_fn
 
+  num_levels = 0  # fields/network.Network: no levels, density and colour from one call
+  splits_density = False
+
   def apply(self, variables, points, dir_features):
     del variables, dir_features
     return jax.nn.sigmoid(3.0 * points), self.sigma_fn(points)

@@ -26,6 +26,9 @@ class _MediumField:
   def __init__(self, medium):
     self.medium = medium
 
+  num_levels = 0  # fields/network.Network: no levels, density and colour from one call
+  splits_density = False
+
   def apply(self, variables, points, dir_features):
     del variables, dir_features
     centre = jnp.asarray(self.medium.shape.center, jnp.float32)

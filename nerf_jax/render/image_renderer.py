@@ -4,6 +4,10 @@ empty-space skipping and early ray termination (empty_space.py).
 
 A draw function takes `rays.Rays` with any batch shape `...` and a background RGB and returns
 a numpy dict rgb float32 [..., 3], depth float32 [...], acc float32 [...].
+
+The chunk (rays per call) is config.render.chunk, or with DEVICE_CHUNK (0) sized from the
+device's memory (`device_chunk`): a GPU gets calls as large as a share of its free memory holds,
+a CPU (which reports no memory) today's cache-sized default.
 """
 
 import dataclasses
@@ -19,10 +23,18 @@ from nerf_jax.samplers import sampler, sampling
 from nerf_jax.cameras.rays import Rays
 
 
+DEVICE_CHUNK = 0  # render.chunk: rays per call sized from the device's memory (device_chunk)
+FALLBACK_CHUNK = 4096  # the chunk where the device reports no memory (a CPU): today's default
+MEMORY_SHARE = 0.25  # share of the device's free memory one render call may take (unmeasured)
+MIN_CHUNK, MAX_CHUNK = 2 ** 10, 2 ** 16  # bounds of a device-sized chunk (the padding of small
+# renders grows with the chunk: an 800 x 800 frame is 10 calls of 2^16 rays; unmeasured)
+PROBE_RAYS = 2 ** 10  # rays of the compiled call whose memory analysis gives a ray's bytes
+
+
 @dataclasses.dataclass(frozen=True)
 class ImageSettings:
   """How whole images are rendered (config.render; the march_* fields: empty_space.py)."""
-  chunk: int = 4096  # rays per jitted render call
+  chunk: int = FALLBACK_CHUNK  # rays per jitted render call; DEVICE_CHUNK: device-sized
   march: bool = True  # skip empty space and stop at opaque surfaces where the model allows
   march_grid: int = 48  # cells per side of the skip grid computed from the trained density
   march_threshold: float = 0.1  # density (per scene unit) below which a cell is skipped
@@ -81,11 +93,57 @@ def marches(ray_renderer, settings):
   """Whether rendering skips empty space and stops at opaque surfaces.
 
   `settings.march` applies to single-pass renderers sampling a scene box (scene_bound > 0) with
-  plain stratified samples; any other renderer renders on the plain path.
+  plain stratified samples (`Sampler.marchable`); any other renderer renders on the plain path.
   """
-  rs = ray_renderer.sampler
-  return bool(settings.march and rs.scene_bound > 0 and ray_renderer.num_fine_samples == 0
-              and rs.occupancy is None and not rs.contraction)
+  return bool(settings.march and ray_renderer.num_fine_samples == 0
+              and ray_renderer.sampler.marchable)
+
+
+def device_memory(device=None):
+  """Bytes `device` (default: the first jax device) can still allocate: its allocator's limit
+  less what is in use; None where the backend reports no memory (a CPU)."""
+  stats = (device or jax.devices()[0]).memory_stats()
+  if not stats or "bytes_limit" not in stats:
+    return None
+  return int(stats["bytes_limit"]) - int(stats.get("bytes_in_use", 0))
+
+
+def bytes_per_ray(ray_renderer, variables, probe=PROBE_RAYS):
+  """Device bytes one ray of a plain render call takes, from XLA's memory analysis of the chunk
+  renderer compiled for `probe` rays (its temporaries, outputs and rays, over `probe`); None
+  where the backend gives no analysis. Marching queries at most the samples the plain path
+  queries per ray, so this bounds its calls too. Compiles once; runs nothing."""
+  _, rays = _padded(_probe_ray(), probe)
+  lowered = make_chunk_renderer(ray_renderer).lower(variables, rays, jnp.zeros(3, jnp.float32))
+  stats = lowered.compile().memory_analysis()
+  if stats is None:
+    return None
+  ray_bytes = sum(a.nbytes for a in jax.tree_util.tree_leaves(rays))
+  return (stats.temp_size_in_bytes + stats.output_size_in_bytes + ray_bytes) / probe
+
+
+def sized_chunk(free_bytes, ray_bytes):
+  """Rays per call that fit MEMORY_SHARE of `free_bytes` at `ray_bytes` bytes per ray: the
+  largest power of two that does, within [MIN_CHUNK, MAX_CHUNK]."""
+  fits = MEMORY_SHARE * free_bytes / max(ray_bytes, 1.0)
+  return int(min(max(2 ** math.floor(math.log2(max(fits, 1.0))), MIN_CHUNK), MAX_CHUNK))
+
+
+def device_chunk(ray_renderer, variables, free_bytes=None):
+  """The chunk of render.chunk = DEVICE_CHUNK: `sized_chunk` of the device's free memory
+  (`device_memory`, or `free_bytes` when given) and of a ray's bytes (`bytes_per_ray`), or
+  FALLBACK_CHUNK where the device reports no memory (a CPU: today's default, unchanged).
+  Prints one line saying which."""
+  free = device_memory() if free_bytes is None else free_bytes
+  ray_bytes = None if free is None else bytes_per_ray(ray_renderer, variables)
+  if ray_bytes is None:
+    print(f"render chunk: {FALLBACK_CHUNK} rays per call (the device reports no memory)",
+          flush=True)
+    return FALLBACK_CHUNK
+  chunk = sized_chunk(free, ray_bytes)
+  print(f"render chunk: {chunk} rays per call ({MEMORY_SHARE:.0%} of {free / 2 ** 30:.2f} GiB "
+        f"free at {ray_bytes / 2 ** 10:.1f} KiB per ray)", flush=True)
+  return chunk
 
 
 class Draw:
@@ -94,25 +152,44 @@ class Draw:
 
   draw.compile_steps() -> iterator: compiles the shapes a call may need, one at a time,
   smallest first, yielding after each the most rays a call may now hold without compiling
-  anything (math.inf after the last step).
+  anything (math.inf after the last step). draw.chunk: the rays each call is padded to.
   """
 
-  def __init__(self, draw, compile_steps):
-    self._draw, self.compile_steps = draw, compile_steps
+  def __init__(self, draw, compile_steps, chunk):
+    self._draw, self.compile_steps, self.chunk = draw, compile_steps, chunk
 
   def __call__(self, rays, background=(0.0, 0.0, 0.0)):
     return self._draw(rays, background)
 
 
-def make_image_renderer(ray_renderer, settings):
+def make_image_renderer(ray_renderer, settings, free_bytes=None):
   """fn(variables) -> Draw, rendering Rays [...] in chunks of `settings.chunk` rays.
 
   ray_renderer: renderer.RayRenderer. settings: ImageSettings. The plain path
   (`make_chunk_renderer` + `render_image`) or, where `marches`, the marching one
   (empty_space.py: the same samples, the field queried only where they matter); the skip grid
-  of the marching path is computed once per call with new variables.
+  of the marching path is computed once per call with new variables. With settings.chunk =
+  DEVICE_CHUNK the chunk is sized at the first call (`device_chunk`, from `free_bytes` when
+  given, else the device's) and kept for later ones. ValueError for a negative chunk.
   """
+  if settings.chunk < 0:
+    raise ValueError(f"config.render.chunk={settings.chunk}: use a positive count of rays per "
+                     f"render call, or {DEVICE_CHUNK} to size it from the device's memory")
   ray_renderer = with_samples(ray_renderer, settings.num_samples)
+  if settings.chunk != DEVICE_CHUNK:
+    return _binder(ray_renderer, settings)
+  sized = {}
+
+  def bind(variables):
+    if not sized:
+      chunk = device_chunk(ray_renderer, variables, free_bytes)
+      sized["bind"] = _binder(ray_renderer, dataclasses.replace(settings, chunk=chunk))
+    return sized["bind"](variables)
+  return bind
+
+
+def _binder(ray_renderer, settings):
+  """`make_image_renderer`'s fn(variables) -> Draw for a positive settings.chunk."""
   if not marches(ray_renderer, settings):
     render_chunk = make_chunk_renderer(ray_renderer)
 
@@ -124,7 +201,7 @@ def make_image_renderer(ray_renderer, settings):
       def compile_steps():  # every call is padded to one chunk: one shape
         draw(_probe_ray())
         yield math.inf
-      return Draw(draw, compile_steps)
+      return Draw(draw, compile_steps, settings.chunk)
     return bind
   return _Marcher(ray_renderer, settings).bind
 
@@ -183,7 +260,7 @@ class _Marcher:
     params = jax.device_put(variables["params"])  # once, not with every query
     mask = self.skip_grid(params)
     return Draw(functools.partial(self.draw, params, mask),
-                functools.partial(self.compile_steps, params, mask))
+                functools.partial(self.compile_steps, params, mask), self.settings.chunk)
 
   def compile_steps(self, params, mask):
     """Draw.compile_steps: the per-chunk functions, then the query round at every buffer size,

@@ -2,6 +2,7 @@
 user's flags, which win over the decisions.
 """
 
+import jax
 import ml_collections
 
 from nerf_jax.run import characterise, config_lib
@@ -9,6 +10,22 @@ from nerf_jax.run import characterise, config_lib
 APPEARANCE_DIMS = 8  # the appearance codes' length auto switches on (NeRF-W: 48, nerfacto: 32)
 LARGE_IMAGES = 400  # auto: object captures from this many pixels a side use configs/detail.py
 _OWN = ("auto", "auto_decisions", "auto_flags")  # auto's own fields, set by auto_config itself
+# On a GPU backend, the config of configs/gpu/ that takes each CPU choice's place (docs/gpu.md:
+# chosen for a GPU, unmeasured there until a GPU session measures them).
+GPU_CONFIGS = {"fast": "gpu/lego", "detail": "gpu/lego", "llff": "gpu/llff",
+               "capture": "gpu/capture"}
+
+
+def for_backend(chosen, backend):
+  """(config name, one line saying why) of the CPU choice `chosen` ('fast', 'detail', 'llff',
+  'capture') on `backend` (jax.default_backend(): 'cpu', 'gpu', ...): a GPU's config of
+  GPU_CONFIGS on 'gpu', else `chosen` itself, as measured on a CPU."""
+  if backend != "gpu":
+    return chosen, (f"backend {backend}: configs/{chosen}.py, the configs measured on a CPU "
+                    "(a GPU backend takes configs/gpu/)")
+  gpu = GPU_CONFIGS[chosen]
+  return gpu, (f"backend gpu: configs/{gpu}.py, sized for a GPU (unmeasured: docs/gpu.md), "
+               f"in place of the CPU's configs/{chosen}.py")
 
 
 def _flat(config):
@@ -24,17 +41,19 @@ def _flat(config):
   return out
 
 
-def auto_config(config, dataset):
+def auto_config(config, dataset, backend=None):
   """`config` (config.auto: configs/auto.py and the user's flags) decided from the training
   views `dataset` by characterise.decide: the representation of the config that suits the
   kind of capture (fast.py for an object on a background, detail.py from LARGE_IMAGES pixels,
   configs/llff.py (grids in NDC) for a forward-facing one, capture.py otherwise or
-  when there are too few cameras) and the effects it calls for (view dependence only where it
-  is measured: the views need depth; else the representation's setting stands). A field the
-  user set (named in config.auto_flags by the command line, or differing from
+  when there are too few cameras; on a 'gpu' `backend` (default jax.default_backend()) its
+  configs/gpu/ counterpart, `for_backend`) and the effects it calls for (view dependence only
+  where it is measured: the views need depth; else the representation's setting stands). A
+  field the user set (named in config.auto_flags by the command line, or differing from
   configs/auto.py's) wins over the decision, with one line saying so. Prints one line per
-  decision with its reason; the lines go to config.auto_decisions (config.json), and auto is
-  off in the result (a restored run keeps what was decided)."""
+  decision with its reason, and one naming the backend and the config it chose; the lines go
+  to config.auto_decisions (config.json), and auto is off in the result (a restored run keeps
+  what was decided)."""
   base = _flat(config_lib.load("auto"))
   given = _flat(config)
   user = {k: v for k, v in given.items()
@@ -55,6 +74,7 @@ def auto_config(config, dataset):
       effects["train.random_background"] = True
     else:
       chosen = "capture"
+  chosen, backend_line = for_backend(chosen, backend or jax.default_backend())
   result = config_lib.load(chosen)
   if decisions is not None:
     bg = tuple(float(c) for c in dataset.background)
@@ -80,6 +100,7 @@ def auto_config(config, dataset):
                      f"{d.reason}")
     lines.append("pose refinement: off (nothing in the photos measures a pose error; "
                  "train.pose_refinement=True switches it on)")
+  lines.append(backend_line)
   lines.append(f"representation: configs/{chosen}.py")
   values = {**_flat(result), **effects}
   for name, value in user.items():
