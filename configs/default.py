@@ -12,6 +12,7 @@ def get_config():
   config.seed = 0  # PRNG seed for initialisation, ray batches and jitter
   config.num_samples = 32  # NUM_SAMPLES: stratified (coarse) samples per ray
   config.num_fine_samples = 0  # extra samples drawn from the coarse weights (0 = no hierarchy)
+  config.sampler = ""  # '' = stratified / occupancy placement; 'proposal' (config.proposal)
   config.pos_encode_dims = 10  # POS_ENCODE_DIMS: frequency bands for positions
   config.dir_encode_dims = 4  # frequency bands for viewing directions (view-dependent model)
   config.auto = False  # decide the effects and the representation from the data (configs/auto.py)
@@ -46,7 +47,7 @@ def get_config():
   model.grid_bound = 1.5  # grid and hash encodings: the grids cover [-bound, bound]^3
   model.grid_box = ()  # grid encodings: (min x, y, z, max x, y, z) of a tighter box; () = cube
   model.grid_cell_aspect = (1.0, 1.0, 1.0)  # grid and tensorf: relative x, y, z sides of a cell
-  model.grid = grid = ml_collections.ConfigDict()  # the grid encoding (model.GridNeRF)
+  model.grid = grid = ml_collections.ConfigDict()  # the grid encoding (fields/networks/grid.py)
   grid.resolutions = (32, 64, 128)  # lattice points per side of each level
   grid.features = 4  # features per lattice point
   grid.density_resolutions = ()  # density from one-channel grids of these sizes; () = from the MLP
@@ -54,7 +55,7 @@ def get_config():
   grid.density_hash_log2_size = 20  # log2 of the hashed density level's rows
   grid.colour_hash_resolution = 0  # with density_resolutions: a hashed finer colour level
   grid.colour_hash_log2_size = 20  # log2 of the hashed colour level's rows
-  model.hash = hashing = ml_collections.ConfigDict()  # the hash encoding (model.HashNeRF)
+  model.hash = hashing = ml_collections.ConfigDict()  # the hash encoding (fields/networks/hash.py)
   hashing.levels = 16  # resolution levels (configs/hash.py)
   hashing.log2_size = 19  # log2 of the rows of each level's table
   hashing.features = 2  # features per row
@@ -85,6 +86,18 @@ def get_config():
   occ.probes = 2  # probes per cell side at each refresh, at jittered positions
   occ.decay = 0.95  # each refresh keeps max(decay·old, new): probes add up, gone density fades
   occ.threshold = 1.0  # density (per scene unit) from which a cell counts as occupied
+
+  config.proposal = proposal = ml_collections.ConfigDict()  # config.sampler = 'proposal'
+  proposal.num_samples = (256, 96)  # samples per ray of each proposal level (NeRF: num_samples)
+  proposal.field = "hash"  # levels' density fields: 'hash' (nerfacto's) or 'grid' (dense, CPU)
+  proposal.max_resolution = (128, 256)  # finest lattice of each level's density field
+  proposal.levels = 5  # lattice levels of each density field
+  proposal.log2_size = 17  # 'hash': log2 of each level's rows
+  proposal.features = 2  # features per lattice point (hash row)
+  proposal.base_resolution = 16  # coarsest lattice
+  proposal.hidden = 16  # units of the density fields' one hidden layer
+  proposal.loss_weight = 1.0  # weight of the interlevel loss that trains the proposal levels
+  proposal.padding = 0.01  # weight added to every interval before resampling the next level
 
   config.train = train = ml_collections.ConfigDict()
   train.max_steps = 0  # step budget (0 = fitted to max_seconds if set, else default_steps)

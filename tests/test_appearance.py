@@ -12,15 +12,15 @@ from nerf_jax.run import train_lib
 from nerf_jax.data import loaders
 from nerf_jax.data.scenes import photos
 from tests.conftest import restored_variables
-from tests.helpers import load_data, small_config
+from tests.helpers import TINY_GRID, jitted, load_data, small_config
 
 
 def _field_and_params(base, dims, num_images=5):
-  config = small_config({"model.appearance_dims": dims}, base=base)
-  if base == "fast":
-    config.model.grid.resolutions = (8, 16)  # small grids: the head is what is tested
+  # On the fast base, the tiny grid: the head is what is tested.
+  config = small_config(TINY_GRID if base == "fast" else {}, base=base,
+                        **{"model.appearance_dims": dims})
   field = experiment.make_field(config, num_images)
-  return field, field.init(jax.random.PRNGKey(0))
+  return field, jitted(field.init)(jax.random.PRNGKey(0))
 
 
 @pytest.mark.parametrize("base", ["debug", "fast"])
@@ -31,14 +31,15 @@ def test_codes_change_colour_not_density_and_held_out_views_take_the_mean(base):
   points = jax.random.uniform(jax.random.PRNGKey(2), (4, 6, 3), minval=-1.0, maxval=1.0)
   dirs = jnp.tile(jnp.array([0.0, 0.0, -1.0]), (4, 1))
   image = jnp.array([0, 1, 2, 4])
-  rgb, sigma = field.query(params, points, dirs, image=image)
-  rgb0, sigma0 = field.query(params, points, dirs, image=jnp.zeros(4, jnp.int32))
+  query = jitted(field.query)
+  rgb, sigma = query(params, points, dirs, image=image)
+  rgb0, sigma0 = query(params, points, dirs, image=jnp.zeros(4, jnp.int32))
   np.testing.assert_array_equal(sigma, sigma0)  # density never sees the code
   assert np.all(np.abs(np.asarray(rgb - rgb0))[1:].max(axis=(1, 2)) > 1e-4)  # colour does
   # image None: the mean code, i.e. the same as an image whose code is the table's mean.
   with_mean = {**params, "appearance": table.at[4].set(jnp.mean(table, axis=0))}
-  mean_rgb, _ = field.query(params, points, dirs)
-  expected, _ = field.query(with_mean, points, dirs, image=jnp.full(4, 4))
+  mean_rgb, _ = query(params, points, dirs)
+  expected, _ = query(with_mean, points, dirs, image=jnp.full(4, 4))
   np.testing.assert_allclose(mean_rgb, expected, atol=1e-6)
 
 
@@ -99,13 +100,14 @@ def _train_view_scores(workdir, config):
   variables = restored_variables(workdir)
   ds = exp.train_ds
   psnrs, brightness = [], []
+  render = jitted(exp.renderer.render, background=jnp.zeros(3))
   for i in range(len(ds)):
     rays = exp.rays(ds.poses[i]).reshape(-1)
     image = jnp.full(rays.shape, i) if exp.renderer.field.uses_images else None
-    out = exp.renderer.render(variables, rays, image=image, background=jnp.zeros(3))
+    out = render(variables, rays.replace(image=image))
     rgb = np.asarray(out["coarse"]["rgb"]).reshape(ds.images[i].shape)
     psnrs.append(float(metrics.psnr(rgb, ds.images[i])))
-    mean_code = exp.renderer.render(variables, rays, background=jnp.zeros(3))["coarse"]["rgb"]
+    mean_code = render(variables, rays)["coarse"]["rgb"]
     brightness.append(float(rgb.mean() / np.mean(mean_code)))
   return float(np.mean(psnrs)), np.array(brightness)
 

@@ -1,7 +1,9 @@
 """The benchmark: a tiny sweep end to end through its flags, its bookkeeping, its command lines
 and the commands the docs show. Nothing here asserts on speed."""
 
+import contextlib
 import glob
+import io
 import json
 import math
 import os
@@ -100,6 +102,7 @@ def test_tiny_sweep_writes_the_table_and_valid_plots(tiny_sweep):
     assert image.ndim == 3 and image.shape[0] > 100 and image.shape[1] > 100
 
 
+@pytest.mark.slow  # a process
 def test_a_run_in_a_subprocess_reports_its_failure_in_its_record():
   config = sweeps.make_config(sweeps.Entry("x"), "diffuse", base="debug")
   config.data.path = "/no/such/scene.npz"
@@ -107,6 +110,7 @@ def test_a_run_in_a_subprocess_reports_its_failure_in_its_record():
   assert record["error"].startswith("DataError") and "/no/such/scene.npz" in record["error"]
 
 
+@pytest.mark.slow  # a process per run
 def test_a_sweep_shows_progress_and_goes_on_past_failed_runs(tmp_path, capsys):
   bad = tmp_path / "bad.npz"
   bad.write_bytes(b"not an npz")
@@ -140,6 +144,7 @@ def _run(*args, **env):
                         env={**os.environ, "PYTHONPATH": ROOT, **env}, timeout=300)
 
 
+@pytest.mark.slow  # three processes
 def test_the_command_lists_its_runs_and_fails_in_one_line(tmp_path):
   res = _run("nerf_jax.bench", "--sweep=configs", "--config=debug", "--dry_run")
   assert res.returncode == 0, res.stderr
@@ -239,6 +244,7 @@ def test_psnr_at_times_takes_the_latest_probe_at_or_before_each_time():
   assert measure.psnr_at_times([], [1.0]) == [None]
 
 
+@pytest.mark.slow  # wall-clock
 def test_compile_time_is_measured_apart_from_step_time():
   delay = 0.5
 
@@ -253,6 +259,7 @@ def test_compile_time_is_measured_apart_from_step_time():
   assert len(steps) == 3 and max(steps) < delay
 
 
+@pytest.mark.slow  # wall-clock
 def test_train_loop_counts_steps_pauses_the_clock_and_probes_before_each_time():
   clock = measure.Clock()
   clock.start()
@@ -273,6 +280,7 @@ def test_train_loop_counts_steps_pauses_the_clock_and_probes_before_each_time():
   assert probes[0]["psnr"] == float(probed[0])
 
 
+@pytest.mark.slow  # wall-clock
 def test_train_loop_stops_on_the_clock_in_budget_mode():
   clock = measure.Clock()
   clock.start()
@@ -320,25 +328,34 @@ def test_scaling_plot_from_synthetic_records(tmp_path):
   assert "scaling" in sweeps.SWEEPS and sweeps.sweep_names("scaling") == ["scaling"]
 
 
-def test_profile_times_every_stage_of_the_step(capsys):
+@pytest.fixture(scope="module")
+def profiled():
+  """One `python -m nerf_jax.bench.profile --config=debug --config.train.batch_rays=32
+  --repeats=1 --ops=4`, in this process: (the stage rows it returned, what it printed). Both
+  profile tests read it (the stage table is printed with or without --ops; each profile
+  compiles every stage of the step, about a minute on a loaded 2-core CPU)."""
   values, spec, given = _parse(bench_cli.define_profile_flags, "nerf_jax.bench.profile",
-                               "--config=debug", "--config.train.batch_rays=32", "--repeats=1")
-  rows = bench_cli.profile_table(values, spec, given)
+                               "--config=debug", "--config.train.batch_rays=32", "--repeats=1",
+                               "--ops=4")
+  printed = io.StringIO()
+  with contextlib.redirect_stdout(printed):
+    rows = bench_cli.profile_table(values, spec, given)
+  return rows, printed.getvalue()
+
+
+def test_profile_times_every_stage_of_the_step(profiled):
+  rows, out = profiled
   stages = [r[0] for r in rows]
   assert stages[0] == "train step (all)" and "field fwd+bwd" in stages
   assert "32 rays" in rows[0][2]  # the override reached the profiled config
   assert all(ms > 0 for _, ms, _ in rows if not math.isnan(ms))
   assert "GFLOP/s" in rows[-1][2]
-  assert "| train step (all) |" in capsys.readouterr().out
+  assert "| train step (all) |" in out
   assert profile.median_ms(lambda x: x + 1, jnp.zeros(3), repeats=1) > 0
 
 
-def test_profile_lists_the_steps_xla_operations_by_kind(capsys):
-  values, spec, given = _parse(bench_cli.define_profile_flags, "nerf_jax.bench.profile",
-                               "--config=debug", "--config.train.batch_rays=32", "--repeats=1",
-                               "--ops=4")
-  bench_cli.profile_table(values, spec, given)
-  out = capsys.readouterr().out
+def test_profile_lists_the_steps_xla_operations_by_kind(profiled):
+  _, out = profiled
   table = out.split("| XLA operation kind |")[1].splitlines()[2:]
   kinds = [line.split("|")[1].strip() for line in table if line.startswith("|")]
   assert len(kinds) == 5 and kinds[-1] == "all"  # the 4 asked for, then the total

@@ -7,6 +7,7 @@ import json
 
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from absl import flags
 
 from nerf_jax import cli
@@ -16,7 +17,7 @@ from nerf_jax.run import train_lib
 from nerf_jax.bench import cli as bench_cli
 from nerf_jax.bench import render
 from nerf_jax.cameras.rays import Rays, get_rays
-from tests.helpers import PATHS_RTOL, requires_ffmpeg, small_config
+from tests.helpers import PATHS_RTOL, jitted, requires_ffmpeg, small_config
 
 
 def _trained_workdir(tmp_path):
@@ -27,6 +28,7 @@ def _trained_workdir(tmp_path):
   return workdir
 
 
+@pytest.mark.slow  # the big frame is rendered in a process of its own
 @requires_ffmpeg
 def test_render_bench_writes_frame_video_and_big_frame_figures(tmp_path, capsys):
   workdir = _trained_workdir(tmp_path)
@@ -59,7 +61,7 @@ def test_render_bench_writes_frame_video_and_big_frame_figures(tmp_path, capsys)
   origins, directions = get_rays(test.height, test.width, test.focal,
                                  jnp.asarray(test.poses[0]), exp.pixel_center)
   rays = Rays.create(origins, directions, exp.near, exp.far)
-  ref = renderer.final(exp.renderer.render(state.variables, rays))
+  ref = renderer.final(jitted(exp.renderer.render)(state.variables, rays))
   config = exp.config
   bound = 1.0 - np.exp(-config.render.march_threshold * 2.0 * np.sqrt(3.0)
                        * config.data.scene_bound) + config.render.min_transmittance

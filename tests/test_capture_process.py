@@ -167,6 +167,7 @@ def test_bad_inputs_give_one_line(tmp_path, monkeypatch):
                     images=str(bad), log=quiet)
 
 
+@pytest.mark.slow  # a process
 def test_cli_exits_1_with_one_line(tmp_path):
   result = subprocess.run(
       [sys.executable, "-m", "nerf_jax.data.process", f"--images={tmp_path}",

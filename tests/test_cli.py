@@ -335,6 +335,7 @@ def _run(args, cwd=ROOT):
                         text=True, timeout=300)
 
 
+@pytest.mark.slow  # three processes
 def test_entry_points_print_one_line(tmp_path):
   res = _run(["train.py", "--config=configs/debug.py", "--config.data.bogus=1",
               f"--workdir={tmp_path}"])

@@ -12,10 +12,12 @@ from nerf_jax.fields.encodings import grid
 from nerf_jax.render import renderer
 from nerf_jax.run import experiment
 from nerf_jax.cameras.rays import get_rays, pose_spherical, Rays
-from tests.helpers import small_config
+from tests.helpers import TINY_GRID, jitted, small_config
 
-SPLIT = {"model.grid.density_resolutions": (8, 16), "model.grid.resolutions": (8, 16),
-         "model.view_dependent": True, "num_samples": 24}
+# The tiny grid with density from grids of its own, a view-dependent colour head, and 24
+# samples per ray: enough for the ball of `_trained_like` to weigh far from uniformly.
+SPLIT = {**TINY_GRID, "model.grid.density_resolutions": (8, 16), "model.view_dependent": True,
+         "num_samples": 24}
 
 
 def _trained_like(params):
@@ -69,10 +71,11 @@ def _renderers(fraction, occupied=False):
 def _split_and_plain(fraction, occupied):
   """The coarse pass of the split and the plain renderer on the same ball-shaped field."""
   split, plain = _renderers(fraction, occupied)
-  variables = split.init(jax.random.PRNGKey(0))
+  variables = jitted(split.init)(jax.random.PRNGKey(0))
   variables["params"]["coarse"] = _trained_like(variables["params"]["coarse"])
   rays = _rays()
-  return split.render(variables, rays)["coarse"], plain.render(variables, rays)["coarse"]
+  return (jitted(split.render)(variables, rays)["coarse"],
+          jitted(plain.render)(variables, rays)["coarse"])
 
 
 @pytest.mark.parametrize("occupied", [False, True])
@@ -99,14 +102,14 @@ def test_a_partial_budget_errs_by_at_most_the_weight_it_leaves_out(occupied):
 
 def test_split_gradients_are_finite_and_reach_both_halves():
   split, _ = _renderers(0.25)
-  variables = split.init(jax.random.PRNGKey(0))
+  variables = jitted(split.init)(jax.random.PRNGKey(0))
   rays = _rays()
 
   def loss(params):
     out = split.render({"params": params}, rays, jax.random.PRNGKey(3))["coarse"]
     return jnp.mean((out["rgb"] - 0.5) ** 2)
 
-  grads = jax.grad(loss)(variables["params"])["coarse"]
+  grads = jitted(jax.grad(loss))(variables["params"])["coarse"]
   assert all(bool(jnp.all(jnp.isfinite(g))) for g in jax.tree_util.tree_leaves(grads))
   assert float(jnp.abs(grads["density_16"]).sum()) > 0
   assert float(jnp.abs(grads["grid_16"]).sum()) > 0
@@ -120,10 +123,10 @@ def test_density_grid_with_relu_is_refused():
 
 def test_occupancy_probes_read_the_density_half():
   split, _ = _renderers(0.25)
-  params = _trained_like(split.init(jax.random.PRNGKey(0))["params"]["coarse"])
+  params = _trained_like(jitted(split.init)(jax.random.PRNGKey(0))["params"]["coarse"])
   points = jnp.array([[0.0, 0.0, 0.0], [1.2, 1.2, 1.2]])
-  sigma = split.field.density(params)(points)
-  _, full = split.field.query(params, points[:, None, :], jnp.zeros((2, 3)))
+  sigma = jitted(lambda p, x: split.field.density(p)(x))(params, points)
+  _, full = jitted(split.field.query)(params, points[:, None, :], jnp.zeros((2, 3)))
   np.testing.assert_allclose(sigma, full[:, 0], rtol=1e-6)
   assert float(sigma[0]) > 3.0 and float(sigma[1]) < 0.01
 
@@ -194,6 +197,6 @@ def test_a_hashed_level_needs_the_dense_density_levels(part):
     experiment.make_ray_renderer(config)
   config = small_config({**SPLIT, f"model.grid.{part}_hash_resolution": 32}, base="fast")
   assert experiment.model_signature(config)[f"grid_{part}_hash"] == [32, 20]
-  variables = experiment.make_ray_renderer(config).init(jax.random.PRNGKey(0))
+  variables = jitted(experiment.make_ray_renderer(config).init)(jax.random.PRNGKey(0))
   table = variables["params"]["coarse"][f"hashed_{part}"]
   assert table.shape[0] == 2 ** 15  # 32^3 points fit 2^20 rows: indexed densely, as grid.py

@@ -62,6 +62,7 @@ def _terminate_after_checkpoint(workdir, step):
     time.sleep(0.002)
 
 
+@pytest.mark.slow  # a training process, killed at a moment of the wall clock
 def test_killed_then_stopped_then_resumed_run_matches_an_uninterrupted_one(tmp_path, capsys):
   workdir = str(tmp_path / "crashy")
   # 1. SIGKILL at a random moment after the first checkpoint: no chance to clean up.

@@ -16,7 +16,7 @@ from nerf_jax.run import train_lib
 from nerf_jax.cameras.rays import Rays
 from nerf_jax.data.scenes import simulator
 from tests.conftest import assert_beats_trivial
-from tests.helpers import small_config
+from tests.helpers import jitted, small_config
 
 SCENES = ["diffuse", "glossy", "fog", "white", "forward"]
 
@@ -109,9 +109,8 @@ def _loss(monkeypatch, rendered, acc, pixel=0.3, spelling="random"):
   """The train loss of one step on random backgrounds (`spelling`: a key of RANDOM_SPELLINGS),
   every target pixel `pixel` (on the configured background) with opacity `acc`, and a field
   whose render is `rendered(background)`."""
-  def fake_render(self, variables, rays, key=None, background=None, remat_chunk=0, image=None,
-                  bands=None):
-    del self, variables, key, remat_chunk, image, bands
+  def fake_render(self, variables, rays, key=None, background=None, remat_chunk=0, bands=None):
+    del self, variables, key, remat_chunk, bands
     rgb = jnp.broadcast_to(rendered(background), (*rays.shape, 3))
     return {"coarse": {"rgb": rgb}}
   monkeypatch.setattr(renderer.RayRenderer, "render", fake_render)
@@ -196,7 +195,8 @@ def test_view_dependence_reproduces_highlights_only_with_the_view_branch(tmp_pat
                                                                                 directions)]
   assert np.all(np.abs(truth[0]["depth"] - 4.0) < 1e-3)  # both rays reach the point unoccluded
   assert np.all(np.abs(truth[1]["depth"] - 4.0) < 1e-3)
-  model = [renderer.final(exp.renderer.render(variables, Rays.create(
+  render = jitted(exp.renderer.render)
+  model = [renderer.final(render(variables, Rays.create(
       jnp.asarray(o), jnp.asarray(d), exp.near, exp.far)))["rgb"]
            for o, d in zip(origins, directions)]
   gap_truth = np.mean(truth[0]["rgb"] - truth[1]["rgb"], -1)  # per point: the highlight
@@ -208,14 +208,16 @@ def test_view_dependence_reproduces_highlights_only_with_the_view_branch(tmp_pat
   # At the point itself the view branch changes the colour with the direction ...
   dirs = jnp.asarray(directions / np.linalg.norm(directions, axis=-1, keepdims=True))
   params = variables["params"]["coarse"]
-  at = lambda d: exp.renderer.field.query(params, jnp.asarray(points)[:, None], d)[0][:, 0]
+  query = jitted(exp.renderer.field.query)
+  at = lambda d: query(params, jnp.asarray(points)[:, None], d)[0][:, 0]
   assert np.max(np.abs(at(dirs[0]) - at(dirs[1]))) > 0.05
   # ... and a position-only model (the shared architecture without the branch) cannot.
   flat = exp.config.copy_and_resolve_references()
   flat.model.view_dependent = False
   flat_field = experiment.make_field(flat)
-  flat_params = flat_field.init(jax.random.PRNGKey(0))
-  flat_at = lambda d: flat_field.query(flat_params, jnp.asarray(points)[:, None], d)[0]
+  flat_params = jitted(flat_field.init)(jax.random.PRNGKey(0))
+  flat_query = jitted(flat_field.query)
+  flat_at = lambda d: flat_query(flat_params, jnp.asarray(points)[:, None], d)[0]
   np.testing.assert_array_equal(flat_at(dirs[0]), flat_at(dirs[1]))
 
 

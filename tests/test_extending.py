@@ -12,7 +12,7 @@ import pytest
 
 from nerf_jax.fields import registry
 from nerf_jax.run import experiment, train_lib
-from tests.helpers import small_config
+from tests.helpers import TINY_GRID, small_config
 
 DOC = pathlib.Path(__file__).parent.parent / "docs" / "extending.md"
 
@@ -33,10 +33,7 @@ def triplane_config(tmp_path, monkeypatch):
   (package / "__init__.py").write_text("")
   (package / "triplane.py").write_text(doc_block("module"))
   monkeypatch.syspath_prepend(str(tmp_path))
-  config = small_config(base="fast", **{"data.image_size": 16, "data.num_views": 6,
-                                        "data.holdout_from": 5, "num_samples": 16, "train.batch_rays": 512,
-                                        "train.max_steps": 30,
-                                        "train.eval_every": 0, "train.checkpoint_every": 30})
+  config = small_config(TINY_GRID, base="fast")  # 30 steps, checkpointed at the end
   exec(doc_block("config"), {"config": config, "ml_collections": ml_collections})  # pylint: disable=exec-used
   config.model.triplane.resolution = 16
   return config

@@ -11,7 +11,7 @@ from nerf_jax.fields.encodings import grid
 from nerf_jax.render import renderer
 from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.cameras.rays import Rays, get_rays, pose_spherical
-from tests.helpers import ray_renderer, small_config
+from tests.helpers import TINY_GRID, jitted, ray_renderer, small_config
 
 
 def trilinear_brute(g, u):
@@ -79,23 +79,20 @@ def test_ray_box_bounds_axis_parallel_and_zero_directions_are_finite():
   assert t1[1] == t0[1]  # parallel to the box, outside it: empty segment
 
 
-GRID = {"model.encoding": "grid", "model.grid.resolutions": (8, 16), "model.grid_bound": 1.5,
-        "model.density_activation": "softplus"}
-
-
 def test_box_restricted_sampling_renders_the_plain_image():
   """Sampling only inside the box changes cost, not the image: the field is empty outside."""
-  fast_rr = ray_renderer(small_config(GRID, num_samples=256, **{"data.scene_bound": 1.5}))
-  plain_rr = ray_renderer(small_config(GRID, num_samples=1024, **{"data.scene_bound": 0.0}))
-  variables = fast_rr.init(jax.random.PRNGKey(0))
+  fast_rr = ray_renderer(small_config(TINY_GRID, base="fast", num_samples=256))  # in the box
+  plain_rr = ray_renderer(small_config(TINY_GRID, base="fast", num_samples=1024,
+                                       **{"data.scene_bound": 0.0}))  # over [near, far]
+  variables = jitted(fast_rr.init)(jax.random.PRNGKey(0))
   params = variables["params"]
   # A "trained toy model": a dense blob in the middle of the box.
   level = params["coarse"]["grid_16"]
   params["coarse"]["grid_16"] = level.at[5:11, 5:11, 5:11].set(3.0)
   origins, directions = get_rays(12, 12, 15.0, pose_spherical(10.0, -30.0, 4.0))
   rays = Rays.create(origins.reshape(-1, 3), directions.reshape(-1, 3), 2.0, 6.0)
-  fast = renderer.final(fast_rr.render(variables, rays))
-  plain = renderer.final(plain_rr.render(variables, rays))
+  fast = renderer.final(jitted(fast_rr.render)(variables, rays))
+  plain = renderer.final(jitted(plain_rr.render)(variables, rays))
   assert float(jnp.max(fast["acc"])) > 0.5  # the blob is visible
   np.testing.assert_allclose(fast["rgb"], plain["rgb"], atol=2e-2)
   np.testing.assert_allclose(fast["acc"], plain["acc"], atol=2e-2)

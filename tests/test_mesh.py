@@ -123,6 +123,7 @@ def _sphere_field_workdir(workdir):
   return config
 
 
+@pytest.mark.slow  # render.py in a process
 def test_render_mesh_mode_recovers_the_sphere_of_a_field(tmp_path):
   workdir = str(tmp_path / "sphere")
   _sphere_field_workdir(workdir)

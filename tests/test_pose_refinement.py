@@ -15,7 +15,7 @@ from nerf_jax.run import experiment
 from nerf_jax.train import train_step
 from nerf_jax.cameras.rays import Rays
 from nerf_jax.data.scenes import photos
-from tests.helpers import ray_renderer, small_config
+from tests.helpers import TINY_GRID, jitted, ray_renderer, small_config
 
 
 def _twist_matrix(xi):
@@ -103,15 +103,17 @@ def test_grid_levels_open_coarse_to_fine(encoding_name):
   """BARF's window on a grid network: with no bands open only the coarsest level speaks (the
   same field as with the finer levels' features zeroed by hand, and no gradient reaches them);
   with every band open the field is the plain one."""
-  config = small_config({"model.encoding": encoding_name, **THREE_LEVELS[encoding_name]},
-                        base="fast")
+  # The tiny grid with three levels (two stages of bands to open).
+  config = small_config({**TINY_GRID, "model.encoding": encoding_name,
+                         **THREE_LEVELS[encoding_name]}, base="fast")
   field = experiment.make_field(config)
   assert field.coarse_to_fine_stages == 2
-  params = field.init(jax.random.PRNGKey(0))
+  params = jitted(field.init)(jax.random.PRNGKey(0))
   points = jax.random.uniform(jax.random.PRNGKey(1), (5, 7, 3), minval=-1.0, maxval=1.0)
   dirs = jnp.zeros((5, 3))
-  rgb_all, sigma_all = field.query(params, points, dirs)
-  rgb_open, sigma_open = field.query(params, points, dirs, bands=jnp.float32(2.0))
+  query = jitted(field.query)
+  rgb_all, sigma_all = query(params, points, dirs)
+  rgb_open, sigma_open = query(params, points, dirs, bands=jnp.float32(2.0))
   np.testing.assert_array_equal(rgb_open, rgb_all)
   np.testing.assert_array_equal(sigma_open, sigma_all)
 
@@ -124,14 +126,14 @@ def test_grid_levels_open_coarse_to_fine(encoding_name):
     resolutions = hashgrid.level_resolutions(3, network.base_resolution, network.max_resolution)
     coarse_rows = hashgrid.level_rows(resolutions, network.log2_size)[0]
     zeroed["hash_table"] = params["hash_table"].at[coarse_rows:].set(0.0)
-  rgb_hand, sigma_hand = field.query(zeroed, points, dirs)
-  rgb_closed, sigma_closed = field.query(params, points, dirs, bands=jnp.float32(0.0))
+  rgb_hand, sigma_hand = query(zeroed, points, dirs)
+  rgb_closed, sigma_closed = query(params, points, dirs, bands=jnp.float32(0.0))
   np.testing.assert_allclose(rgb_closed, rgb_hand, atol=1e-6)
   np.testing.assert_allclose(sigma_closed, sigma_hand, atol=1e-6)
   assert not np.allclose(rgb_closed, rgb_all)
 
-  grads = jax.grad(lambda p: jnp.sum(field.query(p, points, dirs, bands=jnp.float32(0.0))[0]))(
-      params)
+  grads = jitted(jax.grad(lambda p: jnp.sum(field.query(p, points, dirs,
+                                                        bands=jnp.float32(0.0))[0])))(params)
   if encoding_name == "grid":  # closed levels take no gradient, the open one does
     assert not np.any(np.asarray(grads["grid_8"])) and not np.any(np.asarray(grads["grid_16"]))
     assert np.any(np.asarray(grads["grid_4"]))
@@ -190,8 +192,9 @@ def test_refinement_recovers_a_known_perturbation(share):
   exp = experiment.setup(config)
   renderer = ray_renderer(config, _AnalyticField())
   ds = exp.train_ds
-  truth = [renderer.render({"params": {"coarse": {}}}, exp.rays(pose).reshape(-1),
-                           background=jnp.zeros(3))["coarse"]["rgb"] for pose in ds.true_poses]
+  render = jitted(renderer.render, background=jnp.zeros(3))
+  truth = [render({"params": {"coarse": {}}}, exp.rays(pose).reshape(-1))["coarse"]["rgb"]
+           for pose in ds.true_poses]
   ds = dataclasses.replace(ds, images=np.stack([np.asarray(t).reshape(ds.images.shape[1:])
                                                 for t in truth]), accs=None)
   exp = dataclasses.replace(exp, renderer=renderer, train_ds=ds)
@@ -212,19 +215,19 @@ def test_a_split_render_is_the_whole_render_with_the_poses_gradient_from_its_hea
   rays = Rays(*(jnp.linspace(0.1, 1.0, num * 3).reshape(num, 3) + k
                for k in range(3)), near=jnp.full((num,), 2.0), far=jnp.full((num,), 6.0))
   background = jnp.linspace(0.0, 1.0, num * 3).reshape(num, 3)
-  image = jnp.arange(num, dtype=jnp.int32) % 3
+  rays = rays.replace(image=jnp.arange(num, dtype=jnp.int32) % 3)  # rides with the rays
 
-  def render(rays, key, bg, image):
+  def render(rays, key, bg):
     del key  # the stand-in is deterministic
-    rgb = jnp.sin(rays.origins * rays.directions) + bg + image[:, None]
+    rgb = jnp.sin(rays.origins * rays.directions) + bg + rays.image[:, None]
     return {"coarse": {"rgb": rgb, "t": rays.near[:, None] + jnp.arange(3.0)}}
 
-  whole = render(rays, None, background, image)
-  split = train_step._render_split(render, rays, jax.random.PRNGKey(0), background, image, posed)
+  whole = render(rays, None, background)
+  split = train_step._render_split(render, rays, jax.random.PRNGKey(0), background, posed)
   for name in ("rgb", "t"):
     np.testing.assert_allclose(split["coarse"][name], whole["coarse"][name], rtol=1e-6)
   grad = jax.grad(lambda o: jnp.sum(train_step._render_split(
-      render, rays.replace(origins=o), jax.random.PRNGKey(0), background, image,
+      render, rays.replace(origins=o), jax.random.PRNGKey(0), background,
       posed)["coarse"]["rgb"]))(rays.origins)
   assert np.all(np.asarray(grad[:posed]) != 0) and not np.any(np.asarray(grad[posed:]))
 

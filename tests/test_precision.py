@@ -140,6 +140,7 @@ def test_network_precision_setting():
   assert all(e.params["precision"] == (precision.HIGHEST, precision.HIGHEST) for e in products)
 
 
+@pytest.mark.slow  # a process
 def test_tests_run_with_deterministic_ops_inherited_by_subprocesses():
   assert determinism.enabled()
   out = subprocess.run([sys.executable, "-c", "from nerf_jax.backend import determinism; "

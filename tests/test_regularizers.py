@@ -12,7 +12,7 @@ from nerf_jax.fields import registry
 from nerf_jax.run import experiment
 from nerf_jax.samplers import sampler, sampling
 from nerf_jax.train import regularizers
-from tests.helpers import small_config
+from tests.helpers import TINY_GRID, small_config
 
 
 def brute_force(t, w):
@@ -140,8 +140,7 @@ def test_lattice_tables_and_the_weighted_tv_in_the_train_loss():
   assert [axes for _, axes in registry.lattice_tables(params, grid_axes)] == [3]
   stats = {}
   for weight in (0.0, 10.0):
-    config = small_config({"train.tv_weight": weight}, base="fast",
-                          **{"model.grid.resolutions": (8, 16)})
+    config = small_config(TINY_GRID, base="fast", **{"train.tv_weight": weight})
     exp = experiment.setup(config)
     state = experiment.init_state(exp)
     tv = sum(float(regularizers.total_variation(t, a))

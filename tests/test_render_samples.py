@@ -14,16 +14,19 @@ import pytest
 from nerf_jax.render import image_renderer, renderer
 from nerf_jax.run import experiment
 from nerf_jax.cameras.rays import Rays, get_rays, pose_spherical
-from tests.helpers import ray_renderer, small_config
+from tests.helpers import TINY_GRID, jitted, ray_renderer, small_config
 
-GRID = {"model.encoding": "grid", "model.grid.resolutions": (8, 16), "model.grid_bound": 1.5,
-        "model.density_activation": "softplus", "data.scene_bound": 1.5}
 TRAINED, RENDERED = 8, 32  # samples per ray in training and in renders
+
+
+def _config(fields=TINY_GRID, **more):
+  """The tiny grid config (`fields`: TINY_GRID and changes, on base="fast") with `more`."""
+  return small_config(fields, base="fast", **more)
 
 
 def _blob_variables(rr):
   """Variables of `rr` with a sharp-edged dense blob in the middle of the box (a trained toy)."""
-  variables = rr.init(jax.random.PRNGKey(0))
+  variables = jitted(rr.init)(jax.random.PRNGKey(0))
   level = variables["params"]["coarse"]["grid_16"]
   variables["params"]["coarse"]["grid_16"] = level.at[5:11, 4:10, 6:12].set(2.0)
   return variables
@@ -42,7 +45,7 @@ def _draw(config, variables, rays):
 
 
 def test_zero_keeps_the_renderer_and_a_count_replaces_only_the_sampler():
-  rr = ray_renderer(small_config(GRID, num_samples=TRAINED))
+  rr = ray_renderer(_config(num_samples=TRAINED))
   assert image_renderer.with_samples(rr, 0) is rr
   more = image_renderer.with_samples(rr, RENDERED)
   assert more.sampler.num_samples == RENDERED and rr.sampler.num_samples == TRAINED
@@ -51,17 +54,17 @@ def test_zero_keeps_the_renderer_and_a_count_replaces_only_the_sampler():
 
 def test_more_render_samples_approach_the_brute_force_image_on_both_paths():
   rays = _rays()
-  variables = _blob_variables(ray_renderer(small_config(GRID, num_samples=TRAINED)))
-  reference = renderer.final(ray_renderer(small_config(GRID, num_samples=1024)).render(
-      variables, rays))
+  variables = _blob_variables(ray_renderer(_config(num_samples=TRAINED)))
+  reference = renderer.final(jitted(ray_renderer(_config(num_samples=1024)).render)(variables,
+                                                                                    rays))
   assert float(jnp.max(reference["acc"])) > 0.5  # the blob is in view
   for march in (False, True):
-    fields = {**GRID, "render.march": march, "render.min_transmittance": 0.0,
+    fields = {**TINY_GRID, "render.march": march, "render.min_transmittance": 0.0,
               "render.march_threshold": 0.0}
-    as_trained = _draw(small_config(fields, num_samples=TRAINED), variables, rays)
-    more = _draw(small_config(fields, num_samples=TRAINED, **{"render.num_samples": RENDERED}),
+    as_trained = _draw(_config(fields, num_samples=TRAINED), variables, rays)
+    more = _draw(_config(fields, num_samples=TRAINED, **{"render.num_samples": RENDERED}),
                  variables, rays)
-    same_count = _draw(small_config(fields, num_samples=RENDERED), variables, rays)
+    same_count = _draw(_config(fields, num_samples=RENDERED), variables, rays)
     for k in ("rgb", "acc"):
       np.testing.assert_allclose(more[k], same_count[k], atol=1e-5)
       error = lambda image: float(np.mean(np.abs(image[k] - np.asarray(reference[k]))))

@@ -12,7 +12,7 @@ import pytest
 from nerf_jax.render import renderer
 from nerf_jax.run import experiment
 from nerf_jax.train import losses
-from tests.helpers import small_config
+from tests.helpers import TINY_GRID, jitted, small_config
 from tests.test_colour_budget import SPLIT, _rays, _trained_like
 
 
@@ -45,23 +45,23 @@ def _renderers(split):
   occupancy grid of it, so that some rays have no valid sample and others many. The split
   field shades every sample in the budget (colour_fraction 1: a share of the budget, or of
   all slots without one), so both renderers colour every sample with weight."""
-  fields = {**(SPLIT if split else {"num_samples": 24}), "occupancy.enabled": True,
+  fields = {**(SPLIT if split else {**TINY_GRID, "num_samples": 24}), "occupancy.enabled": True,
             "occupancy.resolution": 16, "model.colour_fraction": 1.0 if split else 0.0}
   config = small_config(base="fast", **fields)
   plain = experiment.make_ray_renderer(config)
-  variables = plain.init(jax.random.PRNGKey(0))
+  variables = jitted(plain.init)(jax.random.PRNGKey(0))
   if split:
     variables["params"]["coarse"] = _trained_like(variables["params"]["coarse"])
   else:  # a random field is dense enough to fill some cells and not others
     variables["params"]["coarse"] = jax.tree_util.tree_map(
         lambda p: p * 3.0, variables["params"]["coarse"])
-  variables["occupancy"] = plain.occupancy_grid(variables)
+  variables["occupancy"] = jitted(plain.occupancy_grid)(variables)
   with_budget = lambda b: dataclasses.replace(plain, sample_budget=b)
   return plain, with_budget, variables
 
 
 def _valid_counts(plain, variables, rays):
-  samples = plain.sampler.place(rays, None, variables["occupancy"])
+  samples = jitted(plain.sampler.place)(rays, None, variables["occupancy"])
   return np.asarray(samples.valid).sum(-1)
 
 
@@ -72,13 +72,13 @@ def test_rays_within_the_budget_render_as_without_it(split):
   counts = _valid_counts(plain, variables, rays)
   assert (counts == 0).any() and counts.max() > 4  # the test has empty and full rays
   total = int(counts.sum())
-  want = plain.render(variables, rays)["coarse"]
-  whole = with_budget(total).render(variables, rays)["coarse"]
+  want = jitted(plain.render)(variables, rays)["coarse"]
+  whole = jitted(with_budget(total).render)(variables, rays)["coarse"]
   assert bool(np.all(whole["complete"]))
   for name in ("rgb", "acc", "depth"):
     np.testing.assert_allclose(whole[name], want[name], atol=2e-6, err_msg=name)
   budget = total // 2
-  half = with_budget(budget).render(variables, rays)["coarse"]
+  half = jitted(with_budget(budget).render)(variables, rays)["coarse"]
   complete = np.asarray(half["complete"])
   np.testing.assert_array_equal(complete, np.cumsum(counts) <= budget)
   assert complete.any() and not complete.all()
@@ -99,8 +99,8 @@ def test_the_gradient_of_complete_rays_is_unchanged_by_the_budget(split):
   def loss(params, ray_renderer):
     out = ray_renderer.render({**variables, "params": params}, rays)["coarse"]
     return jnp.sum(jnp.where(complete[:, None], (out["rgb"] - 0.3) ** 2, 0.0))
-  want = jax.grad(loss)(variables["params"], plain)
-  got = jax.grad(loss)(variables["params"], with_budget(budget))
+  want = jitted(jax.grad(loss), ray_renderer=plain)(variables["params"])
+  got = jitted(jax.grad(loss), ray_renderer=with_budget(budget))(variables["params"])
   for g, w in zip(jax.tree_util.tree_leaves(got), jax.tree_util.tree_leaves(want)):
     np.testing.assert_allclose(g, w, rtol=1e-4, atol=1e-7)
   assert any(float(jnp.abs(w).sum()) > 0 for w in jax.tree_util.tree_leaves(want))

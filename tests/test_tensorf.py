@@ -10,7 +10,7 @@ from nerf_jax.fields.encodings import grid, tensorf
 from nerf_jax.run import experiment
 from nerf_jax.bench import encodings as bench_encodings
 from nerf_jax.fields.networks.tensorf import TensoRFNeRF
-from tests.helpers import grey_view_loss, ray_renderer, small_config
+from tests.helpers import grey_view_loss, jitted, ray_renderer, small_config
 from tests.test_grid import trilinear_brute
 
 
@@ -76,7 +76,7 @@ def test_tensorf_model_shapes_box_and_one_training_step():
   config = small_config(TENSORF_DEBUG)
   rr = ray_renderer(config)
   assert isinstance(rr.field.network, TensoRFNeRF) and rr.field.pos_encode_dims is None
-  params = rr.init(jax.random.PRNGKey(0))["params"]
+  params = jitted(rr.init)(jax.random.PRNGKey(0))["params"]
   coarse = params["coarse"]
   assert coarse["plane_16_0"].shape == (16, 16, 4) and coarse["line_8_2"].shape == (8, 4)
   signature = experiment.model_signature(config)

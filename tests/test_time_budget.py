@@ -37,6 +37,7 @@ def _warm(config, tmp_path):
   train_lib.train_and_evaluate(config, str(tmp_path / "warm"))
 
 
+@pytest.mark.slow  # wall-clock
 def test_max_seconds_alone_trains_for_that_long(tmp_path):
   seconds = 4.0
   _warm(small_config({"train.max_seconds": seconds}), tmp_path)
@@ -49,6 +50,7 @@ def test_max_seconds_alone_trains_for_that_long(tmp_path):
   assert 0.3 < result["steps"] / fitted.max_steps < 3.0  # the schedule spans about the run
 
 
+@pytest.mark.slow  # wall-clock
 def test_an_explicit_max_steps_still_caps_a_time_budget(tmp_path):
   result = train_lib.train_and_evaluate(
       small_config({"train.max_steps": 5, "train.max_seconds": 60.0}), str(tmp_path / "capped"))
@@ -58,6 +60,7 @@ def test_an_explicit_max_steps_still_caps_a_time_budget(tmp_path):
   assert result["steps"] == 7 and _saved_train(tmp_path / "steps").max_steps == 0
 
 
+@pytest.mark.slow  # wall-clock
 def test_a_resumed_time_budget_run_keeps_its_schedule(tmp_path, monkeypatch):
   config = lambda: small_config({"train.max_seconds": 4.0, "train.checkpoint_every": 5,
                                  "train.log_every": 1000})
@@ -143,6 +146,7 @@ def test_fit_to_time_gives_at_least_one_step(monkeypatch):
   assert config.train.max_steps == 1
 
 
+@pytest.mark.slow  # wall-clock
 def test_a_time_budget_runs_log_lines_count_time_not_the_fitted_steps(tmp_path, monkeypatch,
                                                                       capsys):
   """The fitted step count is an estimate a run may outlast (here: fitted to 1 step); its log

@@ -99,6 +99,7 @@ def test_incompatible_checkpoint_is_refused(tmp_path):
   assert checkpoints.list_steps(workdir) == [2]  # nothing overwritten
 
 
+@pytest.mark.slow  # wall-clock
 def test_wall_clock_budget_stops_early(tmp_path):
   config = small_config({"train.max_steps": 100000, "train.max_seconds": 3.0})
   result = train_lib.train_and_evaluate(config, str(tmp_path / "budget"))
@@ -147,6 +148,7 @@ def _run(args, cwd):
                         text=True, timeout=300)
 
 
+@pytest.mark.slow  # train.py and render.py in processes
 def test_train_and_render_entry_points(tmp_path):
   workdir = str(tmp_path / "cli")
   res = _run(["train.py", "--config=configs/debug.py", f"--workdir={workdir}",
@@ -161,6 +163,7 @@ def test_train_and_render_entry_points(tmp_path):
   assert res.returncode == 0 and "test PSNR" in res.stdout, res.stderr[-2000:]
 
 
+@pytest.mark.slow  # train.py in a process
 def test_train_without_flags_uses_default_config_and_workdir(tmp_path):
   """`python train.py` as the README runs it: no --config, no --workdir (overrides keep it tiny)."""
   res = _run([os.path.join(ROOT, "train.py"), "--config.train.max_steps=2",
@@ -171,6 +174,7 @@ def test_train_without_flags_uses_default_config_and_workdir(tmp_path):
   assert metrics["steps"] == 2
 
 
+@pytest.mark.slow  # render.py in a process
 def test_render_without_checkpoint_is_one_clear_line(tmp_path):
   workdir = tmp_path / "empty"
   workdir.mkdir()

@@ -21,7 +21,7 @@ from nerf_jax.cameras.rays import Rays, pose_spherical, project
 from nerf_jax.cameras import keyframes
 from nerf_jax.viewer import camera, policy, scene, server, training
 from nerf_jax.evaluate.visuals import to_uint8
-from tests.helpers import requires_viser, small_config
+from tests.helpers import TINY_GRID, requires_viser, small_config
 
 
 def _rodrigues(axis, angle):
@@ -214,11 +214,9 @@ def test_workdir_without_checkpoint_is_one_line(tmp_path):
     scene.from_workdir(str(tmp_path))
 
 
-# A tiny marching fast-config model.
-TINY_FAST = {"data.image_size": 20, "data.num_views": 4, "data.holdout_from": 3,
-             "num_samples": 16, "model.grid.resolutions": (8, 16), "model.width": 16,
-             "render.chunk": 128,
-             "render.march_grid": 16}  # the skip grid: 16^3 cells × 64 probes, not 48^3 (seconds)
+# A tiny marching fast-config model (its skip grid: 16^3 cells × 64 probes, not 48^3), drawn in
+# chunks of 128 rays: the warm-up test below counts the sizes it compiles up to a chunk.
+TINY_FAST = {**TINY_GRID, "render.chunk": 128}
 
 
 @pytest.fixture(scope="module")
@@ -342,6 +340,7 @@ def _until(condition, seconds, what):
     time.sleep(0.02)
 
 
+@pytest.mark.slow  # a server's threads, timed against the wall clock
 @requires_viser
 def test_server_sends_frames_of_ready_heights_before_the_warm_up_ends(tiny_run, monkeypatch):
   _, view, variables = tiny_run

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.run import train_lib
-from tests.helpers import small_config
+from tests.helpers import TINY_GRID, small_config
 
 CHROMIUM = os.environ.get("NERF_JAX_CHROMIUM", "/usr/bin/chromium")
 INSTALL = ('apt-get update && apt-get install -y chromium && pip install -e ".[viewer-test]"')
@@ -32,14 +32,15 @@ def _missing():
   return f"needs {', '.join(absent)}; install with: {INSTALL}" if absent else None
 
 
-pytestmark = pytest.mark.skipif(_missing() is not None, reason=str(_missing()))
+pytestmark = [pytest.mark.skipif(_missing() is not None, reason=str(_missing())),
+              pytest.mark.slow]  # a browser, a process, waits on the wall clock
 
 
-# A tiny fast-config model, 40 steps; empty space white: a high-contrast frame after few steps.
-TINY = {"data.image_size": 32, "data.num_views": 8, "data.holdout_from": 7, "num_samples": 32,
-        "model.grid.resolutions": (16, 32), "model.width": 32, "train.max_steps": 40,
-        "train.checkpoint_every": 40, "train.batch_rays": 512, "train.log_every": 40,
-        "train.tensorboard": False, "render.chunk": 512, "data.background": "white"}
+# The tiny grid run on images of 32² (still frames have the training resolution: enough pixels
+# for the page's copy to correlate with), empty space white (a high-contrast frame after few
+# steps).
+TINY = {**TINY_GRID, "data.image_size": 32, "data.background": "white",
+        "train.tensorboard": False}
 
 
 def _free_port():

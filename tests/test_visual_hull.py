@@ -11,7 +11,7 @@ from nerf_jax.fields.networks import grid as grid_network
 from nerf_jax.fields.encodings import grid
 from nerf_jax.run import experiment
 from nerf_jax.samplers import occupancy, sampler, visual_hull
-from tests.helpers import small_config
+from tests.helpers import TINY_GRID, jitted, small_config
 from tests.test_grid import trilinear_brute
 
 
@@ -112,8 +112,7 @@ def test_axis_resolutions_with_long_cells_along_z():
 
 
 def test_a_grid_field_with_long_cells_along_z_has_fewer_lattice_points_there():
-  config = small_config({"model.grid.resolutions": (8, 16),
-                         "model.grid_cell_aspect": (1.0, 1.0, 4.0)}, base="fast")
+  config = small_config(TINY_GRID, base="fast", **{"model.grid_cell_aspect": (1.0, 1.0, 4.0)})
   params = experiment.make_ray_renderer(config).init(jax.random.PRNGKey(0))["params"]["coarse"]
   assert params["grid_16"].shape == (16, 16, 5, 4)  # 15 cells of x's side along z are 3.75
   assert experiment.model_signature(config)["grid_cell_aspect"] == [1.0, 1.0, 4.0]
@@ -151,9 +150,10 @@ def test_a_run_with_the_visual_hull_samples_only_inside_it():
   grid_after = np.asarray(state.buffers["occupancy"])
   assert grid_after.max() > 0 and np.all(grid_after[hull == 0] == 0)
   ray_batch = exp.rays(exp.train_ds.poses[0])
-  samples = exp.renderer.sampler.place(ray_batch, None, state.buffers["occupancy"])
-  points = np.asarray(sampler.points(ray_batch, samples.distances))[np.asarray(samples.valid)]
+  samples = jitted(exp.renderer.sampler.place)(ray_batch, None, state.buffers["occupancy"])
+  points = np.asarray(jitted(sampler.points)(ray_batch, samples.distances))[
+      np.asarray(samples.valid)]
   assert len(points) > 0
-  in_hull = occupancy.lookup(jnp.asarray(hull > 0), jnp.asarray(points),
-                             exp.config.data.scene_bound)
+  in_hull = jitted(occupancy.lookup, bound=exp.config.data.scene_bound)(
+      jnp.asarray(hull > 0), jnp.asarray(points))
   assert bool(jnp.all(in_hull))

@@ -11,6 +11,7 @@ Conventions (those of the tiny_nerf data and the Keras reference):
 """
 
 import math
+from typing import Optional
 
 import flax.struct
 import jax
@@ -30,12 +31,15 @@ class Rays:
   viewdirs: float32 [..., 3], unit world viewing direction (what the view branch sees; in NDC
     it is not the direction of the NDC ray).
   near, far: float32 [...], the interval of t to sample.
+  image: int32 [...] or None, the training image each ray comes from (per-ray conditioning:
+    its appearance code, multinerf's cam_idx); None = no image (held-out views: the mean code).
   """
   origins: jnp.ndarray
   directions: jnp.ndarray
   viewdirs: jnp.ndarray
   near: jnp.ndarray
   far: jnp.ndarray
+  image: Optional[jnp.ndarray] = None
 
   @classmethod
   def create(cls, origins, directions, near, far, viewdirs=None):

@@ -1,11 +1,15 @@
 """Rendering rays: sample -> query the field -> composite, with an optional fine pass.
 
 rays: `rays.Rays` (origins, directions, viewdirs, near, far) with batch shape `...`.
-variables: {'params': {'coarse': ..., ['fine': ...]}, ['occupancy': float32 [R, R, R]]}, the
-trained parameters of each network and, beside them, the state that is not trained (the
-occupancy grid, kept by training: occupancy.py), as Flax keeps `batch_stats` beside `params`.
+variables: {'params': {'coarse': ..., ['fine': ...], [the sampler's groups]}, ['occupancy':
+float32 [R, R, R]]}, the trained parameters of each network (and of a learned sampler, e.g.
+'proposal_0': `Sampler.init`) and, beside them, the state that is not trained (the occupancy
+grid, kept by training: occupancy.py), as Flax keeps `batch_stats` beside `params`.
 A pass's output (a dict): rgb float32 [..., 3], depth float32 [...], acc float32 [...],
-weights float32 [..., E], t float32 [..., E + 1].
+weights float32 [..., E], t float32 [..., E + 1]. The sampler places the first pass's samples
+(`sampler.generate(rays, key, variables)`, handed the variables to build its density
+functions from); what else it returns (a learned sampler's levels, arrays with the rays'
+leading axes) is outputs['sampler'], for its loss terms.
 The field's density is per unit of world length; t is z-depth along un-normalised directions,
 so every pass composites `sampler.per_unit_t(sigma, rays)` = σ·|d| (as the original NeRF,
 jaxnerf and multinerf scale their intervals by |d|), and depth stays z-depth.
@@ -23,6 +27,10 @@ from nerf_jax.render import compositing
 from nerf_jax.samplers import occupancy, sampler as sampler_lib, sampling
 from nerf_jax.fields.field import Field
 from nerf_jax.samplers.sampler import Sampler
+
+
+# fold_in(key, SAMPLER_KEY) is the key of a sampler's parameters in `RayRenderer.init`.
+SAMPLER_KEY = 0x5A4D
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,10 +63,18 @@ class RayRenderer:
     return ("coarse",)
 
   def init(self, key):
-    """variables (module docstring): each network's parameters from `key`; the occupancy grid
-    at zeros, which counts as occupied everywhere (occupancy.py)."""
+    """variables (module docstring): each network's parameters from `key`, and the sampler's
+    (`Sampler.init`, from a key of its own); the occupancy grid at zeros, which counts as
+    occupied everywhere (occupancy.py)."""
     keys = jax.random.split(key, 2)
     variables = {"params": {name: self.field.init(k) for name, k in zip(self.networks, keys)}}
+    # fold_in, not a third split: split(key, 3) would change the networks' keys.
+    own = self.sampler.init(jax.random.fold_in(key, SAMPLER_KEY))
+    clash = set(own) & (set(variables["params"]) | {"poses"})
+    if clash:
+      raise ValueError(f"the sampler's parameter groups {sorted(clash)} clash with the "
+                       "field's networks or the poses: name them apart")
+    variables["params"].update(own)
     if self.sampler.occupancy is not None:
       variables["occupancy"] = self.sampler.occupancy.empty_grid()
     return variables
@@ -67,8 +83,7 @@ class RayRenderer:
     """The parameters of the network that renders the final pass."""
     return variables["params"][self.networks[-1]]
 
-  def _shade(self, params, rays, samples, background, key, remat_chunk=0, image=None,
-             bands=None):
+  def _shade(self, params, rays, samples, background, key, remat_chunk=0, bands=None):
     """One pass over `samples` (sampler.Samples) with one network's `params`."""
     budget = self.sample_budget if samples.gapped and rays.near.ndim == 1 else 0
     distances = samples.distances
@@ -87,10 +102,10 @@ class RayRenderer:
                                          complete if budget else None)
     else:
       if budget:
-        rgb, sigma = self._query_at_slots(params, rays, points, slots, key, image, bands)
+        rgb, sigma = self._query_at_slots(params, rays, points, slots, key, bands)
       else:
         rgb, sigma = self.field.query_in_chunks(params, points, rays.viewdirs, key,
-                                                remat_chunk, image, bands)
+                                                remat_chunk, rays.image, bands)
       rgb, sigma = samples.intervals(rgb, sampler_lib.per_unit_t(sigma, rays))
       out = compositing.composite(rgb, sigma, samples.t, background)
       out["t"] = samples.t
@@ -98,12 +113,13 @@ class RayRenderer:
       out["complete"] = complete
     return out
 
-  def _query_at_slots(self, params, rays, points, slots, key, image, bands):
+  def _query_at_slots(self, params, rays, points, slots, key, bands):
     """`Field.query` at the compacted `slots` (int32 [B], from `budgeted_slots`) of points
     float32 [R, S, 3] only. Returns rgb float32 [R, S, 3] and sigma float32 [R, S], zero at
     every other slot."""
     num_samples = points.shape[1]
     ray = jnp.minimum(slots, points.shape[0] * num_samples - 1) // num_samples
+    image = rays.image
     images = None if image is None or not self.field.uses_images else image[ray][:, None]
 
     def query(p):
@@ -145,35 +161,36 @@ class RayRenderer:
     out["t"] = samples.t
     return out
 
-  def render(self, variables, rays, key=None, background=None, remat_chunk=0, image=None,
-             bands=None):
+  def render(self, variables, rays, key=None, background=None, remat_chunk=0, bands=None):
     """Render a batch of rays with the coarse and (optionally) fine passes.
 
-    variables: see the module docstring. rays: Rays [...]. key: PRNG key for stratified jitter,
+    variables: see the module docstring. rays: Rays [...] (rays.image: each ray's training
+    image, for its appearance code; None = the mean code). key: PRNG key for stratified jitter,
     resampling and density noise; None renders deterministically. background: None or float32
     broadcastable to [..., 3]. remat_chunk: rays per recomputed field chunk of a pass
-    (Field.query_in_chunks; training sets it, 0 = one call). image: int32 [...] or None, the
-    training image of each ray (its appearance code; None = the mean code). bands: float32 []
-    or None, positional-encoding bands open (BARF; None = all). See field.py.
-    Returns {'coarse': pass_output, ['fine': pass_output]}.
+    (Field.query_in_chunks; training sets it, 0 = one call). bands: float32 [] or None,
+    positional-encoding bands open (BARF; None = all). See field.py.
+    Returns {'coarse': pass_output, ['fine': pass_output], ['sampler': the sampler's extras]}.
     """
     keys = jax.random.split(key, 4) if key is not None else [None] * 4
     params = variables["params"]
-    samples = self.sampler.place(rays, keys[0], variables.get("occupancy"))
+    samples, extras = self.sampler.generate(rays, keys[0], variables)
     if samples.gapped:  # occupancy-placed slots: few per ray, no chunks needed
       remat_chunk = 0
     outputs = {"coarse": self._shade(params["coarse"], rays, samples, background, keys[1],
-                                     remat_chunk, image, bands)}
+                                     remat_chunk, bands)}
     if self.num_fine_samples > 0:
       t = samples.t
       extra = sampling.sample_pdf(t, outputs["coarse"]["weights"], self.num_fine_samples,
                                   keys[2])
       fine = sampler_lib.on_edges(sampling.merge_edges(t, extra))
       outputs["fine"] = self._shade(self.final_params(variables), rays, fine, background,
-                                    keys[3], remat_chunk, image, bands)
+                                    keys[3], remat_chunk, bands)
     if self.sampler.scene_bound > 0:
       for out in outputs.values():
         out["depth"] = empty_depth_is_far(out, rays.far)
+    if extras:
+      outputs["sampler"] = extras
     return outputs
 
   def occupancy_grid(self, variables, key=None):

@@ -1,6 +1,7 @@
-"""Step-function math of a proposal sampler (mip-NeRF 360, nerfacto): the envelope's bound,
-the interlevel loss, resampling. (The sampler that uses them, handed the proposal density
-fields, is the next step of issue 39.)
+"""The proposal sampler (mip-NeRF 360, nerfacto) and its step-function math: the envelope's
+bound, the interlevel loss, resampling; the sampler `ProposalSampler`, registered as
+config.sampler = 'proposal' (samplers/registry.py), its settings `Settings` (config.proposal)
+and its loss term `Interlevel`.
 
 A proposal network predicts a cheap density along each ray. Its weights, a step function over its
 own intervals (the envelope), place the samples of the next level (a finer proposal or the NeRF,
@@ -27,10 +28,14 @@ never divides by their width; huge distances (edges out to 1e10) are only compar
 the loss, and resampling only averages two of them.
 """
 
+import dataclasses
+from typing import Tuple
+
 import jax
 import jax.numpy as jnp
 
-from nerf_jax.samplers import sampling
+from nerf_jax.fields import density_field
+from nerf_jax.samplers import registry, sampler as sampler_lib, sampling
 
 # The loss divides by w + _EPS. Any eps > 0 keeps it finite: the denominator is positive where
 # w = 0 (where the numerator is 0 too, as outer >= 0), each term max(0, w - outer)²/(w + eps) is
@@ -116,3 +121,234 @@ def resample(t, w, num_samples, key=None, padding=0.01):
   # exact, no overflow for edges <= 1e10), so the edges stay sorted and inside [t_0, t_S].
   inner = 0.5 * (points[..., 1:] + points[..., :-1])
   return jnp.concatenate([t[..., :1], inner, t[..., -1:]], axis=-1)
+
+
+# The sampler.
+
+# Densities are clamped here before multiplying by a width, as compositing.MAX_DENSITY (render/
+# lies above samplers/): an infinite density times a zero width would be inf·0 = NaN.
+_MAX_DENSITY = 1e30
+
+
+def weights(sigma, t):
+  """Compositing weights float32 [..., S] of densities sigma float32 [..., S] (per unit of t)
+  on the intervals of t float32 [..., S + 1]: compositing.compute_weights's quadrature,
+  w_i = (1 - exp(-tau_i))·exp(-sum_{j<i} tau_j), tau = sigma·(t_{i+1} - t_i).
+
+  Numerics: optical depths are summed, never multiplied, so behind an opaque interval the
+  transmittance underflows to exactly 0; with edges out to 1e10 tau may overflow to inf, which
+  gives alpha = 1 and transmittance 0 and, as exp(-inf) = 0 multiplies every path through it,
+  zero (not NaN) gradients; 1 - exp(-tau) is -expm1(-tau), exact for tiny tau (its derivative,
+  1 + expm1(-tau), has an absolute error of ~6e-8, nothing to a proposal).
+  """
+  sigma = jnp.minimum(sigma.astype(jnp.float32), _MAX_DENSITY)  # minimum: a NaN stays a NaN
+  tau = sigma * jnp.maximum(t[..., 1:] - t[..., :-1], 0.0)
+  before = jnp.concatenate([jnp.zeros_like(tau[..., :1]), jnp.cumsum(tau[..., :-1], axis=-1)],
+                           axis=-1)
+  return -jnp.expm1(-tau) * jnp.exp(-before)
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+  """How the proposal levels sample (config.proposal; nerfacto's defaults).
+
+  num_samples: samples per ray of each proposal level, the first level's first (the NeRF's
+    are config.num_samples). field: each level's density field, 'hash' (nerfacto's hash grid,
+    fields/density_field.HashDensity) or 'grid' (dense lattices, GridDensity: cheaper on a
+    CPU). max_resolution: the finest lattice of each level's field, one per level. levels,
+    features, base_resolution: the fields' lattice levels; log2_size: the hash grid's rows per
+    level ('hash' only); hidden: units of their one hidden layer.
+  loss_weight: weight of the interlevel loss (`Interlevel`; 0 = the proposals never learn).
+  padding: weight added to every interval before resampling (`resample`).
+  """
+  num_samples: Tuple[int, ...] = (256, 96)
+  field: str = "hash"
+  max_resolution: Tuple[int, ...] = (128, 256)
+  levels: int = 5
+  log2_size: int = 17
+  features: int = 2
+  base_resolution: int = 16
+  hidden: int = 16
+  loss_weight: float = 1.0
+  padding: float = 0.01
+
+
+# The density fields a level may have (Settings.field).
+FIELDS = ("hash", "grid")
+
+
+def settings_from(section):
+  """Settings of config.proposal, `section` a mapping of its fields; ValueError naming the
+  field for an unknown field or a value that cannot work."""
+  declared = {f.name for f in dataclasses.fields(Settings)}
+  unknown = sorted(set(section) - declared)
+  if unknown:
+    raise ValueError(f"config.proposal has no setting {unknown[0]!r} (settings: "
+                     f"{', '.join(sorted(declared))})")
+  values = {k: tuple(v) if isinstance(v, (list, tuple)) else v for k, v in section.items()}
+  settings = Settings(**values)
+  problem = _problem(settings)
+  if problem:
+    raise ValueError(f"config.proposal.{problem}")
+  return settings
+
+
+def _problem(s):
+  """The first setting of `s` (Settings) that cannot work, as 'field=value: why', or None."""
+  if not s.num_samples or min(s.num_samples) < 1:
+    return f"num_samples={s.num_samples}: one count >= 1 per proposal level, e.g. (256, 96)"
+  if s.field not in FIELDS:
+    return f"field={s.field!r}: use one of {', '.join(map(repr, FIELDS))}"
+  if len(s.max_resolution) != len(s.num_samples):
+    return (f"max_resolution={s.max_resolution}: one per proposal level "
+            f"({len(s.num_samples)}, as num_samples)")
+  checks = (("levels", s.levels >= 1, ">= 1"), ("log2_size", 1 <= s.log2_size <= 24, "in [1, 24]"),
+            ("features", s.features >= 1, ">= 1"), ("hidden", s.hidden >= 1, ">= 1"),
+            ("base_resolution", s.base_resolution >= 2, ">= 2"),
+            ("max_resolution", min(s.max_resolution) >= s.base_resolution,
+             ">= base_resolution"),
+            ("loss_weight", s.loss_weight >= 0, ">= 0"), ("padding", s.padding >= 0, ">= 0"))
+  for name, ok, want in checks:
+    if not ok:
+      return f"{name}={getattr(s, name)}: must be {want}"
+  return None
+
+
+@dataclasses.dataclass(frozen=True)
+class ProposalSampler(sampler_lib.Sampler):
+  """Samples placed by proposal levels (nerfacto's ProposalNetworkSampler).
+
+  Each ray starts with settings.num_samples[0] intervals spaced as the Sampler's (linear in t
+  inside the inner box and in disparity beyond with data.contraction, else stratified over the
+  scene box); level k's density function weighs its intervals (`weights`), and `resample`
+  draws the next level's edges from those weights (stop_gradient: no loss moves a proposal
+  through the placement); the last level's weights place the NeRF's `num_samples`. The levels'
+  (t, weights) go to the renderer's outputs for `Interlevel`, which trains each level to bound
+  the NeRF's weights; the NeRF's photometric loss gives the levels no gradient.
+
+  settings: Settings. fields: one density-only Field per level (fields/density_field.py), whose
+  parameters are variables['params']['proposal_<k>'] (`init`). The Sampler's fields are the
+  NeRF's samples and the scene's box and spacing; occupancy is None.
+  """
+  settings: Settings = Settings()
+  fields: Tuple = ()
+
+  @property
+  def names(self):
+    """The parameter groups of the levels: ('proposal_0', 'proposal_1', ...)."""
+    return tuple(f"proposal_{k}" for k in range(len(self.fields)))
+
+  def init(self, key):
+    keys = jax.random.split(key, len(self.fields))
+    return {name: f.init(k) for name, f, k in zip(self.names, self.fields, keys)}
+
+  def signature(self):
+    s = self.settings
+    signature = {"sampler": "proposal", "proposal_field": s.field,
+                 "proposal_max_resolution": list(s.max_resolution), "proposal_levels": s.levels,
+                 "proposal_features": s.features, "proposal_base_resolution": s.base_resolution,
+                 "proposal_hidden": s.hidden}
+    if s.field == "hash":
+      signature["proposal_log2_size"] = s.log2_size
+    return signature
+
+  def loss_terms(self):
+    return [Interlevel(self.settings.loss_weight)] if self.settings.loss_weight > 0 else []
+
+  @property
+  def marchable(self):
+    return False  # a render must place its samples as training did
+
+  def density_fns(self, params):
+    """Each level's density function, points float32 [..., S, 3] -> sigma float32 [..., S]
+    (per unit of world length), from the levels' parameters in `params` (variables['params'])."""
+    return [lambda points, f=f, p=params[name]: f.query_density(p, points)
+            for name, f in zip(self.names, self.fields)]
+
+  def generate(self, rays, key=None, variables=None):
+    """(Samples, extras) of `rays` [...] with the density functions of the levels' parameters
+    in variables['params'] (`generate_from`)."""
+    return self.generate_from(rays, self.density_fns(variables["params"]), key)
+
+  def generate_from(self, rays, density_fns, key=None):
+    """(Samples, extras): the NeRF's samples of `rays` [...] placed through one proposal level
+    per density function (nerfstudio's generate_ray_samples(ray_bundle, density_fns)).
+
+    density_fns: one per level, points float32 [..., S_k, 3] -> sigma float32 [..., S_k] (per
+    unit of world length); level k takes settings.num_samples[k] samples. key: PRNG key for
+    the initial jitter and the resampling (None: deterministic). extras: {'proposals': ({'t':
+    float32 [..., S_k + 1], 'weights': float32 [..., S_k]}, ...)}, level 0 first. The levels'
+    points are those of stop_gradient(rays): no proposal moves the cameras.
+    """
+    counts = tuple(self.settings.num_samples[:len(density_fns)]) + (self.num_samples,)
+    keys = jax.random.split(key, len(counts)) if key is not None else [None] * len(counts)
+    rays = jax.lax.stop_gradient(rays)
+    t = jax.lax.stop_gradient(self._initial_edges(rays, counts[0], keys[0]))
+    levels = []
+    for density, count, level_key in zip(density_fns, counts[1:], keys[1:]):
+      sigma = density(sampler_lib.points(rays, sampling.midpoints(t)))
+      w = weights(sampler_lib.per_unit_t(sigma, rays), t)
+      levels.append({"t": t, "weights": w})
+      t = resample(t, w, count, level_key, self.settings.padding)
+    return sampler_lib.on_edges(t), {"proposals": tuple(levels)}
+
+  def _initial_edges(self, rays, count, key):
+    """Edges float32 [..., count + 1] of the first level: `Sampler.stratified`'s spacing."""
+    if self.contraction:
+      return self._unbounded_edges(rays, count, key)
+    t_near, t_far = self.bounds(rays)
+    return sampling.stratified(t_near, t_far, count, rays.shape, key, lindisp=self.lindisp)
+
+  def place(self, rays, key=None, grid=None):
+    raise TypeError("ProposalSampler places samples with its density fields: call "
+                    "generate(rays, key, variables)")
+
+
+@dataclasses.dataclass(frozen=True)
+class Interlevel:
+  """The proposals' loss term (a callable on train/losses.LossInputs; samplers/ lies below
+  train/): `weight` times the sum over levels of the rays' mean `interlevel_loss` of the level
+  (outputs['sampler']['proposals']) against the NeRF's final pass (fine, else coarse), whose
+  edges and weights are under stop_gradient: only the proposals learn from it.
+  Stats: 'interlevel', the unweighted sum."""
+  weight: float = 1.0
+
+  def __call__(self, inputs):
+    outs = inputs.outputs
+    last = outs.get("fine", outs["coarse"])
+    total = sum(jnp.mean(interlevel_loss(last["t"], last["weights"], level["t"],
+                                         level["weights"]))
+                for level in outs["sampler"]["proposals"])
+    return self.weight * total, {"interlevel": total}
+
+
+def build(base, section):
+  """The registry's builder (samplers/registry.py): a ProposalSampler with the built-in
+  Sampler `base`'s samples, box and spacing and config.proposal's `section` (a mapping);
+  ValueError naming the field for a setting that cannot work."""
+  settings = settings_from(section)
+  if base.occupancy is not None:
+    raise ValueError("config.sampler='proposal' places the samples itself: set "
+                     "config.occupancy.enabled=False")
+  if base.scene_bound <= 0 and base.scene_bound != -1:
+    raise ValueError("config.sampler='proposal' needs config.data.scene_bound > 0 or -1 "
+                     "(auto): its density grids cover that box (and, with data.contraction, "
+                     "the contracted space beyond it)")
+  fields = tuple(density_field.density_field(_network(settings, r, base.grid_bound),
+                                             base.contraction, base.scene_bound)
+                 for r in settings.max_resolution)
+  shared = {f.name: getattr(base, f.name) for f in dataclasses.fields(sampler_lib.Sampler)}
+  return ProposalSampler(**shared, settings=settings, fields=fields)
+
+
+def _network(settings, max_resolution, bound):
+  """The density network of one level (fields/density_field.py) over [-bound, bound]^3."""
+  shared = dict(levels=settings.levels, features=settings.features,
+                base_resolution=settings.base_resolution, max_resolution=max_resolution,
+                hidden=settings.hidden, bound=bound)
+  if settings.field == "grid":
+    return density_field.GridDensity(**shared)
+  return density_field.HashDensity(log2_size=settings.log2_size, **shared)
+
+
+registry.register("proposal", build)

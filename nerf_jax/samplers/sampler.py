@@ -139,6 +139,38 @@ class Sampler:
     the contracted space (twice the inner box)."""
     return contraction.OUTER * self.scene_bound if self.contraction else self.scene_bound
 
+  # The interface every sampler shares (samplers/registry.py): the renderer calls `generate`,
+  # `RayRenderer.init` adds `init`'s parameter groups, the checkpoint signature records
+  # `signature`, the loss lists `loss_terms`. A learned sampler (proposal.py) overrides them.
+
+  def init(self, key):
+    """The parameter groups this sampler trains, {name: params} from PRNG key `key`, stored in
+    variables['params'] beside the field's networks: none."""
+    del key
+    return {}
+
+  def signature(self):
+    """Checkpoint signature entries ({key: JSON value}) fixing the shapes of `init`'s
+    parameters: none (so checkpoints of the built-in sampler are unchanged)."""
+    return {}
+
+  def loss_terms(self):
+    """Loss terms this sampler brings (callables on train/losses.LossInputs): none."""
+    return []
+
+  @property
+  def marchable(self):
+    """Whether a render may replace this placement by marching stratified samples through the
+    scene box (image_renderer.marches): plain stratified samples in a box only."""
+    return self.scene_bound > 0 and self.occupancy is None and not self.contraction
+
+  def generate(self, rays, key=None, variables=None):
+    """(Samples, extras) of `rays` [...]: `place` with the occupancy grid of `variables`
+    (renderer.py's; None = no grid), and no extras (a dict the renderer puts in its outputs as
+    outputs['sampler'] when it is not empty, for a sampler's loss terms)."""
+    grid = None if variables is None else variables.get("occupancy")
+    return self.place(rays, key, grid), {}
+
   def place(self, rays, key=None, grid=None):
     """Samples of `rays` [...]: stratified, or with `occupancy` in the occupied cells of `grid`
     (float32 [R, R, R], occupancy.py). key: PRNG key for the jitter (None: deterministic)."""

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from nerf_jax.evaluate import metrics
-from nerf_jax.fields import model
+from nerf_jax.fields import registry
 from nerf_jax.render import renderer
 from nerf_jax.train import regularizers
 
@@ -23,7 +23,8 @@ from nerf_jax.train import regularizers
 class LossInputs:
   """What a loss term may look at, for one batch of B rays.
 
-  outputs: the renderer's outputs {'coarse': ..., ['fine': ...]} (render/renderer.py).
+  outputs: the renderer's outputs {'coarse': ..., ['fine': ...], ['sampler': ...]}
+    (render/renderer.py).
   target: float32 [B, 3], the colours the rays should render. rays: the rays rendered (those of
   the corrected cameras with pose refinement). params: the trained parameters.
   """
@@ -31,6 +32,10 @@ class LossInputs:
   target: jnp.ndarray
   rays: Any
   params: dict
+
+
+# The render passes of the renderer's outputs (outputs['sampler'] is a sampler's, not a pass).
+PASSES = ("coarse", "fine")
 
 
 def _mse(rgb, target, complete=None):
@@ -53,7 +58,8 @@ class Colour:
   def __call__(self, inputs):
     outs = inputs.outputs
     complete = outs["coarse"].get("complete")  # a sample budget: only whole rays count
-    mses = {name: _mse(out["rgb"], inputs.target, complete) for name, out in outs.items()}
+    mses = {name: _mse(outs[name]["rgb"], inputs.target, complete) for name in PASSES
+            if name in outs}
     loss = mses["coarse"] if "fine" not in mses else (
         mses["fine"] + self.coarse_weight * mses["coarse"])
     stats = {"psnr": metrics.mse_to_psnr(mses.get("fine", mses["coarse"]))}
@@ -93,11 +99,13 @@ class PosePrior:
 @dataclasses.dataclass(frozen=True)
 class TotalVariation:
   """Smooth lattice tables where few rays constrain them (LLFF): the total variation of every
-  table of the grid networks (model.lattice_tables)."""
+  lattice table of the field's encoding family (registry.Encoding.table_axes: parameter-name
+  prefix -> spatial axes)."""
   weight: float
+  table_axes: Any = ()
 
   def __call__(self, inputs):
-    tables = model.lattice_tables(inputs.params)
+    tables = registry.lattice_tables(inputs.params, dict(self.table_axes))
     return self.weight * sum(regularizers.total_variation(table, axes)
                              for table, axes in tables), {}
 

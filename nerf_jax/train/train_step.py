@@ -55,13 +55,13 @@ class StepSettings:
   pose_ray_share: float = 1.0
 
 
-def _render_split(render, rays, key, background, image, posed):
-  """`render(rays, key, background, image)` of a batch of rays [B] in two parts: the first
+def _render_split(render, rays, key, background, posed):
+  """`render(rays, key, background)` of a batch of rays [B] in two parts: the first
   `posed` rays as they are, the rest from stop_gradient(rays), so the backward pass computes
   no gradient with respect to their samples' positions (with pose refinement that gradient,
   through every sample's interpolation, is most of the extra cost of a step). background:
-  float32 [3] or [B, 3]; image: int32 [B] or None. Returns the two parts' outputs joined along
-  the rays, in the rays' order."""
+  float32 [3] or [B, 3]. Returns the two parts' outputs joined along the rays, in the rays'
+  order."""
   parts = (slice(None, posed), slice(posed, None))
   keys = jax.random.split(key)
   outs = []
@@ -70,7 +70,7 @@ def _render_split(render, rays, key, background, image, posed):
     if stop:
       part_rays = jax.lax.stop_gradient(part_rays)
     part_bg = background[part] if jnp.ndim(background) == 2 else background
-    outs.append(render(part_rays, part_key, part_bg, None if image is None else image[part]))
+    outs.append(render(part_rays, part_key, part_bg))
   return jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), *outs)
 
 
@@ -115,7 +115,6 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
   """
   fixed_background = jnp.asarray(settings.background)
   refine = settings.pose_refinement
-  image_of = lambda batch: batch.image if ray_renderer.field.uses_images else None
 
   def bands_at(step, planned_steps):
     """BARF's α: positional-encoding bands (or grid levels) open between the shares
@@ -148,13 +147,15 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
     if refine:  # the rays of the corrected cameras: the corrections take a gradient
       rays = train_batches.pixel_rays_of(
           data, batch.image, batch.pixel, pose_refinement.corrected(data.poses, params["poses"]))
-    render = lambda rays, key, bg, image: ray_renderer.render(
-        {"params": params, **buffers}, rays, key, bg, settings.remat_chunk, image, bands)
+    if ray_renderer.field.uses_images:  # each ray's appearance code: its training image
+      rays = rays.replace(image=batch.image)
+    render = lambda rays, key, bg: ray_renderer.render(
+        {"params": params, **buffers}, rays, key, bg, settings.remat_chunk, bands)
     posed = posed_rays(rays.near.shape[0])
     if posed is None:
-      outs = render(rays, render_key, bg, image_of(batch))
+      outs = render(rays, render_key, bg)
     else:  # only the first `posed` rays' gradient reaches the poses
-      outs = _render_split(render, rays, render_key, bg, image_of(batch), posed)
+      outs = _render_split(render, rays, render_key, bg, posed)
     return losses.total(terms, losses.LossInputs(outs, target, rays, params))
 
   def update_buffers(state, run_key):

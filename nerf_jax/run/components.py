@@ -1,0 +1,229 @@
+"""Each layer's settings and components, built from the config once (the entry layer's job:
+nothing below run/ reads a config): the data's, the field (its encoding family), the sampler
+(by name), the renderers, the train step with its loss terms and hooks, the evaluator.
+"""
+
+import collections
+import dataclasses
+import functools
+
+
+from nerf_jax.backend import precision
+from nerf_jax.fields import registry
+from nerf_jax.run import config_lib
+from nerf_jax.samplers import occupancy
+from nerf_jax.samplers import registry as sampler_registry
+from nerf_jax.render import background
+from nerf_jax.train import losses, train_batches, train_step
+from nerf_jax.data import loaders
+from nerf_jax.evaluate import evaluation
+from nerf_jax.fields.field import Field
+from nerf_jax.fields.network import NetworkSettings
+from nerf_jax.render.image_renderer import ImageSettings
+from nerf_jax.render.renderer import RayRenderer
+from nerf_jax.samplers.sampler import Sampler
+from nerf_jax.run.optimizer import optimizer_for, schedule_steps
+
+
+def data_settings(data):
+  """loaders.DataSettings of a `data` section (config.data: a ConfigDict or dict; the fields it
+  lacks take configs/default.py's values, old spellings are moved: config_lib.complete)."""
+  saved = data.to_dict() if hasattr(data, "to_dict") else dict(data)
+  data = config_lib.complete({"data": saved}).data
+  names = (f.name for f in dataclasses.fields(loaders.DataSettings))
+  return loaders.DataSettings(**{name: data[name] for name in names})
+
+
+def encoding_family(config):
+  """The encoding family (fields/registry.py) config.model.encoding names, and its settings
+  built from its own section (config.model.<name>); ValueError naming the field if either is
+  wrong."""
+  family = registry.lookup(config.model.encoding)
+  section = config
+  for part in family.section_path.split("."):
+    if part not in section:
+      raise ValueError(f"config.{family.section_path} is missing: the settings of encoding "
+                       f"{config.model.encoding!r}")
+    section = section[part]
+  return family, registry.settings_from(family, dict(section))
+
+
+def network_settings(config, num_images=1):
+  """fields.network.NetworkSettings of config.model (num_images: see `make_field`)."""
+  m = config.model
+  # In an unbounded scene the grids cover the whole contracted space, twice the inner box.
+  bound = 2.0 * config.data.scene_bound if config.data.contraction else m.grid_bound
+  return NetworkSettings(
+      view_dependent=m.view_dependent, view_width=m.view_width, hidden=m.width, dtype=m.dtype,
+      matmul_precision=m.matmul_precision, appearance_images=max(int(num_images), 1),
+      appearance_dims=m.appearance_dims, density_activation=m.density_activation, bound=bound,
+      box=tuple(m.grid_box), cell_aspect=tuple(m.grid_cell_aspect))
+
+
+def make_field(config, num_images=1):
+  """The Field of `config.model` (and the top-level encoding bands): the network of the
+  encoding family `model.encoding` names (fields/registry.py), built from its own section
+  (model.grid, model.hash, ...) and the shared network settings. num_images: training images,
+  the rows of the appearance codes' table (model.appearance_dims > 0)."""
+  m = config.model
+  family, settings = encoding_family(config)
+  if m.appearance_dims < 0:
+    raise ValueError(f"config.model.appearance_dims={m.appearance_dims}: use 0 (off) or the "
+                     "length of each training image's appearance code (e.g. 8)")
+  precision.network_precision(m.matmul_precision)  # ValueError naming the field if unknown
+  network = registry.build(family, settings, network_settings(config, num_images))
+  return Field(network, None if family.raw_positions else config.pos_encode_dims,
+               config.dir_encode_dims, m.view_dependent, m.density_activation, m.density_noise,
+               config.data.contraction, max(config.data.scene_bound, 1e-6), m.appearance_dims)
+
+
+def make_sampler(config):
+  """The Sampler of `config` (samples, scene box, spacing, occupancy), or with config.sampler
+  set the sampler of that name (samplers/registry.py) built from it and its own config section
+  (config.<name>, e.g. config.proposal); ValueError naming the field when a setting cannot
+  work with the rest."""
+  oc = config.occupancy
+  if oc.enabled:
+    if config.data.scene_bound <= 0 and config.data.scene_bound != -1:
+      raise ValueError("config.occupancy.enabled needs config.data.scene_bound > 0 or -1 "
+                       "(auto): the grid covers that box")
+    if config.num_fine_samples > 0:
+      raise ValueError("config.occupancy.enabled and config.num_fine_samples > 0 cannot be "
+                       "combined: the occupancy grid already places the samples; set one of "
+                       "them")
+    if config.data.ndc:
+      raise ValueError("config.occupancy.enabled does not work with config.data.ndc")
+  settings = occupancy.OccupancySettings(**{k: v for k, v in oc.items() if k != "enabled"})
+  if config.data.contraction:
+    if config.data.scene_bound <= 0 and config.data.scene_bound != -1:
+      raise ValueError("config.data.contraction needs config.data.scene_bound > 0 or -1 "
+                       "(auto): the inner region's half-size")
+    if config.data.ndc or config.num_fine_samples > 0:
+      raise ValueError("config.data.contraction does not work with config.data.ndc or "
+                       "config.num_fine_samples > 0 yet")
+  base = Sampler(config.num_samples, config.data.scene_bound, config.data.lindisp,
+                 settings if oc.enabled else None, config.data.contraction,
+                 config.data.inner_fraction)
+  if not config.sampler:
+    return base
+  if config.num_fine_samples > 0 or config.data.ndc:
+    raise ValueError(f"config.sampler={config.sampler!r} places the samples itself: set "
+                     "config.num_fine_samples=0 (and it does not work with config.data.ndc)")
+  section = config[config.sampler].to_dict() if config.sampler in config else {}
+  return sampler_registry.build(config.sampler, base, section)
+
+
+def make_ray_renderer(config, num_images=1):
+  """The RayRenderer of `config`: its field, its sampler and the fine pass (num_images: see
+  `make_field`). Its sample budget is 0 (every slot): training sets config.train.sample_budget
+  (`training_renderer`)."""
+  if config.train.sample_budget and not config.occupancy.enabled:
+    raise ValueError("config.train.sample_budget needs config.occupancy.enabled: the budget "
+                     "is spent on the samples the occupancy grid places (0 = off)")
+  return RayRenderer(make_field(config, num_images), make_sampler(config),
+                     config.num_fine_samples, config.model.shared_fine,
+                     config.model.colour_fraction)
+
+
+def training_renderer(exp):
+  """exp.renderer with the config's training sample budget (renderer.RayRenderer)."""
+  return dataclasses.replace(exp.renderer, sample_budget=exp.config.train.sample_budget)
+
+
+def image_settings(config):
+  """ImageSettings of `config.render` (no marching in NDC: the skip grid is in world space);
+  ValueError naming the field for a negative sample count."""
+  rc = config.render
+  if rc.num_samples < 0:
+    raise ValueError(f"config.render.num_samples={rc.num_samples}: use 0 (training's "
+                     "num_samples) or a positive count of samples per ray")
+  return ImageSettings(chunk=rc.chunk, march=rc.march and not config.data.ndc,
+                       march_grid=rc.march_grid, march_threshold=rc.march_threshold,
+                       march_probes=rc.march_probes, march_group=rc.march_group,
+                       min_transmittance=rc.min_transmittance, num_samples=rc.num_samples)
+
+
+def batch_settings(config):
+  """train_batches.BatchSettings of `config.train`."""
+  fields = (f.name for f in dataclasses.fields(train_batches.BatchSettings))
+  return train_batches.BatchSettings(**{name: config.train[name] for name in fields})
+
+
+def rays_per_step(config, dataset):
+  """Rays in one train step of `config` on `dataset`'s images."""
+  return train_batches.rays_per_step(batch_settings(config), dataset.height, dataset.width)
+
+
+def step_settings(exp):
+  """train_step.StepSettings of the run `exp` describes."""
+  tc = exp.config.train
+  return train_step.StepSettings(
+      batch=batch_settings(exp.config),
+      background=tuple(float(v) for v in background.parse(exp.config.data.background)),
+      random_background=background.trains_on_random(tc.random_background,
+                                                    exp.train_ds.accs is not None),
+      planned_steps=schedule_steps(tc), remat_chunk=tc.remat_chunk,
+      pose_refinement=tc.pose_refinement, pose_coarse_to_fine=tuple(tc.pose_coarse_to_fine),
+      pose_ray_share=tc.pose_ray_share)
+
+
+def loss_terms(config, ray_renderer):
+  """The train step's loss terms (train/losses.py) of `config`, in the order they are added."""
+  tc = config.train
+  terms = [losses.Colour(tc.coarse_loss_weight)]
+  if tc.distortion_weight > 0:
+    terms.append(losses.Distortion(tc.distortion_weight, ray_renderer.sampler.unit_distance))
+  if tc.pose_refinement and tc.pose_prior > 0:
+    terms.append(losses.PosePrior(tc.pose_prior))
+  if tc.tv_weight > 0:
+    table_axes = tuple(encoding_family(config)[0].table_axes.items())
+    terms.append(losses.TotalVariation(tc.tv_weight, table_axes))
+  return terms + ray_renderer.sampler.loss_terms()  # a sampler brings its own (proposal.py)
+
+
+def make_train_step(exp, mesh=None):
+  """The jitted train step of `exp` (train_step.make_train_step; mesh: see there)."""
+  ray_renderer = training_renderer(exp)
+  hooks = ()
+  if ray_renderer.sampler.occupancy is not None:
+    hooks = (train_step.OccupancyRefresh(ray_renderer),)
+  return train_step.make_train_step(
+      ray_renderer, exp.tx, loss_terms(exp.config, ray_renderer), step_settings(exp),
+      functools.partial(optimizer_for, exp.config), mesh, hooks)
+
+
+_STEPS = collections.OrderedDict()  # the few most recent train steps, see `cached_train_step`
+
+
+def cached_train_step(exp, mesh=None):
+  """`make_train_step`, reused for an equal config in the same process (tests, sweeps and
+  resumed runs then compile it once): the step depends on nothing else."""
+  key = (exp.config.to_json(), exp.near, exp.far, mesh)
+  if key not in _STEPS:
+    _STEPS[key] = make_train_step(exp, mesh)
+    while len(_STEPS) > 4:
+      _STEPS.popitem(last=False)
+  _STEPS.move_to_end(key)
+  return _STEPS[key]
+
+
+def make_train_data(exp):
+  """train_batches.TrainData of exp's training images: targets on config.data.background, each
+  step's rays made through the training camera as `Experiment.rays` makes them."""
+  height, width, intrinsics = exp.camera()
+  camera = (height, width, intrinsics, exp.near, exp.far, exp.pixel_center,
+            exp.config.data.ndc)
+  return train_batches.make_train_data(exp.train_ds, camera,
+                                       background.parse(exp.config.data.background))
+
+
+def eval_settings(config):
+  """evaluation.EvalSettings of `config` (data.background, render.appearance_protocol)."""
+  return evaluation.EvalSettings(
+      background=tuple(float(v) for v in background.parse(config.data.background)),
+      appearance_protocol=config.render.appearance_protocol)
+
+
+def make_evaluator(exp):
+  """The evaluator of exp's test views (evaluation.make_evaluator) under `eval_settings`."""
+  return evaluation.make_evaluator(exp, eval_settings(exp.config))

@@ -1,0 +1,141 @@
+"""The config completed from the data, once, before anything is built: the scene's extent
+(data.scene_bound = -1), the grids' box in NDC and from the visual hull, the ray bounds and
+pixel centres; and the one line that warns when the scene box cuts the training rays.
+"""
+
+
+import jax.numpy as jnp
+import ml_collections
+import numpy as np
+
+from nerf_jax.samplers import visual_hull
+from nerf_jax.cameras.rays import pixel_rays
+
+
+def with_scene_extent(config, dataset):
+  """`config` with data.scene_bound = -1 (auto) resolved from the data, one line saying how:
+  in an unbounded scene (data.contraction) the inner box is the subject's (Dataset.core:
+  instant-ngp's unit cube, or the sparse points' box), else the cameras'; in a bounded one it
+  is the data's whole box (Dataset.aabb: instant-ngp's aabb_scale or the sparse points), else
+  the cameras'. The value (and the grids' box, model.grid_bound) is recorded in config.json."""
+  if config.data.scene_bound != -1:
+    return config
+  box = dataset.core if config.data.contraction else dataset.aabb
+  if box is None:
+    bound, why = float(np.max(np.abs(dataset.poses[:, :3, 3]))), "the cameras' box"
+  else:
+    bound = float(np.max(np.abs(box)))
+    why = "the subject's box (core)" if config.data.contraction else "the data's box (aabb)"
+  config = ml_collections.ConfigDict(config.to_dict())
+  config.data.scene_bound = round(bound, 4)
+  config.model.grid_bound = round(bound, 4)  # a bounded scene's grids cover the box found
+  beyond = f", contracted ({config.data.contraction}) beyond" if config.data.contraction else ""
+  print(f"scene extent: box ±{bound:.3g} from {why}{beyond} (data.scene_bound)", flush=True)
+  return config
+
+
+NDC_MARGIN = 0.02  # share of each side added around the training rays' NDC box
+
+
+def with_ndc_box(config, dataset, near, far):
+  """`config` with the grid encodings' box (model.grid_box) found from the data in an NDC run
+  that sets none: the box of every training ray's ends in NDC (t = 0 on the near plane and
+  t = 1 at infinity), NDC_MARGIN wider on each side, so no photo's frustum is cut, and no cells
+  are spent beyond them. One line says so; the box is recorded in config.json."""
+  m = config.model
+  if not config.data.ndc or m.encoding == "posenc" or m.grid_box:
+    return config
+  # A pinhole camera maps its pixel grid projectively onto any plane, so the NDC ends of its
+  # rays span the quadrilateral of its corner pixels' rays.
+  i = jnp.array([0.0, dataset.width - 1.0, 0.0, dataset.width - 1.0])
+  j = jnp.array([0.0, 0.0, dataset.height - 1.0, dataset.height - 1.0])
+  ends = []
+  for pose in dataset.poses:
+    rays = pixel_rays(i, j, dataset.height, dataset.width, dataset.intrinsics, pose, near, far,
+                      pixel_center(config, dataset), use_ndc=True)
+    ends += [np.asarray(rays.origins), np.asarray(rays.origins + rays.directions)]
+  ends = np.concatenate(ends)
+  low, high = ends.min(axis=0), ends.max(axis=0)
+  pad = NDC_MARGIN * (high - low)
+  low, high = np.maximum(low - pad, -1e3), np.minimum(high + pad, 1e3)
+  config = ml_collections.ConfigDict(config.to_dict())
+  config.model.grid_box = tuple(round(float(v), 4) for v in (*low, *high))
+  corner = lambda c: "(" + ", ".join(f"{float(v):.3f}" for v in c) + ")"
+  print(f"NDC extent: the training rays span {corner(low)} to {corner(high)}; the grids cover "
+        "it (model.grid_box)", flush=True)
+  return config
+
+
+HULL_RESOLUTION = 64  # cells per side of the carved grid when no occupancy grid sets it
+
+
+def with_visual_hull(config, dataset):
+  """(config, hull): with data.visual_hull on data with opacity, the training masks are carved
+  (visual_hull.py) on the occupancy grid's cells (else 64^3 cells of the grids' cube), the grid
+  encodings' box (model.grid_box, recorded in config.json) becomes the hull's bounding box and
+  `hull` (float32 [R, R, R]) is returned for the occupancy grid; else (config, None)."""
+  if not config.data.visual_hull:
+    return config, None
+  if dataset.accs is None or config.data.contraction:
+    why = "the data has no opacity" if dataset.accs is None else "the scene is unbounded"
+    print(f"note: data.visual_hull is ignored: {why}", flush=True)
+    return config, None
+  occupied = config.occupancy.enabled
+  bound = config.data.scene_bound if occupied else config.model.grid_bound
+  resolution = config.occupancy.resolution if occupied else HULL_RESOLUTION
+  hull = visual_hull.carve(dataset.accs, dataset.poses, dataset.intrinsics, bound, resolution,
+                           pixel_center(config, dataset))
+  box = visual_hull.bounding_box(hull, bound)
+  config = ml_collections.ConfigDict(config.to_dict())
+  config.model.grid_box = tuple(round(float(v), 4) for v in box.reshape(-1))
+  share = float(np.mean(np.asarray(hull)))
+  corner = lambda c: "(" + ", ".join(f"{float(v):.3f}" for v in c) + ")"
+  print(f"visual hull: {100 * share:.1f}% of the box's cells; the grids cover "
+        f"{corner(box[0])} to {corner(box[1])} (model.grid_box)", flush=True)
+  return config, hull if occupied else None
+
+
+CUT_SHARE = 0.25  # a run warns when more training rays than this leave the box before far
+
+
+VIEWS_CHECKED, RAYS_PER_SIDE = 8, 16  # warn_if_cut looks at 16 x 16 rays of ~8 views
+
+
+def warn_if_cut(exp):
+  """One line when many training rays leave the scene box before their far bound: what lies
+  beyond is cut from the model (a bounded box on a real capture). Data with opacity (RGBA,
+  built-in scenes) says where the scene is empty, so nothing is cut there: no line."""
+  sampler = exp.renderer.sampler
+  if (sampler.scene_bound <= 0 or sampler.contraction or exp.config.data.ndc
+      or exp.train_ds.accs is not None):
+    return
+  poses = exp.train_ds.poses
+  views = poses[::max(1, len(poses) // VIEWS_CHECKED)]
+  camera = exp.camera(RAYS_PER_SIDE / max(exp.train_ds.height, exp.train_ds.width))
+  cut = [np.mean(np.asarray(sampler.bounds(rays)[1]) < 0.95 * np.asarray(rays.far))
+         for rays in (exp.rays(pose, camera) for pose in views)]
+  share = float(np.mean(cut))
+  if share > CUT_SHARE:
+    print(f"note: {100 * share:.0f}% of training rays leave the scene box "
+          f"(±{sampler.scene_bound:g}) before their far bound ({exp.far:.3g}): what lies "
+          "beyond is not modelled; for a garden or a street set data.contraction='linf' "
+          "(docs/real_captures.md), or data.scene_bound=-1 (the box from the data)", flush=True)
+
+
+def pixel_center(config, dataset):
+  """config.data.pixel_center, or with -1 the dataset's (what its images were taken through);
+  ValueError naming the field for any other value outside [0, 1]."""
+  value = config.data.pixel_center
+  if value == -1:
+    return float(dataset.pixel_center)
+  if not 0.0 <= value <= 1.0:
+    raise ValueError(f"config.data.pixel_center={value}: use -1 (the data's own), 0 (pixel "
+                     "corners) or 0.5 (pixel centres)")
+  return float(value)
+
+
+def bounds(config, dataset):
+  """(near, far): [0, 1] in NDC, else the config's overrides where set, else the dataset's."""
+  if config.data.ndc:
+    return 0.0, 1.0  # NDC rays run from the near plane (0) to infinity (1)
+  return (float(config.data.near or dataset.near), float(config.data.far or dataset.far))

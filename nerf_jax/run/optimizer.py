@@ -1,0 +1,88 @@
+"""The learning-rate schedule and the optimiser of a run (config.train): Adam with warm-up and
+exponential decay, and its parameter groups (poses, appearance codes, network).
+"""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import optax
+
+
+
+def schedule_steps(train_config):
+  """The steps the schedule spans: max_steps if set, else default_steps."""
+  return int(train_config.max_steps or train_config.default_steps)
+
+
+def make_schedule(train_config, planned_steps=None):
+  """count -> learning rate: linear warm-up from 0 to `lr` over `warmup_steps`, then exponential
+  decay reaching `lr_final` at the planned steps and staying there (a time-budget run may take a
+  few more).
+
+  planned_steps: None for `schedule_steps(train_config)`, or an int32 [] (possibly traced: a
+  time budget's fitted length, see budget.py, so one compiled step serves any length), over
+  which warm-up keeps its share of the config's planned steps (as train_lib.fit_schedule).
+  """
+  tc = train_config
+  planned, warmup = schedule_steps(tc), tc.warmup_steps
+  if planned_steps is not None:
+    warmup = jnp.round(tc.warmup_steps / max(planned, 1) * planned_steps)
+    planned = planned_steps
+
+  def schedule(count):
+    count = jnp.asarray(count, jnp.float32)
+    progress = jnp.clip((count - warmup) / jnp.maximum(planned - warmup, 1), 0.0, 1.0)
+    decayed = tc.lr * (tc.lr_final / tc.lr) ** progress
+    if tc.warmup_steps <= 0:
+      return decayed
+    return jnp.where(count < warmup, tc.lr * count / jnp.maximum(warmup, 1), decayed)
+  return schedule
+
+
+def optimizer_for(config, planned_steps=None):
+  """`make_optimizer` for the run `config` describes (its codes, if model.appearance_dims)."""
+  return make_optimizer(config.train, planned_steps, config.model.appearance_dims > 0)
+
+
+def make_optimizer(train_config, planned_steps=None, with_codes=False):
+  """Adam on the schedule (see `make_schedule`), with optional global-norm gradient clipping.
+  With train.pose_refinement the camera corrections (params['poses']) have an Adam of their
+  own, on the same schedule scaled to train.pose_lr; `with_codes` (appearance codes: every
+  parameter named 'appearance'), so do the codes, scaled to train.appearance_lr (unless it is
+  train.lr: one Adam, as in runs saved before train.appearance_lr existed); with
+  train.network_lr, the MLP's layers (leaves 'kernel' and 'bias'), scaled to it."""
+  tc = train_config
+  schedule = make_schedule(tc, planned_steps)
+  adam = optax.adam(schedule, b2=tc.adam_b2)
+  if tc.grad_clip > 0:
+    adam = optax.chain(optax.clip_by_global_norm(tc.grad_clip), adam)
+  scaled = lambda lr: optax.adam(lambda count: lr / tc.lr * schedule(count), b2=tc.adam_b2)
+  groups = {"field": adam}
+  if tc.pose_refinement:
+    groups["poses"] = scaled(tc.pose_lr)
+  if with_codes and tc.appearance_lr != tc.lr:
+    groups["codes"] = scaled(tc.appearance_lr)
+  if tc.network_lr > 0 and tc.network_lr != tc.lr:
+    groups["network"] = scaled(tc.network_lr)
+  if len(groups) == 1:
+    return adam
+  return optax.multi_transform(groups, functools.partial(_parameter_groups, groups))
+
+
+def _parameter_groups(groups, params):
+  """The optimiser group of `params`' parts: 'poses' for params['poses'], 'codes' for the leaves
+  named 'appearance' where `groups` has codes, 'network' for the MLP's 'kernel' and 'bias'
+  leaves where it has network, else 'field'. Labels stay a prefix of the tree
+  where they can (a whole network is 'field'), as checkpoints of pose refinement saved them."""
+  def label(path):
+    name = getattr(path[-1], "key", None)
+    if name == "appearance" and "codes" in groups:
+      return "codes"
+    return "network" if name in ("kernel", "bias") and "network" in groups else "field"
+
+  def network(tree):
+    if "codes" not in groups and "network" not in groups:
+      return "field"
+    return jax.tree_util.tree_map_with_path(lambda path, _: label(path), tree)
+  return {name: "poses" if name == "poses" else network(tree) for name, tree in params.items()}

@@ -1,0 +1,86 @@
+"""The train state of a run and what its checkpoints record: the model signature (the shared
+fields, then the encoding family's and the sampler's entries), a fresh state, its shapes, and
+the upgrade of states saved by earlier versions.
+"""
+
+
+import jax
+import jax.numpy as jnp
+
+from nerf_jax.fields import registry
+from nerf_jax.fields.networks import grid as grid_network
+from nerf_jax.train.state import TrainState
+from nerf_jax.run.components import encoding_family, make_ray_renderer, make_sampler
+
+
+def model_signature(config):
+  """Config fields that fix the parameter shapes; a checkpoint only restores under the same.
+
+  The shared fields, then the encoding family's own entries (registry.Encoding.signature), then
+  the optional parts, each only when on so that checkpoints saved before it existed stay valid.
+  Keys keep the flat names checkpoints have always stored (grid_resolutions, hash_levels...).
+  """
+  m = config.model
+  signature = {"pos_encode_dims": config.pos_encode_dims,
+               "dir_encode_dims": config.dir_encode_dims, "depth": m.depth, "width": m.width,
+               "skip_layers": list(m.skip_layers), "view_dependent": m.view_dependent,
+               "view_width": m.view_width,
+               "networks": list(make_ray_renderer(config).networks)}
+  family, settings = encoding_family(config)
+  if family.records_grid_section:
+    grid_family = registry.lookup("grid")
+    grid_settings = registry.settings_from(grid_family, dict(m.grid))
+    signature.update(grid_network.lattice_signature(grid_settings))
+  signature.update(family.signature(settings))
+  if config.occupancy.enabled:
+    signature.update(occupancy_resolution=config.occupancy.resolution)
+  if m.appearance_dims:
+    signature.update(appearance_dims=m.appearance_dims)
+  if config.train.pose_refinement:
+    signature.update(pose_refinement=True)
+  if m.grid_box:
+    signature.update(grid_box=list(m.grid_box))
+  if tuple(m.grid_cell_aspect) != (1.0, 1.0, 1.0):
+    signature.update(grid_cell_aspect=list(m.grid_cell_aspect))
+  signature.update(make_sampler(config).signature())  # a learned sampler's ({}: the built-in)
+  return signature
+
+
+def init_state(exp):
+  """A fresh TrainState of `exp` (parameters from config.seed)."""
+  buffers = exp.renderer.init(jax.random.PRNGKey(exp.config.seed))
+  params = buffers.pop("params")
+  if exp.config.train.pose_refinement:  # a correction per training image, zero = as given
+    params["poses"] = jnp.zeros((len(exp.train_ds), 6), jnp.float32)
+  if exp.hull is not None:  # sample only inside the hull from the first step, and ever after
+    # Two arrays, not one: the train step donates its state, and a buffer is donated once.
+    buffers.update(occupancy=jnp.array(exp.hull), hull=jnp.array(exp.hull))
+  return TrainState(step=jnp.array(0, jnp.int32), params=params, opt_state=exp.tx.init(params),
+                    bad_step=jnp.array(-1, jnp.int32), buffers=buffers)
+
+
+def upgrade_state_dict(state):
+  """A saved TrainState dict (checkpoints.py) of an earlier version made current: the
+  occupancy grid once lived in params['occupancy'] (with Adam moments that stayed zero); it
+  now lives in buffers."""
+  if "buffers" in state:
+    return state
+  state = dict(state, params=dict(state["params"]), buffers={})
+  if "occupancy" in state["params"]:
+    state["buffers"]["occupancy"] = state["params"].pop("occupancy")
+  state["opt_state"] = _without_occupancy(state["opt_state"])
+  return state
+
+
+def _without_occupancy(tree):
+  """`tree` (nested dicts) without the 'occupancy' entry of any dict that holds 'coarse'."""
+  if not isinstance(tree, dict):
+    return tree
+  return {k: _without_occupancy(v) for k, v in tree.items()
+          if not (k == "occupancy" and "coarse" in tree)}
+
+
+def state_template(exp):
+  """The structure of `init_state` (shapes and dtypes, nothing computed): what a checkpoint
+  restores into, in a fraction of a second instead of initialising every parameter eagerly."""
+  return jax.eval_shape(lambda: init_state(exp))
