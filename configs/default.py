@@ -91,7 +91,7 @@ def get_config():
   proposal.num_samples = (256, 96)  # samples per ray of each proposal level (NeRF: num_samples)
   proposal.field = "hash"  # levels' density fields: 'hash' (nerfacto's) or 'grid' (dense, CPU)
   proposal.max_resolution = (128, 256)  # finest lattice of each level's density field
-  proposal.levels = 5  # lattice levels of each density field
+  proposal.levels = 5  # lattice levels of each density field (one level: base_resolution)
   proposal.log2_size = 17  # 'hash': log2 of each level's rows
   proposal.features = 2  # features per lattice point (hash row)
   proposal.base_resolution = 16  # coarsest lattice

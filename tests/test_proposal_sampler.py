@@ -129,6 +129,20 @@ def test_samples_are_sorted_inside_the_bounds_and_finite(rendered):
     assert np.all(far == sampling.MAX_FAR)
 
 
+def test_the_shipped_config_has_one_dense_lattice_level_and_places_finite_samples():
+  config = small_config({"data.scene_bound": BOUND}, base="scenes/garden_proposal")
+  rr = experiment.make_ray_renderer(config)
+  variables = rr.init(jax.random.PRNGKey(0))
+  level = variables["params"]["proposal_0"]
+  assert sorted(variables["params"]) == ["coarse", "proposal_0"]
+  assert level["lattice_16"].shape == (16, 16, 16, 2)
+  samples, extras = jax.jit(rr.sampler.generate)(_rays(), jax.random.PRNGKey(3), variables)
+  t = np.asarray(samples.t)
+  assert t.shape == (24, 33) and extras["proposals"][0]["t"].shape == (24, 65)
+  assert np.all(np.isfinite(t)) and np.all(np.diff(t, axis=-1) >= 0)
+  assert np.all(t[:, -1] == sampling.MAX_FAR)
+
+
 def test_interlevel_term_matches_the_brute_force(rendered):
   rr, variables, rays, outputs = rendered
   inputs = losses.LossInputs(outputs, jnp.zeros((24, 3)), rays, variables["params"])
@@ -190,6 +204,7 @@ def test_photometric_loss_trains_the_nerf_and_interlevel_the_proposals_only(rend
     ({"proposal.max_resolution": (64,)}, "config.proposal.max_resolution"),
     ({"proposal.num_samples": (32, 0)}, "config.proposal.num_samples"),
     ({"proposal.padding": -1.0}, "config.proposal.padding"),
+    ({"proposal.field": "mlp"}, "config.proposal.field"),
     ({"occupancy.enabled": True}, "config.occupancy.enabled"),
     ({"num_fine_samples": 16}, "config.num_fine_samples"),
     ({"data.scene_bound": 0.0}, "config.data.scene_bound"),

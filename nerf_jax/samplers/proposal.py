@@ -156,8 +156,9 @@ class Settings:
     are config.num_samples). field: each level's density field, 'hash' (nerfacto's hash grid,
     fields/density_field.HashDensity) or 'grid' (dense lattices, GridDensity: cheaper on a
     CPU). max_resolution: the finest lattice of each level's field, one per level. levels,
-    features, base_resolution: the fields' lattice levels; log2_size: the hash grid's rows per
-    level ('hash' only); hidden: units of their one hidden layer.
+    features, base_resolution: the fields' lattice levels, geometric from base to max
+    (hashgrid.level_resolutions: a single level is base_resolution); log2_size: the hash
+    grid's rows per level ('hash' only); hidden: units of their one hidden layer.
   loss_weight: weight of the interlevel loss (`Interlevel`; 0 = the proposals never learn).
   padding: weight added to every interval before resampling (`resample`).
   """
