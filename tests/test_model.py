@@ -6,19 +6,19 @@ import numpy as np
 import pytest
 
 from nerf_jax.fields.networks.mlp import NerfMLP
-from tests.helpers import NETWORK_RTOL
+from tests.helpers import NETWORK_RTOL, jitted
 
 
 def _init(model, pos_dim=9, dir_dim=9, key=0):
   pos = jnp.zeros((1, pos_dim))
-  return model.init(jax.random.PRNGKey(key), pos, jnp.zeros((1, dir_dim)))["params"]
+  return jitted(model.init)(jax.random.PRNGKey(key), pos, jnp.zeros((1, dir_dim)))["params"]
 
 
 def test_shapes_and_ranges():
   model = NerfMLP(depth=4, width=16, skip_layers=(2,))
   params = _init(model)
   x = jax.random.normal(jax.random.PRNGKey(1), (5, 7, 9))
-  rgb, raw = model.apply({"params": params}, x)
+  rgb, raw = jitted(model.apply)({"params": params}, x)
   assert rgb.shape == (5, 7, 3) and raw.shape == (5, 7)
   assert np.all((rgb > 0) & (rgb < 1))
 
@@ -34,16 +34,17 @@ def test_view_branch_makes_colour_depend_on_direction_only():
   params = _init(model)
   pos = jax.random.normal(jax.random.PRNGKey(2), (4, 9))
   d1, d2 = jax.random.normal(jax.random.PRNGKey(3), (2, 4, 9))
-  rgb1, s1 = model.apply({"params": params}, pos, d1)
-  rgb2, s2 = model.apply({"params": params}, pos, d2)
+  apply = jitted(model.apply)
+  rgb1, s1 = apply({"params": params}, pos, d1)
+  rgb2, s2 = apply({"params": params}, pos, d2)
   np.testing.assert_array_equal(s1, s2)  # density never sees the direction
   assert np.max(np.abs(rgb1 - rgb2)) > 1e-4
   # With the direction weights of the view layer zeroed, colour no longer depends on direction.
   kernel = params["view"]["kernel"]
   zeroed = jax.tree_util.tree_map(lambda x: x, params)
   zeroed["view"]["kernel"] = kernel.at[16:].set(0.0)
-  rgb1, _ = model.apply({"params": zeroed}, pos, d1)
-  rgb2, _ = model.apply({"params": zeroed}, pos, d2)
+  rgb1, _ = apply({"params": zeroed}, pos, d1)
+  rgb2, _ = apply({"params": zeroed}, pos, d2)
   np.testing.assert_allclose(rgb1, rgb2, atol=1e-7)
 
 
@@ -53,8 +54,8 @@ def test_low_precision_matmuls_return_float32_close_to_float32(dtype):
   ref = NerfMLP(depth=3, width=32, skip_layers=(1,))
   low = NerfMLP(depth=3, width=32, skip_layers=(1,), dtype=dtype)
   params = _init(ref)
-  rgb32, s32 = ref.apply({"params": params}, x)
-  rgb, s = low.apply({"params": params}, x)
+  rgb32, s32 = jitted(ref.apply)({"params": params}, x)
+  rgb, s = jitted(low.apply)({"params": params}, x)
   assert rgb.dtype == jnp.float32 and s.dtype == jnp.float32
   assert jax.tree_util.tree_leaves(params)[0].dtype == jnp.float32
   tol = 3e-2 if dtype == "bfloat16" else 5e-3
@@ -97,12 +98,13 @@ def test_forward_pass_matches_a_numpy_reference(view_dependent):
                                                for x, k in zip(leaves, keys)])
   pos, dirs = jax.random.normal(jax.random.PRNGKey(7), (2, 11, 9))
   dirs = dirs if view_dependent else None
-  rgb, sigma = model.apply({"params": params}, pos, dirs)
+  rgb, sigma = jitted(model.apply)({"params": params}, pos, dirs)
   ref_rgb, ref_sigma = _reference_mlp(params, pos, dirs, (1,))
   np.testing.assert_allclose(rgb, ref_rgb, rtol=1e-5, atol=1e-6)
   np.testing.assert_allclose(sigma, ref_sigma, rtol=1e-5, atol=1e-5)
   # At the backend's default precision (TF32 on GPUs, emulated on the CPU by the tests), the
   # same network within the TF32 tolerance, stated once for every network test.
-  rgb, sigma = model.clone(matmul_precision="default").apply({"params": params}, pos, dirs)
+  rgb, sigma = jitted(model.clone(matmul_precision="default").apply)({"params": params}, pos,
+                                                                     dirs)
   np.testing.assert_allclose(rgb, ref_rgb, rtol=NETWORK_RTOL, atol=NETWORK_RTOL)
   np.testing.assert_allclose(sigma, ref_sigma, rtol=NETWORK_RTOL, atol=NETWORK_RTOL)

@@ -47,13 +47,11 @@ def test_resume_continues_at_the_right_step_and_matches_an_uninterrupted_run(tmp
   assert resumed["psnr"] == full["psnr"]
 
 
-def test_checkpoint_restore_render_gives_the_same_image(tmp_path):
-  workdir = str(tmp_path / "run")
-  config = small_config({"train.max_steps": 10})
-  train_lib.train_and_evaluate(config, workdir)
-  exp, state = experiment.restore(workdir)
+def test_checkpoint_restore_render_gives_the_same_image(trained_run):
+  workdir, _ = trained_run  # conftest's shared run, read only
+  exp, state = experiment.restore(str(workdir))
   again = experiment.make_evaluator(exp)(state.variables)
-  stored = json.loads((tmp_path / "run" / "metrics.json").read_text())
+  stored = json.loads((workdir / "metrics.json").read_text())
   assert again["per_view"] == stored["per_view"]
 
 
@@ -247,11 +245,9 @@ def test_forward_facing_video_follows_a_spiral():
   assert spread < 2 * np.abs(train_ds.poses[:, :3, 3]).max() + 1e-3
 
 
-def test_views_render_at_a_scaled_resolution_with_the_same_field_of_view(tmp_path):
-  config = small_config({"train.max_steps": 2})
-  workdir = str(tmp_path / "run")
-  train_lib.train_and_evaluate(config, workdir)
-  exp = experiment.setup(config)
+def test_views_render_at_a_scaled_resolution_with_the_same_field_of_view(trained_run, tmp_path):
+  workdir = str(trained_run[0])  # conftest's shared run, read only: the views go to tmp_path
+  exp, _ = experiment.restore(workdir)
   train_ds = exp.train_ds
   height, width, (fx, fy, cx, cy) = exp.camera(2.0)
   assert (height, width) == (2 * train_ds.height, 2 * train_ds.width)

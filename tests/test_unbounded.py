@@ -11,7 +11,7 @@ import pytest
 from nerf_jax.fields import contraction
 from nerf_jax.fields.networks import grid as grid_network
 from nerf_jax.run import experiment
-from nerf_jax.samplers import sampler, sampling
+from nerf_jax.samplers import occupancy, sampler, sampling
 from nerf_jax.fields.field import Field
 from nerf_jax.cameras.rays import Rays
 from tests.helpers import small_config
@@ -96,9 +96,9 @@ def test_contraction_refuses_what_it_cannot_do_yet():
 def test_occupancy_in_contracted_space_samples_only_occupied_cells():
   # Occupied: the contracted cells of a shell between world radius 3 and 6 (L-inf), i.e.
   # contracted |c| in [1.5 * (2 - 1/2), 1.5 * (2 - 1/4)] = [2.25, 2.625].
-  oc = experiment.occupancy.OccupancySettings(resolution=16, candidates=128)
+  oc = occupancy.OccupancySettings(resolution=16, candidates=128)
   rs = sampler.Sampler(16, scene_bound=1.5, occupancy=oc, contraction="linf")
-  centres = np.asarray(experiment.occupancy.cell_centres(16, rs.grid_bound))
+  centres = np.asarray(occupancy.cell_centres(16, rs.grid_bound))
   radius = np.max(np.abs(centres), axis=-1)
   grid = np.where((radius > 2.25) & (radius < 2.625), 10.0, 0.0).astype(np.float32)
   rays = Rays.create(jnp.zeros((32, 3)), jnp.asarray(np.random.default_rng(1).normal(

@@ -17,15 +17,12 @@ from nerf_jax.fields import field as field_lib
 from nerf_jax.fields.encodings import grid, hashgrid
 
 
-class HashDensity(nn.Module):
-  """Raw density from a hash grid over [-bound, bound]^3 and one hidden ReLU layer.
-
-  levels, log2_size, features, base_resolution, max_resolution: the hash grid's (hashgrid.py).
-  hidden: units of the hidden layer. Positions outside the box are clamped onto it (as the hash
-  grid does); a proposal sampler only queries inside it (the scene box, or contracted space).
-  """
-  levels: int = 5
-  log2_size: int = 17
+class _DensityOnly(nn.Module):
+  """What both density networks share: no levels for pose refinement, nothing to split, and the
+  head from features float32 [..., F] to (zero colour, raw density) (network.Network).
+  Lattice levels from base_resolution to max_resolution points per side (geometric), `features`
+  channels, over [-bound, bound]^3; `hidden` units in the head's one hidden layer."""
+  levels: int = 3
   features: int = 2
   base_resolution: int = 16
   max_resolution: int = 128
@@ -40,6 +37,23 @@ class HashDensity(nn.Module):
   def splits_density(self):
     return False  # one call gives density (and no colour): nothing to split
 
+  def _density(self, h):
+    """(rgb zeros float32 [..., 3], raw_sigma float32 [...]) from features h [..., F]."""
+    h = nn.relu(nn.Dense(self.hidden, name="hidden")(h))
+    raw_sigma = nn.Dense(1, name="sigma")(h)[..., 0]
+    return jnp.zeros((*raw_sigma.shape, 3), jnp.float32), raw_sigma
+
+
+class HashDensity(_DensityOnly):
+  """Raw density from a hash grid over [-bound, bound]^3 and one hidden ReLU layer.
+
+  levels, log2_size, features, base_resolution, max_resolution: the hash grid's (hashgrid.py).
+  hidden: units of the hidden layer. Positions outside the box are clamped onto it (as the hash
+  grid does); a proposal sampler only queries inside it (the scene box, or contracted space).
+  """
+  levels: int = 5
+  log2_size: int = 17
+
   @nn.compact
   def __call__(self, points, dir_features=None, image=None, level_weights=None):
     del dir_features, image, level_weights  # density only, no appearance, never refined
@@ -49,32 +63,15 @@ class HashDensity(nn.Module):
     init = lambda key, shape: jax.random.uniform(key, shape, jnp.float32, -1e-4, 1e-4)
     table = self.param("hash_table", init, (rows, self.features))
     unit = grid.to_unit_cube(points.astype(jnp.float32), self.bound)
-    h = hashgrid.encode(table, unit, resolutions, self.log2_size)
-    h = nn.relu(nn.Dense(self.hidden, name="hidden")(h))
-    raw_sigma = nn.Dense(1, name="sigma")(h)[..., 0]
-    return jnp.zeros((*raw_sigma.shape, 3), jnp.float32), raw_sigma
+    return self._density(hashgrid.encode(table, unit, resolutions, self.log2_size))
 
 
-class GridDensity(nn.Module):
+class GridDensity(_DensityOnly):
   """`HashDensity` with dense lattices in place of the hash grid: `levels` grids of `features`
   channels from base_resolution to max_resolution points per side (geometric, as the hash
   grid's levels), each read by 8 one-dimensional gathers (grid.trilinear), which a CPU does
   several times faster than the hash grid's gather of [..., levels, 8] rows. Memory grows with
   the cube of max_resolution (128: 2.1M parameters per feature)."""
-  levels: int = 3
-  features: int = 2
-  base_resolution: int = 16
-  max_resolution: int = 128
-  hidden: int = 16
-  bound: float = 1.5
-
-  @property
-  def num_levels(self):
-    return self.levels
-
-  @property
-  def splits_density(self):
-    return False
 
   @nn.compact
   def __call__(self, points, dir_features=None, image=None, level_weights=None):
@@ -86,9 +83,7 @@ class GridDensity(nn.Module):
     grids = [self.param(f"lattice_{r}", init, (r, r, r, self.features))
              for r in resolutions]
     unit = grid.to_unit_cube(points.astype(jnp.float32), self.bound)
-    h = nn.relu(nn.Dense(self.hidden, name="hidden")(grid.multires_features(grids, unit)))
-    raw_sigma = nn.Dense(1, name="sigma")(h)[..., 0]
-    return jnp.zeros((*raw_sigma.shape, 3), jnp.float32), raw_sigma
+    return self._density(grid.multires_features(grids, unit))
 
 
 def density_field(network, contraction="", inner_radius=1.0):

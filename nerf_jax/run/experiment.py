@@ -25,7 +25,8 @@ from nerf_jax.run.components import (  # re-exported
     make_train_data, make_train_step, network_settings, rays_per_step, step_settings,
     training_renderer)
 from nerf_jax.run.from_data import (  # re-exported
-    bounds, pixel_center, warn_if_cut, with_ndc_box, with_scene_extent, with_visual_hull)
+    CUT_SHARE, HULL_RESOLUTION, NDC_MARGIN, bounds, pixel_center, warn_if_cut, with_ndc_box,
+    with_scene_extent, with_visual_hull)
 from nerf_jax.run.optimizer import (  # re-exported
     make_optimizer, make_schedule, optimizer_for, schedule_steps)
 from nerf_jax.run.train_state import (  # re-exported
@@ -34,6 +35,7 @@ from nerf_jax.train.state import TrainState  # re-exported
 
 
 __all__ = [
+    'CUT_SHARE', 'HULL_RESOLUTION', 'NDC_MARGIN',
     'Experiment', 'TrainState', 'TrainingError', 'batch_settings', 'bounds',
     'cached_train_step', 'data_settings', 'encoding_family', 'eval_settings', 'image_settings',
     'init_state', 'loss_terms', 'make_evaluator', 'make_field', 'make_optimizer',
