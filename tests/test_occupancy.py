@@ -131,6 +131,8 @@ def test_more_occupied_candidates_than_slots_are_grouped_in_rank_order():
 class _AnalyticField:
   """Stands in for the Flax model: a dense sphere with position-dependent colour."""
 
+  splits_density = False  # one call gives both colour and density
+
   def apply(self, variables, points, dir_features):
     del variables, dir_features
     rgb = jax.nn.sigmoid(3.0 * points)

@@ -45,3 +45,18 @@ def test_pip_install_gives_console_scripts_that_train_and_render(tmp_path):
              outside, target)
   assert res.returncode == 0, res.stderr[-2000:]
   assert os.path.exists(os.path.join(workdir, "eval", "view_000.png"))
+
+
+def test_every_package_folder_is_listed_in_pyproject():
+  """A new sub-package missing from pyproject's list installs without its modules (the slow test
+  above finds that only after a wheel build); this check names the folder at once."""
+  import tomllib
+  with open(os.path.join(ROOT, "pyproject.toml"), "rb") as f:
+    listed = set(tomllib.load(f)["tool"]["setuptools"]["packages"])
+  folders = set()
+  for top, prefix in (("nerf_jax", "nerf_jax"), ("configs", "nerf_jax.configs")):
+    for dirpath, _, files in os.walk(os.path.join(ROOT, top)):
+      if "__init__.py" in files:
+        rel = os.path.relpath(dirpath, os.path.join(ROOT, top))
+        folders.add(prefix if rel == "." else prefix + "." + rel.replace(os.sep, "."))
+  assert folders == listed, (sorted(folders - listed), sorted(listed - folders))

@@ -3,6 +3,7 @@ samples of a batch, compacted. Rays whose samples all fit render exactly as with
 in values and gradients; the others are flagged and left out of the loss."""
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -40,6 +41,7 @@ def test_budgeted_slots_match_a_walk_over_the_mask(budget):
   np.testing.assert_array_equal(complete, want_complete)
 
 
+@functools.lru_cache(maxsize=None)  # built once per worker for both tests; they only read it
 def _renderers(split):
   """(plain, budgeted renderer factory, variables) with occupancy: a ball-shaped field and the
   occupancy grid of it, so that some rays have no valid sample and others many. The split
