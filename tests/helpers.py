@@ -6,6 +6,7 @@ import dataclasses
 import functools
 import importlib.util
 import json
+import os
 
 import imageio.v3 as iio
 import jax
@@ -17,6 +18,8 @@ from nerf_jax.render import renderer as renderer_lib
 from nerf_jax.run import config_lib, experiment
 from nerf_jax.cameras.rays import Rays, get_rays, pose_spherical
 from nerf_jax.data import DataError, loaders
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # this checkout
 
 # Tolerances for the least accurate backend we support, stated once (nerf_jax/precision.py; the
 # tests emulate it on the CPU). A network's float32 matmuls at the default precision are TF32 on
@@ -87,7 +90,7 @@ def jitted(fn, **static):
   """`fn` (a function of arrays and pytrees, or a bound method: RayRenderer.render, .init) as one
   compiled program, with the keyword arguments `static` bound: jax.jit(partial(fn, **static)).
   Tests call a model through it, not eagerly: run eagerly, each of a render's hundreds of
-  operations is compiled on its own (one render pair of tests/test_colour_budget.py: 296
+  operations is compiled on its own (one render pair of tests/fields/networks/test_grid.py: 296
   compilations, 198 s on a loaded 2-core CPU; jitted, 18 s, the same values)."""
   return jax.jit(functools.partial(fn, **static))
 

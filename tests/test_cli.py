@@ -12,7 +12,6 @@ import shutil
 import subprocess
 import sys
 
-import imageio.v3 as iio
 import numpy as np
 import pytest
 from absl import flags, logging
@@ -27,7 +26,7 @@ from tests.conftest import shipped_configs
 from tests.helpers import blender_folder as _blender
 from tests.helpers import small_config
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from tests.helpers import ROOT
 
 TWO_STEPS = {"train.max_steps": 2}  # the debug config, 2 steps
 

@@ -7,7 +7,7 @@ registered name ('posenc', 'grid', 'hash', 'tensorf', or one added with `registe
 dotted path of any importable module that defines ENCODING (as big_vision names its models).
 Its settings are its own config section, `config.model.<name>` (run/experiment.py builds them
 with `settings_from`), so adding an encoding is one module plus its config section
-(docs/extending.md, tests/test_extending.py).
+(docs/extending.md, tests/topics/test_extending.py).
 """
 
 import dataclasses

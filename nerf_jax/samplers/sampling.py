@@ -19,7 +19,7 @@ _MIN_NEAR_LINDISP = 1e-3
 # infinity would make the last interval infinite, and sigma·inf is NaN for sigma = 0 (and inf·0
 # in the backward pass). 1e10 is as good as infinity to a float32 contraction (it rounds every
 # |x| > 2^24·radius onto the outer boundary), and `compositing.composite` stays finite over such
-# an interval (tests/test_numerics.py, case 13).
+# an interval (tests/topics/test_numerics.py, case 13).
 MAX_FAR = 1e10
 
 

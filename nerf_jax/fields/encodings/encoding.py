@@ -4,7 +4,7 @@ x: float32 [..., d] coordinates of order 1 (the scene fits in a few units around
 The encoding is [x, sin(2^0 x), cos(2^0 x), ..., sin(2^(L-1) x), cos(2^(L-1) x)], channels last,
 so `d + 2·d·L` features.
 
-Accuracy (tests/test_numerics.py, case 10): 2^k·x is exact in binary floating point (a power of
+Accuracy (tests/topics/test_numerics.py, case 10): 2^k·x is exact in binary floating point (a power of
 two changes only the exponent), so against float64 sin/cos of the same float32 input every band
 is within 2.5e-7 (measured 3.3e-8 on XLA:CPU, for |x| <= 1 and at |x| = 1e3 alike). Against the
 real-valued coordinate before its rounding to float32 (relative 2^-24), band k also carries that

@@ -1,0 +1,188 @@
+"""--config=auto: each rule of characterise.py on a generated capture with a known answer, the
+user's flag winning, too few cameras, and auto against the hand-written configs/scenes/*.py."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from nerf_jax import cli
+from nerf_jax.cameras import rays
+from nerf_jax.data import scenes
+from nerf_jax.run import auto, characterise, config_lib
+from nerf_jax.data.dataset import Dataset
+from nerf_jax.data.scenes import photos
+from tests.helpers import load_data
+
+
+def _capture(poses, accs=None, images=None):
+  """A capture of `poses` with flat grey 8 x 8 photos (or `images`) and opacity `accs`."""
+  images = np.full((len(poses), 8, 8, 3), 0.5, np.float32) if images is None else images
+  return Dataset(images, np.asarray(poses, np.float32), (8.0, 8.0, 4.0, 4.0), accs=accs)
+
+
+def _found(dataset):
+  return {d.name: d.found for d in characterise.decide(dataset)}
+
+
+AROUND = scenes.random_poses(20, seed=1)  # cameras on a hemisphere looking at the origin
+AHEAD = scenes.forward_poses(20, seed=1)  # LLFF-like: all looking down -z
+
+
+def test_opacity_with_empty_pixels_is_an_object_on_a_background():
+  accs = np.zeros((20, 8, 8), np.float32)
+  accs[:, 2:6, 2:6] = 1.0  # the subject in the middle, empty around it
+  assert _found(_capture(AROUND, accs)) == {"background": True, "forward": False,
+                                             "unbounded": False, "appearance": False,
+                                             "view_dependence": None}  # no depth: not measured
+  full = np.ones((20, 8, 8), np.float32)  # opacity known but nothing empty: no background
+  assert not _found(_capture(AROUND, full))["background"]
+
+
+def test_cameras_within_a_cone_are_forward_facing():
+  assert _found(_capture(AHEAD))["forward"]
+  # Turned by 25° (inside the 30° cone) and by 35° (outside): the rule's edge.
+  for degrees, expected in ((25.0, True), (35.0, False)):
+    turned = np.array(AHEAD)
+    turned[0, :3, :3] = photos.rotation(np.radians([degrees, 0.0, 0.0]))
+    assert characterise.cone_degrees(turned) == pytest.approx(degrees * 19 / 20, abs=1.5)
+    assert _found(_capture(turned))["forward"] == expected
+
+
+def test_cameras_around_a_frame_filling_scene_are_unbounded():
+  assert _found(_capture(AROUND)) == {"background": False, "forward": False, "unbounded": True,
+                                      "appearance": False, "view_dependence": None}
+  assert not _found(_capture(AHEAD))["unbounded"]
+
+
+def test_per_photo_gains_call_for_appearance_codes():
+  train, _ = load_data({"scene": "diffuse", "num_views": 40, "image_size": 16})
+  assert not _found(train)["appearance"]
+  gained = dataclasses.replace(train, images=photos.with_gains(train.images,
+                                                               photos.gains(len(train))))
+  assert _found(gained)["appearance"]
+  assert characterise.colour_spread(gained) > 2 * characterise.colour_spread(train)
+
+
+def test_highlights_that_move_call_for_view_dependence():
+  """glossy's Blinn-Phong highlights against diffuse's Lambertian objects (the same scene
+  without them), also with per-photo gains, which are exposure, not highlights."""
+  load = lambda scene: load_data({"scene": scene, "num_views": 40,
+                                             "image_size": 24})[0]
+  glossy, diffuse = load("glossy"), load("diffuse")
+  assert _found(glossy)["view_dependence"] and not _found(diffuse)["view_dependence"]
+  gained = dataclasses.replace(diffuse, images=photos.with_gains(diffuse.images,
+                                                                 photos.gains(len(diffuse))))
+  assert not _found(gained)["view_dependence"]
+  assert characterise.highlight_excess(glossy) > 1.5 * characterise.highlight_excess(gained)
+  # Without depth the points cannot be matched: not measured.
+  assert _found(dataclasses.replace(glossy, depths=None))["view_dependence"] is None
+
+
+def _plane_capture(lit_views=(), size=32):
+  """The square |x|, |y| <= 1 of the plane z = 0, grey 0.4, under 12 cameras around it (exact
+  z-depth and opacity per pixel); in `lit_views` its part x > 0.4 (30% of it) looks 0.8."""
+  poses = scenes.random_poses(12, seed=3)
+  intrinsics = (1.8 * size, 1.8 * size, size / 2, size / 2)  # the square fills most of a view
+  cam = np.asarray(rays.pixel_directions(size, size, *intrinsics, 0.5), np.float64)
+  images = np.zeros((12, size, size, 3), np.float32)
+  depths = np.full((12, size, size), 100.0, np.float32)
+  accs = np.zeros((12, size, size), np.float32)
+  for view, pose in enumerate(poses):
+    dirs = cam @ pose[:3, :3].T  # z-depth t: the point is origin + t·dirs (cam's z = -1)
+    t = -pose[2, 3] / np.minimum(dirs[..., 2], -1e-9)
+    hit = pose[:3, 3] + t[..., None] * dirs
+    inside = (dirs[..., 2] < 0) & (np.abs(hit[..., 0]) <= 1) & (np.abs(hit[..., 1]) <= 1)
+    grey = np.where((hit[..., 0] > 0.4) & (view in lit_views), 0.8, 0.4)
+    images[view] = np.where(inside, grey, 0.0)[..., None]
+    depths[view] = np.where(inside, t, 100.0)
+    accs[view] = inside
+  return Dataset(images, np.asarray(poses, np.float32), intrinsics, depths=depths, accs=accs)
+
+
+def test_a_plane_lit_in_two_views_has_a_highlight_and_in_one_view_not():
+  """By hand: Lambertian, every view sees the same grey (excess 0); lit in two views, a point
+  of the lit part has second-brightest/median = (0.8 + 0.05)/(0.4 + 0.05) and it is more than
+  a fifth of the points; lit in one view, the second brightest is grey again."""
+  assert characterise.highlight_excess(_plane_capture()) == pytest.approx(0.0, abs=1e-12)
+  assert characterise.highlight_excess(_plane_capture((2, 7))) == pytest.approx(
+      np.log(0.85 / 0.45), rel=1e-6)
+  assert characterise.highlight_excess(_plane_capture((2,))) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_a_view_whose_depth_is_nearer_does_not_see_the_point():
+  """An occluder in front of the plane in one view: its pixels are not the plane's points."""
+  flat = _plane_capture()
+  points = np.array([[0.0, 0.0, 0.0], [0.5, -0.5, 0.0]])
+  log_luminance = np.log(np.asarray(flat.images, np.float64).mean(-1) + 0.05)
+  seen = characterise._seen_from(flat, points, log_luminance)
+  assert np.isfinite(seen[:, 5]).all() and np.isfinite(seen).sum() >= 18  # of 24
+  np.testing.assert_allclose(seen[np.isfinite(seen)], np.log(0.45), rtol=1e-6)  # float32 0.4
+  occluded = np.array(flat.depths)
+  occluded[5] *= 0.5
+  behind = characterise._seen_from(dataclasses.replace(flat, depths=occluded), points,
+                                   log_luminance)
+  assert np.isnan(behind[:, 5]).all()
+  np.testing.assert_array_equal(np.delete(behind, 5, axis=1), np.delete(seen, 5, axis=1))
+
+
+def test_nanmedian_matches_numpys():
+  rng = np.random.default_rng(0)
+  a = rng.normal(size=(7, 5))
+  a[rng.random(a.shape) < 0.4] = np.nan
+  a[:, 2] = np.nan  # a column with nothing finite
+  with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
+    expected = np.nanmedian(a, axis=0)
+  np.testing.assert_array_equal(characterise._nanmedian(a, axis=0), expected)
+
+
+def _auto(scene, capsys=None, **fields):
+  config = config_lib.load("auto")
+  config.data.scene, config.data.image_size, config.data.num_views = scene, 24, 40
+  for name, value in fields.items():
+    section, field = name.split("__")
+    if section == "auto":
+      config[f"auto_{field}"] = value
+    else:
+      config[section][field] = value
+  train, _ = load_data(config.data)
+  return auto.auto_config(config, train)
+
+
+def test_too_few_cameras_use_the_capture_defaults(capsys):
+  config = config_lib.load("auto")
+  decided = auto.auto_config(config, _capture(AROUND[:2]))
+  out = capsys.readouterr().out
+  assert "2 cameras are too few to characterise" in out and "configs/capture.py" in out
+  assert decided.data.scene_bound == config_lib.load("capture").data.scene_bound
+  assert not decided.auto and decided.auto_decisions[0].startswith("2 cameras")
+
+
+def test_the_users_flag_wins_with_one_line(capsys):
+  decided = _auto("forward", data__ndc=False, auto__flags=("data.ndc",))  # as nerf-train sets
+  out = capsys.readouterr().out
+  assert not decided.data.ndc
+  assert "auto: data.ndc=False from your flags, not auto's True" in out.splitlines()
+  assert len([l for l in out.splitlines() if "from your flags" in l]) == 1
+
+
+HAND_WRITTEN = ["diffuse", "glossy", "fog", "white", "forward", "garden", "exposure", "perturbed",
+                "detail"]
+
+
+@pytest.mark.parametrize("scene", HAND_WRITTEN)
+def test_auto_picks_what_the_scene_config_switches_on(scene):
+  """The effects both express: NDC, the background colour, an unbounded scene's box from the
+  data, appearance codes, view dependence."""
+  hand = config_lib.load(f"scenes/{scene}")
+  auto = _auto(scene)
+  expressed = lambda c: (c.data.ndc, c.data.background, c.data.scene_bound == -1,
+                         c.model.appearance_dims > 0, c.model.view_dependent)
+  assert expressed(auto) == expressed(hand)
+  assert auto.auto_decisions and not auto.auto
+
+
+def test_the_command_line_names_the_fields_it_sets():
+  argv = ["train.py", "--config=auto", "--config.data.ndc=False", "--workdir=w",
+          "--config.train.max_steps=3"]
+  assert cli.override_names(argv) == ("data.ndc", "train.max_steps")

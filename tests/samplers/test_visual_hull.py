@@ -1,0 +1,159 @@
+"""The visual hull: projection inverts the camera rays; carving a sphere's masks keeps every cell
+the sphere touches and removes what no view covers; grids over a tighter, non-cubic box
+interpolate as brute force; a run with data.visual_hull samples only inside the hull."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from nerf_jax.cameras import rays
+from nerf_jax.fields.networks import grid as grid_network
+from nerf_jax.fields.encodings import grid
+from nerf_jax.run import experiment
+from nerf_jax.samplers import occupancy, sampler, visual_hull
+from tests.helpers import TINY_GRID, jitted, small_config
+from tests.fields.encodings.test_grid import trilinear_brute
+
+
+def _views(count, radius=4.0):
+  """Camera-to-world poses float32 [count, 4, 4] spread over a sphere (Fibonacci), looking at
+  the origin."""
+  golden = np.pi * (3.0 - np.sqrt(5.0))
+  poses = []
+  for k in range(count):
+    z = 1.0 - 2.0 * (k + 0.5) / count
+    theta, phi = golden * k, np.degrees(np.arcsin(z))
+    poses.append(np.asarray(rays.pose_spherical(np.degrees(theta), -phi, radius)))
+  return np.stack(poses).astype(np.float32)
+
+
+def _sphere_masks(poses, size, focal, radius):
+  """float32 [N, size, size]: 1 where a pixel's centre ray hits the sphere of `radius` at the
+  origin (closed-form ray-sphere test: distance from the origin to the ray's line)."""
+  masks = []
+  for pose in poses:
+    o, d = rays.get_rays(size, size, focal, jnp.asarray(pose), pixel_center=0.5)
+    o, d = np.asarray(o), np.asarray(d)
+    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    closest = np.sum(-o * d, axis=-1)  # t of the point nearest the origin (cameras outside)
+    miss = np.linalg.norm(o + closest[..., None] * d, axis=-1)
+    masks.append((miss <= radius).astype(np.float32))
+  return np.stack(masks)
+
+
+def test_project_inverts_pixel_rays():
+  intrinsics = (70.0, 60.0, 31.0, 27.5)
+  pose = _views(7)[3]
+  rng = np.random.default_rng(0)
+  col, row = rng.uniform(0, 64, 20).astype(np.float32), rng.uniform(0, 48, 20).astype(np.float32)
+  r = rays.pixel_rays(jnp.asarray(col), jnp.asarray(row), 48, 64, intrinsics, jnp.asarray(pose),
+                      2.0, 6.0, 0.5)
+  t = rng.uniform(1.0, 5.0, 20).astype(np.float32)
+  points = r.origins + r.directions * t[:, None]  # camera-space directions have z = -1
+  got_col, got_row, depth = visual_hull.project(points, jnp.asarray(pose), intrinsics, 0.5)
+  np.testing.assert_allclose(got_col, col, atol=2e-3)
+  np.testing.assert_allclose(got_row, row, atol=2e-3)
+  np.testing.assert_allclose(depth, t, rtol=1e-5)
+
+
+def test_carving_a_sphere_keeps_what_it_touches_and_removes_the_rest():
+  size, focal, ball, bound, res = 48, 60.0, 0.5, 1.0, 24
+  poses = _views(30)
+  hull = np.asarray(visual_hull.carve(_sphere_masks(poses, size, focal, ball), poses,
+                                      (focal, focal, size / 2, size / 2), bound, res))
+  cell = 2 * bound / res
+  centres = np.asarray(occupancy.cell_centres(res, bound))
+  # Distance from the origin to each cell (a box of half-size cell/2 around its centre).
+  nearest = np.linalg.norm(np.maximum(np.abs(centres) - cell / 2, 0.0), axis=-1)
+  touched = nearest < ball
+  assert hull[touched].min() == 1.0  # conservative: no cell the sphere enters is carved
+  assert hull[nearest > 0.8].max() == 0.0  # 30 views rule out everything well outside
+  assert 0.05 < hull.mean() < 0.3  # the sphere fills 6.5% of the box
+
+
+def test_carving_keeps_everything_when_a_camera_is_inside_the_box():
+  poses = _views(5, radius=1.2)
+  hull = visual_hull.carve(np.zeros((5, 16, 16), np.float32), poses, (20.0, 20.0, 8.0, 8.0),
+                           1.0, 8)
+  assert float(jnp.min(hull)) == 1.0
+
+
+def test_bounding_box_of_a_block_of_cells():
+  hull = np.zeros((10, 10, 10), np.float32)
+  hull[2:5, 3:4, 6:10] = 1.0
+  box = visual_hull.bounding_box(hull, bound=1.0, margin=1)
+  # Cells are 0.2 wide from -1: kept x cells 2..4 -> [-0.6, 0.0], grown by one cell each side.
+  np.testing.assert_allclose(box, [[-0.8, -0.6, 0.0], [0.2, 0.0, 1.0]], atol=1e-6)
+  np.testing.assert_allclose(visual_hull.bounding_box(hull * 0, 1.0), [[-1] * 3, [1] * 3])
+
+
+def test_trilinear_on_a_non_cubic_grid_matches_brute_force():
+  rng = np.random.default_rng(1)
+  g = rng.standard_normal((3, 7, 5, 2)).astype(np.float32)
+  u = rng.random((40, 3)).astype(np.float32)
+  u[0], u[1] = [1.0, 1.0, 1.0], [0.5, 1 / 6, 0.25]  # a corner and a lattice point
+  got = np.asarray(grid.trilinear(jnp.asarray(g), jnp.asarray(u)))
+  np.testing.assert_allclose(got, np.stack([trilinear_brute(g, p) for p in u]), atol=1e-5)
+  np.testing.assert_allclose(got[1], g[1, 1, 1], atol=1e-5)
+
+
+def test_axis_resolutions_keep_cells_cubic():
+  box = ([-0.5, -1.0, 0.0], [0.5, 1.0, 0.5])  # sides 1, 2, 0.5
+  assert grid.axis_resolutions(129, box) == (65, 129, 33)  # 64, 128, 32 cells of 1/64
+  assert grid.axis_resolutions(3, box) == (2, 3, 2)  # never fewer than 2 points
+
+
+def test_axis_resolutions_with_long_cells_along_z():
+  box = ([-0.5, -1.0, 0.0], [0.5, 1.0, 0.5])  # sides 1, 2, 0.5
+  # z cells 4x as long as x and y's: 64, 128 cells of 1/64 and 8 cells of 1/16.
+  assert grid.axis_resolutions(129, box, (1.0, 1.0, 4.0)) == (65, 129, 9)
+  # z cells 1/16 as long: z has the most cells (0.5 / (1/16 of x's cells)) and gets 129 points.
+  assert grid.axis_resolutions(129, box, (1.0, 1.0, 1 / 16)) == (17, 33, 129)
+
+
+def test_a_grid_field_with_long_cells_along_z_has_fewer_lattice_points_there():
+  config = small_config(TINY_GRID, base="fast", **{"model.grid_cell_aspect": (1.0, 1.0, 4.0)})
+  params = experiment.make_ray_renderer(config).init(jax.random.PRNGKey(0))["params"]["coarse"]
+  assert params["grid_16"].shape == (16, 16, 5, 4)  # 15 cells of x's side along z are 3.75
+  assert experiment.model_signature(config)["grid_cell_aspect"] == [1.0, 1.0, 4.0]
+  assert "grid_cell_aspect" not in experiment.model_signature(small_config(base="fast"))
+
+
+def test_grid_field_over_a_box_is_empty_outside_it():
+  net = grid_network.GridNeRF(resolutions=(8,), features=2, box=(-0.5, -1.0, 0.0, 0.5, 1.0, 0.5))
+  points = jnp.array([[0.0, 0.0, 0.25], [0.6, 0.0, 0.25], [0.0, 0.0, -0.1]])
+  params = net.init(jax.random.PRNGKey(0), points)
+  assert params["params"]["grid_8"].shape == (5, 8, 3, 2)
+  _, raw_sigma = net.apply(params, points)
+  assert raw_sigma[0] > -1e4 and raw_sigma[1] == -1e5 and raw_sigma[2] == -1e5
+
+
+def test_a_run_with_the_visual_hull_samples_only_inside_it():
+  # As many slots as candidates: each slot is one candidate, sampled where its cell was looked
+  # up (occupancy.py), so every valid sample must lie in a cell of the hull.
+  config = small_config({"data.visual_hull": True, "train.max_steps": 2,
+                         "occupancy.update_every": 1, "occupancy.candidates": 32,
+                         "num_samples": 32}, base="scenes/detail",
+                        **{"data.image_size": 24, "data.num_views": 12,
+                           "occupancy.resolution": 16, "model.grid.resolutions": (8, 16)})
+  exp = experiment.setup(config)
+  hull = np.asarray(exp.hull)
+  assert hull.shape == (16, 16, 16) and 0.0 < hull.mean() < 1.0
+  box = np.reshape(exp.config.model.grid_box, (2, 3))
+  assert np.all(box[0] > -exp.config.data.scene_bound - 1e-6) and np.all(box[1] > box[0])
+  state = experiment.init_state(exp)
+  np.testing.assert_array_equal(np.asarray(state.buffers["occupancy"]), hull)
+  step = experiment.make_train_step(exp)
+  data = experiment.make_train_data(exp)
+  for _ in range(2):  # step 0 refreshes the grid from the field (update_every = 1)
+    state, _ = step(state, data, jax.random.PRNGKey(0))
+  grid_after = np.asarray(state.buffers["occupancy"])
+  assert grid_after.max() > 0 and np.all(grid_after[hull == 0] == 0)
+  ray_batch = exp.rays(exp.train_ds.poses[0])
+  samples = jitted(exp.renderer.sampler.place)(ray_batch, None, state.buffers["occupancy"])
+  points = np.asarray(jitted(sampler.points)(ray_batch, samples.distances))[
+      np.asarray(samples.valid)]
+  assert len(points) > 0
+  in_hull = jitted(occupancy.lookup, bound=exp.config.data.scene_bound)(
+      jnp.asarray(hull > 0), jnp.asarray(points))
+  assert bool(jnp.all(in_hull))
