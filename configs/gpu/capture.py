@@ -37,6 +37,7 @@ def get_config():
   config.train.lr = 1e-2  # instant-ngp's and nerfacto's Adam learning rate
   config.train.warmup_steps = 100  # nerfacc's linear warm-up over its first 100 steps
   config.train.adam_b2 = 0.99  # instant-ngp's beta2 (capture.py's, measured on fox)
+  config.train.adam_eps = 1e-15  # instant-ngp's epsilon: rarely-hit table rows still move at lr
   config.train.max_seconds = 60.0  # the fox goal is at one minute
   config.render.chunk = 0  # rays per render call sized from the device's memory
   return config

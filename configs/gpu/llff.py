@@ -24,6 +24,7 @@ def get_config():
   config.train.batch_rays = 4096  # TensoRF's and DVGO's rays per step on LLFF: 2^18 samples
   config.train.lr = 1e-2  # fast.py's and instant-ngp's Adam learning rate
   config.train.adam_b2 = 0.99  # instant-ngp's beta2 (llff.py's, measured on fern)
+  config.train.adam_eps = 1e-15  # instant-ngp's epsilon: rarely-hit table rows still move at lr
   config.train.max_seconds = 120.0  # the fern goal is at two minutes
   config.render.chunk = 0  # rays per render call sized from the device's memory
   return config

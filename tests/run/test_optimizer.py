@@ -50,3 +50,13 @@ def test_adam_b2_sets_the_second_moment_decay(b2):
   _, state = _first_update(_train_config(adam_b2=b2))
   nu = [s for s in state if hasattr(s, "nu")][0].nu  # ν = (1 - b2) g² after one step
   np.testing.assert_allclose(nu["coarse"]["grid_32"], (1 - b2) * 25.0, rtol=1e-5)
+
+
+@pytest.mark.parametrize("eps", [1e-8, 1e-15])
+def test_adam_eps_floors_the_denominator(eps):
+  # First step: update = -lr·g/(|g| + eps). A gradient of 1e-10 (a table row hit by few rays)
+  # moves at ~lr/100 with optax's default 1e-8 and at ~lr with instant-ngp's 1e-15.
+  tx = experiment.make_optimizer(_train_config(adam_eps=eps))
+  params = {"grid_32": jnp.ones(4)}
+  updates, _ = tx.update({"grid_32": jnp.full(4, 1e-10)}, tx.init(params), params)
+  np.testing.assert_allclose(updates["grid_32"], -1e-2 * 1e-10 / (1e-10 + eps), rtol=1e-4)

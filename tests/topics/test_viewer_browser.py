@@ -122,6 +122,7 @@ def test_page_shows_rendered_frames_and_dragging_changes_them(workdir):
     viewer.close()
 
 
+@pytest.mark.slow  # a subprocess
 def test_command_without_checkpoint_prints_one_line(tmp_path):
   result = subprocess.run([sys.executable, "-m", "nerf_jax.view", f"--workdir={tmp_path}"],
                           cwd=ROOT, capture_output=True, text=True, timeout=120,
