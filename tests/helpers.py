@@ -5,6 +5,7 @@ folder."""
 import dataclasses
 import functools
 import importlib.util
+import itertools
 import json
 import os
 
@@ -14,7 +15,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from nerf_jax.fields.networks import grid as grid_network
 from nerf_jax.render import renderer as renderer_lib
+from nerf_jax.samplers import proposal
 from nerf_jax.run import config_lib, experiment
 from nerf_jax.cameras.rays import Rays, get_rays, pose_spherical
 from nerf_jax.data import DataError, loaders
@@ -138,3 +141,73 @@ def blender_folder(tmp_path, meta=None, image=None, text=None):
   content = {k: v for k, v in content.items() if v is not None}
   (tmp_path / "transforms_train.json").write_text(text or json.dumps(content))
   return str(tmp_path)
+
+
+# Brute-force references (float64 loops), shared by the tests of several modules.
+
+def trilinear_brute(g, u):
+  """Trilinear interpolation of g [Rx, Ry, Rz, F] at one unit-cube position u [3], by loops."""
+  res = np.array(g.shape[:3])
+  x = np.clip(u, 0, 1) * (res - 1)
+  out = np.zeros(g.shape[-1])
+  for corner in itertools.product([0, 1], repeat=3):
+    idx = [min(int(np.floor(x[a])), res[a] - 2) + corner[a] for a in range(3)]
+    w = np.prod([1 - abs(x[a] - idx[a]) for a in range(3)])
+    out += w * g[idx[0], idx[1], idx[2]]
+  return out
+
+
+def overlaps(a, b, c, d):
+  """Whether the intervals [a, b] and [c, d], both non-empty, share more than a point."""
+  return a < b and c < d and c < b and a < d
+
+
+def outer_ref(t, t_env, w_env):
+  """proposal.outer by a double loop over the intervals of each ray: float64 [..., S]."""
+  t, t_env, w_env = (np.asarray(a, np.float64) for a in (t, t_env, w_env))
+  batch = np.broadcast_shapes(t.shape[:-1], t_env.shape[:-1], w_env.shape[:-1])
+  t, t_env, w_env = (np.broadcast_to(a, (*batch, a.shape[-1])) for a in (t, t_env, w_env))
+  out = np.zeros((*batch, t.shape[-1] - 1))
+  for r in np.ndindex(*batch):
+    for i in range(t.shape[-1] - 1):
+      for j in range(w_env.shape[-1]):
+        if overlaps(t[r][i], t[r][i + 1], t_env[r][j], t_env[r][j + 1]):
+          out[r][i] += w_env[r][j]
+  return out
+
+
+def loss_ref(t, w, t_env, w_env):
+  """proposal.interlevel_loss by outer_ref: float64 [...]."""
+  w = np.asarray(w, np.float64)
+  excess = np.maximum(w - outer_ref(t, t_env, w_env), 0.0)
+  eps = proposal._EPS  # pylint: disable=protected-access
+  return np.sum(excess ** 2 / (w + eps), axis=-1)
+
+
+# The tiny grid with density from grids of its own, a view-dependent colour head, and 24
+# samples per ray: enough for the ball of `ball_in_first_density_level` to weigh far from
+# uniformly.
+SPLIT_GRID = {**TINY_GRID, "model.grid.density_resolutions": (8, 16),
+              "model.view_dependent": True, "num_samples": 24}
+
+
+def ball_in_first_density_level(params):
+  """params with the density levels set to a ball of raw density 4 (sigma ~ 4 per unit) of
+  radius 0.8 at the origin, and -5 elsewhere: the first level holds it, the others are zero (the
+  raw density is their sum): a field whose weights are far from uniform."""
+  params = dict(params)
+  names = sorted((k for k in params if k.startswith("density_")), key=lambda k: int(k[8:]))
+  for name in names[1:]:
+    params[name] = jnp.zeros_like(params[name])
+  res = params[names[0]].shape[0]
+  c = np.linspace(-1.5, 1.5, res)
+  x, y, z = np.meshgrid(c, c, c, indexing="ij")
+  ball = np.where(x ** 2 + y ** 2 + z ** 2 < 0.8 ** 2, 4.0, -5.0) / grid_network.DENSITY_GAIN
+  params[names[0]] = jnp.asarray(ball[..., None], jnp.float32)
+  return params
+
+
+def small_view_rays():
+  """The 144 rays (Rays [144]) of a 12×12 view of the box from 4 units away."""
+  origins, directions = get_rays(12, 12, 14.0, pose_spherical(30.0, -20.0, 4.0), 0.5)
+  return Rays.create(origins.reshape(-1, 3), directions.reshape(-1, 3), 2.0, 6.0)

@@ -13,6 +13,7 @@ import pytest
 
 from nerf_jax.samplers import proposal
 from nerf_jax.samplers import sampling
+from tests.helpers import loss_ref, outer_ref, overlaps
 
 pytestmark = pytest.mark.usefixtures("debug_nans")  # conftest.py: a NaN anywhere raises
 
@@ -23,31 +24,7 @@ resample = jax.jit(proposal.resample, static_argnums=(2,))
 loss_grads = jax.jit(jax.grad(lambda *a: jnp.sum(proposal.interlevel_loss(*a)), (0, 1, 2, 3)))
 
 
-# Brute-force references (float64).
-
-def _overlaps(a, b, c, d):
-  return a < b and c < d and c < b and a < d
-
-
-def outer_ref(t, t_env, w_env):
-  """outer by a double loop over the intervals of each ray: float64 [..., S]."""
-  t, t_env, w_env = (np.asarray(a, np.float64) for a in (t, t_env, w_env))
-  batch = np.broadcast_shapes(t.shape[:-1], t_env.shape[:-1], w_env.shape[:-1])
-  t, t_env, w_env = (np.broadcast_to(a, (*batch, a.shape[-1])) for a in (t, t_env, w_env))
-  out = np.zeros((*batch, t.shape[-1] - 1))
-  for r in np.ndindex(*batch):
-    for i in range(t.shape[-1] - 1):
-      for j in range(w_env.shape[-1]):
-        if _overlaps(t[r][i], t[r][i + 1], t_env[r][j], t_env[r][j + 1]):
-          out[r][i] += w_env[r][j]
-  return out
-
-
-def loss_ref(t, w, t_env, w_env):
-  w = np.asarray(w, np.float64)
-  excess = np.maximum(w - outer_ref(t, t_env, w_env), 0.0)
-  return np.sum(excess ** 2 / (w + EPS), axis=-1)
-
+# Brute-force references (float64; outer_ref and loss_ref are in tests/helpers.py).
 
 def loss_grad_ref(t, w, t_env, w_env):
   """d loss / d w_env: float64 [..., M]; -2·excess_i/(w_i + eps) from every target interval i
@@ -59,7 +36,7 @@ def loss_grad_ref(t, w, t_env, w_env):
   for r in np.ndindex(*grad.shape[:-1]):
     for j in range(grad.shape[-1]):
       for i in range(w.shape[-1]):
-        if _overlaps(t[r][i], t[r][i + 1], t_env[r][j], t_env[r][j + 1]):
+        if overlaps(t[r][i], t[r][i + 1], t_env[r][j], t_env[r][j + 1]):
           grad[r][j] += slope[r][i]
   return grad
 

@@ -12,7 +12,7 @@ from nerf_jax.fields.encodings import grid
 from nerf_jax.run import experiment
 from nerf_jax.samplers import occupancy, sampler, visual_hull
 from tests.helpers import TINY_GRID, jitted, small_config
-from tests.fields.encodings.test_grid import trilinear_brute
+from tests.helpers import trilinear_brute
 
 
 def _views(count, radius=4.0):

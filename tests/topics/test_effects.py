@@ -28,14 +28,22 @@ SHRUNK = {"data.num_views": 6, "data.image_size": 16, "data.holdout_from": 5, "m
 
 
 def _spy_one_step(monkeypatch, config):
-  """Run one eager train step of `config`; returns the recorded calls: 'query' (points, params),
-  'encode' (input width, frequency bands), 'composite' (t, background)."""
+  """Run one jitted train step of `config`; returns the recorded calls: 'query' (points, params),
+  'encode' (input width, frequency bands), 'composite' (t, background). Shapes and the params
+  object are recorded as the step is traced; values reach the spies through jax.debug.callback
+  when it runs (one compilation of the step, where an eager step compiles each op)."""
   calls = {"query": [], "encode": [], "composite": []}
   query = field.Field.query
   encode, composite = encoding.positional_encoding, compositing.composite
 
+  def record(entry, *values):
+    """entry (a list) gets values as numpy arrays, once the step runs (forward pass only)."""
+    jax.debug.callback(lambda *v: entry.extend(np.asarray(a) for a in v) if not entry else None,
+                       *values)
+    return entry
+
   def spy_query(self, params, points, *args, **kw):
-    calls["query"].append((np.asarray(points), params))
+    calls["query"].append((record([], points), params))
     return query(self, params, points, *args, **kw)
 
   def spy_encode(x, dims):
@@ -43,8 +51,8 @@ def _spy_one_step(monkeypatch, config):
     return encode(x, dims)
 
   def spy_composite(rgb, sigma, t, background=None):
-    calls["composite"].append((np.asarray(t), None if background is None else
-                               np.asarray(background)))
+    bg = jnp.full(3, jnp.nan) if background is None else background
+    calls["composite"].append(record([], t, bg))
     return composite(rgb, sigma, t, background)
 
   monkeypatch.setattr(field.Field, "query", spy_query)
@@ -52,12 +60,15 @@ def _spy_one_step(monkeypatch, config):
   monkeypatch.setattr(compositing, "composite", spy_composite)
   exp = experiment.setup(config)
   data = experiment.make_train_data(exp)
-  with jax.disable_jit():  # concrete values reach the spies
-    experiment.make_train_step(exp)(experiment.init_state(exp), data, jax.random.PRNGKey(0))
+  step = jax.jit(experiment.make_train_step(exp))
+  jax.block_until_ready(step(experiment.init_state(exp), data, jax.random.PRNGKey(0)))
+  jax.effects_barrier()  # every callback has run
+  calls["query"] = [(values[0], params) for values, params in calls["query"]]
+  calls["composite"] = [(t, None if np.isnan(bg).all() else bg) for t, bg in calls["composite"]]
   return calls
 
 
-@pytest.mark.slow  # eager steps (the spies see values): about 10 s per scene on 2 cores
+@pytest.mark.slow  # one compiled step per scene
 @pytest.mark.parametrize("name", SCENES)
 def test_each_scene_configs_switches_change_what_a_step_computes(monkeypatch, name):
   config = small_config(SHRUNK, base=f"scenes/{name}")

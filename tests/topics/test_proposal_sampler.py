@@ -21,7 +21,7 @@ from nerf_jax.samplers.occupancy import OccupancySettings
 from nerf_jax.train import losses
 from tests.conftest import params_equal, restored_variables
 from tests.helpers import small_config
-from tests.samplers.test_proposal import loss_ref
+from tests.helpers import loss_ref
 
 pytestmark = pytest.mark.usefixtures("debug_nans")  # conftest.py: a NaN anywhere raises
 

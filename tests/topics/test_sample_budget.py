@@ -13,8 +13,8 @@ import pytest
 from nerf_jax.render import renderer
 from nerf_jax.run import experiment
 from nerf_jax.train import losses
-from tests.helpers import TINY_GRID, jitted, small_config
-from tests.fields.networks.test_grid import SPLIT, _rays, _trained_like
+from tests.helpers import SPLIT_GRID, TINY_GRID, ball_in_first_density_level, jitted
+from tests.helpers import small_config, small_view_rays
 
 
 def _brute_slots(valid, budget):
@@ -47,13 +47,14 @@ def _renderers(split):
   occupancy grid of it, so that some rays have no valid sample and others many. The split
   field shades every sample in the budget (colour_fraction 1: a share of the budget, or of
   all slots without one), so both renderers colour every sample with weight."""
-  fields = {**(SPLIT if split else {**TINY_GRID, "num_samples": 24}), "occupancy.enabled": True,
+  fields = {**(SPLIT_GRID if split else {**TINY_GRID, "num_samples": 24}),
+            "occupancy.enabled": True,
             "occupancy.resolution": 16, "model.colour_fraction": 1.0 if split else 0.0}
   config = small_config(base="fast", **fields)
   plain = experiment.make_ray_renderer(config)
   variables = jitted(plain.init)(jax.random.PRNGKey(0))
   if split:
-    variables["params"]["coarse"] = _trained_like(variables["params"]["coarse"])
+    variables["params"]["coarse"] = ball_in_first_density_level(variables["params"]["coarse"])
   else:  # a random field is dense enough to fill some cells and not others
     variables["params"]["coarse"] = jax.tree_util.tree_map(
         lambda p: p * 3.0, variables["params"]["coarse"])
@@ -70,7 +71,7 @@ def _valid_counts(plain, variables, rays):
 @pytest.mark.parametrize("split", [True, False])
 def test_rays_within_the_budget_render_as_without_it(split):
   plain, with_budget, variables = _renderers(split)
-  rays = _rays()
+  rays = small_view_rays()
   counts = _valid_counts(plain, variables, rays)
   assert (counts == 0).any() and counts.max() > 4  # the test has empty and full rays
   total = int(counts.sum())
@@ -93,7 +94,7 @@ def test_rays_within_the_budget_render_as_without_it(split):
 @pytest.mark.parametrize("split", [True, False])
 def test_the_gradient_of_complete_rays_is_unchanged_by_the_budget(split):
   plain, with_budget, variables = _renderers(split)
-  rays = _rays()
+  rays = small_view_rays()
   counts = _valid_counts(plain, variables, rays)
   budget = int(counts.sum()) // 2
   complete = jnp.asarray(np.cumsum(counts) <= budget)

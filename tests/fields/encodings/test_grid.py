@@ -1,7 +1,6 @@
 """Dense grids: interpolation and ray-box bounds against brute force; the box-restricted fast path
 renders what the plain path renders."""
 
-import itertools
 
 import jax
 import jax.numpy as jnp
@@ -11,19 +10,7 @@ from nerf_jax.fields.encodings import grid
 from nerf_jax.render import renderer
 from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.cameras.rays import Rays, get_rays, pose_spherical
-from tests.helpers import TINY_GRID, jitted, ray_renderer, small_config
-
-
-def trilinear_brute(g, u):
-  """Trilinear interpolation of g [Rx, Ry, Rz, F] at one unit-cube position u [3], by loops."""
-  res = np.array(g.shape[:3])
-  x = np.clip(u, 0, 1) * (res - 1)
-  out = np.zeros(g.shape[-1])
-  for corner in itertools.product([0, 1], repeat=3):
-    idx = [min(int(np.floor(x[a])), res[a] - 2) + corner[a] for a in range(3)]
-    w = np.prod([1 - abs(x[a] - idx[a]) for a in range(3)])
-    out += w * g[idx[0], idx[1], idx[2]]
-  return out
+from tests.helpers import TINY_GRID, jitted, ray_renderer, small_config, trilinear_brute
 
 
 def test_trilinear_matches_brute_force_and_hits_lattice_values():

@@ -11,7 +11,7 @@ from nerf_jax.run import experiment
 from nerf_jax.bench import encodings as bench_encodings
 from nerf_jax.fields.networks.tensorf import TensoRFNeRF
 from tests.helpers import grey_view_loss, jitted, ray_renderer, small_config
-from tests.fields.encodings.test_grid import trilinear_brute
+from tests.helpers import trilinear_brute
 
 
 def _factors(axis_points, rank, seed=0):

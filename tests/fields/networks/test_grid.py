@@ -11,35 +11,8 @@ from nerf_jax.fields.networks import grid as grid_network
 from nerf_jax.fields.encodings import grid
 from nerf_jax.render import renderer
 from nerf_jax.run import experiment
-from nerf_jax.cameras.rays import get_rays, pose_spherical, Rays
-from tests.helpers import TINY_GRID, jitted, small_config
-
-# The tiny grid with density from grids of its own, a view-dependent colour head, and 24
-# samples per ray: enough for the ball of `_trained_like` to weigh far from uniformly.
-SPLIT = {**TINY_GRID, "model.grid.density_resolutions": (8, 16), "model.view_dependent": True,
-         "num_samples": 24}
-
-
-def _trained_like(params):
-  """params with the density levels set to a ball of raw density 4 (sigma ~ 4 per unit) of
-  radius 0.8 at the origin, and -5 elsewhere: the first level holds it, the others are zero (the
-  raw density is their sum): a field whose weights are far from uniform."""
-  params = dict(params)
-  names = sorted((k for k in params if k.startswith("density_")), key=lambda k: int(k[8:]))
-  for name in names[1:]:
-    params[name] = jnp.zeros_like(params[name])
-  res = params[names[0]].shape[0]
-  c = np.linspace(-1.5, 1.5, res)
-  x, y, z = np.meshgrid(c, c, c, indexing="ij")
-  ball = np.where(x ** 2 + y ** 2 + z ** 2 < 0.8 ** 2, 4.0, -5.0) / grid_network.DENSITY_GAIN
-  params[names[0]] = jnp.asarray(ball[..., None], jnp.float32)
-  return params
-
-
-def _rays():
-  origins, directions = get_rays(12, 12, 14.0, pose_spherical(30.0, -20.0, 4.0), 0.5)
-  return Rays.create(origins.reshape(-1, 3), directions.reshape(-1, 3), 2.0, 6.0)
-
+from tests.helpers import SPLIT_GRID, ball_in_first_density_level, jitted, small_config
+from tests.helpers import small_view_rays
 
 def test_each_half_of_the_split_network_equals_the_whole():
   net = grid_network.DensityGridNeRF(resolutions=(4, 8), features=2, density_resolutions=(8,),
@@ -62,7 +35,7 @@ def test_each_half_of_the_split_network_equals_the_whole():
 
 
 def _renderers(fraction, occupied=False):
-  config = small_config(SPLIT, base="fast", **{"model.colour_fraction": fraction,
+  config = small_config(SPLIT_GRID, base="fast", **{"model.colour_fraction": fraction,
                                                 "occupancy.enabled": occupied})
   split = experiment.make_ray_renderer(config)
   return split, renderer.RayRenderer(split.field, split.sampler)
@@ -72,8 +45,8 @@ def _split_and_plain(fraction, occupied):
   """The coarse pass of the split and the plain renderer on the same ball-shaped field."""
   split, plain = _renderers(fraction, occupied)
   variables = jitted(split.init)(jax.random.PRNGKey(0))
-  variables["params"]["coarse"] = _trained_like(variables["params"]["coarse"])
-  rays = _rays()
+  variables["params"]["coarse"] = ball_in_first_density_level(variables["params"]["coarse"])
+  rays = small_view_rays()
   return (jitted(split.render)(variables, rays)["coarse"],
           jitted(plain.render)(variables, rays)["coarse"])
 
@@ -103,7 +76,7 @@ def test_a_partial_budget_errs_by_at_most_the_weight_it_leaves_out(occupied):
 def test_split_gradients_are_finite_and_reach_both_halves():
   split, _ = _renderers(0.25)
   variables = jitted(split.init)(jax.random.PRNGKey(0))
-  rays = _rays()
+  rays = small_view_rays()
 
   def loss(params):
     out = split.render({"params": params}, rays, jax.random.PRNGKey(3))["coarse"]
@@ -116,14 +89,14 @@ def test_split_gradients_are_finite_and_reach_both_halves():
 
 
 def test_density_grid_with_relu_is_refused():
-  config = small_config(SPLIT, base="fast", **{"model.density_activation": "relu"})
+  config = small_config(SPLIT_GRID, base="fast", **{"model.density_activation": "relu"})
   with pytest.raises(ValueError, match="density_activation"):
     experiment.make_field(config)
 
 
 def test_occupancy_probes_read_the_density_half():
   split, _ = _renderers(0.25)
-  params = _trained_like(jitted(split.init)(jax.random.PRNGKey(0))["params"]["coarse"])
+  params = ball_in_first_density_level(jitted(split.init)(jax.random.PRNGKey(0))["params"]["coarse"])
   points = jnp.array([[0.0, 0.0, 0.0], [1.2, 1.2, 1.2]])
   sigma = jitted(lambda p, x: split.field.density(p)(x))(params, points)
   _, full = jitted(split.field.query)(params, points[:, None, :], jnp.zeros((2, 3)))
@@ -195,7 +168,7 @@ def test_a_hashed_level_needs_the_dense_density_levels(part):
   config = small_config({f"model.grid.{part}_hash_resolution": 32}, base="fast")
   with pytest.raises(ValueError, match="density_resolutions"):
     experiment.make_ray_renderer(config)
-  config = small_config({**SPLIT, f"model.grid.{part}_hash_resolution": 32}, base="fast")
+  config = small_config({**SPLIT_GRID, f"model.grid.{part}_hash_resolution": 32}, base="fast")
   assert experiment.model_signature(config)[f"grid_{part}_hash"] == [32, 20]
   variables = jitted(experiment.make_ray_renderer(config).init)(jax.random.PRNGKey(0))
   table = variables["params"]["coarse"][f"hashed_{part}"]
