@@ -98,6 +98,22 @@ def jitted(fn, **static):
   return jax.jit(functools.partial(fn, **static))
 
 
+class StandInNetwork:
+  """Stands in for a Flax network (fields/network.Network) in `ray_renderer`:
+  `colour_density(points float32 [..., 3]) -> (rgb float32 [..., 3], sigma float32 [...])`, with
+  no levels, and colour and density from one call."""
+
+  num_levels = 0
+  splits_density = False
+
+  def __init__(self, colour_density):
+    self.colour_density = colour_density
+
+  def apply(self, variables, points, dir_features):
+    del variables, dir_features
+    return self.colour_density(points)
+
+
 def ray_renderer(config, network=None):
   """The RayRenderer of `config` (experiment.make_ray_renderer); with `network`, a stand-in
   for the Flax module (an object with apply(variables, positions, dir_features) -> (rgb,

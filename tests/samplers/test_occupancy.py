@@ -16,7 +16,7 @@ from nerf_jax.run import train_lib
 from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.cameras.rays import Rays
 from tests.conftest import params_equal, restored_variables
-from tests.helpers import ray_renderer, small_config
+from tests.helpers import StandInNetwork, ray_renderer, small_config
 
 BOUND = 1.5
 
@@ -127,24 +127,15 @@ def test_more_occupied_candidates_than_slots_are_grouped_in_rank_order():
       np.testing.assert_allclose((starts[r, j], ends[r, j]), want, rtol=1e-6)
 
 
-class _AnalyticField:
-  """Stands in for the Flax model: a dense sphere with position-dependent colour."""
-
-  splits_density = False  # one call gives both colour and density
-
-  def apply(self, variables, points, dir_features):
-    del variables, dir_features
-    rgb = jax.nn.sigmoid(3.0 * points)
-    return rgb, _sphere_sigma(points)
-
-
 def _analytic_renderer(num_samples, use_occupancy):
-  """The debug config's RayRenderer around _AnalyticField ('grid': positions go to the field as
-  they are), sampling the box of BOUND with `num_samples`, with or without occupancy."""
+  """The debug config's RayRenderer around a dense sphere with position-dependent colour
+  ('grid': positions go to the field as they are), sampling the box of BOUND with `num_samples`,
+  with or without occupancy."""
   return ray_renderer(small_config({
       "model.encoding": "grid", "data.scene_bound": BOUND, "num_samples": num_samples,
       "occupancy.enabled": use_occupancy, "occupancy.resolution": 24,
-      "occupancy.candidates": 512}), _AnalyticField())
+      "occupancy.candidates": 512}), StandInNetwork(
+          lambda p: (jax.nn.sigmoid(3.0 * p), _sphere_sigma(p))))
 
 
 def test_rendering_through_the_grid_matches_dense_sampling():

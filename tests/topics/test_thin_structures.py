@@ -10,23 +10,9 @@ from nerf_jax.render import image_renderer
 from nerf_jax.run import experiment
 from nerf_jax.samplers import occupancy
 from nerf_jax.cameras.rays import Rays
-from tests.helpers import ray_renderer, small_config
+from tests.helpers import StandInNetwork, ray_renderer, small_config
 
 BOUND = 1.5
-
-
-class _Field:
-  """Stands in for the Flax model: density `sigma_fn(points)`, colour from the position."""
-
-  def __init__(self, sigma_fn):
-    self.sigma_fn = sigma_fn
-
-  num_levels = 0  # fields/network.Network: no levels, density and colour from one call
-  splits_density = False
-
-  def apply(self, variables, points, dir_features):
-    del variables, dir_features
-    return jax.nn.sigmoid(3.0 * points), self.sigma_fn(points)
 
 
 NORMAL = np.array([0.0, 0.0, 1.0])  # axis-aligned: lattice probes line up in planes
@@ -66,7 +52,8 @@ def _rays_towards(targets, seed=0):
 
 
 def _marched_and_plain(sigma_fn, rays, config):
-  rr, settings = ray_renderer(config, _Field(sigma_fn)), experiment.image_settings(config)
+  rr, settings = ray_renderer(config, StandInNetwork(
+      lambda p: (jax.nn.sigmoid(3.0 * p), sigma_fn(p)))), experiment.image_settings(config)
   variables = {"params": {"coarse": {}}}
   assert image_renderer.marches(rr, settings)
   marched = image_renderer.make_image_renderer(rr, settings)(variables)(rays)

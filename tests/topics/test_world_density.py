@@ -14,27 +14,20 @@ from nerf_jax.run import experiment
 from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.cameras.rays import Rays
 from nerf_jax.data.scenes import builtin, simulator
-from tests.helpers import ray_renderer, small_config
+from tests.helpers import StandInNetwork, ray_renderer, small_config
 
 FOG = builtin.SCENES["fog"].medium  # a sphere of radius 0.75, density 1.2, at the origin
 NEAR, FAR = 1.0, 5.0
 
 
-class _MediumField:
-  """Stands in for the Flax model: the fog's medium alone (constant colour inside the ball)."""
-
-  def __init__(self, medium):
-    self.medium = medium
-
-  num_levels = 0  # fields/network.Network: no levels, density and colour from one call
-  splits_density = False
-
-  def apply(self, variables, points, dir_features):
-    del variables, dir_features
-    centre = jnp.asarray(self.medium.shape.center, jnp.float32)
-    inside = jnp.sum((points - centre) ** 2, axis=-1) < self.medium.shape.radius ** 2
-    rgb = jnp.broadcast_to(jnp.asarray(self.medium.color, jnp.float32), points.shape)
-    return rgb, jnp.where(inside, self.medium.density, 0.0)
+def _medium_alone(medium):
+  """A stand-in network of the fog's medium alone (constant colour inside the ball)."""
+  def colour_density(points):
+    centre = jnp.asarray(medium.shape.center, jnp.float32)
+    inside = jnp.sum((points - centre) ** 2, axis=-1) < medium.shape.radius ** 2
+    rgb = jnp.broadcast_to(jnp.asarray(medium.color, jnp.float32), points.shape)
+    return rgb, jnp.where(inside, medium.density, 0.0)
+  return StandInNetwork(colour_density)
 
 
 def _corner_rays(fov_degrees=60.0):
@@ -70,7 +63,7 @@ def test_corner_rays_see_the_simulators_closed_form_fog(path):
   # The physics: a chord of 1.5 world units at density 1.2 (not 1.5 / |d| units of t).
   np.testing.assert_allclose(acc, 1.0 - np.exp(-1.2 * 1.5), rtol=1e-6)
   config = small_config(PATHS[path])
-  rr = ray_renderer(config, _MediumField(FOG))
+  rr = ray_renderer(config, _medium_alone(FOG))
   variables = {"params": {"coarse": {}, "fine": {}}}
   if path == "occupancy":
     variables["occupancy"] = rr.occupancy_grid(variables)
@@ -94,7 +87,7 @@ def test_the_marchers_stop_test_counts_world_length():
   config = small_config(PATHS["march"], num_samples=256, **{"render.march_group": 4,
                                                             "render.min_transmittance": 1e-2})
   marcher = image_renderer._Marcher(  # pylint: disable=protected-access
-      ray_renderer(config, _MediumField(medium)), experiment.image_settings(config))
+      ray_renderer(config, _medium_alone(medium)), experiment.image_settings(config))
   rays = Rays.create(origins, directions, NEAR, FAR)
   mask = jnp.ones((4, 4, 4), bool)
   t, t_world, points, occupied, rank = marcher.plan(mask, rays)
