@@ -5,7 +5,6 @@ Markers: `slow` (a test that trains or spawns processes for more than ~10 s). Th
 command runs everything; `python -m pytest -m "not slow"` is the quick loop while editing.
 """
 
-import getpass
 import os
 import tempfile
 
@@ -18,10 +17,10 @@ os.environ.setdefault("NERF_JAX_EMULATE", "tf32,div")
 # XLA's persistent compilation cache, shared by the workers and their subprocesses: many tests
 # build the same small step or render from fresh closures, whose programs are identical, and an
 # identical program (same HLO, flags, jax and XLA versions: the cache key) is compiled once. It
-# changes no number: a hit loads the executable that compiling would have produced. Compilation,
-# not arithmetic, is most of this suite's time. JAX_COMPILATION_CACHE_DIR= (empty) turns it off.
+# changes no number: a hit loads the executable that compiling would have produced. Compiling
+# is a large share of this suite's time. JAX_COMPILATION_CACHE_DIR= (empty) turns it off.
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.join(
-    tempfile.gettempdir(), f"nerf_jax_test_xla_cache_{getpass.getuser()}"))
+    tempfile.gettempdir(), f"nerf_jax_test_xla_cache_{os.getuid()}"))  # one per user
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.1")
 os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(2 << 30))  # bytes; oldest go first
 from nerf_jax.backend import determinism  # noqa: E402  (imports jax; starts no backend)
