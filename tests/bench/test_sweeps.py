@@ -65,6 +65,7 @@ def tiny_sweep(tmp_path_factory):
   return out
 
 
+@pytest.mark.slow  # trains or renders for more than ~10 s on 2 cores
 def test_tiny_sweep_writes_one_well_formed_record_per_configuration(tiny_sweep):
   records = _records(tiny_sweep)
   assert [r["label"] for r in records] == ["default", "samples=32"]

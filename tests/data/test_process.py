@@ -296,6 +296,7 @@ def test_true_folder_differs_from_the_processed_one_only_in_poses(processed, tmp
                              atol=1e-6)
 
 
+@pytest.mark.slow  # trains or renders for more than ~10 s on 2 cores
 def test_evaluate_at_scores_the_given_poses(trained_run):
   """At the run's own test views the score is the run's; with each camera tilted by 10° it
   drops."""

@@ -148,6 +148,7 @@ def trained_fast(tmp_path_factory):
   return exp, state.variables
 
 
+@pytest.mark.slow  # trains or renders for more than ~10 s on 2 cores
 def test_marching_renders_the_plain_image_of_a_trained_model(trained_fast):
   exp, variables = trained_fast
   config, test_ds = exp.config, exp.test_ds

@@ -49,6 +49,7 @@ def test_render_image_does_not_recompile_across_images():
   assert render_chunk._cache_size() == 1
 
 
+@pytest.mark.slow  # trains or renders for more than ~10 s on 2 cores
 def test_hierarchical_pass_uses_union_of_edges():
   config, rr, variables = _init(num_fine_samples=8)
   origins, directions = _rays(5)
@@ -88,6 +89,7 @@ def test_density_noise_only_with_a_key():
   assert np.all(s2 >= 0) and np.max(np.abs(s2 - s0)) > 0
 
 
+@pytest.mark.slow  # trains or renders for more than ~10 s on 2 cores
 @pytest.mark.parametrize("view_dependent", [False, True])
 def test_remat_chunks_match_one_call_in_values_and_gradients(view_dependent):
   _, rr, variables = _init(**{"model.view_dependent": view_dependent})

@@ -138,6 +138,7 @@ def _analytic_renderer(num_samples, use_occupancy):
           lambda p: (jax.nn.sigmoid(3.0 * p), _sphere_sigma(p))))
 
 
+@pytest.mark.slow  # trains or renders for more than ~10 s on 2 cores
 def test_rendering_through_the_grid_matches_dense_sampling():
   occ_renderer = _analytic_renderer(64, True)
   variables = {"params": {"coarse": {}}}

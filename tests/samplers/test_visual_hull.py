@@ -5,6 +5,7 @@ interpolate as brute force; a run with data.visual_hull samples only inside the 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from nerf_jax.cameras import rays
 from nerf_jax.fields.networks import grid as grid_network
@@ -128,6 +129,7 @@ def test_grid_field_over_a_box_is_empty_outside_it():
   assert raw_sigma[0] > -1e4 and raw_sigma[1] == -1e5 and raw_sigma[2] == -1e5
 
 
+@pytest.mark.slow  # trains or renders for more than ~10 s on 2 cores
 def test_a_run_with_the_visual_hull_samples_only_inside_it():
   # As many slots as candidates: each slot is one candidate, sampled where its cell was looked
   # up (occupancy.py), so every valid sample must lie in a cell of the hull.

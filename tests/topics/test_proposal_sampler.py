@@ -59,6 +59,7 @@ def rendered(request):
 
 # The seams: what the built-in sampler does is unchanged.
 
+@pytest.mark.slow  # trains or renders for more than ~10 s on 2 cores
 def test_builtin_sampler_generates_what_it_placed_and_brings_nothing():
   rays, key = _rays(), jax.random.PRNGKey(2)
   plain = sampler_lib.Sampler(16, BOUND)
@@ -182,6 +183,7 @@ def test_a_proposal_with_the_nerfs_density_bounds_its_weights(contraction):
     assert np.max(w) > 0.5  # the opaque rays end in one interval
 
 
+@pytest.mark.slow  # trains or renders for more than ~10 s on 2 cores
 def test_photometric_loss_trains_the_nerf_and_interlevel_the_proposals_only(rendered):
   rr, variables, rays, _ = rendered
   target = jax.random.uniform(jax.random.PRNGKey(5), (24, 3))

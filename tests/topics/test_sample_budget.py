@@ -68,6 +68,7 @@ def _valid_counts(plain, variables, rays):
   return np.asarray(samples.valid).sum(-1)
 
 
+@pytest.mark.slow  # trains or renders for more than ~10 s on 2 cores
 @pytest.mark.parametrize("split", [True, False])
 def test_rays_within_the_budget_render_as_without_it(split):
   plain, with_budget, variables = _renderers(split)

@@ -41,6 +41,7 @@ def test_contracted_placement_is_linear_inside_and_in_disparity_beyond(kind):
   assert np.all(bounded[:, -1] <= 5.0 + 1e-5)
 
 
+@pytest.mark.slow  # trains or renders for more than ~10 s on 2 cores
 def test_the_field_sees_contracted_positions():
   network = grid_network.GridNeRF(resolutions=(4,), features=2, bound=3.0, hidden=8)
   field = Field(network, None, 2, contraction="linf", inner_radius=1.5)

@@ -53,6 +53,7 @@ PATHS = {"plain": PLAIN,
          "march": {**PLAIN, "data.scene_bound": 1.5, "render.march": True}}
 
 
+@pytest.mark.slow  # trains or renders for more than ~10 s on 2 cores
 @pytest.mark.parametrize("path", ["plain", "fine", "occupancy", "march"])
 def test_corner_rays_see_the_simulators_closed_form_fog(path):
   origins, directions = _corner_rays()
