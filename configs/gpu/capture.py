@@ -5,8 +5,9 @@ and a budget of 2^18 samples per step (nerfacc), and configs/capture.py's measur
 
 These settings are chosen for a GPU and are UNMEASURED: no session has trained them on a GPU
 yet (docs/gpu.md, section "GPU configurations (unmeasured)", gives the source of each and the
-command that measures them). On a CPU they build and train (tests/topics/test_gpu_configs.py, shrunk)
-but are far too large to pay: there, use configs/capture.py.
+command that measures them). On a CPU they build and train
+(tests/topics/test_gpu_configs.py, shrunk) but are far too large to pay: there, use
+configs/capture.py.
 
   python train.py --config=gpu/capture --config.data.path=DIR --config.data.factor=4
 """

@@ -6,8 +6,8 @@ These settings are chosen for a GPU and are UNMEASURED: no session has trained t
 yet. Each value is taken from instant-ngp's or nerfacc's published setup, or from
 configs/detail.py's CPU measurements where ours differ in kind (docs/gpu.md, section "GPU
 configurations (unmeasured)", gives the source of each and the command that measures them).
-On a CPU they build and train (tests/topics/test_gpu_configs.py, shrunk) but are far too large to pay:
-there, use configs/detail.py.
+On a CPU they build and train (tests/topics/test_gpu_configs.py, shrunk) but are far too large
+to pay: there, use configs/detail.py.
 
   python train.py --config=gpu/lego --config.data.path=DIR --config.data.background=white
 """

@@ -10,7 +10,8 @@ samples and the same compositing, but queries the field only at samples that
 Samples not queried get σ = 0 (and rgb = 0), so `compositing.composite` sees what the plain path
 sees up to: the skipped cells' density, at most `threshold`·(box diagonal) of optical depth if the
 probes found each cell's maximum, and the light behind the terminated part of a ray, at most
-`min_transmittance` in colour. tests/render/test_empty_space.py checks both paths agree on a trained model.
+`min_transmittance` in colour. tests/render/test_empty_space.py checks both paths agree on a
+trained model.
 
 Static shapes: samples are queried in rounds. In round k every live ray offers its occupied
 samples of rank [k·g, (k+1)·g) along it (g = `group`), so a ray that hits a surface usually ends

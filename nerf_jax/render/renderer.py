@@ -134,7 +134,8 @@ class RayRenderer:
     samples first; then the K = ceil(colour_fraction · samples) samples of largest compositing
     weight (over the whole batch, a fixed K so the shapes stay static) get their colour, and
     every other sample is composited black. A sample left out has at most the K-th largest
-    weight, so the colour it would add is bounded by that weight (tests/fields/networks/test_grid.py).
+    weight, so the colour it would add is bounded by that weight
+    (tests/fields/networks/test_grid.py).
     sigma: float32 [R, S], the field's density at `points`. complete: bool [R] or None,
     the rays whose density is whole (a sample budget: K is then a share of the budget, and
     incomplete rays get no colour).

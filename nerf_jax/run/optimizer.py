@@ -54,11 +54,11 @@ def make_optimizer(train_config, planned_steps=None, with_codes=False):
   train.network_lr, the MLP's layers (leaves 'kernel' and 'bias'), scaled to it."""
   tc = train_config
   schedule = make_schedule(tc, planned_steps)
-  adam = optax.adam(schedule, b2=tc.adam_b2, eps=tc.adam_eps)
+  adam_on = lambda rate: optax.adam(rate, b2=tc.adam_b2, eps=tc.adam_eps)
+  adam = adam_on(schedule)
   if tc.grad_clip > 0:
     adam = optax.chain(optax.clip_by_global_norm(tc.grad_clip), adam)
-  scaled = lambda lr: optax.adam(lambda count: lr / tc.lr * schedule(count), b2=tc.adam_b2,
-                                eps=tc.adam_eps)
+  scaled = lambda lr: adam_on(lambda count: lr / tc.lr * schedule(count))
   groups = {"field": adam}
   if tc.pose_refinement:
     groups["poses"] = scaled(tc.pose_lr)
