@@ -4,17 +4,15 @@ x: float32 [..., d] coordinates of order 1 (the scene fits in a few units around
 The encoding is [x, sin(2^0 x), cos(2^0 x), ..., sin(2^(L-1) x), cos(2^(L-1) x)], channels last,
 so `d + 2·d·L` features.
 
-Accuracy (tests/topics/test_numerics.py, case 10): 2^k·x is exact in binary floating point (a
-power of two changes only the exponent), so against float64 sin/cos of the same float32 input
-every band is within 2.5e-7 (measured 3.3e-8 on XLA:CPU, for |x| <= 1 and at |x| = 1e3 alike).
-Against the real-valued coordinate before its rounding to float32 (relative 2^-24), band k also
-carries that rounding amplified by 2^k: up to |x|·2^(k-24), i.e. 2^-9 ≈ 2e-3 for |x| <= 1 and k = 15. At
-|x| = 1e3 the bands k >= 11 may be off by more than 0.1 and the top ones by order 1: aliasing
-noise, which is why scenes are scaled to coordinates of order 1. Pass float32 x: in bfloat16 the
-rounding is 2^-8 and band 15 of |x| = 1 is off by order 1 as well.
-sin and cos are both computed directly: cos(y) as sin(y + π/2) would round y + π/2 and lose up
-to ulp(y)/2 more (2e-3 at |y| = 2^15).
-"""
+Accuracy (tests/topics/test_numerics.py, case 10): 2^k·x is exact in binary floating point (a power
+of two changes only the exponent), so against float64 sin/cos of the same float32 input every band
+is within 2.5e-7 (measured 3.3e-8 on XLA:CPU, for |x| <= 1 and at |x| = 1e3 alike). Against the
+real-valued coordinate before its rounding to float32 (relative 2^-24), band k also carries that
+rounding amplified by 2^k: up to |x|·2^(k-24), i.e. 2^-9 ≈ 2e-3 for |x| <= 1 and k = 15. At |x| =
+1e3 the bands k >= 11 may be off by more than 0.1 and the top ones by order 1: aliasing noise, which
+is why scenes are scaled to coordinates of order 1. Pass float32 x: in bfloat16 the rounding is 2^-8
+and band 15 of |x| = 1 is off by order 1 as well. sin and cos are both computed directly: cos(y) as
+sin(y + π/2) would round y + π/2 and lose up to ulp(y)/2 more (2e-3 at |y| = 2^15). """
 
 import jax.numpy as jnp
 import numpy as np
