@@ -10,9 +10,9 @@ that Field.
 """
 
 import flax.linen as nn
-import jax
 import jax.numpy as jnp
 
+from nerf_jax.backend import draws
 from nerf_jax.fields import field as field_lib
 from nerf_jax.fields.encodings import grid, hashgrid
 
@@ -60,7 +60,7 @@ class HashDensity(_DensityOnly):
     resolutions = hashgrid.level_resolutions(self.levels, self.base_resolution,
                                              self.max_resolution)
     rows = sum(hashgrid.level_rows(resolutions, self.log2_size))
-    init = lambda key, shape: jax.random.uniform(key, shape, jnp.float32, -1e-4, 1e-4)
+    init = lambda key, shape: draws.uniform(key, shape, jnp.float32, -1e-4, 1e-4)
     table = self.param("hash_table", init, (rows, self.features))
     unit = grid.to_unit_cube(points.astype(jnp.float32), self.bound)
     return self._density(hashgrid.encode(table, unit, resolutions, self.log2_size))
@@ -78,7 +78,7 @@ class GridDensity(_DensityOnly):
     del dir_features, image, level_weights
     resolutions = hashgrid.level_resolutions(self.levels, self.base_resolution,
                                              self.max_resolution)
-    init = lambda key, shape: 1e-2 * jax.random.normal(key, shape, jnp.float32)
+    init = lambda key, shape: 1e-2 * draws.normal(key, shape, jnp.float32)
     # "lattice_", no encoding's table prefix: train.tv_weight leaves the proposals alone.
     grids = [self.param(f"lattice_{r}", init, (r, r, r, self.features))
              for r in resolutions]

@@ -19,6 +19,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from nerf_jax.backend import draws
 from nerf_jax.fields import activations, contraction
 from nerf_jax.fields.encodings import encoding
 
@@ -117,7 +118,7 @@ class Field:
   def _activate(self, raw_sigma, key):
     if key is not None and self.density_noise > 0:
       # The paper's regulariser: noise on the raw output, before the activation keeps sigma >= 0.
-      raw_sigma = raw_sigma + self.density_noise * jax.random.normal(key, raw_sigma.shape)
+      raw_sigma = raw_sigma + self.density_noise * draws.normal(key, raw_sigma.shape)
     return activations.density_activation(self.density_activation)(raw_sigma)
 
   def query_density(self, params, points, key=None):

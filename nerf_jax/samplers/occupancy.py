@@ -27,6 +27,8 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
+from nerf_jax.backend import draws
+
 
 @dataclasses.dataclass(frozen=True)
 class OccupancySettings:
@@ -76,7 +78,7 @@ def density_grid(density_fn, resolution, bound, probes=2, key=None):
   if key is None:
     shifts = jnp.zeros_like(centres)
   else:
-    shifts = (jax.random.uniform(key, centres.shape, jnp.float32) - 0.5) / probes
+    shifts = (draws.uniform(key, centres.shape, jnp.float32) - 0.5) / probes
   offsets = probe_offsets(probes)
 
   def slab(args):  # centres, shifts [R, R, 3] -> [R, R]

@@ -21,6 +21,7 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 
+from nerf_jax.backend import draws
 from nerf_jax.fields import contraction
 from nerf_jax.samplers import occupancy, sampling
 from nerf_jax.samplers.occupancy import OccupancySettings
@@ -190,6 +191,6 @@ class Sampler:
       starts, ends, valid = occupancy.sample_occupied(
           mask, rays.origins, rays.directions, t_near, t_far, self.scene_bound, oc.candidates,
           self.num_samples)
-    u = 0.5 if key is None else jax.random.uniform(key, starts.shape, jnp.float32)
+    u = 0.5 if key is None else draws.uniform(key, starts.shape, jnp.float32)
     return Samples(occupancy.interleave_gaps(starts, ends, t_far),
                    starts + (ends - starts) * u, valid, gapped=True)

@@ -12,6 +12,8 @@ weights of a first pass.
 import jax
 import jax.numpy as jnp
 
+from nerf_jax.backend import draws
+
 # Smallest near bound used by linear-in-disparity sampling: 1/near must stay finite.
 _MIN_NEAR_LINDISP = 1e-3
 
@@ -67,7 +69,7 @@ def _unit_strata(num_samples, batch_shape, key):
     mids = 0.5 * (s[..., 1:] + s[..., :-1])
     lower = jnp.concatenate([s[..., :1], mids], axis=-1)
     upper = jnp.concatenate([mids, s[..., -1:]], axis=-1)
-    u = jax.random.uniform(key, s.shape, jnp.float32)
+    u = draws.uniform(key, s.shape, jnp.float32)
     s = lower + (upper - lower) * u
     # lower + (upper - lower)·u can round one ulp past upper; cummax keeps the edges sorted.
     s = jax.lax.cummax(s, axis=s.ndim - 1)
@@ -184,7 +186,7 @@ def sample_pdf(t, weights, num_samples, key=None, padding=0.01):
     u = (jnp.arange(num_samples, dtype=jnp.float32) + 0.5) / num_samples
     u = jnp.broadcast_to(u, (*batch_shape, num_samples))
   else:
-    u = jax.random.uniform(key, (*batch_shape, num_samples), jnp.float32)
+    u = draws.uniform(key, (*batch_shape, num_samples), jnp.float32)
   samples = _invert_cdf(u, t, cdf)
   return jnp.sort(samples, axis=-1)
 

@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from nerf_jax.backend import draws
 from nerf_jax.cameras import pose_refinement
 from nerf_jax.render import background as background_lib
 from nerf_jax.samplers import occupancy
@@ -141,7 +142,7 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
     bg, target = fixed_background, batch.rgb
     if settings.random_background:
       # A fresh background per ray: the field cannot bake the background into density.
-      bg = jax.random.uniform(bg_key, batch.rgb.shape)
+      bg = draws.uniform(bg_key, batch.rgb.shape)
       target = background_lib.recomposite(batch.rgb, batch.acc, fixed_background, bg)
     rays = batch.rays
     if refine:  # the rays of the corrected cameras: the corrections take a gradient

@@ -7,9 +7,9 @@ import dataclasses
 from typing import Sequence
 
 import flax.linen as nn
-import jax
 import jax.numpy as jnp
 
+from nerf_jax.backend import draws
 from nerf_jax.fields import registry
 from nerf_jax.fields.encodings import hashgrid
 from nerf_jax.fields.networks import heads
@@ -41,7 +41,7 @@ class HashNeRF(heads.GridHead):
     resolutions = hashgrid.level_resolutions(self.levels, self.base_resolution,
                                              self.max_resolution)
     rows = sum(hashgrid.level_rows(resolutions, self.log2_size))
-    init = lambda key, shape: jax.random.uniform(key, shape, jnp.float32, -1e-4, 1e-4)
+    init = lambda key, shape: draws.uniform(key, shape, jnp.float32, -1e-4, 1e-4)
     table = self.param("hash_table", init, (rows, self.features))
     unit = self._unit(points.astype(jnp.float32))
     h = hashgrid.encode(table, unit, resolutions, self.log2_size, self.gather_dtype)

@@ -7,9 +7,9 @@ import dataclasses
 from typing import Sequence
 
 import flax.linen as nn
-import jax
 import jax.numpy as jnp
 
+from nerf_jax.backend import draws
 from nerf_jax.fields import registry
 from nerf_jax.fields.encodings import tensorf
 from nerf_jax.fields.networks import heads
@@ -30,7 +30,7 @@ class TensoRFNeRF(heads.GridHead):
 
   @nn.compact
   def __call__(self, points, dir_features=None, image=None, level_weights=None):
-    init = lambda key, shape: 0.1 * jax.random.normal(key, shape, jnp.float32)
+    init = lambda key, shape: 0.1 * draws.normal(key, shape, jnp.float32)
     unit = self._unit(points.astype(jnp.float32))
     features = []
     for r in self.resolutions:
