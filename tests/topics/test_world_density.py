@@ -5,6 +5,7 @@ and the marcher's stop test counts world-length optical depth."""
 import dataclasses
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -67,14 +68,14 @@ def test_corner_rays_see_the_simulators_closed_form_fog(path):
   rr = ray_renderer(config, _medium_alone(FOG))
   variables = {"params": {"coarse": {}, "fine": {}}}
   if path == "occupancy":
-    variables["occupancy"] = rr.occupancy_grid(variables)
+    variables["occupancy"] = jax.jit(rr.occupancy_grid)(variables)
   rays = Rays.create(origins, directions, NEAR, FAR)
   if path == "march":
     settings = experiment.image_settings(config)
     assert image_renderer.marches(rr, settings)
     out = image_renderer.make_image_renderer(rr, settings)(variables)(rays)
   else:
-    out = renderer.final(rr.render(variables, rays))
+    out = renderer.final(jax.jit(rr.render)(variables, rays))  # jitted: one compile, not ~100
   np.testing.assert_allclose(out["acc"], acc, atol=5e-3)
   np.testing.assert_allclose(out["rgb"], rgb, atol=5e-3)
   np.testing.assert_allclose(out["depth"], depth_sum / acc, atol=1e-2)  # z-depth, as before
