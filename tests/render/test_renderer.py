@@ -10,7 +10,7 @@ import pytest
 from nerf_jax.fields import field
 from nerf_jax.render import image_renderer, renderer
 from nerf_jax.cameras.rays import Rays, get_rays, pose_spherical
-from tests.helpers import PATHS_RTOL, ray_renderer, small_config
+from tests.helpers import PATHS_RTOL, jitted, ray_renderer, small_config
 
 
 def _init(**overrides):
@@ -19,12 +19,6 @@ def _init(**overrides):
   config = small_config(**overrides)
   rr = ray_renderer(config)
   return config, rr, rr.init(jax.random.PRNGKey(0))
-
-
-def _jit(rr):
-  """rr.render jitted: one compile per test, where op-by-op dispatch compiles every small op
-  (~0.09 s each on 2 cores)."""
-  return jax.jit(rr.render, static_argnames="remat_chunk")
 
 
 def _rays(n=37):
@@ -37,7 +31,7 @@ def test_render_image_in_chunks_equals_one_call(fine):
   _, rr, variables = _init(num_fine_samples=fine)
   origins, directions = _rays()
   rays = Rays.create(origins, directions, 2.0, 6.0)
-  whole = renderer.final(_jit(rr)(variables, rays))
+  whole = renderer.final(jitted(rr.render)(variables, rays))
   chunked = image_renderer.render_image(image_renderer.make_chunk_renderer(rr), variables, rays,
                                         chunk=16)
   for k in ("rgb", "depth", "acc"):
@@ -59,7 +53,8 @@ def test_render_image_does_not_recompile_across_images():
 def test_hierarchical_pass_uses_union_of_edges():
   config, rr, variables = _init(num_fine_samples=8)
   origins, directions = _rays(5)
-  out = _jit(rr)(variables, Rays.create(origins, directions, 2.0, 6.0), key=jax.random.PRNGKey(1))
+  out = jitted(rr.render)(variables, Rays.create(origins, directions, 2.0, 6.0),
+                          key=jax.random.PRNGKey(1))
   t_coarse, t_fine = out["coarse"]["t"], out["fine"]["t"]
   assert t_fine.shape == (5, config.num_samples + 8 + 1)
   assert np.all(np.diff(t_fine, axis=-1) >= 0)
@@ -76,8 +71,8 @@ def test_shared_fine_network_has_one_parameter_set():
 def test_deterministic_without_key_and_random_with_key():
   _, rr, variables = _init()
   rays = Rays.create(*_rays(9), 2.0, 6.0)
-  jitted = _jit(rr)
-  render = lambda key: renderer.final(jitted(variables, rays, key=key))["rgb"]
+  render_rr = jitted(rr.render)
+  render = lambda key: renderer.final(render_rr(variables, rays, key=key))["rgb"]
   np.testing.assert_array_equal(render(None), render(None))
   np.testing.assert_array_equal(render(jax.random.PRNGKey(3)), render(jax.random.PRNGKey(3)))
   assert np.max(np.abs(render(jax.random.PRNGKey(3)) - render(jax.random.PRNGKey(4)))) > 0
@@ -118,9 +113,9 @@ def test_remat_chunks_match_one_call_in_values_and_gradients(view_dependent):
   for a, b in zip(jax.tree_util.tree_leaves(g_chunked), jax.tree_util.tree_leaves(g_plain)):
     np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)
   # A chunk size that does not divide the batch falls back to one call: the same program.
-  render = _jit(rr)
-  odd = render(variables, rays, key=key, remat_chunk=10)["coarse"]["rgb"]
-  np.testing.assert_array_equal(odd, render(variables, rays, key=key)["coarse"]["rgb"])
+  odd = jitted(rr.render, remat_chunk=10)(variables, rays, key=key)["coarse"]["rgb"]
+  whole = jitted(rr.render)(variables, rays, key=key)["coarse"]["rgb"]
+  np.testing.assert_array_equal(odd, whole)
 
 
 # --- hierarchical sampling on analytic fields ------------------------------------------------------
@@ -174,7 +169,8 @@ def _errors(sigma_rgb):
   """{pass: (mean |rgb error|, mean |depth error|)} against a dense 4096-sample render, for the
   coarse and fine passes and a single uniform pass with as many samples as coarse + fine."""
   rays = _down_rays()
-  render = lambda fine, coarse: _jit(_analytic(sigma_rgb, fine, coarse)[0])(variables, rays)
+  render = lambda fine, coarse: jitted(_analytic(sigma_rgb, fine, coarse)[0].render)(variables,
+                                                                                     rays)
   _, variables = _analytic(sigma_rgb)
   outs = render(FINE, COARSE)
   dense, uniform = render(0, 4096)["coarse"], render(0, COARSE + FINE)["coarse"]
@@ -185,7 +181,7 @@ def _errors(sigma_rgb):
 def test_fine_samples_concentrate_where_the_coarse_weights_are():
   rays = _down_rays()
   rr, variables = _analytic(_ball)
-  outs = _jit(rr)(variables, rays)
+  outs = jitted(rr.render)(variables, rays)
   t_coarse, t_fine = np.asarray(outs["coarse"]["t"]), np.asarray(outs["fine"]["t"])
   r2 = np.sum(np.asarray(rays.origins)[:, :2] ** 2, -1)
   half = np.sqrt(0.25 - r2)  # the ball spans t in [3 - half, 3 + half] on each ray

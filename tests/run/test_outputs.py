@@ -20,7 +20,7 @@ from nerf_jax.run import experiment, outputs
 from nerf_jax.evaluate.visuals import to_uint8
 from nerf_jax.cameras.rays import Rays, get_rays
 from tests.conftest import tensorboard_scalars
-from tests.helpers import PATHS_RTOL, requires_ffmpeg
+from tests.helpers import PATHS_RTOL, jitted, requires_ffmpeg
 
 
 def _reference(exp, variables, pose):
@@ -30,7 +30,7 @@ def _reference(exp, variables, pose):
   origins, directions = get_rays(ds.height, ds.width, ds.focal, jnp.asarray(pose),
                                  exp.pixel_center)
   rays = Rays.create(origins, directions, exp.near, exp.far)
-  out = renderer.final(exp.renderer.render(variables, rays))
+  out = renderer.final(jitted(exp.renderer.render)(variables, rays))
   return {k: np.asarray(out[k]) for k in ("rgb", "depth", "acc")}
 
 

@@ -20,7 +20,7 @@ from nerf_jax.samplers import proposal, sampler as sampler_lib, sampling
 from nerf_jax.samplers.occupancy import OccupancySettings
 from nerf_jax.train import losses
 from tests.conftest import params_equal, restored_variables
-from tests.helpers import small_config
+from tests.helpers import jitted, small_config
 from tests.helpers import loss_ref
 
 pytestmark = pytest.mark.usefixtures("debug_nans")  # conftest.py: a NaN anywhere raises
@@ -67,8 +67,8 @@ def test_builtin_sampler_generates_what_it_placed_and_brings_nothing():
   occupied = sampler_lib.Sampler(8, BOUND, occupancy=oc)
   grid = jnp.ones((8, 8, 8), jnp.float32)
   for rs, variables in ((plain, {}), (occupied, {"occupancy": grid})):
-    samples, extras = rs.generate(rays, key, {"params": {}, **variables})
-    want = rs.place(rays, key, variables.get("occupancy"))
+    samples, extras = jitted(rs.generate)(rays, key, {"params": {}, **variables})
+    want = jitted(rs.place)(rays, key, variables.get("occupancy"))
     assert extras == {} and samples.gapped == want.gapped
     for a, b in zip(jax.tree_util.tree_leaves(samples), jax.tree_util.tree_leaves(want)):
       np.testing.assert_array_equal(a, b)

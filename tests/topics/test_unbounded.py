@@ -14,7 +14,7 @@ from nerf_jax.run import experiment
 from nerf_jax.samplers import occupancy, sampler, sampling
 from nerf_jax.fields.field import Field
 from nerf_jax.cameras.rays import Rays
-from tests.helpers import small_config
+from tests.helpers import jitted, small_config
 
 
 def _rays(num=64, seed=0):
@@ -46,15 +46,15 @@ def test_the_field_sees_contracted_positions():
   network = grid_network.GridNeRF(resolutions=(4,), features=2, bound=3.0, hidden=8)
   field = Field(network, None, 2, contraction="linf", inner_radius=1.5)
   points = jnp.array([[0.5, -0.2, 0.1], [30.0, 0.0, -2.0], [1e8, 1e8, 0.0]], jnp.float32)
-  encoded = field.encode_positions(points)
+  encoded = jitted(field.encode_positions)(points)
   np.testing.assert_allclose(encoded, contraction.contract(points, 1.5, "linf"), rtol=1e-6)
   assert np.all(np.abs(encoded) <= 3.0)  # inside the grids' box of half-size 2 x 1.5
-  params = field.init(jax.random.PRNGKey(0))
-  _, sigma = field.query(params, points[:, None, :], jnp.zeros_like(points))
+  params = jitted(field.init)(jax.random.PRNGKey(0))
+  _, sigma = jitted(field.query)(params, points[:, None, :], jnp.zeros_like(points))
   assert np.all(np.isfinite(sigma))
   # Without the contraction, far points fall outside the grids and get no density at all.
   plain = Field(network, None, 2)
-  _, far_sigma = plain.query(params, points[1:, None, :], jnp.zeros_like(points[1:]))
+  _, far_sigma = jitted(plain.query)(params, points[1:, None, :], jnp.zeros_like(points[1:]))
   assert np.all(far_sigma == 0.0)
 
 
@@ -104,7 +104,7 @@ def test_occupancy_in_contracted_space_samples_only_occupied_cells():
   grid = np.where((radius > 2.25) & (radius < 2.625), 10.0, 0.0).astype(np.float32)
   rays = Rays.create(jnp.zeros((32, 3)), jnp.asarray(np.random.default_rng(1).normal(
       size=(32, 3)), jnp.float32), 0.1, 5.0)
-  placed = rs.place(rays, jax.random.PRNGKey(0), jnp.asarray(grid))
+  placed = jitted(rs.place)(rays, jax.random.PRNGKey(0), jnp.asarray(grid))
   world = sampler.points(rays, placed.distances)[np.asarray(placed.valid)]
   assert len(world) > 32  # every ray crosses the shell
   # Each valid sample lies in the occupied shell (up to a cell of contracted space, 0.1875).
