@@ -22,3 +22,11 @@ def uniform(key, shape, dtype=jnp.float32, minval=0.0, maxval=1.0):
 def normal(key, shape, dtype=jnp.float32):
   """jax.random.normal(key, shape, dtype), compiled as a flat draw."""
   return jax.random.normal(key, (math.prod(shape),), dtype).reshape(shape)
+
+
+def normal_init(scale):
+  """A parameter initialiser: (key, shape) -> scale · normal draws, float32 [*shape]. The
+  optimisation barrier stops XLA folding `scale` into the normal's own constants (a different
+  rounding, 1 ulp), so an init compiled as one program gives exactly the values of an init run
+  op by op: Field.init is jitted, and the checkpoints and fingerprints of earlier runs stand."""
+  return lambda key, shape: scale * jax.lax.optimization_barrier(normal(key, shape))

@@ -78,7 +78,7 @@ class GridDensity(_DensityOnly):
     del dir_features, image, level_weights
     resolutions = hashgrid.level_resolutions(self.levels, self.base_resolution,
                                              self.max_resolution)
-    init = lambda key, shape: 1e-2 * draws.normal(key, shape, jnp.float32)
+    init = draws.normal_init(1e-2)
     # "lattice_", no encoding's table prefix: train.tv_weight leaves the proposals alone.
     grids = [self.param(f"lattice_{r}", init, (r, r, r, self.features))
              for r in resolutions]

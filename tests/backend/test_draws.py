@@ -28,3 +28,13 @@ def test_draws_inside_jit_match_eager():
   key = jax.random.PRNGKey(2)
   jitted = jax.jit(lambda k: draws.uniform(k, (3, 4, 5)))
   np.testing.assert_array_equal(jitted(key), jax.random.uniform(key, (3, 4, 5)))
+
+
+def test_a_scaled_normal_init_compiled_whole_equals_it_run_op_by_op():
+  """Without the barrier, XLA folds the scale into the normal's constants inside a larger
+  program (1 ulp off); Field.init is jitted and must keep the values of eager inits."""
+  key, shape = jax.random.PRNGKey(0), (8, 8, 8, 4)
+  init = draws.normal_init(1e-2)
+  eager = init(key, shape)
+  np.testing.assert_array_equal(jax.jit(init, static_argnums=1)(key, shape), eager)
+  np.testing.assert_array_equal(eager, 1e-2 * draws.normal(key, shape))  # as before the barrier

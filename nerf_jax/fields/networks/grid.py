@@ -35,7 +35,7 @@ class GridNeRF(heads.GridHead):
 
   @nn.compact
   def __call__(self, points, dir_features=None, image=None, level_weights=None):
-    init = lambda key, shape: 1e-2 * draws.normal(key, shape, jnp.float32)
+    init = draws.normal_init(1e-2)
     grids = [self.param(f"grid_{r}", init, (*self._shape(r), self.features))
              for r in self.resolutions]
     unit = self._unit(points.astype(jnp.float32))
@@ -96,7 +96,7 @@ class DensityGridNeRF(heads.GridHead):
       raw = self._raw_density(unit)
       raw_sigma = jnp.where(grid.inside_box(unit), raw, -1e5)
     if part in ("all", "colour"):
-      init = lambda key, shape: 1e-2 * draws.normal(key, shape, jnp.float32)
+      init = draws.normal_init(1e-2)
       grids = [self.param(f"grid_{r}", init, (*self._shape(r), self.features))
                for r in self.resolutions]
       h = grid.multires_features(grids, unit)

@@ -30,7 +30,7 @@ class TensoRFNeRF(heads.GridHead):
 
   @nn.compact
   def __call__(self, points, dir_features=None, image=None, level_weights=None):
-    init = lambda key, shape: 0.1 * draws.normal(key, shape, jnp.float32)
+    init = draws.normal_init(0.1)
     unit = self._unit(points.astype(jnp.float32))
     features = []
     for r in self.resolutions:
