@@ -140,7 +140,8 @@ def trained_fast(tmp_path_factory):
   config = small_config({"data.num_views": 24, "data.image_size": 32, "data.holdout_from": 20,
                          "model.grid.resolutions": (16, 32), "num_samples": 48,
                          "train.batch_rays": 1024, "train.max_steps": 200, "train.log_every": 100,
-                         "train.checkpoint_every": 200, "render.chunk": 512}, base="fast")
+                         "train.checkpoint_every": 200, "render.chunk": 512,
+                         "render.march_grid": 48}, base="fast")  # the shipped skip grid
   workdir = str(tmp_path_factory.mktemp("fast") / "run")
   result = train_lib.train_and_evaluate(config, workdir)
   exp, state = experiment.restore(workdir)
