@@ -63,7 +63,7 @@ def _marched_and_plain(sigma_fn, rays, config):
 
 
 # The skip grid of the fast config (48^3 cells of 1/16 unit), density passed unchanged.
-FAST = {"model.density_activation": "relu", "render.chunk": 256}
+FAST = {"model.density_activation": "relu", "render.chunk": 256, "render.march_grid": 48}
 
 
 def test_a_slab_thinner_than_a_cell_renders_the_same_marched_and_plain():
