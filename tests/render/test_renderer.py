@@ -84,7 +84,7 @@ def test_density_noise_only_with_a_key():
   t = jnp.broadcast_to(jnp.linspace(2.0, 6.0, 5), (9, 5))
   points = rays.origins[:, None] + rays.directions[:, None] * t[..., None]
   params = variables["params"]["coarse"]
-  query = jax.jit(rr.field.query)
+  query = jitted(rr.field.query)
   _, s0 = query(params, points, rays.viewdirs)
   _, s1 = query(params, points, rays.viewdirs)
   _, s2 = query(params, points, rays.viewdirs, key=jax.random.PRNGKey(0))

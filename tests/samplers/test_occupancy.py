@@ -16,7 +16,7 @@ from nerf_jax.run import train_lib
 from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.cameras.rays import Rays
 from tests.conftest import params_equal, restored_variables
-from tests.helpers import StandInNetwork, ray_renderer, small_config
+from tests.helpers import StandInNetwork, jitted, ray_renderer, small_config
 
 BOUND = 1.5
 
@@ -143,10 +143,10 @@ def test_rendering_through_the_grid_matches_dense_sampling():
   # Jitted: one compile each, where op-by-op dispatch compiled ~200 small programs (~18 s).
   occ_renderer = _analytic_renderer(64, True)
   variables = {"params": {"coarse": {}}}
-  variables["occupancy"] = jax.jit(occ_renderer.occupancy_grid)(variables)
+  variables["occupancy"] = jitted(occ_renderer.occupancy_grid)(variables)
   rays = Rays.create(*_rays(200, seed=2), 2.0, 6.0)
-  fast = renderer.final(jax.jit(occ_renderer.render)(variables, rays))
-  dense = renderer.final(jax.jit(_analytic_renderer(4096, False).render)(
+  fast = renderer.final(jitted(occ_renderer.render)(variables, rays))
+  dense = renderer.final(jitted(_analytic_renderer(4096, False).render)(
       {"params": {"coarse": {}}}, rays))
   assert float(jnp.mean(dense["acc"] > 0.5)) > 0.2  # the rays do hit the sphere
   np.testing.assert_allclose(fast["acc"], dense["acc"], atol=0.02)
@@ -158,7 +158,7 @@ def test_rendering_through_the_grid_matches_dense_sampling():
   key = jax.random.PRNGKey(0)
   loss = lambda o: jnp.sum(renderer.final(occ_renderer.render(
       variables, Rays.create(o, rays.directions, 2.0, 6.0), key=key))["rgb"])
-  assert bool(jnp.all(jnp.isfinite(jax.jit(jax.grad(loss))(rays.origins))))
+  assert bool(jnp.all(jnp.isfinite(jitted(jax.grad(loss))(rays.origins))))
 
 
 TRAIN = {"train.lr": 1e-2, "model.encoding": "grid", "model.grid.resolutions": (8, 16),

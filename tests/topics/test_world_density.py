@@ -5,7 +5,6 @@ and the marcher's stop test counts world-length optical depth."""
 import dataclasses
 import math
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -15,7 +14,7 @@ from nerf_jax.run import experiment
 from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.cameras.rays import Rays
 from nerf_jax.data.scenes import builtin, simulator
-from tests.helpers import StandInNetwork, ray_renderer, small_config
+from tests.helpers import StandInNetwork, jitted, ray_renderer, small_config
 
 FOG = builtin.SCENES["fog"].medium  # a sphere of radius 0.75, density 1.2, at the origin
 NEAR, FAR = 1.0, 5.0
@@ -68,14 +67,14 @@ def test_corner_rays_see_the_simulators_closed_form_fog(path):
   rr = ray_renderer(config, _medium_alone(FOG))
   variables = {"params": {"coarse": {}, "fine": {}}}
   if path == "occupancy":
-    variables["occupancy"] = jax.jit(rr.occupancy_grid)(variables)
+    variables["occupancy"] = jitted(rr.occupancy_grid)(variables)
   rays = Rays.create(origins, directions, NEAR, FAR)
   if path == "march":
     settings = experiment.image_settings(config)
     assert image_renderer.marches(rr, settings)
     out = image_renderer.make_image_renderer(rr, settings)(variables)(rays)
   else:
-    out = renderer.final(jax.jit(rr.render)(variables, rays))  # jitted: one compile, not ~100
+    out = renderer.final(jitted(rr.render)(variables, rays))  # jitted: one compile, not ~100
   np.testing.assert_allclose(out["acc"], acc, atol=5e-3)
   np.testing.assert_allclose(out["rgb"], rgb, atol=5e-3)
   np.testing.assert_allclose(out["depth"], depth_sum / acc, atol=1e-2)  # z-depth, as before

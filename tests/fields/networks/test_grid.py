@@ -139,14 +139,14 @@ def test_a_hashed_density_level_adds_its_hash_lookup_to_the_dense_levels():
                              grid_network.INITIAL_RAW_DENSITY, rtol=1e-6)  # the same faint start
   params["density_8"] = jax.random.normal(jax.random.PRNGKey(3), params["density_8"].shape)
   params["hashed_density"] = jax.random.normal(jax.random.PRNGKey(4), (256, 1))
-  raw = np.asarray(density(variables, points))
+  raw = np.asarray(net.apply(variables, points, part="density"))  # op by op: the summation
+  # order of the reference, where one compiled program differs by up to ~4e-5 (terms up to ~20
+  # cancelling to values near 0)
   dense = np.asarray(grid.trilinear(params["density_8"], unit)[..., 0])
   hashed = [_hashed_brute(np.asarray(params["hashed_density"]), u, 32, 8)
             for u in np.asarray(unit)]
-  # Terms up to ~20 in float32 that cancel to values near 0: compiled as one program (the
-  # summation order XLA picks) they differ from the reference by up to ~4e-5 absolute.
   np.testing.assert_allclose(raw, grid_network.DENSITY_GAIN * (dense + np.array(hashed)),
-                             rtol=1e-5, atol=1e-4)
+                             rtol=1e-5, atol=1e-5)
   # Its gradient reaches only the rows the points' corners hash to.
   grad = jitted(jax.grad(lambda p: jnp.sum(density({"params": p}, points))))(params)
   touched = np.flatnonzero(np.asarray(grad["hashed_density"])[:, 0])
