@@ -68,11 +68,10 @@ def profile(config, repeats=10, warm_steps=0):
   """[(stage, ms, note)] for one train step of `config` on its dataset, after `warm_steps`."""
   exp, state, data, key, step = _warmed(config, warm_steps)
   rays, samples = experiment.rays_per_step(config, exp.train_ds), config.num_samples
-  compiled = step.lower(state, data, key).compile()
   times = []
-  for _ in range(repeats + 1):
+  for _ in range(repeats + 1):  # the first call compiles, unless the warm steps did: not counted
     start = time.perf_counter()
-    state, stats = compiled(state, data, key)
+    state, stats = step(state, data, key)
     jax.block_until_ready((state, stats))  # the whole step done on the device
     times.append(time.perf_counter() - start)
   rows = [("train step (all)", 1e3 * float(np.median(times[1:])), f"{rays} rays × {samples}")]

@@ -14,7 +14,9 @@ size and sample budget (compile excluded, median of --repeats calls):
   clustered       the same with every position in one finest cell (every level: 8 rows)
 
 A trap shows as 'one row' or 'clustered' far slower than 'spread' (the issue: several hundred
-times); the same ratio near 1 says this jaxlib has no such trap.
+times); the same ratio near 1 says this jaxlib has no such trap. On an affected jaxlib,
+`import nerf_jax` restores the native atomic (backend/gpu_atomics.py; the title says which
+atomics ran); `NERF_JAX_CAS_ATOMICS=1` measures jaxlib's loop instead.
 
   python -m nerf_jax.bench.scatter_add                       # configs/gpu/lego.py's table
   python -m nerf_jax.bench.scatter_add --config=gpu/capture --out=scatter.json
@@ -28,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from absl import app, flags
 
+from nerf_jax.backend import gpu_atomics
 from nerf_jax.bench import measure
 from nerf_jax.fields.encodings import hashgrid
 
@@ -123,7 +126,8 @@ def main(argv=None):
       device = jax.devices()[0]
       title = (f"scatter-add check, {config_name.value}'s table"
                f"{' (smoke: tiny)' if smoke.value else ''}, {rows[0]['updates']:,} updates, "
-               f"on {getattr(device, 'device_kind', device.platform)}, jax {jax.__version__}")
+               f"on {getattr(device, 'device_kind', device.platform)}, jax {jax.__version__}, "
+               f"{gpu_atomics.describe()}")
       print("\n".join(table_lines(rows, title)), flush=True)
       if out.value:
         with open(out.value, "w") as f:
