@@ -15,6 +15,7 @@ def get_config():
   config.sampler = ""  # '' = stratified / occupancy placement; 'proposal' (config.proposal)
   config.pos_encode_dims = 10  # POS_ENCODE_DIMS: frequency bands for positions
   config.dir_encode_dims = 4  # frequency bands for viewing directions (view-dependent model)
+  config.dir_encoding = "frequency"  # directions: 'frequency' bands, or 'sh' of that degree
   config.auto = False  # decide the effects and the representation from the data (configs/auto.py)
   config.auto_decisions = ()  # what auto decided and why, one line each (filled by auto)
   config.auto_flags = ()  # fields set on the command line (filled by nerf-train): auto keeps them

@@ -26,7 +26,8 @@ def get_config():
   config.model.width = 64  # instant-ngp's 64-wide density network
   config.model.view_dependent = True  # instant-ngp's colour network sees the direction
   config.model.view_width = 64  # instant-ngp's colour network is 64 wide
-  config.dir_encode_dims = 4  # the paper's 4 bands for directions (instant-ngp: SH degree 4)
+  config.dir_encoding = "sh"  # instant-ngp's direction encoding: spherical harmonics
+  config.dir_encode_dims = 4  # of instant-ngp's degree 4 (bands 0-3, 16 features)
   config.model.density_activation = "exp"  # instant-ngp's exponential density (trunc_exp)
   config.occupancy.enabled = True  # instant-ngp's density grid: samples only in occupied cells
   config.occupancy.resolution = 128  # instant-ngp's and nerfacc's 128^3 cells over the box

@@ -31,7 +31,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax.fields.encodings import encoding
 from nerf_jax.render import compositing
 from nerf_jax.run import experiment
 from nerf_jax.samplers import sampler
@@ -92,7 +91,7 @@ def profile(config, repeats=10, warm_steps=0):
   params = state.params["coarse"]
   dirs = None
   if config.model.view_dependent:
-    dirs = jnp.zeros((*features.shape[:-1], encoding.encoded_width(3, config.dir_encode_dims)))
+    dirs = jnp.zeros((*features.shape[:-1], field.dir_width))
   field_sum = lambda p, x: jnp.sum(sum(jnp.sum(o) for o in field.network.apply({"params": p}, x,
                                                                                  dirs)))
   rows.append(("field fwd+bwd", median_ms(jax.grad(field_sum), params, features,

@@ -21,7 +21,9 @@ import jax.numpy as jnp
 
 from nerf_jax.backend import draws
 from nerf_jax.fields import activations, contraction
-from nerf_jax.fields.encodings import encoding
+from nerf_jax.fields.encodings import encoding, spherical_harmonics
+
+DIR_ENCODINGS = ("frequency", "sh")  # config.dir_encoding
 
 
 @dataclasses.dataclass(frozen=True)
@@ -31,13 +33,16 @@ class Field:
   network: the Flax module (network.Network: an encoding family's, registry.py), applied to
     encoded inputs.
   pos_encode_dims: frequency bands of the positions' encoding; None = raw positions (the grid
-    networks: the grids are the encoding). dir_encode_dims: bands of the directions' encoding.
+    networks: the grids are the encoding). dir_encode_dims: bands of the directions' encoding,
+    or its degree with dir_encoding 'sh'.
   view_dependent: colour takes the encoded viewing direction.
   density_activation: 'relu', 'softplus' or 'exp' (activations.py). density_noise: std of the
     noise added to raw density when a query has a key (training only).
   contraction: '' (world positions), or 'l2' / 'linf': positions are contracted about the inner
     region of half-size `inner_radius` first (contraction.py), so the network sees all of space
     inside [-2·inner_radius, 2·inner_radius]^3.
+  dir_encoding: 'frequency' (encoding.positional_encoding of the direction) or 'sh' (real
+    spherical harmonics, encodings/spherical_harmonics.py: instant-ngp's and nerfacto's).
   """
   network: Any
   pos_encode_dims: Any = None
@@ -48,6 +53,7 @@ class Field:
   contraction: str = ""
   inner_radius: float = 1.0
   appearance_dims: int = 0
+  dir_encoding: str = "frequency"
 
   @property
   def uses_images(self):
@@ -59,10 +65,24 @@ class Field:
     pos_width = 3 if self.pos_encode_dims is None else encoding.encoded_width(
         3, self.pos_encode_dims)
     pos = jnp.zeros((1, pos_width), jnp.float32)
-    dirs = jnp.zeros((1, encoding.encoded_width(3, self.dir_encode_dims)), jnp.float32)
+    dirs = jnp.zeros((1, self.dir_width), jnp.float32)
     # Compiled as one program: run op by op, a grid network's init compiled ~100 small programs
     # (~8 s on 2 cores); the values are the same (draws.normal_init).
     return jax.jit(self.network.init)(key, pos, dirs)["params"]
+
+  @property
+  def dir_width(self):
+    """Features of `encode_directions`."""
+    if self.dir_encoding == "sh":
+      return spherical_harmonics.encoded_width(self.dir_encode_dims)
+    return encoding.encoded_width(3, self.dir_encode_dims)
+
+  def encode_directions(self, dirs):
+    """The network's direction input for unit directions float32 [..., 3]: float32
+    [..., dir_width]."""
+    if self.dir_encoding == "sh":
+      return spherical_harmonics.spherical_harmonics(dirs, self.dir_encode_dims)
+    return encoding.positional_encoding(dirs, self.dir_encode_dims)
 
   @property
   def coarse_to_fine_stages(self):
@@ -103,7 +123,7 @@ class Field:
     dir_features = None
     if self.view_dependent:
       dirs = jnp.broadcast_to(viewdirs[..., None, :], points.shape)
-      dir_features = encoding.positional_encoding(dirs, self.dir_encode_dims)
+      dir_features = self.encode_directions(dirs)
     args = (self.encode_positions(points, bands), dir_features)
     if self.uses_images:
       args += (image,)
@@ -135,8 +155,7 @@ class Field:
   def query_colour(self, params, points, viewdirs):
     """rgb float32 [P, 3] at points float32 [P, 3] seen along unit directions float32 [P, 3]:
     the colour half alone (needs `splits_density`)."""
-    dir_features = (encoding.positional_encoding(viewdirs, self.dir_encode_dims)
-                    if self.view_dependent else None)
+    dir_features = self.encode_directions(viewdirs) if self.view_dependent else None
     return self.network.apply({"params": params}, self.encode_positions(points), dir_features,
                               part="colour")
 

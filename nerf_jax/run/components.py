@@ -17,6 +17,7 @@ from nerf_jax.render import background
 from nerf_jax.train import losses, train_batches, train_step
 from nerf_jax.data import loaders
 from nerf_jax.evaluate import evaluation
+from nerf_jax.fields import field as field_lib
 from nerf_jax.fields.field import Field
 from nerf_jax.fields.network import NetworkSettings
 from nerf_jax.render.image_renderer import ImageSettings
@@ -71,10 +72,14 @@ def make_field(config, num_images=1):
     raise ValueError(f"config.model.appearance_dims={m.appearance_dims}: use 0 (off) or the "
                      "length of each training image's appearance code (e.g. 8)")
   precision.network_precision(m.matmul_precision)  # ValueError naming the field if unknown
+  if config.dir_encoding not in field_lib.DIR_ENCODINGS:
+    raise ValueError(f"config.dir_encoding={config.dir_encoding!r}: use one of "
+                     f"{field_lib.DIR_ENCODINGS}")
   network = registry.build(family, settings, network_settings(config, num_images))
   return Field(network, None if family.raw_positions else config.pos_encode_dims,
                config.dir_encode_dims, m.view_dependent, m.density_activation, m.density_noise,
-               config.data.contraction, max(config.data.scene_bound, 1e-6), m.appearance_dims)
+               config.data.contraction, max(config.data.scene_bound, 1e-6), m.appearance_dims,
+               config.dir_encoding)
 
 
 def make_sampler(config):

@@ -34,6 +34,8 @@ def model_signature(config):
   signature.update(family.signature(settings))
   if config.occupancy.enabled:
     signature.update(occupancy_resolution=config.occupancy.resolution)
+  if config.dir_encoding != "frequency":
+    signature.update(dir_encoding=config.dir_encoding)
   if m.appearance_dims:
     signature.update(appearance_dims=m.appearance_dims)
   if config.train.pose_refinement:
