@@ -71,6 +71,7 @@ def get_config():
   model.skip_layers = (4,)  # re-inject the input after these layers (0-based)
   model.view_dependent = False  # colour depends on the viewing direction (paper's 5D input)
   model.view_width = 32  # width of the view-dependent colour layer
+  model.view_depth = 1  # colour layers of view_width after the direction joins (instant-ngp: 2)
   model.density_activation = "relu"  # 'relu' (reference), 'softplus' (shifted) or 'exp'
   model.density_noise = 0.0  # std of noise added to raw density while training (paper: 1)
   model.colour_fraction = 0.0  # density grid: colour only for this share of samples (top weights)

@@ -28,6 +28,7 @@ def get_config():
   config.model.hash.gather_dtype = "float32"  # bfloat16 halves the gathered rows: untried
   config.model.width = 128  # nerfacto-big's 128-wide networks
   config.model.view_width = 128  # nerfacto-big's 128-wide colour network
+  config.model.view_depth = 2  # nerfacto's two hidden colour layers
   config.dir_encoding = "sh"  # nerfacto's direction encoding: spherical harmonics
   config.dir_encode_dims = 4  # of nerfacto's degree 4 (16 features)
   config.model.density_activation = "exp"  # instant-ngp's and nerfacto's exponential density

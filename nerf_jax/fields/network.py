@@ -47,7 +47,8 @@ class NetworkSettings:
   """What every family's network may take besides its own section (config.model's shared
   fields), built once by run/experiment.py. A family uses the ones that apply to it."""
   view_dependent: bool = False  # colour takes the encoded viewing direction
-  view_width: int = 128  # width of the colour branch's layer after the direction joins
+  view_width: int = 128  # width of the colour branch's layers after the direction joins
+  view_depth: int = 1  # how many such layers
   hidden: int = 256  # width of the hidden layers (the MLP's, or a grid head's)
   dtype: str = "float32"  # matmul dtype of the layers (parameters stay float32)
   matmul_precision: str = "default"  # backend.precision.NETWORK_PRECISIONS
@@ -63,6 +64,8 @@ class NetworkSettings:
     """The keyword arguments of the shared head fields of every built-in network."""
     kwargs = dict(view_dependent=self.view_dependent, view_width=self.view_width,
                   dtype=self.dtype, matmul_precision=self.matmul_precision)
+    if self.view_depth != 1:  # only then, so a network of its own need not know the field
+      kwargs.update(view_depth=self.view_depth)
     if self.appearance_dims:  # only then, so the networks of runs without codes stay as they were
       kwargs.update(appearance_images=self.appearance_images,
                     appearance_dims=self.appearance_dims)

@@ -55,7 +55,8 @@ def network_settings(config, num_images=1):
   # In an unbounded scene the grids cover the whole contracted space, twice the inner box.
   bound = 2.0 * config.data.scene_bound if config.data.contraction else m.grid_bound
   return NetworkSettings(
-      view_dependent=m.view_dependent, view_width=m.view_width, hidden=m.width, dtype=m.dtype,
+      view_dependent=m.view_dependent, view_width=m.view_width, view_depth=m.view_depth,
+      hidden=m.width, dtype=m.dtype,
       matmul_precision=m.matmul_precision, appearance_images=max(int(num_images), 1),
       appearance_dims=m.appearance_dims, density_activation=m.density_activation, bound=bound,
       box=tuple(m.grid_box), cell_aspect=tuple(m.grid_cell_aspect))

@@ -34,6 +34,8 @@ def model_signature(config):
   signature.update(family.signature(settings))
   if config.occupancy.enabled:
     signature.update(occupancy_resolution=config.occupancy.resolution)
+  if m.view_depth != 1:
+    signature.update(view_depth=m.view_depth)
   if config.dir_encoding != "frequency":
     signature.update(dir_encoding=config.dir_encoding)
   if m.appearance_dims:

@@ -107,7 +107,7 @@ class DensityGridNeRF(heads.GridHead):
       h = nn.relu(heads.dense(self, self.hidden, "hidden")(h.astype(jnp.dtype(self.dtype))))
       if self.view_dependent:
         h = jnp.concatenate([h, dir_features.astype(h.dtype)], axis=-1)
-        h = nn.relu(heads.dense(self, self.view_width, "view")(h))
+        h = heads.colour_layers(self, h)
       rgb = nn.sigmoid(heads.dense(self, 3, "rgb")(h).astype(jnp.float32))
     return {"all": (rgb, raw_sigma), "density": raw_sigma, "colour": rgb}[part]
 

@@ -27,6 +27,17 @@ def appearance_codes(module, image, shape):
   return jnp.broadcast_to(code, (*shape[:-1], module.appearance_dims))
 
 
+def colour_layers(network, h):
+  """The colour branch after the direction (and appearance code) joined h float [..., C]:
+  `network.view_depth` ReLU layers of `view_width`, named 'view', 'view_1', ... (the first
+  keeps the name single-layer checkpoints have always used)."""
+  if network.view_depth < 1:
+    raise ValueError(f"config.model.view_depth must be >= 1, got {network.view_depth}")
+  for i in range(network.view_depth):
+    h = nn.relu(dense(network, network.view_width, f"view_{i}" if i else "view")(h))
+  return h
+
+
 def dense(network, features, name):
   """A Dense layer of `network` (inside its compact call): float32 parameters, the network's
   matmul dtype and float32 matmul precision (its `dtype` and `matmul_precision` fields)."""
@@ -41,6 +52,7 @@ class GridHead(nn.Module):
   hidden: int = 64
   view_dependent: bool = False
   view_width: int = 32
+  view_depth: int = 1
   dtype: str = "float32"
   appearance_images: int = 1
   appearance_dims: int = 0
@@ -70,7 +82,7 @@ class GridHead(nn.Module):
     if extra:
       h = jnp.concatenate([h, *(e.astype(h.dtype) for e in extra)], axis=-1)
     if self.view_dependent:
-      h = nn.relu(dense(self, self.view_width, "view")(h))
+      h = colour_layers(self, h)
     rgb = dense(self, 3, "rgb")(h).astype(jnp.float32)
     return nn.sigmoid(rgb), raw_sigma
 

@@ -20,7 +20,7 @@ class NerfMLP(nn.Module):
 
   view_dependent=False is the reference's position-only model (one linear head of 4 outputs).
   view_dependent=True is the paper's 5D model: density from position only; colour from a `width`
-  feature plus the encoded direction through one ReLU layer of `view_width`.
+  feature plus the encoded direction through `view_depth` ReLU layers of `view_width`.
   dtype is the matmul dtype (float32, bfloat16 or float16); parameters stay float32 and the
   outputs are cast back to float32 so compositing is always done in float32. matmul_precision
   is the float32 matmuls' precision (nerf_jax.backend.precision: 'default' is TF32 on recent GPUs).
@@ -30,6 +30,7 @@ class NerfMLP(nn.Module):
   skip_layers: Sequence[int] = (4,)
   view_dependent: bool = False
   view_width: int = 128
+  view_depth: int = 1
   dtype: str = "float32"
   matmul_precision: str = "default"  # precision.NETWORK_PRECISIONS: 'default', 'high', 'highest'
   appearance_images: int = 1
@@ -58,7 +59,7 @@ class NerfMLP(nn.Module):
     if self.appearance_dims:  # the code joins the direction in the colour branch
       extra.append(heads.appearance_codes(self, image, feature.shape))
     h = jnp.concatenate([feature, *(e.astype(feature.dtype) for e in extra)], axis=-1)
-    h = nn.relu(heads.dense(self, self.view_width, "view")(h))
+    h = heads.colour_layers(self, h)
     rgb = heads.dense(self, 3, "rgb")(h).astype(jnp.float32)
     return nn.sigmoid(rgb), raw_sigma
 

@@ -82,15 +82,21 @@ def _reference_mlp(params, pos, dirs=None, skip_layers=()):
   sigma = dense("sigma", h)[..., 0]
   h = np.concatenate([dense("feature", h), np.asarray(dirs, np.float64)], -1)
   h = np.maximum(dense("view", h), 0.0)
+  j = 1
+  while f"view_{j}" in params:  # the colour branch's further layers (view_depth > 1)
+    h = np.maximum(dense(f"view_{j}", h), 0.0)
+    j += 1
   return sigmoid(dense("rgb", h)), sigma
 
 
-@pytest.mark.parametrize("view_dependent", [False, True])
-def test_forward_pass_matches_a_numpy_reference(view_dependent):
+@pytest.mark.parametrize("view_dependent, view_depth", [(False, 1), (True, 1), (True, 3)])
+def test_forward_pass_matches_a_numpy_reference(view_dependent, view_depth):
   # Full float32 matmuls: the wiring is checked to float32 rounding on every backend.
   model = NerfMLP(depth=4, width=16, skip_layers=(1,), view_dependent=view_dependent,
-                  view_width=8, matmul_precision="highest")
+                  view_width=8, view_depth=view_depth, matmul_precision="highest")
   params = _init(model, key=5)
+  views = sorted(name for name in params if name.startswith("view"))
+  assert views == (["view", "view_1", "view_2"][:view_depth] if view_dependent else [])
   # Random biases too (Flax starts them at zero, which would hide a bias left out).
   leaves, tree = jax.tree_util.tree_flatten(params)
   keys = jax.random.split(jax.random.PRNGKey(6), len(leaves))
@@ -108,3 +114,8 @@ def test_forward_pass_matches_a_numpy_reference(view_dependent):
                                                                      dirs)
   np.testing.assert_allclose(rgb, ref_rgb, rtol=NETWORK_RTOL, atol=NETWORK_RTOL)
   np.testing.assert_allclose(sigma, ref_sigma, rtol=NETWORK_RTOL, atol=NETWORK_RTOL)
+
+
+def test_a_colour_branch_without_layers_is_a_one_line_error():
+  with pytest.raises(ValueError, match="config.model.view_depth must be >= 1"):
+    _init(NerfMLP(depth=2, width=8, view_dependent=True, view_depth=0))
