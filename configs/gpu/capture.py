@@ -29,8 +29,6 @@ def get_config():
   config.model.width = 128  # nerfacto-big's 128-wide networks
   config.model.view_width = 128  # nerfacto-big's 128-wide colour network
   config.model.view_depth = 2  # nerfacto's two hidden colour layers
-  config.dir_encoding = "sh"  # nerfacto's direction encoding: spherical harmonics
-  config.dir_encode_dims = 4  # of nerfacto's degree 4 (16 features)
   config.model.density_activation = "exp"  # instant-ngp's and nerfacto's exponential density
   config.occupancy.enabled = True  # an occupancy grid over the contracted space (nerfacc)
   config.occupancy.resolution = 128  # nerfacc's 128^3 cells per grid level

@@ -27,8 +27,7 @@ def get_config():
   config.model.view_dependent = True  # instant-ngp's colour network sees the direction
   config.model.view_width = 64  # instant-ngp's colour network is 64 wide
   config.model.view_depth = 2  # and has two hidden layers
-  config.dir_encoding = "sh"  # instant-ngp's direction encoding: spherical harmonics
-  config.dir_encode_dims = 4  # of instant-ngp's degree 4 (bands 0-3, 16 features)
+  config.dir_encode_dims = 4  # 4 frequency bands: instant-ngp's SH of degree 4 lost on a CPU
   config.model.density_activation = "exp"  # instant-ngp's exponential density (trunc_exp)
   config.occupancy.enabled = True  # instant-ngp's density grid: samples only in occupied cells
   config.occupancy.resolution = 128  # instant-ngp's and nerfacc's 128^3 cells over the box

@@ -36,7 +36,7 @@ def test_lego_is_instant_ngps_field_with_its_sample_budget():
   assert isinstance(rr.field.network, HashNeRF)
   assert shapes["hash_table"] == (_hash_rows(16, 16, 2048, 19), 2)  # 6,080,903 rows
   assert shapes["hidden"]["kernel"] == (16 * 2, 64)  # 16 levels x 2 features -> 64 wide
-  assert shapes["view"]["kernel"] == (64 + 16, 64)  # + SH of degree 4, as instant-ngp
+  assert shapes["view"]["kernel"] == (64 + 27, 64)  # + 4 frequency bands of the direction
   assert shapes["view_1"]["kernel"] == (64, 64)  # instant-ngp's two-layer colour network
   assert "view_2" not in shapes
   assert config.occupancy.enabled and config.occupancy.resolution == 128
@@ -53,7 +53,7 @@ def test_capture_contracts_space_with_a_larger_field():
   assert shapes["hash_table"] == (_hash_rows(16, 16, 4096, 21), 2)  # 22,548,944 rows
   assert shapes["hash_table"][0] > 3 * _hash_rows(16, 16, 2048, 19)  # larger than lego's
   assert shapes["hidden"]["kernel"] == (32, 128)
-  assert shapes["view"]["kernel"] == (128 + 16, 128)  # + SH of degree 4, as nerfacto
+  assert shapes["view"]["kernel"] == (128 + 27, 128)  # + capture.py's 4 direction bands
   assert shapes["view_1"]["kernel"] == (128, 128)  # nerfacto's two colour layers
   assert config.occupancy.enabled and config.train.sample_budget == SAMPLES_PER_STEP
   assert config.train.distortion_weight > 0  # capture.py's measured effect, kept
