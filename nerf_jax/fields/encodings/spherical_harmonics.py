@@ -7,7 +7,9 @@ Each band is written as its Cartesian polynomial (no angles, so no atan2 or acos
 gradients blow up at the poles): every feature is bounded by sqrt((2l + 1) / 4π) <= 0.85 on
 the sphere (the addition theorem: a band's squares sum to (2l + 1) / 4π), and smooth.
 
-Degree 4 gives 16 features, where 4 frequency bands of a direction give 27.
+Degree 4 gives 16 features, where 4 frequency bands of a direction give 27. At equal steps on
+a CPU it lost to the 4 bands by 0.07-0.12 dB (glossy, fox: docs/gpu.md), so no shipped config
+uses it; it is here for instant-ngp-like setups and for comparison.
 """
 
 import jax.numpy as jnp
