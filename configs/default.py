@@ -116,6 +116,9 @@ def get_config():
   train.grad_clip = 0.0  # clip gradients to this global norm (0 = off)
   train.adam_b2 = 0.999  # Adam's second-moment decay (instant-ngp uses 0.99 for its tables)
   train.adam_eps = 1e-8  # Adam's denominator floor, sqrt(v) + eps (instant-ngp: 1e-15)
+  train.network_l2 = 0.0  # L2 on the networks' weight matrices, in their gradient (0 = off)
+  train.ema_decay = 0.0  # score and render the weights' moving average of this decay (0 = off)
+  train.huber_delta = 0.0  # colour loss: Huber, quadratic below this error (0 = squared error)
   train.network_lr = 0.0  # the MLP's Adam learning rate on the same schedule (0 = train.lr)
   train.remat_chunk = 128  # rays per cache-sized, recomputed field chunk in a step (0 = off)
   train.coarse_loss_weight = 1.0  # weight of the coarse pass loss when a fine pass exists

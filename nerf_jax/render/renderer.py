@@ -22,7 +22,6 @@ import math
 import jax
 import jax.numpy as jnp
 
-from nerf_jax.fields import contraction
 from nerf_jax.render import compositing
 from nerf_jax.samplers import occupancy, sampler as sampler_lib, sampling
 from nerf_jax.fields.field import Field
@@ -199,9 +198,9 @@ class RayRenderer:
     probed at `probes` per cell side, jittered from `key` (None: not jittered)."""
     oc, rs = self.sampler.occupancy, self.sampler
     density = self.field.density(variables["params"]["coarse"])
-    if rs.contraction:  # the grid's cells are cells of contracted space: probe their world points
-      world = lambda cells: contraction.uncontract(cells, rs.scene_bound, rs.contraction)
-      density = lambda cells, fn=density: fn(world(cells))
+    if rs.contraction or rs.occupancy_box is not None:  # cells of contracted space, or of
+      # the cube an NDC box is mapped onto: probe the points the field sees there
+      density = lambda cells, fn=density: fn(rs.grid_points(cells))
     return occupancy.density_grid(density, oc.resolution, rs.grid_bound, oc.probes, key)
 
 

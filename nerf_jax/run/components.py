@@ -90,15 +90,18 @@ def make_sampler(config):
   work with the rest."""
   oc = config.occupancy
   if oc.enabled:
-    if config.data.scene_bound <= 0 and config.data.scene_bound != -1:
+    if (config.data.scene_bound <= 0 and config.data.scene_bound != -1
+        and not config.data.ndc):
       raise ValueError("config.occupancy.enabled needs config.data.scene_bound > 0 or -1 "
                        "(auto): the grid covers that box")
     if config.num_fine_samples > 0:
       raise ValueError("config.occupancy.enabled and config.num_fine_samples > 0 cannot be "
                        "combined: the occupancy grid already places the samples; set one of "
                        "them")
-    if config.data.ndc:
-      raise ValueError("config.occupancy.enabled does not work with config.data.ndc")
+    if config.data.ndc and config.data.scene_bound != 0:
+      raise ValueError("config.occupancy.enabled with config.data.ndc needs "
+                       "config.data.scene_bound = 0: the grid covers the training rays' NDC "
+                       "box (model.grid_box)")
   settings = occupancy.OccupancySettings(**{k: v for k, v in oc.items() if k != "enabled"})
   if config.data.contraction:
     if config.data.scene_bound <= 0 and config.data.scene_bound != -1:
@@ -109,7 +112,7 @@ def make_sampler(config):
                        "config.num_fine_samples > 0 yet")
   base = Sampler(config.num_samples, config.data.scene_bound, config.data.lindisp,
                  settings if oc.enabled else None, config.data.contraction,
-                 config.data.inner_fraction)
+                 config.data.inner_fraction, occupancy_box(config))
   if not config.sampler:
     return base
   if config.num_fine_samples > 0 or config.data.ndc:
@@ -117,6 +120,19 @@ def make_sampler(config):
                      "config.num_fine_samples=0 (and it does not work with config.data.ndc)")
   section = config[config.sampler].to_dict() if config.sampler in config else {}
   return sampler_registry.build(config.sampler, base, section)
+
+
+# NDC's nominal box: the reference camera's frustum, before the data gives the real one.
+NDC_CUBE = (-1.0, -1.0, -1.0, 1.0, 1.0, 1.0)
+
+
+def occupancy_box(config):
+  """The box an NDC run's occupancy grid covers: model.grid_box (the training rays' box,
+  from_data.with_ndc_box), or NDC_CUBE before the data has set it; None for other runs (the
+  grid covers the scene's cube)."""
+  if not (config.data.ndc and config.occupancy.enabled):
+    return None
+  return tuple(float(v) for v in config.model.grid_box) or NDC_CUBE
 
 
 def make_ray_renderer(config, num_images=1):
@@ -163,6 +179,9 @@ def rays_per_step(config, dataset):
 def step_settings(exp):
   """train_step.StepSettings of the run `exp` describes."""
   tc = exp.config.train
+  if not 0 <= tc.ema_decay < 1:
+    raise ValueError(f"config.train.ema_decay={tc.ema_decay}: use 0 (off) or a decay in "
+                     "(0, 1), e.g. instant-ngp's 0.95")
   return train_step.StepSettings(
       batch=batch_settings(exp.config),
       background=tuple(float(v) for v in background.parse(exp.config.data.background)),
@@ -170,13 +189,16 @@ def step_settings(exp):
                                                     exp.train_ds.accs is not None),
       planned_steps=schedule_steps(tc), remat_chunk=tc.remat_chunk,
       pose_refinement=tc.pose_refinement, pose_coarse_to_fine=tuple(tc.pose_coarse_to_fine),
-      pose_ray_share=tc.pose_ray_share)
+      pose_ray_share=tc.pose_ray_share, ema_decay=tc.ema_decay)
 
 
 def loss_terms(config, ray_renderer):
   """The train step's loss terms (train/losses.py) of `config`, in the order they are added."""
   tc = config.train
-  terms = [losses.Colour(tc.coarse_loss_weight)]
+  if tc.huber_delta < 0:
+    raise ValueError(f"config.train.huber_delta={tc.huber_delta}: use 0 (squared error) or the "
+                     "colour error below which Huber's loss is quadratic (instant-ngp: 0.1)")
+  terms = [losses.Colour(tc.coarse_loss_weight, tc.huber_delta)]
   if tc.distortion_weight > 0:
     terms.append(losses.Distortion(tc.distortion_weight, ray_renderer.sampler.unit_distance))
   if tc.pose_refinement and tc.pose_prior > 0:

@@ -41,9 +41,11 @@ def with_ndc_box(config, dataset, near, far):
   """`config` with the grid encodings' box (model.grid_box) found from the data in an NDC run
   that sets none: the box of every training ray's ends in NDC (t = 0 on the near plane and
   t = 1 at infinity), NDC_MARGIN wider on each side, so no photo's frustum is cut, and no cells
-  are spent beyond them. One line says so; the box is recorded in config.json."""
+  are spent beyond them; an occupancy grid in NDC covers the same box, whatever the encoding.
+  One line says so; the box is recorded in config.json."""
   m = config.model
-  if not config.data.ndc or m.encoding == "posenc" or m.grid_box:
+  boxed = m.encoding != "posenc" or config.occupancy.enabled
+  if not config.data.ndc or not boxed or m.grid_box:
     return config
   # A pinhole camera maps its pixel grid projectively onto any plane, so the NDC ends of its
   # rays span the quadrilateral of its corner pixels' rays.

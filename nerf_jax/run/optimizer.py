@@ -51,8 +51,14 @@ def make_optimizer(train_config, planned_steps=None, with_codes=False):
   own, on the same schedule scaled to train.pose_lr; `with_codes` (appearance codes: every
   parameter named 'appearance'), so do the codes, scaled to train.appearance_lr (unless it is
   train.lr: one Adam, as in runs saved before train.appearance_lr existed); with
-  train.network_lr, the MLP's layers (leaves 'kernel' and 'bias'), scaled to it."""
+  train.network_lr, the MLP's layers (leaves 'kernel' and 'bias'), scaled to it. With
+  train.network_l2 = λ, λ·w is added to the gradient of each weight matrix w
+  (`network_matrices`) before its Adam (a coupled L2, as instant-ngp's `l2_reg`, not AdamW's
+  decoupled decay)."""
   tc = train_config
+  if tc.network_l2 < 0:
+    raise ValueError(f"config.train.network_l2={tc.network_l2}: use 0 (off) or a positive "
+                     "weight, e.g. instant-ngp's 1e-6")
   schedule = make_schedule(tc, planned_steps)
   adam_on = lambda rate: optax.adam(rate, b2=tc.adam_b2, eps=tc.adam_eps)
   adam = adam_on(schedule)
@@ -66,9 +72,22 @@ def make_optimizer(train_config, planned_steps=None, with_codes=False):
     groups["codes"] = scaled(tc.appearance_lr)
   if tc.network_lr > 0 and tc.network_lr != tc.lr:
     groups["network"] = scaled(tc.network_lr)
-  if len(groups) == 1:
-    return adam
-  return optax.multi_transform(groups, functools.partial(_parameter_groups, groups))
+  tx = adam if len(groups) == 1 else optax.multi_transform(
+      groups, functools.partial(_parameter_groups, groups))
+  if tc.network_l2 > 0:
+    tx = optax.chain(optax.add_decayed_weights(tc.network_l2, mask=network_matrices), tx)
+  return tx
+
+
+def network_matrices(params):
+  """bool per leaf of `params`: the networks' weight matrices (leaves named 'kernel'), what
+  train.network_l2 regularises. Not the biases, the lattice and hash tables (instant-ngp keeps
+  its tables free of L2: a row few rays reach would shrink between their visits), the camera
+  corrections or the appearance codes."""
+  def matrix(path, _):
+    names = [getattr(entry, "key", None) for entry in path]
+    return names[-1] == "kernel" and names[0] != "poses"
+  return jax.tree_util.tree_map_with_path(matrix, params)
 
 
 def _parameter_groups(groups, params):

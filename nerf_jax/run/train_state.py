@@ -42,6 +42,8 @@ def model_signature(config):
     signature.update(appearance_dims=m.appearance_dims)
   if config.train.pose_refinement:
     signature.update(pose_refinement=True)
+  if config.train.ema_decay > 0:  # the state holds the weights' moving average
+    signature.update(ema=True)
   if m.grid_box:
     signature.update(grid_box=list(m.grid_box))
   if tuple(m.grid_cell_aspect) != (1.0, 1.0, 1.0):
@@ -59,14 +61,20 @@ def init_state(exp):
   if exp.hull is not None:  # sample only inside the hull from the first step, and ever after
     # Two arrays, not one: the train step donates its state, and a buffer is donated once.
     buffers.update(occupancy=jnp.array(exp.hull), hull=jnp.array(exp.hull))
+  ema = {}
+  if exp.config.train.ema_decay > 0:  # the average starts at the initial weights
+    # Copies, not the same arrays: the train step donates its state, and a buffer once.
+    ema = {"params": jax.tree_util.tree_map(jnp.array, params)}
   return TrainState(step=jnp.array(0, jnp.int32), params=params, opt_state=exp.tx.init(params),
-                    bad_step=jnp.array(-1, jnp.int32), buffers=buffers)
+                    bad_step=jnp.array(-1, jnp.int32), buffers=buffers, ema=ema)
 
 
 def upgrade_state_dict(state):
   """A saved TrainState dict (checkpoints.py) of an earlier version made current: the
   occupancy grid once lived in params['occupancy'] (with Adam moments that stayed zero); it
-  now lives in buffers."""
+  now lives in buffers. States saved before train.ema_decay existed hold no 'ema' ({})."""
+  if "ema" not in state:
+    state = dict(state, ema={})
   if "buffers" in state:
     return state
   state = dict(state, params=dict(state["params"]), buffers={})

@@ -90,6 +90,20 @@ def density_grid(density_fn, resolution, bound, probes=2, key=None):
   return jax.lax.reduce_window(sigma, -jnp.inf, jax.lax.max, (3, 3, 3), (1, 1, 1), "SAME")
 
 
+def to_cube(points, box):
+  """float32 [..., 3]: points float32 [..., 3] of `box` (min x, y, z, max x, y, z) mapped
+  affinely onto the cube [-1, 1]^3, whose cells a grid over the box then divides (an NDC run's
+  grid covers the box of its training rays, not a cube around the origin)."""
+  low, high = jnp.asarray(box[:3], jnp.float32), jnp.asarray(box[3:], jnp.float32)
+  return (points - low) / (high - low) * 2.0 - 1.0
+
+
+def from_cube(cells, box):
+  """float32 [..., 3]: the inverse of `to_cube`, points of [-1, 1]^3 as points of `box`."""
+  low, high = jnp.asarray(box[:3], jnp.float32), jnp.asarray(box[3:], jnp.float32)
+  return low + (cells + 1.0) * 0.5 * (high - low)
+
+
 def accumulate(old, new, decay):
   """Instant-NGP's update of a grid float32 [R, R, R]: max(decay·old, new).
 

@@ -15,7 +15,7 @@ occupied slots, see occupancy.py).
 """
 
 import dataclasses
-from typing import Optional
+from typing import Optional, Tuple
 
 import flax.struct
 import jax
@@ -87,6 +87,8 @@ class Sampler:
   of half-size scene_bound is the inner region, sampled linearly in t; beyond it samples are
   linear in disparity out to far = infinity (sampling.stratified_unbounded), `inner_fraction`
   of them inside.
+  occupancy_box: with occupancy in NDC (no scene box: scene_bound 0), the box (min x, y, z,
+  max x, y, z) the grid covers, mapped onto its cube (occupancy.to_cube); None elsewhere.
   """
   num_samples: int
   scene_bound: float = 0.0
@@ -94,6 +96,7 @@ class Sampler:
   occupancy: Optional[OccupancySettings] = None
   contraction: str = ""
   inner_fraction: float = 0.5
+  occupancy_box: Optional[Tuple[float, ...]] = None
 
   def bounds(self, rays):
     """(t_near, t_far) float32 [...]: the rays' [near, far], cut to the scene box if any (an
@@ -136,9 +139,21 @@ class Sampler:
 
   @property
   def grid_bound(self):
-    """Half-size of the box an occupancy grid covers: the scene box, or in an unbounded scene
-    the contracted space (twice the inner box)."""
+    """Half-size of the cube an occupancy grid covers: the scene box, in an unbounded scene
+    the contracted space (twice the inner box), with an occupancy_box the cube [-1, 1]^3 that
+    box is mapped onto."""
+    if self.occupancy_box is not None:
+      return 1.0
     return contraction.OUTER * self.scene_bound if self.contraction else self.scene_bound
+
+  def grid_points(self, cells):
+    """float32 [..., 3]: points cells float32 [..., 3] of the grid's cube as the points of
+    space the field sees there (uncontracted, or of the occupancy_box)."""
+    if self.occupancy_box is not None:
+      return occupancy.from_cube(cells, self.occupancy_box)
+    if self.contraction:
+      return contraction.uncontract(cells, self.scene_bound, self.contraction)
+    return cells
 
   # The interface every sampler shares (samplers/registry.py): the renderer calls `generate`,
   # `RayRenderer.init` adds `init`'s parameter groups, the checkpoint signature records
@@ -185,6 +200,13 @@ class Sampler:
       cells = contraction.contract(points(rays, sampling.midpoints(edges)), self.scene_bound,
                                    self.contraction)
       occupied = occupancy.lookup(mask, cells, self.grid_bound)
+      starts, ends, valid = occupancy.occupied_slots(edges, occupied, self.num_samples, t_far)
+    elif self.occupancy_box is not None:  # NDC: even candidates over [near, far], boxed cells
+      t_near, t_far = self.bounds(rays)
+      edges = sampling.stratified(t_near, t_far, oc.candidates, rays.shape,
+                                 lindisp=self.lindisp)
+      cells = occupancy.to_cube(points(rays, sampling.midpoints(edges)), self.occupancy_box)
+      occupied = occupancy.lookup(mask, cells, 1.0) & (t_far > t_near)[..., None]
       starts, ends, valid = occupancy.occupied_slots(edges, occupied, self.num_samples, t_far)
     else:
       t_near, t_far = self.bounds(rays)

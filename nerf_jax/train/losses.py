@@ -38,31 +38,57 @@ class LossInputs:
 PASSES = ("coarse", "fine")
 
 
-def _mse(rgb, target, complete=None):
-  """Mean squared error of rgb float32 [B, 3] against target float32 [B, 3], over the rays
-  with complete bool [B] (None: all rays). A sample budget always completes its first ray
-  unless that ray alone has more valid samples than the budget: max(count, 1) keeps it finite."""
+def _mean_over_rays(per_channel, complete=None):
+  """The mean of per_channel float32 [B, 3] over the rays with complete bool [B] (None: all
+  rays). A sample budget always completes its first ray unless that ray alone has more valid
+  samples than the budget: max(count, 1) keeps it finite."""
   if complete is None:
-    return jnp.mean((rgb - target) ** 2)
-  squared = jnp.where(complete[:, None], (rgb - target) ** 2, 0.0)
-  return jnp.sum(squared) / (3.0 * jnp.maximum(jnp.sum(complete), 1))
+    return jnp.mean(per_channel)
+  kept = jnp.where(complete[:, None], per_channel, 0.0)
+  return jnp.sum(kept) / (3.0 * jnp.maximum(jnp.sum(complete), 1))
+
+
+def _mse(rgb, target, complete=None):
+  """Mean squared error of rgb float32 [B, 3] against target float32 [B, 3] (see
+  `_mean_over_rays` for complete)."""
+  return _mean_over_rays((rgb - target) ** 2, complete)
+
+
+def huber(error, delta):
+  """Huber's loss of error float32 [...] with knee delta > 0: error²/2 where |error| <= delta,
+  delta·(|error| - delta/2) beyond (instant-ngp's colour loss, delta 0.1). Its gradient is the
+  error clipped to ±delta: a few pixels far off (specks, edges the cameras disagree on) pull no
+  harder than a pixel delta off. jnp.where selects: both branches are finite for finite error."""
+  size = jnp.abs(error)
+  return jnp.where(size <= delta, 0.5 * error ** 2, delta * (size - 0.5 * delta))
 
 
 @dataclasses.dataclass(frozen=True)
 class Colour:
   """The photometric loss: the mean squared error of the final pass, plus coarse_weight times
-  the coarse pass's when there is a fine pass. With a sample budget only whole rays count.
-  Stats: psnr of the final pass; rays_in_loss with a sample budget."""
+  the coarse pass's when there is a fine pass; with huber_delta > 0 the mean `huber` loss of
+  each channel's error instead. With a sample budget only whole rays count.
+  Stats: psnr of the final pass (from its squared error, whatever the loss); rays_in_loss with
+  a sample budget."""
   coarse_weight: float = 1.0
+  huber_delta: float = 0.0
+
+  def _pass_loss(self, rgb, target, complete):
+    if self.huber_delta <= 0:
+      return _mse(rgb, target, complete)
+    return _mean_over_rays(huber(rgb - target, self.huber_delta), complete)
 
   def __call__(self, inputs):
     outs = inputs.outputs
     complete = outs["coarse"].get("complete")  # a sample budget: only whole rays count
-    mses = {name: _mse(outs[name]["rgb"], inputs.target, complete) for name in PASSES
-            if name in outs}
-    loss = mses["coarse"] if "fine" not in mses else (
-        mses["fine"] + self.coarse_weight * mses["coarse"])
-    stats = {"psnr": metrics.mse_to_psnr(mses.get("fine", mses["coarse"]))}
+    names = [name for name in PASSES if name in outs]
+    per_pass = {name: self._pass_loss(outs[name]["rgb"], inputs.target, complete)
+                for name in names}
+    loss = per_pass["coarse"] if "fine" not in per_pass else (
+        per_pass["fine"] + self.coarse_weight * per_pass["coarse"])
+    mse = per_pass[names[-1]] if self.huber_delta <= 0 else _mse(
+        outs[names[-1]]["rgb"], inputs.target, complete)
+    stats = {"psnr": metrics.mse_to_psnr(mse)}
     if complete is not None:  # how many rays the budget held whole
       stats["rays_in_loss"] = jnp.sum(complete, dtype=jnp.int32)
     return loss, stats

@@ -27,6 +27,7 @@ def _old_style(state_dict):
   buffers."""
   old = jax.tree_util.tree_map(np.asarray, state_dict)
   grid = old.pop("buffers")["occupancy"]
+  del old["ema"]  # saved before the weights' moving average existed
   old["params"]["occupancy"] = grid
   adam = old["opt_state"]["0"]
   assert set(adam) == {"count", "mu", "nu"} and set(adam["mu"]) == {"coarse"}
