@@ -42,6 +42,8 @@ def test_lego_is_instant_ngps_field_with_its_sample_budget():
   assert config.occupancy.enabled and config.occupancy.resolution == 128
   assert config.train.sample_budget == SAMPLES_PER_STEP
   assert (config.train.lr, config.train.adam_b2) == (1e-2, 0.99)
+  assert config.train.huber_delta == 0.1  # instant-ngp's loss: won on a CPU at equal steps
+  assert config.train.ema_decay == 0.0  # lost there: scores use the last weights
   assert config.render.chunk == 0  # sized from the device's memory
 
 
