@@ -1,6 +1,6 @@
 """Objects on a background (NeRF-synthetic lego and its kind) on one GPU: instant-ngp's field
 (16 hashed levels of 2^19 rows, 2 features, 64-wide networks), its 128^3 occupancy grid and its
-budget of 2^18 samples per step, trained with its Adam settings.
+budget of 2^18 samples per step, trained with its Adam settings and Huber colour loss.
 
 These settings are chosen for a GPU and are UNMEASURED: no session has trained them on a GPU
 yet. Each value is taken from instant-ngp's or nerfacc's published setup, or from
