@@ -3,8 +3,6 @@
 weights' moving average that scores and renders (train.ema_decay). Each is checked against a
 brute-force reference written here."""
 
-import json
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -195,7 +193,6 @@ def test_the_average_is_checkpointed_and_an_older_checkpoint_is_refused_in_one_l
   with pytest.raises(checkpoints.CheckpointError, match="ema: checkpoint None vs config True"):
     checkpoints.restore(checkpoints.latest_path(str(tmp_path / "old")),
                         experiment.state_template(exp), signature)
-  assert json.loads(json.dumps(plain)) == plain
 
 
 @pytest.mark.parametrize("decay", [-0.1, 1.0])
