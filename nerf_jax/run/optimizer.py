@@ -84,9 +84,7 @@ def network_matrices(params):
   train.network_l2 regularises. Not the biases, the lattice and hash tables (instant-ngp keeps
   its tables free of L2: a row few rays reach would shrink between their visits), the camera
   corrections or the appearance codes."""
-  def matrix(path, _):
-    names = [getattr(entry, "key", None) for entry in path]
-    return names[-1] == "kernel" and names[0] != "poses"
+  matrix = lambda path, _: getattr(path[-1], "key", None) == "kernel"
   return jax.tree_util.tree_map_with_path(matrix, params)
 
 

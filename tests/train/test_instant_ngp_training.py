@@ -72,7 +72,7 @@ def test_a_negative_huber_delta_is_refused_naming_the_field():
 def _tree():
   params = {"coarse": {"Dense_0": {"kernel": jnp.array([[0.5, -2.0]]), "bias": jnp.array([1.0])},
                        "hash_table": jnp.array([[3.0, -1.0]])},
-            "poses": {"kernel": jnp.array([[4.0]])}}  # a camera leaf named as a layer's
+            "poses": jnp.array([[4.0, -0.5]])}  # a camera's correction, as pose refinement
   grads = jax.tree_util.tree_map(lambda p: jnp.full_like(p, 0.25), params)
   return params, grads
 
