@@ -146,6 +146,15 @@ class Sampler:
       return 1.0
     return contraction.OUTER * self.scene_bound if self.contraction else self.scene_bound
 
+  def grid_cells(self, world):
+    """float32 [..., 3]: points world float32 [..., 3] the field sees as points of the grid's
+    cube (contracted, or of the occupancy_box mapped onto it): the inverse of `grid_points`."""
+    if self.occupancy_box is not None:
+      return occupancy.to_cube(world, self.occupancy_box)
+    if self.contraction:
+      return contraction.contract(world, self.scene_bound, self.contraction)
+    return world
+
   def grid_points(self, cells):
     """float32 [..., 3]: points cells float32 [..., 3] of the grid's cube as the points of
     space the field sees there (uncontracted, or of the occupancy_box)."""
@@ -194,19 +203,16 @@ class Sampler:
       return on_edges(self.stratified(rays, key))
     oc = self.occupancy
     mask = occupancy.occupied_mask(jax.lax.stop_gradient(grid), oc.threshold)
-    if self.contraction:  # candidates spaced as the unbounded samples, looked up contracted
-      edges = self._unbounded_edges(rays, oc.candidates)
+    if self.contraction or self.occupancy_box is not None:
+      # Candidates spaced as the samples would be (unbounded: in disparity beyond the inner
+      # box; NDC: evenly in its t), each looked up at its point in the grid's cube.
+      edges = (self._unbounded_edges(rays, oc.candidates) if self.contraction else
+               sampling.stratified(*self.bounds(rays), oc.candidates, rays.shape,
+                                   lindisp=self.lindisp))
       t_far = edges[..., -1]
-      cells = contraction.contract(points(rays, sampling.midpoints(edges)), self.scene_bound,
-                                   self.contraction)
-      occupied = occupancy.lookup(mask, cells, self.grid_bound)
-      starts, ends, valid = occupancy.occupied_slots(edges, occupied, self.num_samples, t_far)
-    elif self.occupancy_box is not None:  # NDC: even candidates over [near, far], boxed cells
-      t_near, t_far = self.bounds(rays)
-      edges = sampling.stratified(t_near, t_far, oc.candidates, rays.shape,
-                                 lindisp=self.lindisp)
-      cells = occupancy.to_cube(points(rays, sampling.midpoints(edges)), self.occupancy_box)
-      occupied = occupancy.lookup(mask, cells, 1.0) & (t_far > t_near)[..., None]
+      cells = self.grid_cells(points(rays, sampling.midpoints(edges)))
+      occupied = (occupancy.lookup(mask, cells, self.grid_bound)
+                  & (t_far > edges[..., 0])[..., None])  # an empty segment has no candidates
       starts, ends, valid = occupancy.occupied_slots(edges, occupied, self.num_samples, t_far)
     else:
       t_near, t_far = self.bounds(rays)
