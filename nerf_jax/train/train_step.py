@@ -105,8 +105,8 @@ class OccupancyRefresh:
 def moving_average(ema, params, decay):
   """The train state's `ema` after a step that left `params`: {'params': decay·average +
   (1 - decay)·params} (instant-ngp's Ema, decay 0.95: about the last 1/(1 - decay) = 20 steps'
-  weights, which scores better than the last step's noisy ones), or {} unchanged when the run
-  keeps none. The average starts at the initial weights (`init_state`), so it is unbiased
+  weights; with our decaying learning rate it scored 0.06 dB below the last weights on lego,
+  docs/gpu.md), or {} unchanged when the run keeps none. The average starts at the initial weights (`init_state`), so it is unbiased
   without Adam's correction."""
   if not ema:
     return ema
