@@ -202,6 +202,20 @@ def goal_lines(scene, record, seconds):
   return lines
 
 
+def budget_line(record):
+  """How the sample budget was used at the run's last step (None without a budget): the rays
+  it held whole of those drawn, and the valid samples they asked for against it. Far above
+  the budget, most drawn rays are sampled in vain; below it, budget slots go empty (either
+  way a ray count adapted to the budget, as nerfacc's, would do better)."""
+  stats, train = record.get("last_step_stats", {}), record.get("config", {}).get("train", {})
+  if "samples_wanted" not in stats or not train.get("sample_budget"):
+    return None
+  wanted, budget = stats["samples_wanted"], train["sample_budget"]
+  return (f"the last step's budget: {stats['rays_in_loss']:,} of {train['batch_rays']:,} drawn "
+          f"rays in the loss; they asked for {wanted:,} samples, {wanted / budget:.2f}× the "
+          f"budget of {budget:,}")
+
+
 def scene_table(results, machine):
   """The scenes' rows as a markdown table (results: {scene: (config, seconds, record)})."""
   head = " | ".join(f"@{t:g}s" for t in PROBE_SECONDS)
@@ -223,6 +237,8 @@ def scene_table(results, machine):
   for scene, (_, seconds, r) in results.items():
     if "error" not in r:
       lines += [f"- {scene}: {line}" for line in goal_lines(scene, r, seconds)]
+      used = budget_line(r)
+      lines += [f"- {scene}: {used}"] if used else []
   return lines
 
 

@@ -46,18 +46,20 @@ class Options:
 def train_loop(step_fn, state, max_steps, max_seconds, probe_times, probe, clock):
   """Step until `max_steps`, or until `clock` passes `max_seconds` (> 0); probe on the way.
 
-  step_fn: state -> state, may return before the work is done; the loop syncs once per segment
-  of steps (about SEGMENT_SECONDS long) and times the segment. probe: state -> PSNR, run with
-  the clock paused at the last sync expected before each of `probe_times` (train seconds).
-  Returns (state, steps, segments [(steps, seconds)], probes [{'seconds', 'step', 'psnr'}]).
+  step_fn: state -> (state, stats), may return before the work is done; the loop syncs once
+  per segment of steps (about SEGMENT_SECONDS long) and times the segment. probe: state ->
+  PSNR, run with the clock paused at the last sync expected before each of `probe_times`
+  (train seconds); a probe also records the stats of the step before it (`step_stats`).
+  Returns (state, steps, segments [(steps, seconds)], probes [{'seconds', 'step', 'psnr',
+  'train'}], the last step's stats).
   """
   pending = sorted(probe_times)
-  segments, probes, step, size = [], [], 0, 1
+  segments, probes, step, size, stats = [], [], 0, 1, {}
   while step < max_steps and not (max_seconds > 0 and clock.seconds() >= max_seconds):
     size = min(size, max_steps - step)
     start = time.perf_counter()
     for _ in range(size):
-      state = step_fn(state)
+      state, stats = step_fn(state)
     jax.block_until_ready(state)
     seconds = time.perf_counter() - start
     segments.append((size, seconds))
@@ -70,8 +72,15 @@ def train_loop(step_fn, state, max_steps, max_seconds, probe_times, probe, clock
       now = clock.seconds()
       pending = [t for t in pending if t > horizon]
       with clock.paused():
-        probes.append({"seconds": now, "step": step, "psnr": float(probe(state))})
-  return state, step, segments, probes
+        probes.append({"seconds": now, "step": step, "psnr": float(probe(state)),
+                       "train": step_stats(stats)})
+  return state, step, segments, probes, step_stats(stats)
+
+
+def step_stats(stats):
+  """A train step's stats (train/losses.py: loss, psnr, a sample budget's rays_in_loss and
+  samples_wanted...) as Python numbers."""
+  return {name: jax.device_get(value).item() for name, value in stats.items()}
 
 
 def _build(exp):
@@ -126,9 +135,9 @@ def run_config(config, options):
   peak = max(measure.matmul_gflops(config.model.dtype, repeats=options.matmul_repeats).values())
   clock.start()
   compiled, compile_seconds = measure.compile_jitted(jitted, state, data, key)
-  state, steps, segments, more = train_loop(lambda s: compiled(s, data, key)[0], state,
-                                            max_steps, tc.max_seconds, options.eval_times,
-                                            probe, clock)
+  state, steps, segments, more, last_stats = train_loop(
+      lambda s: compiled(s, data, key), state, max_steps, tc.max_seconds, options.eval_times,
+      probe, clock)
   train_seconds = clock.stop()
   probes += more
   if probes[-1]["step"] != steps:
@@ -149,7 +158,8 @@ def run_config(config, options):
       "test_views": len(exp.test_ds),
       "psnr_at": {f"{t:g}": v for t, v in zip(options.eval_times,
                                               measure.psnr_at_times(probes, options.eval_times))},
-      "probes": probes, "steps": steps, "train_seconds": train_seconds,
+      "probes": probes, "last_step_stats": last_stats, "steps": steps,
+      "train_seconds": train_seconds,
       "compile_seconds": compile_seconds, "step_ms": 1e3 * step_seconds,
       "step_ms_samples": len(segments), "rays_per_step": rays,
       "rays_per_second": rays / step_seconds, "mlp_flops_per_step": flops,

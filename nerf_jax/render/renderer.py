@@ -45,7 +45,9 @@ class RayRenderer:
     the batch's valid samples, compacted (`budgeted_slots`; training sets it, nerfacc's fixed
     sample budget): empty slots cost nothing, so a batch can hold more rays. A ray whose
     samples did not all fit is marked incomplete (out['complete']) and left out of the loss;
-    the colour budget is then a share of the budget. 0 = every slot of every ray.
+    the colour budget is then a share of the budget. out['valid_samples'] counts each ray's
+    valid samples, fitted or not (what the rays asked of the budget: losses.Colour logs their
+    sum, so a run shows whether its rays fill it). 0 = every slot of every ray.
   """
   field: Field
   sampler: Sampler
@@ -110,6 +112,7 @@ class RayRenderer:
       out["t"] = samples.t
     if budget:
       out["complete"] = complete
+      out["valid_samples"] = jnp.sum(samples.valid, axis=-1, dtype=jnp.int32)
     return out
 
   def _query_at_slots(self, params, rays, points, slots, key, bands):

@@ -68,8 +68,9 @@ class Colour:
   """The photometric loss: the mean squared error of the final pass, plus coarse_weight times
   the coarse pass's when there is a fine pass; with huber_delta > 0 the mean `huber` loss of
   each channel's error instead. With a sample budget only whole rays count.
-  Stats: psnr of the final pass (from its squared error, whatever the loss); rays_in_loss with
-  a sample budget."""
+  Stats: psnr of the final pass (from its squared error, whatever the loss); with a sample
+  budget, rays_in_loss (the rays it held whole) and samples_wanted (the valid samples of every
+  drawn ray: above the budget, rays were drawn in vain; below it, budget slots went empty)."""
   coarse_weight: float = 1.0
   huber_delta: float = 0.0
 
@@ -89,8 +90,9 @@ class Colour:
     mse = per_pass[names[-1]] if self.huber_delta <= 0 else _mse(
         outs[names[-1]]["rgb"], inputs.target, complete)
     stats = {"psnr": metrics.mse_to_psnr(mse)}
-    if complete is not None:  # how many rays the budget held whole
+    if complete is not None:  # how many rays the budget held whole, and what all asked of it
       stats["rays_in_loss"] = jnp.sum(complete, dtype=jnp.int32)
+      stats["samples_wanted"] = jnp.sum(outs["coarse"]["valid_samples"], dtype=jnp.int32)
     return loss, stats
 
 

@@ -273,20 +273,25 @@ def test_train_loop_counts_steps_pauses_the_clock_and_probes_before_each_time():
     probed.append(int(state))
     return float(state)
 
-  state, steps, segments, probes = timed_run.train_loop(
-      lambda s: s + 1, jnp.array(0), 40, 0.0, [0.0, 1e6], probe, clock)
+  step = lambda s: (s + 1, {"rays_in_loss": 10 * (s + 1), "psnr": jnp.float32(0.5) * s})
+  state, steps, segments, probes, last = timed_run.train_loop(
+      step, jnp.array(0), 40, 0.0, [0.0, 1e6], probe, clock)
   assert steps == int(state) == 40 == sum(n for n, _ in segments)
   assert segments[0][0] == 1  # the first step after compiling is timed alone
   assert len(probes) == 1 and probes[0]["step"] == probed[0] == segments[0][0]
   assert probes[0]["psnr"] == float(probed[0])
+  # The stats of the step each probe follows, and of the last step, as Python numbers.
+  assert probes[0]["train"] == {"rays_in_loss": 10, "psnr": 0.0}
+  assert last == {"rays_in_loss": 400, "psnr": 19.5}
+  assert type(last["rays_in_loss"]) is int
 
 
 @pytest.mark.slow  # wall-clock
 def test_train_loop_stops_on_the_clock_in_budget_mode():
   clock = measure.Clock()
   clock.start()
-  step = lambda s: (time.sleep(0.01), s + 1)[1]
-  _, steps, _, _ = timed_run.train_loop(step, jnp.array(0), 10**9, 0.2, [], None, clock)
+  step = lambda s: (time.sleep(0.01), (s + 1, {}))[1]
+  _, steps, _, _, _ = timed_run.train_loop(step, jnp.array(0), 10**9, 0.2, [], None, clock)
   assert 1 <= steps < 10**9 and clock.seconds() >= 0.2
 
 

@@ -86,6 +86,8 @@ def test_rays_within_the_budget_render_as_without_it(split):
   complete = np.asarray(half["complete"])
   np.testing.assert_array_equal(complete, np.cumsum(counts) <= budget)
   assert complete.any() and not complete.all()
+  # Every ray's valid samples, the ones past the budget too: what the batch asked of it.
+  np.testing.assert_array_equal(half["valid_samples"], counts)
   np.testing.assert_allclose(np.asarray(half["rgb"])[complete], np.asarray(want["rgb"])[complete],
                              atol=2e-6)
   np.testing.assert_allclose(np.asarray(half["acc"])[complete], np.asarray(want["acc"])[complete],
@@ -120,6 +122,22 @@ def test_the_loss_leaves_out_incomplete_rays():
   np.testing.assert_allclose(losses._mse(rgb, target), np.mean(
       (np.asarray(rgb) - np.asarray(target)) ** 2), rtol=1e-6)
   assert float(losses._mse(rgb, target, jnp.zeros(6, bool))) == 0.0  # finite, not 0/0
+
+
+def test_the_colour_loss_reports_what_the_rays_asked_of_the_budget():
+  rgb = jax.random.uniform(jax.random.PRNGKey(0), (6, 3))
+  target = jax.random.uniform(jax.random.PRNGKey(1), (6, 3))
+  complete = jnp.array([True, True, True, False, False, False])
+  valid_samples = jnp.array([3, 0, 5, 7, 2, 0], jnp.int32)
+  outputs = {"coarse": {"rgb": rgb, "complete": complete, "valid_samples": valid_samples}}
+  loss, stats = losses.Colour()(losses.LossInputs(outputs, target, None, {}))
+  assert int(stats["rays_in_loss"]) == 3
+  assert int(stats["samples_wanted"]) == 17  # 3 + 0 + 5 + 7 + 2 + 0, fitted or not
+  keep = np.asarray(complete)
+  np.testing.assert_allclose(loss, np.mean((np.asarray(rgb)[keep] - np.asarray(target)[keep])
+                                           ** 2), rtol=1e-6)
+  _, plain = losses.Colour()(losses.LossInputs({"coarse": {"rgb": rgb}}, target, None, {}))
+  assert set(plain) == {"psnr"}  # no budget, no budget stats
 
 
 def test_a_budget_needs_the_occupancy_grid():
