@@ -35,7 +35,7 @@ def get_config():
   config.occupancy.probes = 1  # one jittered probe per cell per refresh (detail.py, measured)
   config.num_samples = 32  # samples per ray in occupied cells (detail.py, measured on a CPU)
   config.train.sample_budget = 262144  # instant-ngp's and nerfacc's 2^18 samples per step
-  config.train.batch_rays = 32768  # rays drawn: 8 per budgeted sample, detail.py's ratio
+  config.train.batch_rays = 32768  # rays drawn: one per 8 budgeted samples, detail.py's ratio
   config.train.lr = 1e-2  # instant-ngp's Adam learning rate
   config.train.lr_final = 1e-3  # a tenth of lr at the end (detail.py, measured on a CPU)
   config.train.warmup_steps = 100  # nerfacc's linear warm-up over its first 100 steps

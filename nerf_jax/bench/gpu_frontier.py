@@ -18,7 +18,8 @@ Each stage runs in its own process under its own time limit, within --total seco
   2. `python -m nerf_jax.bench.profile` on gpu/lego's step (on the lego folder if given, else
      the built-in diffuse scene), after --warm_steps steps, with the costliest XLA operations;
   3. `python -m nerf_jax.bench.scatter_add` at gpu/lego's table and sample budget.
-Writes to --out: frontier.md (the tables, the issue's goals met or short, each stage's output)
+Writes to --out: frontier.md (the tables, the issue's goals met or short, how each scene's
+sample budget was used at its last step, each stage's output)
 and frontier.json (every record: steps, probes, scores, step and compile times, device memory),
 both rewritten after each stage, a log per stage, and scatter.json.
 """
