@@ -40,8 +40,9 @@ def _colour_inputs(complete=None):
   rgb = rng.uniform(size=(6, 3)).astype(np.float32)
   target = rng.uniform(size=(6, 3)).astype(np.float32)
   coarse = {"rgb": jnp.asarray(rgb)}
-  if complete is not None:
+  if complete is not None:  # a sample budget's outputs (render/renderer.py): both, always
     coarse["complete"] = jnp.asarray(complete)
+    coarse["valid_samples"] = jnp.full(6, 4, jnp.int32)
   inputs = losses.LossInputs({"coarse": coarse}, jnp.asarray(target), None, {})
   return inputs, rgb, target
 
