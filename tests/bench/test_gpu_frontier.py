@@ -90,8 +90,8 @@ def test_the_script_runs_end_to_end_on_the_cpu_when_shrunk(tmp_path):
   assert "error" not in record, record.get("error")
   assert record["steps"] == 3 and record["test_psnr"] > 0
   assert record["last_step_stats"]["samples_wanted"] > 0  # the budget's use, in the report
-  assert "- lego: the last step's budget: " in (out / "frontier.md").read_text()
   assert all(stage["status"].startswith("exit 0") for stage in report["stages"].values())
   text = (out / "frontier.md").read_text()
+  assert "- lego: the last step's budget: " in text
   assert "| lego | gpu/lego |" in text and "| train step (all) |" in text
   assert "| one row |" in text and json.load(open(out / "scatter.json"))["rows"]
