@@ -106,8 +106,8 @@ def moving_average(ema, params, decay):
   """The train state's `ema` after a step that left `params`: {'params': decay·average +
   (1 - decay)·params} (instant-ngp's Ema, decay 0.95: about the last 1/(1 - decay) = 20 steps'
   weights; with our decaying learning rate it scored 0.06 dB below the last weights on lego,
-  docs/gpu.md), or {} unchanged when the run keeps none. The average starts at the initial weights (`init_state`), so it is unbiased
-  without Adam's correction."""
+  docs/gpu.md), or {} unchanged when the run keeps none. The average starts at the initial
+  weights (`init_state`), so it is unbiased without Adam's correction."""
   if not ema:
     return ema
   average = lambda a, p: decay * a + (1.0 - decay) * p
