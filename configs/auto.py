@@ -1,10 +1,11 @@
-"""Let the capture decide: the loader characterises the training views (nerf_jax/characterise.py)
-and switches on the effects they call for, one printed line per decision with its reason, all
-recorded in config.json (auto_decisions): opacity with empty pixels -> an object on a background
-(configs/fast.py: a box, random backgrounds; configs/detail.py from 400 px); cameras all facing
-one way within 30° -> forward-facing (NDC rays); otherwise the content fills the photos ->
-configs/capture.py (the box from the data); photos of nearly the same view differing in colour
--> per-photo appearance codes. A flag you set wins over auto's decision (one line says so).
+"""Let the capture decide: the loader characterises the training views
+(nerf_jax/run/characterise.py) and switches on the effects they call for, one printed line per
+decision with its reason, all recorded in config.json (auto_decisions): opacity with empty pixels ->
+an object on a background (configs/fast.py: a box, random backgrounds; configs/detail.py from 400
+px); cameras all facing one way within 30° -> forward-facing (NDC rays); otherwise the content fills
+the photos -> configs/capture.py (the box from the data); photos of nearly the same view differing
+in colour -> per-photo appearance codes. A flag you set wins over auto's decision (one line says
+so).
 
   python train.py --config=auto --config.data.path=DIR --config.data.factor=4
 """

@@ -11,11 +11,12 @@ from nerf_jax.configs import fast
 
 def get_config():
   config = fast.get_config()
-  config.model.encoding = "hash"  # multiresolution hash grid (nerf_jax/hashgrid.py)
+  # A multiresolution hash grid (nerf_jax/fields/encodings/hashgrid.py).
+  config.model.encoding = "hash"
   config.model.hash.levels = 16  # instant-ngp's 16 levels
   config.model.hash.log2_size = 17  # 2^17 rows per hashed level: 3.4M table parameters
   config.model.hash.features = 2  # 2 features per row: 32 inputs to the MLP
   config.model.hash.base_resolution = 16  # coarsest level: 16^3, indexed densely
   config.model.hash.max_resolution = 2048  # finest level: cells of 3/2047 ≈ 0.0015 units
-  config.model.hash.gather_dtype = "float32"  # float16 steps ~25% faster (docs/hashgrid.md), untried
+  config.model.hash.gather_dtype = "float32"  # float16 ~25% faster (docs/hashgrid.md), untried
   return config

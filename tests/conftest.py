@@ -8,11 +8,11 @@ command runs everything; `python -m pytest -m "not slow"` is the quick loop whil
 import os
 import tempfile
 
-# Before jax and nerf_jax are imported, so that every test, subprocesses included, runs with
-# them: a GPU's arithmetic emulated on the CPU (nerf_jax/precision.py: TF32 matmuls wherever a
-# matmul does not ask for full float32, approximate float32 division), so that code which only
-# holds with a CPU's exact arithmetic fails here as it would on a GPU; and XLA's deterministic
-# ops (train.deterministic), so the bitwise-resume tests hold on a GPU too.
+# Before jax and nerf_jax are imported, so that every test, subprocesses included, runs with them: a
+# GPU's arithmetic emulated on the CPU (nerf_jax/backend/precision.py: TF32 matmuls wherever a
+# matmul does not ask for full float32, approximate float32 division), so that code which only holds
+# with a CPU's exact arithmetic fails here as it would on a GPU; and XLA's deterministic ops
+# (train.deterministic), so the bitwise-resume tests hold on a GPU too.
 os.environ.setdefault("NERF_JAX_EMULATE", "tf32,div")
 # XLA's persistent compilation cache, shared by the workers and their subprocesses: many tests
 # build the same small step or render from fresh closures, whose programs are identical, and an

@@ -24,8 +24,8 @@ from nerf_jax.data import DataError, loaders
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # this checkout
 
-# Tolerances for the least accurate backend we support, stated once (nerf_jax/precision.py; the
-# tests emulate it on the CPU). A network's float32 matmuls at the default precision are TF32 on
+# Tolerances for the least accurate backend we support, stated once (nerf_jax/backend/precision.py;
+# the tests emulate it on the CPU). A network's float32 matmuls at the default precision are TF32 on
 # a GPU: each input rounded to a 10-bit mantissa (2^-11 relative), which a few layers of
 # random-signed sums turn into ~1e-3 relative on the outputs; 1e-2 leaves a margin.
 NETWORK_RTOL = 1e-2

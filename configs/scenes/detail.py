@@ -1,6 +1,6 @@
 """`detail`: NeRF-synthetic-like data — 400 x 400 views of finely textured objects, thin rods
 (~1-2 px wide), glossy spheres and a transparent (black, alpha = acc) background. Anti-aliased
-ground truth (3 x 3 rays per pixel), rendered once and cached (see nerf_jax/scenes/cache.py).
+ground truth (3 x 3 rays per pixel), rendered once and cached (see nerf_jax/data/scenes/cache.py).
 
 Trained with configs/detail.py (dense grids, view branch, occupancy-placed samples, density
 levels with a colour budget, random backgrounds while training), chosen by measurement on this

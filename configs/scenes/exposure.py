@@ -1,5 +1,5 @@
-"""`exposure`: the `diffuse` objects photographed with a per-photo exposure (±0.6 stops) and
-white balance (±15% per channel) on the training views (nerf_jax/scenes/photos.py); the held-out
+"""`exposure`: the `diffuse` objects photographed with a per-photo exposure (±0.6 stops) and white
+balance (±15% per channel) on the training views (nerf_jax/data/scenes/photos.py); the held-out
 views keep the neutral look. Per-photo appearance codes (GLO) let the field keep one colour per
 point while each photo keeps its own look; test views are rendered with the mean code
 (docs/appearance_and_poses.md).

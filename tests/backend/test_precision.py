@@ -1,5 +1,5 @@
-"""The precision policy (nerf_jax/precision.py): geometry, data and metrics in full float32 on
-every backend, checked on the jaxpr; the CPU emulation of a GPU's TF32 matmuls and approximate
+"""The precision policy (nerf_jax/backend/precision.py): geometry, data and metrics in full float32
+on every backend, checked on the jaxpr; the CPU emulation of a GPU's TF32 matmuls and approximate
 division bites where the policy is not followed; the networks' setting; deterministic ops."""
 
 import functools

@@ -8,6 +8,7 @@ venv's, and fail inside one.)
 """
 
 import os
+import shutil
 import subprocess
 import sys
 
@@ -60,3 +61,25 @@ def test_every_package_folder_is_listed_in_pyproject():
         rel = os.path.relpath(dirpath, os.path.join(ROOT, top))
         folders.add(prefix if rel == "." else prefix + "." + rel.replace(os.sep, "."))
   assert folders == listed, (sorted(folders - listed), sorted(listed - folders))
+
+
+def test_a_second_checkout_uses_its_own_configs(tmp_path):
+  """A second clone (or worktree) put on PYTHONPATH loads its own configs/, not those of the
+  checkout installed in the environment (an editable install maps nerf_jax.configs there)."""
+  second = tmp_path / "second"
+  for folder in ("nerf_jax", "configs"):
+    shutil.copytree(os.path.join(ROOT, folder), second / folder,
+                    ignore=shutil.ignore_patterns("__pycache__"))
+  default = second / "configs" / "default.py"
+  default.write_text(default.read_text().replace(
+      "  return config\n", "  config.checkout_marker = 'second'  # this copy's own field\n"
+      "  return config\n"))
+  outside = tmp_path / "elsewhere"
+  outside.mkdir()
+  code = ("import nerf_jax.configs as c; from nerf_jax.run import config_lib; "
+          "print(c.__file__); print(config_lib.load('fast').checkout_marker)")
+  res = subprocess.run([sys.executable, "-c", code], cwd=outside, capture_output=True, text=True,
+                       env=dict(os.environ, PYTHONPATH=str(second)), timeout=300)
+  assert res.returncode == 0, res.stderr[-2000:]
+  path, marker = res.stdout.split()[-2:]
+  assert path.startswith(str(second)) and marker == "second", res.stdout
