@@ -1,7 +1,9 @@
-"""The learning-rate schedule and the optimiser of a run (config.train): Adam with warm-up and
-exponential decay, and its parameter groups (poses, appearance codes, network).
+"""The learning-rate schedule and the optimiser of a run: Adam with warm-up and exponential
+decay, and its parameter groups (poses, appearance codes, network). It reads no config: the
+entry layer builds `OptimizerSettings` from config.train (run/components.optimizer_settings).
 """
 
+import dataclasses
 import functools
 
 import jax
@@ -9,23 +11,53 @@ import jax.numpy as jnp
 import optax
 
 
+@dataclasses.dataclass(frozen=True)
+class OptimizerSettings:
+  """The optimiser's settings (config.train's fields of the same names, documented in
+  configs/default.py).
 
-def schedule_steps(train_config):
-  """The steps the schedule spans: max_steps if set, else default_steps."""
-  return int(train_config.max_steps or train_config.default_steps)
+  planned_steps: the steps the schedule spans (train.max_steps, else train.default_steps).
+  lr, lr_final: the learning rate after warm-up and at planned_steps (exponential decay).
+  warmup_steps: linear warm-up from 0 over these steps (0 = none).
+  adam_b2, adam_eps: Adam's second-moment decay and denominator floor.
+  grad_clip: clip the gradients to this global norm (0 = off).
+  pose_refinement, pose_lr: the camera corrections' own Adam, at pose_lr.
+  appearance_codes, appearance_lr: the run has appearance codes (model.appearance_dims > 0),
+    trained by an Adam of their own at appearance_lr (unless it is lr).
+  network_lr: the MLP's layers at this rate (0 or lr = the field's Adam).
+  network_l2: coupled L2 on the networks' weight matrices (0 = off).
+  """
+  planned_steps: int
+  lr: float
+  lr_final: float
+  warmup_steps: int = 0
+  adam_b2: float = 0.999
+  adam_eps: float = 1e-8
+  grad_clip: float = 0.0
+  pose_refinement: bool = False
+  pose_lr: float = 3e-4
+  appearance_codes: bool = False
+  appearance_lr: float = 3e-4
+  network_lr: float = 0.0
+  network_l2: float = 0.0
+
+  def __post_init__(self):
+    if self.network_l2 < 0:
+      raise ValueError(f"config.train.network_l2={self.network_l2}: use 0 (off) or a positive "
+                       "weight, e.g. instant-ngp's 1e-6")
 
 
-def make_schedule(train_config, planned_steps=None):
+def make_schedule(settings, planned_steps=None):
   """count -> learning rate: linear warm-up from 0 to `lr` over `warmup_steps`, then exponential
   decay reaching `lr_final` at the planned steps and staying there (a time-budget run may take a
-  few more).
+  few more). settings: OptimizerSettings.
 
-  planned_steps: None for `schedule_steps(train_config)`, or an int32 [] (possibly traced: a
-  time budget's fitted length, see budget.py, so one compiled step serves any length), over
-  which warm-up keeps its share of the config's planned steps (as train_lib.fit_schedule).
+  planned_steps: None for settings.planned_steps, or an int32 [] (possibly traced: a time
+  budget's fitted length, see budget.py, so one compiled step serves any length), over which
+  warm-up keeps its share of the settings' planned steps (as train_lib.fit_schedule).
   """
-  tc = train_config
-  planned, warmup = schedule_steps(tc), tc.warmup_steps
+  tc = settings
+  planned, warmup = tc.planned_steps, tc.warmup_steps
   if planned_steps is not None:
     warmup = jnp.round(tc.warmup_steps / max(planned, 1) * planned_steps)
     planned = planned_steps
@@ -40,25 +72,17 @@ def make_schedule(train_config, planned_steps=None):
   return schedule
 
 
-def optimizer_for(config, planned_steps=None):
-  """`make_optimizer` for the run `config` describes (its codes, if model.appearance_dims)."""
-  return make_optimizer(config.train, planned_steps, config.model.appearance_dims > 0)
-
-
-def make_optimizer(train_config, planned_steps=None, with_codes=False):
-  """Adam on the schedule (see `make_schedule`), with optional global-norm gradient clipping.
-  With train.pose_refinement the camera corrections (params['poses']) have an Adam of their
-  own, on the same schedule scaled to train.pose_lr; `with_codes` (appearance codes: every
-  parameter named 'appearance'), so do the codes, scaled to train.appearance_lr (unless it is
-  train.lr: one Adam, as in runs saved before train.appearance_lr existed); with
-  train.network_lr, the MLP's layers (leaves 'kernel' and 'bias'), scaled to it. With
-  train.network_l2 = λ, λ·w is added to the gradient of each weight matrix w
-  (`network_matrices`) before its Adam (a coupled L2, as instant-ngp's `l2_reg`, not AdamW's
-  decoupled decay)."""
-  tc = train_config
-  if tc.network_l2 < 0:
-    raise ValueError(f"config.train.network_l2={tc.network_l2}: use 0 (off) or a positive "
-                     "weight, e.g. instant-ngp's 1e-6")
+def make_optimizer(settings, planned_steps=None):
+  """Adam on the schedule (see `make_schedule`; settings: OptimizerSettings, planned_steps as
+  there), with optional global-norm gradient clipping.
+  With pose_refinement the camera corrections (params['poses']) have an Adam of their own, on
+  the same schedule scaled to pose_lr; with appearance_codes (every parameter named
+  'appearance'), so do the codes, scaled to appearance_lr (unless it is lr: one Adam, as in
+  runs saved before train.appearance_lr existed); with network_lr, the MLP's layers (leaves
+  'kernel' and 'bias'), scaled to it. With network_l2 = λ, λ·w is added to the gradient of
+  each weight matrix w (`network_matrices`) before its Adam (a coupled L2, as instant-ngp's
+  `l2_reg`, not AdamW's decoupled decay)."""
+  tc = settings
   schedule = make_schedule(tc, planned_steps)
   adam_on = lambda rate: optax.adam(rate, b2=tc.adam_b2, eps=tc.adam_eps)
   adam = adam_on(schedule)
@@ -68,7 +92,7 @@ def make_optimizer(train_config, planned_steps=None, with_codes=False):
   groups = {"field": adam}
   if tc.pose_refinement:
     groups["poses"] = scaled(tc.pose_lr)
-  if with_codes and tc.appearance_lr != tc.lr:
+  if tc.appearance_codes and tc.appearance_lr != tc.lr:
     groups["codes"] = scaled(tc.appearance_lr)
   if tc.network_lr > 0 and tc.network_lr != tc.lr:
     groups["network"] = scaled(tc.network_lr)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.fields import activations
-from nerf_jax.run import experiment
+from nerf_jax.train import optimizer
 from tests.helpers import small_config
 
 RAW = np.array([-30.0, -3.0, -1.0, 0.0, 0.5, 1.0, 4.0, 30.0, 87.0, 88.0, 89.0, 200.0])
@@ -33,7 +33,7 @@ def test_exp_is_clamped_at_88_with_zero_gradient_above():
 def test_schedule_warms_up_linearly_then_decays_to_lr_final():
   tc = small_config({"train.lr": 5e-3, "train.lr_final": 1e-4, "train.warmup_steps": 50,
                      "train.max_steps": 1050}, base="default").train
-  schedule = experiment.make_schedule(tc)
+  schedule = optimizer.make_schedule(tc)
   lr = lambda step: float(schedule(step))
   assert lr(0) == 0.0
   assert lr(25) == pytest.approx(0.5 * 5e-3, rel=1e-6)
@@ -48,7 +48,7 @@ def test_schedule_warms_up_linearly_then_decays_to_lr_final():
 
 
 def test_schedule_without_warm_up_starts_at_lr():
-  schedule = experiment.make_schedule(small_config(
+  schedule = optimizer.make_schedule(small_config(
       {"train.lr": 1e-2, "train.lr_final": 1e-3, "train.warmup_steps": 0,
        "train.max_steps": 100}, base="default").train)
   assert float(schedule(0)) == pytest.approx(1e-2, rel=1e-6)

@@ -1,10 +1,11 @@
-"""The optimiser's parameter groups and Adam's settings (experiment.make_optimizer)."""
+"""The optimiser's parameter groups and Adam's settings (optimizer.make_optimizer)."""
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax.run import config_lib, experiment
+from nerf_jax.run import config_lib
+from nerf_jax.train import optimizer
 
 
 def _train_config(**fields):
@@ -22,7 +23,7 @@ def _params():
 
 
 def _first_update(train_config):
-  tx = experiment.make_optimizer(train_config)
+  tx = optimizer.make_optimizer(train_config)
   params = _params()
   grads = {"coarse": {"Dense_0": {"kernel": jnp.full((3, 4), 0.3), "bias": jnp.full(4, -2.0)},
                       "grid_32": jnp.full((2, 2, 2, 4), 5.0)}}
@@ -56,7 +57,7 @@ def test_adam_b2_sets_the_second_moment_decay(b2):
 def test_adam_eps_floors_the_denominator(eps):
   # First step: update = -lr·g/(|g| + eps). A gradient of 1e-10 (a table row hit by few rays)
   # moves at ~lr/100 with optax's default 1e-8 and at ~lr with instant-ngp's 1e-15.
-  tx = experiment.make_optimizer(_train_config(adam_eps=eps))
+  tx = optimizer.make_optimizer(_train_config(adam_eps=eps))
   params = {"grid_32": jnp.ones(4)}
   updates, _ = tx.update({"grid_32": jnp.full(4, 1e-10)}, tx.init(params), params)
   np.testing.assert_allclose(updates["grid_32"], -1e-2 * 1e-10 / (1e-10 + eps), rtol=1e-4)

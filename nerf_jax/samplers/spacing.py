@@ -1,4 +1,5 @@
-"""Sampling distances along rays.
+"""How samples are spaced along rays: stratified and inverse-CDF draws of their distances
+(where the built-in Sampler puts them is placement.py).
 
 A ray's samples are described by sorted interval edges `t: float32 [..., S + 1]`: sample i covers
 [t_i, t_{i+1}] and is evaluated at its midpoint. t is the ray parameter (z-depth, see rays.py)
