@@ -54,8 +54,8 @@ requires_viser = requires("viser", 'pip install -e ".[viewer]"')
 #   small_config(TINY_GRID, base="fast")
 # A test that needs only "a small grid model" (built, stepped, trained briefly, rendered) takes
 # it as it is: equal configs reuse one compiled train step in a worker process
-# (components.cached_train_step). A test that needs a particular size for what it asserts puts
-# its own overrides on top and says why.
+# (train_lib.train_and_evaluate keeps the few most recent). A test that needs a particular size
+# for what it asserts puts its own overrides on top and says why.
 TINY_GRID = {"data.num_views": 6, "data.image_size": 16, "data.holdout_from": 5,
              "num_samples": 16, "model.grid.resolutions": (8, 16), "model.width": 16,
              "train.batch_rays": 256, "train.max_steps": 30, "train.log_every": 30,

@@ -119,7 +119,7 @@ def run_config(config, options):
     config = train_lib.fit_to_time(exp, components.make_train_step(exp), data, key,
                                    lambda compile_seconds: tc.max_seconds - compile_seconds)
     tc = config.train
-    exp = dataclasses.replace(exp, config=config, tx=optimizer.optimizer_for(config))
+    exp = dataclasses.replace(exp, config=config, tx=optimizer.make_optimizer(components.optimizer_settings(config)))
     max_steps = sys.maxsize
   jitted, state = _build(exp)
   evaluate = components.make_evaluator(exp)

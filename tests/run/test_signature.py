@@ -112,7 +112,7 @@ def test_pose_refinement_keeps_the_optimiser_state_its_checkpoints_saved():
   config = small_config({"train.pose_refinement": True, "data.scene": "perturbed"})
   exp = experiment.setup(config)
   state = init_state(exp)
-  schedule = optimizer.make_schedule(config.train)
+  schedule = optimizer.make_schedule(components.optimizer_settings(config))
   saved_style = optax.multi_transform(
       {"field": optax.adam(schedule), "poses": optax.adam(schedule)},
       lambda params: {k: "poses" if k == "poses" else "field" for k in params})

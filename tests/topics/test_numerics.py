@@ -22,6 +22,7 @@ from nerf_jax.cameras import rays
 from nerf_jax.fields import activations
 from nerf_jax.fields.encodings import encoding
 from nerf_jax.samplers import spacing
+from nerf_jax.volume import quadrature
 
 LOW_PRECISION = [jnp.bfloat16, jnp.float16]
 # Unit roundoff u of each low-precision dtype (half its machine epsilon).
@@ -316,7 +317,7 @@ def test_case06_activation_gradients_finite_over_raw_range():
 
   # Naive: exp evaluated in float16 overflows at raw = 11.1; the compositing clamp gives that
   # sample a zero gradient, and the backward pass of exp multiplies it by exp(raw) = inf.
-  clamped_f16_exp = lambda r: jnp.minimum(jnp.exp(r).astype(jnp.float32), rendering.MAX_DENSITY)
+  clamped_f16_exp = lambda r: jnp.minimum(jnp.exp(r).astype(jnp.float32), quadrature.MAX_DENSITY)
   with pytest.raises(FloatingPointError):
     jax.grad(clamped_f16_exp)(jnp.asarray(12.0, jnp.float16))
 
@@ -678,8 +679,8 @@ def test_case13_edges_out_to_1e10(far, use_key):
   sigma[1] = 1e-12  # thin everywhere: the far interval alone has tau = 1e-2
   sigma[2] = np.exp(np.random.default_rng(13).normal(0.0, 3.0, num))  # log-normal
   sigma[3, -1] = 1e-8  # a sky: empty until the last interval, opaque over it (tau = 100)
-  sigma[4, -1] = rendering.MAX_DENSITY  # tau = 1e30·1e10 = inf in float32
-  sigma[5] = rendering.MAX_DENSITY  # opaque everywhere
+  sigma[4, -1] = quadrature.MAX_DENSITY  # tau = 1e30·1e10 = inf in float32
+  sigma[5] = quadrature.MAX_DENSITY  # opaque everywhere
   sigma[6, num // 2] = 1e3  # a surface just outside the inner region
   sigma[7] = np.inf  # an overflowing activation (clamped at MAX_DENSITY)
   key = jax.random.PRNGKey(13) if use_key else None

@@ -14,12 +14,13 @@ import numpy as np
 import pytest
 
 from nerf_jax.cameras.rays import Rays, get_rays, pose_spherical
-from nerf_jax.render import compositing, image_renderer
+from nerf_jax.render import image_renderer
 from nerf_jax.run import components, experiment, train_lib
 from nerf_jax.run.signature import model_signature
 from nerf_jax.samplers import placement, proposal, spacing
 from nerf_jax.samplers.occupancy import OccupancySettings
 from nerf_jax.train import losses
+from nerf_jax.volume import quadrature
 from tests.conftest import params_equal, restored_variables
 from tests.helpers import jitted, small_config
 from tests.helpers import loss_ref
@@ -172,7 +173,7 @@ def test_a_proposal_with_the_nerfs_density_bounds_its_weights(contraction):
   def place(key):
     samples, extras = rr.sampler.generate_from(rays, [density, density], key)
     sigma = placement.per_unit_t(density(placement.points(rays, samples.distances)), rays)
-    return samples.t, compositing.compute_weights(sigma, samples.t)[0], extras["proposals"]
+    return samples.t, quadrature.compute_weights(sigma, samples.t)[0], extras["proposals"]
 
   for key in (None, jax.random.PRNGKey(4)):
     t, w, levels = place(key)

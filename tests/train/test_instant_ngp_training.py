@@ -104,7 +104,7 @@ def test_network_l2_adds_lambda_w_to_the_gradient_of_weight_matrices_only(l2):
   config = small_config(**{"train.network_l2": l2, "train.warmup_steps": 0, "train.lr": 1e-2,
                            "train.lr_final": 1e-2, "train.adam_b2": 0.99,
                            "train.adam_eps": 1e-3})
-  tx = optimizer.make_optimizer(config.train)
+  tx = optimizer.make_optimizer(components.optimizer_settings(config))
   params, grads = _tree()
   state = tx.init(params)
   for _ in range(3):
@@ -122,7 +122,7 @@ def test_network_l2_adds_lambda_w_to_the_gradient_of_weight_matrices_only(l2):
 def test_a_negative_network_l2_is_refused_naming_the_field():
   config = small_config(**{"train.network_l2": -1e-6})
   with pytest.raises(ValueError, match="config.train.network_l2=-1e-06"):
-    optimizer.make_optimizer(config.train)
+    components.optimizer_settings(config)
 
 
 # --- the weights' moving average -------------------------------------------------------------

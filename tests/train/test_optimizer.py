@@ -4,8 +4,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax.run import config_lib
+from nerf_jax.run import components, config_lib
 from nerf_jax.train import optimizer
+from tests.helpers import small_config
 
 
 def _train_config(**fields):
@@ -14,7 +15,7 @@ def _train_config(**fields):
   config.train.lr = 1e-2
   for name, value in fields.items():
     config.train[name] = value
-  return config.train
+  return components.optimizer_settings(config)
 
 
 def _params():
@@ -61,3 +62,28 @@ def test_adam_eps_floors_the_denominator(eps):
   params = {"grid_32": jnp.ones(4)}
   updates, _ = tx.update({"grid_32": jnp.full(4, 1e-10)}, tx.init(params), params)
   np.testing.assert_allclose(updates["grid_32"], -1e-2 * 1e-10 / (1e-10 + eps), rtol=1e-4)
+
+
+def test_schedule_warms_up_linearly_then_decays_to_lr_final():
+  config = small_config({"train.lr": 5e-3, "train.lr_final": 1e-4, "train.warmup_steps": 50,
+                         "train.max_steps": 1050}, base="default")
+  schedule = optimizer.make_schedule(components.optimizer_settings(config))
+  lr = lambda step: float(schedule(step))
+  assert lr(0) == 0.0
+  assert lr(25) == pytest.approx(0.5 * 5e-3, rel=1e-6)
+  assert lr(50) == pytest.approx(5e-3, rel=1e-6)
+  # Exponential decay over the remaining 1000 steps: halfway is the geometric mean.
+  assert lr(550) == pytest.approx(np.sqrt(5e-3 * 1e-4), rel=1e-5)
+  assert lr(1050) == pytest.approx(1e-4, rel=1e-5)
+  steps = np.arange(50, 1051)
+  values = np.array([lr(s) for s in steps[::50]])
+  np.testing.assert_allclose(values, 5e-3 * (1e-4 / 5e-3) ** ((steps[::50] - 50) / 1000),
+                             rtol=1e-5)
+
+
+def test_schedule_without_warm_up_starts_at_lr():
+  schedule = optimizer.make_schedule(components.optimizer_settings(small_config(
+      {"train.lr": 1e-2, "train.lr_final": 1e-3, "train.warmup_steps": 0,
+       "train.max_steps": 100}, base="default")))
+  assert float(schedule(0)) == pytest.approx(1e-2, rel=1e-6)
+  assert float(schedule(100)) == pytest.approx(1e-3, rel=1e-5)
