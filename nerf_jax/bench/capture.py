@@ -134,7 +134,8 @@ def write_true_folder(folder, processed, true, camera=None):
 def held_out(workdir, folder):
   """The held-out views of the transforms.json `folder`, loaded as the run in `workdir` loads
   its data (its factor, background, split): a Dataset."""
-  from nerf_jax.run import components, config_lib, experiment  # pylint: disable=import-outside-toplevel
+  # pylint: disable-next=import-outside-toplevel
+  from nerf_jax.run import components, config_lib, experiment
   from nerf_jax.data import loaders  # pylint: disable=import-outside-toplevel
   data = config_lib.load_saved(workdir).data.to_dict()
   data["path"] = folder

@@ -78,7 +78,8 @@ def profile(config, repeats=10, warm_steps=0):
 
   batch = train_batches.draw_batch(data, components.batch_settings(config), key).rays
   rows.append(("draw batch (gathers)", median_ms(
-      lambda k: train_batches.draw_batch(data, components.batch_settings(config), k), key, repeats=repeats), ""))
+      lambda k: train_batches.draw_batch(data, components.batch_settings(config), k), key,
+      repeats=repeats), ""))
 
   field = exp.renderer.field
 

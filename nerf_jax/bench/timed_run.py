@@ -119,7 +119,8 @@ def run_config(config, options):
     config = train_lib.fit_to_time(exp, components.make_train_step(exp), data, key,
                                    lambda compile_seconds: tc.max_seconds - compile_seconds)
     tc = config.train
-    exp = dataclasses.replace(exp, config=config, tx=optimizer.make_optimizer(components.optimizer_settings(config)))
+    tx = optimizer.make_optimizer(components.optimizer_settings(config))
+    exp = dataclasses.replace(exp, config=config, tx=tx)
     max_steps = sys.maxsize
   jitted, state = _build(exp)
   evaluate = components.make_evaluator(exp)
@@ -172,7 +173,8 @@ def run_config(config, options):
       "params": int(sum(x.size for x in jax.tree_util.tree_leaves(state.params))),
       "peak_rss_mb": measure.peak_rss_mb(), "device_peak_mb": measure.device_peak_mb(),
       "eval_seconds": eval_seconds, "diverged_at_step": bad + 1 if bad >= 0 else None,
-      "schedule_steps": components.schedule_steps(tc), "config": json.loads(config.to_json()), **setup}
+      "schedule_steps": components.schedule_steps(tc), "config": json.loads(config.to_json()),
+      **setup}
 
 
 def worker(spec_path):

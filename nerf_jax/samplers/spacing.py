@@ -93,8 +93,8 @@ def stratified_unbounded(near, t_inner, far, num_samples, batch_shape, key=None,
                          inner_fraction=0.5):
   """Stratified edges for rays into an unbounded scene: linear in t, then linear in disparity.
 
-  Inside the contraction's inner region (`nerf_jax.fields.contraction`) space is not squeezed and the
-  edges are evenly spaced in t; beyond it, where contracted space shrinks like 1/t, they are
+  Inside the contraction's inner region (`nerf_jax.fields.contraction`) space is not squeezed and
+  the edges are evenly spaced in t; beyond it, where contracted space shrinks like 1/t, they are
   evenly spaced in disparity 1/t (nerfstudio's piecewise uniform / linear-in-disparity sampler
   with a per-ray split). With f the ray's inner share (below), the edges are t(s) for
   stratified s in [0, 1] (`stratified`'s strata and jitter, in s):

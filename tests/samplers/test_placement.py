@@ -1,5 +1,5 @@
-"""placement.Sampler: ray bounds cut to the scene box, and `place` — stratified samples over the box,
-or samples in the occupied cells of an occupancy grid — against brute force."""
+"""placement.Sampler: ray bounds cut to the scene box, and `place` — stratified samples over the
+box, or samples in the occupied cells of an occupancy grid — against brute force."""
 
 import jax
 import jax.numpy as jnp

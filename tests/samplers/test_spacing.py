@@ -148,7 +148,8 @@ def test_merge_edges_and_midpoints():
 
 @pytest.mark.parametrize("batch", [(), (3,), (2, 4)])
 def test_sample_pdf_with_a_single_interval_is_uniform_in_it(batch):
-  # One coarse interval [t0, t1]: the pdf is uniform there, so quantile u lands at t0 + u·(t1 - t0).
+  # One coarse interval [t0, t1]: the pdf is uniform there, so quantile u lands at
+  # t0 + u·(t1 - t0).
   t0 = jnp.broadcast_to(jnp.linspace(1.0, 2.0, max(1, int(np.prod(batch)))).reshape(batch), batch)
   t = jnp.stack([t0, t0 + 4.0], axis=-1)
   weights = jnp.full((*batch, 1), 0.3)

@@ -8,7 +8,7 @@ import pytest
 
 from nerf_jax.fields.networks.grid import GridNeRF
 from nerf_jax.fields.networks.hash import HashNeRF
-from nerf_jax.run import components, config_lib, from_data, train_lib
+from nerf_jax.run import components, config_lib, train_lib
 from nerf_jax.train import losses
 from tests.helpers import small_config
 

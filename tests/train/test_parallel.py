@@ -18,7 +18,7 @@ import jax
 import numpy as np
 import pytest
 
-from nerf_jax.run import components, experiment
+from nerf_jax.run import experiment
 from nerf_jax.run.signature import init_state, model_signature
 from nerf_jax.train import checkpoints, parallel
 from nerf_jax.run import train_lib
@@ -33,8 +33,9 @@ import json, sys
 import jax
 import numpy as np
 from nerf_jax.configs import debug
-from nerf_jax.run import experiment
-from nerf_jax.train import parallel, train_step
+from nerf_jax.run import components, experiment
+from nerf_jax.run.signature import init_state
+from nerf_jax.train import parallel
 
 config = debug.get_config()
 exp = experiment.setup(config)
