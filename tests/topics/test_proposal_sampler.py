@@ -204,7 +204,7 @@ def test_photometric_loss_trains_the_nerf_and_interlevel_the_proposals_only(rend
 
 
 @pytest.mark.parametrize("fields, match", [
-    ({"sampler": "nope"}, "config.sampler='nope'"),
+    ({"sampler": "nope"}, "config.sampler must be one of placement, proposal"),
     ({"proposal.max_resolution": (64,)}, "config.proposal.max_resolution"),
     ({"proposal.num_samples": (32, 0)}, "config.proposal.num_samples"),
     ({"proposal.padding": -1.0}, "config.proposal.padding"),
