@@ -31,7 +31,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax.render import compositing
 from nerf_jax.samplers import occupancy
 from nerf_jax.volume import quadrature
 

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 from absl import flags
 
-from nerf_jax import cli
 from nerf_jax.backend import errors
 from nerf_jax.render import renderer
 from nerf_jax.run import experiment

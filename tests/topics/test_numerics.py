@@ -615,8 +615,7 @@ def test_case11_low_precision_mlp_composited():
 @functools.lru_cache(maxsize=None)
 def _train_setup():
   """The debug config's model, optimizer and jitted train step (compiled once), and 2 views."""
-  from nerf_jax.run import components, experiment
-  from nerf_jax.run.signature import init_state
+  from nerf_jax.run import components, experiment  # pylint: disable=g-import-not-at-top
   from nerf_jax.train import train_batches  # pylint: disable=g-import-not-at-top
   from tests.helpers import small_config  # pylint: disable=g-import-not-at-top
   exp = experiment.setup(small_config({"train.batch_rays": 64}))
@@ -633,7 +632,7 @@ def _train_setup():
 
 @functools.lru_cache(maxsize=None)
 def _jitted_init_state():
-  from nerf_jax.run import experiment  # pylint: disable=g-import-not-at-top
+  from nerf_jax.run.signature import init_state  # pylint: disable=g-import-not-at-top
   exp, _, _ = _train_setup()
   return jax.jit(lambda: init_state(exp))  # one compile, not op by op
 
