@@ -2,7 +2,7 @@
 
 configs/fast.py's grids and tiny MLP head in normalized device coordinates, where the photos'
 frustum fills x, y in [-1, 1] and depth is z in [-1, 1] (uniform in disparity). The grids cover
-the box of all the training rays in NDC, found from the data (experiment.with_ndc_box).
+the box of all the training rays in NDC, found from the data (from_data.with_ndc_box).
 Measured on fern in docs/quality_per_second.md, with what lost there.
 
   python train.py --config=configs/llff.py --config.data.path=DIR --config.data.factor=8

@@ -17,11 +17,9 @@ from absl import app, flags
 from ml_collections import config_flags
 
 from nerf_jax.backend import errors
-from nerf_jax.backend.errors import parse_flags  # noqa: F401  (re-exported: cli.parse_flags)
-from nerf_jax.run import config_lib, experiment, outputs
-from nerf_jax.train import checkpoints, parallel
-from nerf_jax.run import train_lib
 from nerf_jax.data import DataError
+from nerf_jax.run import config_lib, experiment, outputs, train_lib
+from nerf_jax.train import checkpoints, parallel
 from nerf_jax.viewer import training as live_viewer
 
 # Exceptions whose message is the whole story for the user.
@@ -91,17 +89,28 @@ def override_names(argv):
   return tuple(a[len("--config."):].split("=", 1)[0] for a in argv if a.startswith("--config."))
 
 
-def train(config, workdir, config_spec="", overrides=()):
-  """Train `config` into `workdir` (default: `default_workdir`); returns the final metrics.
-  overrides: the fields set on the command line, which config.auto keeps as they are. The live
-  viewer (config.viewer.enabled) watches the run as a step hook (viewer/training.py)."""
+# The step hooks of nerf-train: the live viewer (config.viewer.enabled), viewer/training.py.
+TRAIN_HOOKS = (live_viewer.start,)
+
+
+def prepare(config, workdir, config_spec="", overrides=()):
+  """The workdir a training run of `config` uses (`workdir`, default: `default_workdir`),
+  announced; the processes joined (parallel.initialize_distributed). overrides: the fields set
+  on the command line, which config.auto keeps as they are (config.auto_flags)."""
   if config.auto:
     config.auto_flags = tuple(overrides)
   parallel.initialize_distributed()
   workdir = workdir or default_workdir(config, config_spec)
   if parallel.is_main_process():
     print(f"workdir: {workdir}", flush=True)
-  return train_lib.train_and_evaluate(config, workdir, hooks=(live_viewer.start,))
+  return workdir
+
+
+def train(config, workdir, config_spec="", overrides=()):
+  """Train `config` into `workdir` as nerf-train does (`prepare`, then
+  train_lib.train_and_evaluate with TRAIN_HOOKS); returns the final metrics."""
+  workdir = prepare(config, workdir, config_spec, overrides)
+  return train_lib.train_and_evaluate(config, workdir, hooks=TRAIN_HOOKS)
 
 
 def train_main(argv=None):
@@ -111,9 +120,13 @@ def train_main(argv=None):
                                            "Training config: a path or a name under configs/.",
                                            lock_config=True, sys_argv=argv)
   workdir = flags.DEFINE_string("workdir", "", "Run directory (default: runs/<config>_<scene>).")
-  app.run(lambda _: run_main(lambda: train(config.value, workdir.value, spec,
-                                            override_names(argv))), argv=argv,
-          flags_parser=parse_flags)
+
+  def main(_):
+    with errors.one_line_errors(USER_ERRORS):  # no wrapper between here and the step's jit
+      run_dir = prepare(config.value, workdir.value, spec, override_names(argv))
+      train_lib.train_and_evaluate(config.value, run_dir, hooks=TRAIN_HOOKS)
+
+  app.run(main, argv=argv, flags_parser=errors.parse_flags)
 
 
 def render_main(argv=None):
@@ -140,4 +153,4 @@ def render_main(argv=None):
                                     depth_npy.value, resolution.value, threshold.value,
                                     bound.value, scale.value, path_frames.value))
 
-  app.run(run, argv=list(sys.argv if argv is None else argv), flags_parser=parse_flags)
+  app.run(run, argv=list(sys.argv if argv is None else argv), flags_parser=errors.parse_flags)

@@ -18,7 +18,7 @@ import pytest
 from nerf_jax.fields.networks import grid as grid_network
 from nerf_jax.render import renderer as renderer_lib
 from nerf_jax.samplers import proposal
-from nerf_jax.run import config_lib, experiment
+from nerf_jax.run import components, config_lib
 from nerf_jax.cameras.rays import Rays, get_rays, pose_spherical
 from nerf_jax.data import DataError, loaders
 
@@ -54,8 +54,8 @@ requires_viser = requires("viser", 'pip install -e ".[viewer]"')
 #   small_config(TINY_GRID, base="fast")
 # A test that needs only "a small grid model" (built, stepped, trained briefly, rendered) takes
 # it as it is: equal configs reuse one compiled train step in a worker process
-# (experiment.cached_train_step). A test that needs a particular size for what it asserts puts
-# its own overrides on top and says why.
+# (train_lib.train_and_evaluate keeps the few most recent). A test that needs a particular size
+# for what it asserts puts its own overrides on top and says why.
 TINY_GRID = {"data.num_views": 6, "data.image_size": 16, "data.holdout_from": 5,
              "num_samples": 16, "model.grid.resolutions": (8, 16), "model.width": 16,
              "train.batch_rays": 256, "train.max_steps": 30, "train.log_every": 30,
@@ -88,9 +88,9 @@ def small_config(overrides=None, /, base="debug", **fields):
 
 def load_data(data):
   """(train, test) Datasets of a `data` section as a run loads them: loaders.load_dataset of
-  experiment.data_settings(data) (data: a ConfigDict or dict; the fields it lacks take
+  components.data_settings(data) (data: a ConfigDict or dict; the fields it lacks take
   configs/default.py's values)."""
-  return loaders.load_dataset(experiment.data_settings(data))
+  return loaders.load_dataset(components.data_settings(data))
 
 
 def jitted(fn, **static):
@@ -119,10 +119,10 @@ class StandInNetwork:
 
 
 def ray_renderer(config, network=None):
-  """The RayRenderer of `config` (experiment.make_ray_renderer); with `network`, a stand-in
+  """The RayRenderer of `config` (components.make_ray_renderer); with `network`, a stand-in
   for the Flax module (an object with apply(variables, positions, dir_features) -> (rgb,
   sigma)) queried through the config's Field."""
-  renderer = experiment.make_ray_renderer(config)
+  renderer = components.make_ray_renderer(config)
   if network is None:
     return renderer
   return dataclasses.replace(renderer, field=dataclasses.replace(renderer.field, network=network))

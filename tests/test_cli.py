@@ -1,7 +1,7 @@
 """Bad input gets one clear line and exit status 1, through the entry points' own code paths.
 
 Most cases run in-process (`cli.run_main` around `cli.train` / `outputs.render`,
-`cli.resolve_config_argv` and `cli.parse_flags` on a private FlagValues); a few run `train.py`,
+`cli.resolve_config_argv` and `errors.parse_flags` on a private FlagValues); a few run `train.py`,
 `render.py` in a subprocess.
 """
 
@@ -18,7 +18,9 @@ from absl import flags, logging
 from ml_collections import config_flags
 
 from nerf_jax import cli
+from nerf_jax.backend import errors
 from nerf_jax.run import config_lib, experiment, outputs
+from nerf_jax.run.signature import model_signature, state_template
 from nerf_jax.train import checkpoints
 from nerf_jax.configs import debug, default
 from nerf_jax.data import DataError
@@ -172,9 +174,9 @@ def test_run_writes_tensorboard_events_and_json_logs(trained):
   assert [r["step"] for r in records] == [1, 2, 2] and "eval_psnr" in records[1]
   assert records[2]["final"] and "eval_ssim" in records[2]
   # The wall time spent travels inside the checkpoint (no separate, non-atomic progress file).
-  template = experiment.state_template(experiment.setup(config))
+  template = state_template(experiment.setup(config))
   _, meta = checkpoints.restore_with_meta(checkpoints.latest_path(str(workdir)), template,
-                                          experiment.model_signature(config))
+                                          model_signature(config))
   assert meta["wall_seconds"] > 0 and not (workdir / "progress.json").exists()
 
 
@@ -213,7 +215,7 @@ def test_render_needs_a_workdir_with_a_checkpoint(capsys, tmp_path):
 # --- flags and config overrides -----------------------------------------------------------------
 
 def _parse(capsys, *args):
-  """cli.resolve_config_argv + cli.parse_flags on a private FlagValues with the config flag, as
+  """cli.resolve_config_argv + errors.parse_flags on a private FlagValues with the config flag, as
   train_main does; returns (flag values, the one error line or None)."""
   values = flags.FlagValues()
   capsys.readouterr()
@@ -221,7 +223,7 @@ def _parse(capsys, *args):
     argv, _ = cli.resolve_config_argv(["train.py", *args])
     config_flags.DEFINE_config_file("config", config_lib.resolve("debug"), "",
                                     flag_values=values, lock_config=True, sys_argv=argv)
-    cli.parse_flags(argv, values)
+    errors.parse_flags(argv, values)
     values.config.seed  # the config flag loads lazily  # pylint: disable=pointless-statement
   except SystemExit as e:
     assert e.code == 1

@@ -6,6 +6,7 @@ In the lowest layer so that a command of any layer (data/process.py's nerf-proce
 shares it; each command names the exceptions whose message is the whole story for its user.
 """
 
+import contextlib
 import sys
 
 from absl import flags, logging
@@ -40,13 +41,20 @@ def parse_flags(argv, flag_values=flags.FLAGS):
 
 
 def run_main(fn, user_errors=(FileNotFoundError, ValueError)):
-  """Run fn() for its effects; turn `user_errors` (a tuple of exception classes whose message is
+  """Run fn() for its effects under `one_line_errors(user_errors)`."""
+  with one_line_errors(user_errors):
+    fn()
+
+
+@contextlib.contextmanager
+def one_line_errors(user_errors=(FileNotFoundError, ValueError)):
+  """Around a command's work: turn `user_errors` (a tuple of exception classes whose message is
   the whole story for the user) into one line on stderr and exit status 1, an interrupt into
   exit status 130."""
   if not flags.FLAGS["verbosity"].present:
     logging.set_verbosity(logging.WARNING)  # hide JAX's backend-probing INFO lines by default
   try:
-    fn()
+    yield
   except KeyboardInterrupt as e:
     print(f"interrupted: {e}" if str(e) else "interrupted", file=sys.stderr)
     sys.exit(130)

@@ -134,19 +134,20 @@ def write_true_folder(folder, processed, true, camera=None):
 def held_out(workdir, folder):
   """The held-out views of the transforms.json `folder`, loaded as the run in `workdir` loads
   its data (its factor, background, split): a Dataset."""
-  from nerf_jax.run import config_lib, experiment  # pylint: disable=import-outside-toplevel
+  from nerf_jax.run import components, config_lib  # pylint: disable=import-outside-toplevel
   from nerf_jax.data import loaders  # pylint: disable=import-outside-toplevel
   data = config_lib.load_saved(workdir).data.to_dict()
   data["path"] = folder
-  return loaders.load_dataset(experiment.data_settings(data))[1]
+  return loaders.load_dataset(components.data_settings(data))[1]
 
 
 def evaluate_at(workdir, test_ds):
   """The newest checkpoint of `workdir` scored on the views of `test_ds` (a Dataset in the run's
-  world frame, at its image size): experiment.make_evaluator's {'psnr', 'ssim', ...}."""
-  from nerf_jax.run import experiment  # pylint: disable=import-outside-toplevel
+  world frame, at its image size): components.make_evaluator's {'psnr', 'ssim', ...}."""
+  # pylint: disable-next=import-outside-toplevel
+  from nerf_jax.run import components, experiment
   exp, state = experiment.restore(workdir)
-  return experiment.make_evaluator(dataclasses.replace(exp, test_ds=test_ds))(state.variables)
+  return components.make_evaluator(dataclasses.replace(exp, test_ds=test_ds))(state.variables)
 
 
 def _scores(metrics):

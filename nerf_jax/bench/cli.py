@@ -22,6 +22,7 @@ from absl import app, flags
 from ml_collections import config_flags
 
 from nerf_jax import cli
+from nerf_jax.backend import errors
 from nerf_jax.run import config_lib
 from nerf_jax.bench import profile, render, report, runner, sweeps, timed_run
 
@@ -49,7 +50,7 @@ def _main(define, command, argv, with_config):
   def run(_):
     cli.run_main(lambda: command(flags.FLAGS, spec, given))  # app.run exits with what run returns
 
-  app.run(run, argv=argv, flags_parser=cli.parse_flags)
+  app.run(run, argv=argv, flags_parser=errors.parse_flags)
 
 
 # ---------------------------------------------------------------- python -m nerf_jax.bench

@@ -13,6 +13,7 @@ figures: docs/hashgrid.md.
 from absl import app, flags
 
 from nerf_jax import cli
+from nerf_jax.backend import errors
 from nerf_jax.bench.step_time import step_times
 from nerf_jax.configs import fast
 from nerf_jax.configs import hash as hash_config
@@ -45,7 +46,7 @@ def main(argv=None):
     for name, (ms, params) in results.items():
       print(f"{name:<18} {params:>10} {ms:>9.1f} {ms / grid_ms:>7.2f}")
 
-  app.run(lambda argv: cli.run_main(lambda: run(argv)), argv=argv, flags_parser=cli.parse_flags)
+  app.run(lambda argv: cli.run_main(lambda: run(argv)), argv=argv, flags_parser=errors.parse_flags)
 
 
 if __name__ == "__main__":

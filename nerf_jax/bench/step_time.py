@@ -17,7 +17,9 @@ import numpy as np
 from absl import app, flags
 
 from nerf_jax import cli
-from nerf_jax.run import experiment
+from nerf_jax.backend import errors
+from nerf_jax.run import components, experiment
+from nerf_jax.run.signature import init_state
 from nerf_jax.bench import sweeps
 
 
@@ -33,9 +35,9 @@ def step_times(named_configs, steps, num_views=None):
     if num_views:
       config.data.num_views = num_views
     exp = experiment.setup(config)
-    state = experiment.init_state(exp)
-    data = experiment.make_train_data(exp)
-    step = experiment.make_train_step(exp)
+    state = init_state(exp)
+    data = components.make_train_data(exp)
+    step = components.make_train_step(exp)
     key = jax.random.PRNGKey(0)
     state, _ = jax.block_until_ready(step(state, data, key))  # compile + one warm-up step
     runs[name] = [step, state, data, key, [], num_params(state.params)]
@@ -72,7 +74,7 @@ def main(argv=None):
              for _, entry, scene, config in sweeps.plan(request)]
     print_table(step_times(named, steps.value), seconds.value)
 
-  app.run(lambda argv: cli.run_main(lambda: run(argv)), argv=argv, flags_parser=cli.parse_flags)
+  app.run(lambda argv: cli.run_main(lambda: run(argv)), argv=argv, flags_parser=errors.parse_flags)
 
 
 if __name__ == "__main__":

@@ -142,7 +142,7 @@ def load_blender(path, background=(0.0, 0.0, 0.0), half_res=False, split="train"
 @dataclasses.dataclass(frozen=True)
 class DataSettings:
   """What `load_dataset` loads: the config's data section, completed with configs/default.py's
-  values (which document each field) by run/experiment.data_settings."""
+  values (which document each field) by run/components.data_settings."""
   path: str  # .npz file, Blender, LLFF or transforms.json folder; '' = the built-in `scene`
   scene: str  # built-in scene name (data/scenes)
   num_views: int  # built-in scene: views rendered

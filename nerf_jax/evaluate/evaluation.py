@@ -31,7 +31,7 @@ POSE_PROTOCOL = ("similarity: the given test poses moved by the similarity (Umey
 
 @dataclasses.dataclass(frozen=True)
 class EvalSettings:
-  """How the test views are rendered and scored (run/experiment.eval_settings builds them)."""
+  """How the test views are rendered and scored (run/components.eval_settings builds them)."""
   background: tuple  # (r, g, b) in [0, 1]: the colour rendered and scored on (data.background)
   appearance_protocol: str  # the held-out views' codes: a key of APPEARANCE_PROTOCOLS
 

@@ -149,7 +149,7 @@ def inner_exit(origins, directions, radius=1.0, kind="l2"):
   for camera rays). radius: float > 0. kind: 'l2' (ball) or 'linf' (cube).
   Returns t_exit: float32 [...], the ray parameter at which the line leaves the region (it may be
   negative: behind the origin), or 0 for a line that misses the region.
-  `sampling.stratified_unbounded` clamps it into [near, far].
+  `spacing.stratified_unbounded` clamps it into [near, far].
   """
   _check(kind)
   o = jnp.asarray(origins, jnp.float32)

@@ -1,4 +1,5 @@
-"""Alpha compositing along rays (the volume rendering quadrature).
+"""Alpha compositing along rays: colour, depth and opacity from the quadrature's weights
+(volume/quadrature.py: optical depth, alpha, transmittance, weights).
 
 Names and axes:
   t:       float32 [..., S + 1]  sorted interval edges; sample i covers [t_i, t_{i+1}]
@@ -13,69 +14,18 @@ Stability (see docs/numerics.md):
     1e-10) leaks light through it and cumprod(1 - alpha) has zero-product gradient trouble;
   * alpha_i = 1 - exp(-tau_i) and acc = 1 - exp(-sum tau) are computed with expm1 (1 - exp(-tau)
     rounds to 0 below tau = 6e-8) and given the exact derivative exp(-tau);
-  * densities are clamped at MAX_DENSITY so tau stays finite and no 0·inf appears (see below);
+  * densities are clamped at quadrature.MAX_DENSITY so tau stays finite and no 0·inf appears;
   * there is no infinite last interval: the ray ends at t_S and the background takes what is left;
   * compositing is done in float32 whatever the network's dtype.
 """
 
-import jax
 import jax.numpy as jnp
 
 from nerf_jax.backend import precision
+from nerf_jax.volume import quadrature
 
 # A ray with opacity acc <= EMPTY_ACC counts as empty; its depth is then `far` (t_S).
 EMPTY_ACC = 1e-10
-
-# Densities are clamped here before multiplying by delta. An infinite density (an overflowing
-# activation, or float16 inf cast up) times a zero-width interval is inf·0 = NaN, and even with
-# delta > 0 the backward pass of tau = sigma·delta computes 0·inf = NaN for d/d delta. 1e30 is
-# opaque over any interval longer than 1e-28 and keeps sigma·delta finite for delta < 3e8.
-MAX_DENSITY = 1e30
-
-
-@jax.custom_jvp
-def one_minus_exp_neg(x):
-  """1 - exp(-x) for x >= 0 (float32 [...]), accurate for tiny x via expm1.
-
-  The custom derivative is exp(-x) itself: the default derivative of expm1 is 1 + expm1(-x), which
-  cancels to an absolute error of ~6e-8 (100% relative error once exp(-x) < 6e-8).
-  """
-  return -jnp.expm1(-x)
-
-
-@one_minus_exp_neg.defjvp
-def _one_minus_exp_neg_jvp(primals, tangents):
-  (x,), (x_dot,) = primals, tangents
-  return one_minus_exp_neg(x), jnp.exp(-x) * x_dot
-
-
-def exclusive_cumsum(x):
-  """Sum of the preceding entries along the last axis: float32 [..., S] -> [..., S]."""
-  return jnp.concatenate([jnp.zeros_like(x[..., :1]), jnp.cumsum(x[..., :-1], axis=-1)], axis=-1)
-
-
-def compute_weights(sigma, t):
-  """Compositing weights.
-
-  sigma: float [..., S], t: float32 [..., S + 1]. Returns (weights, transmittance_end):
-  float32 [..., S] and float32 [...], the transmittance left after the last sample.
-  """
-  weights, total = _weights_and_optical_depth(sigma, t)
-  return weights, jnp.exp(-total)
-
-
-def _weights_and_optical_depth(sigma, t):
-  """Weights float32 [..., S] and total optical depth sum(tau) float32 [...] (may be +inf)."""
-  # minimum (not where) so a NaN density still shows up as NaN; see MAX_DENSITY for the clamp.
-  sigma = jnp.minimum(sigma.astype(jnp.float32), MAX_DENSITY)
-  t = t.astype(jnp.float32)
-  delta = jnp.maximum(t[..., 1:] - t[..., :-1], 0.0)  # unsorted edges give empty intervals
-  tau = sigma * delta
-  alpha = one_minus_exp_neg(tau)
-  optical_depth = exclusive_cumsum(tau)
-  transmittance = jnp.exp(-optical_depth)  # exactly 0 behind an opaque sample
-  return alpha * transmittance, optical_depth[..., -1] + tau[..., -1]
-
 
 def composite(rgb, sigma, t, background=None):
   """Composite samples along rays into pixel colour, depth and opacity.
@@ -91,11 +41,11 @@ def composite(rgb, sigma, t, background=None):
     weights: float32 [..., S], >= 0; their sum equals acc up to float32 rounding (~1e-7·S).
   """
   t = t.astype(jnp.float32)
-  weights, total = _weights_and_optical_depth(sigma, t)
+  weights, total = quadrature.weights_and_optical_depth(sigma, t)
   # From the total rather than sum(weights): one rounding instead of S, and the gradient
   # d acc / d sigma_i = delta_i·exp(-total) comes out exactly (sum(weights) gives it only up to
   # an absolute error of ~2e-7·delta_i, which swamps it once the ray is opaque).
-  acc = one_minus_exp_neg(total)
+  acc = quadrature.one_minus_exp_neg(total)
   colour = precision.einsum("...s,...sc->...c", weights, rgb.astype(jnp.float32))
   if background is not None:
     # Remaining transmittance; acc <= 1 by construction, max(0, .) guards any future change.

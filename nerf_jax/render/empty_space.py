@@ -31,8 +31,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax.render import compositing
 from nerf_jax.samplers import occupancy
+from nerf_jax.volume import quadrature
 
 # Query buffer sizes in samples (see the module docstring).
 SMALL_BUFFER = 1024
@@ -126,11 +126,11 @@ def optical_depth(sigma, t):
   sigma: float32 [C, S] per unit of world length; t: float32 [C, S + 1] edges in world length
   (z-depth edges times |d|), so σ·δ is the optical depth `compositing.composite` sees.
 
-  A plain sum rather than `compositing.compute_weights`, whose cumsum made a frame of the fast
+  A plain sum rather than `quadrature.compute_weights`, whose cumsum made a frame of the fast
   model 30% slower on XLA:CPU (measured side by side: 67–74 ms against 51–58 ms).
   """
   delta = jnp.maximum(t[..., 1:] - t[..., :-1], 0.0)
-  return jnp.sum(jnp.minimum(sigma, compositing.MAX_DENSITY) * delta, axis=-1)
+  return jnp.sum(jnp.minimum(sigma, quadrature.MAX_DENSITY) * delta, axis=-1)
 
 
 def march(query_round, params, t, points, viewdirs, occupied, rank, live_rays, group,

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from nerf_jax.render import compositing, empty_space, renderer
-from nerf_jax.samplers import sampler, sampling
+from nerf_jax.samplers import placement, spacing
 from nerf_jax.cameras.rays import Rays
 
 
@@ -243,13 +243,13 @@ class _Marcher:
       edges in world length (for the stop test), float32 [C, S + 1]; the rest as in
       empty_space.occupied_ranks."""
       t = rs.stratified(rays)
-      points = sampler.points(rays, sampling.midpoints(t))
-      return (t, sampler.world_t(t, rays),
+      points = placement.points(rays, spacing.midpoints(t))
+      return (t, placement.world_t(t, rays),
               points, *empty_space.occupied_ranks(mask, points, rs.scene_bound))
 
     @jax.jit
     def finish(sigma, rgb, t, rays, background):
-      out = compositing.composite(rgb, sampler.per_unit_t(sigma, rays), t, background)
+      out = compositing.composite(rgb, placement.per_unit_t(sigma, rays), t, background)
       return {"rgb": out["rgb"], "depth": renderer.empty_depth_is_far(out, rays.far),
               "acc": out["acc"]}
 

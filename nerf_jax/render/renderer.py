@@ -11,7 +11,7 @@ weights float32 [..., E], t float32 [..., E + 1]. The sampler places the first p
 functions from); what else it returns (a learned sampler's levels, arrays with the rays'
 leading axes) is outputs['sampler'], for its loss terms.
 The field's density is per unit of world length; t is z-depth along un-normalised directions,
-so every pass composites `sampler.per_unit_t(sigma, rays)` = σ·|d| (as the original NeRF,
+so every pass composites `placement.per_unit_t(sigma, rays)` = σ·|d| (as the original NeRF,
 jaxnerf and multinerf scale their intervals by |d|), and depth stays z-depth.
 Rendering whole images in fixed-size chunks is image_renderer.py.
 """
@@ -23,9 +23,9 @@ import jax
 import jax.numpy as jnp
 
 from nerf_jax.render import compositing
-from nerf_jax.samplers import occupancy, sampler as sampler_lib, sampling
+from nerf_jax.samplers import occupancy, placement, spacing
 from nerf_jax.fields.field import Field
-from nerf_jax.samplers.sampler import Sampler
+from nerf_jax.samplers.placement import Sampler
 
 
 # fold_in(key, SAMPLER_KEY) is the key of a sampler's parameters in `RayRenderer.init`.
@@ -85,12 +85,12 @@ class RayRenderer:
     return variables["params"][self.networks[-1]]
 
   def _shade(self, params, rays, samples, background, key, remat_chunk=0, bands=None):
-    """One pass over `samples` (sampler.Samples) with one network's `params`."""
+    """One pass over `samples` (placement.Samples) with one network's `params`."""
     budget = self.sample_budget if samples.gapped and rays.near.ndim == 1 else 0
     distances = samples.distances
     if samples.gapped and not budget:  # not recomputed in every reader (occupancy.computed_once)
       distances = occupancy.computed_once(distances)
-    points = sampler_lib.points(rays, distances)
+    points = placement.points(rays, distances)
     if budget:
       slots, complete = budgeted_slots(samples.valid, budget)
     if self.colour_fraction > 0 and self.field.splits_density:
@@ -107,7 +107,7 @@ class RayRenderer:
       else:
         rgb, sigma = self.field.query_in_chunks(params, points, rays.viewdirs, key,
                                                 remat_chunk, rays.image, bands)
-      rgb, sigma = samples.intervals(rgb, sampler_lib.per_unit_t(sigma, rays))
+      rgb, sigma = samples.intervals(rgb, placement.per_unit_t(sigma, rays))
       out = compositing.composite(rgb, sigma, samples.t, background)
       out["t"] = samples.t
     if budget:
@@ -142,7 +142,7 @@ class RayRenderer:
     the rays whose density is whole (a sample budget: K is then a share of the budget, and
     incomplete rays get no colour).
     """
-    sigma = sampler_lib.per_unit_t(sigma, rays)
+    sigma = placement.per_unit_t(sigma, rays)
     black = jnp.zeros(points.shape, jnp.float32)
     black_e, sigma_e = samples.intervals(black, sigma)
     weights = compositing.composite(black_e, jax.lax.stop_gradient(sigma_e), samples.t)["weights"]
@@ -184,9 +184,9 @@ class RayRenderer:
                                      remat_chunk, bands)}
     if self.num_fine_samples > 0:
       t = samples.t
-      extra = sampling.sample_pdf(t, outputs["coarse"]["weights"], self.num_fine_samples,
+      extra = spacing.sample_pdf(t, outputs["coarse"]["weights"], self.num_fine_samples,
                                   keys[2])
-      fine = sampler_lib.on_edges(sampling.merge_edges(t, extra))
+      fine = placement.on_edges(spacing.merge_edges(t, extra))
       outputs["fine"] = self._shade(self.final_params(variables), rays, fine, background,
                                     keys[3], remat_chunk, bands)
     if self.sampler.scene_bound > 0:

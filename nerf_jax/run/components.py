@@ -3,7 +3,6 @@ nothing below run/ reads a config): the data's, the field (its encoding family),
 (by name), the renderers, the train step with its loss terms and hooks, the evaluator.
 """
 
-import collections
 import dataclasses
 import functools
 
@@ -14,7 +13,7 @@ from nerf_jax.run import config_lib
 from nerf_jax.samplers import occupancy
 from nerf_jax.samplers import registry as sampler_registry
 from nerf_jax.render import background
-from nerf_jax.train import losses, train_batches, train_step
+from nerf_jax.train import losses, optimizer, train_batches, train_step
 from nerf_jax.data import loaders
 from nerf_jax.evaluate import evaluation
 from nerf_jax.fields import field as field_lib
@@ -22,8 +21,7 @@ from nerf_jax.fields.field import Field
 from nerf_jax.fields.network import NetworkSettings
 from nerf_jax.render.image_renderer import ImageSettings
 from nerf_jax.render.renderer import RayRenderer
-from nerf_jax.samplers.sampler import Sampler
-from nerf_jax.run.optimizer import optimizer_for, schedule_steps
+from nerf_jax.samplers.placement import Sampler
 
 
 def data_settings(data):
@@ -84,10 +82,10 @@ def make_field(config, num_images=1):
 
 
 def make_sampler(config):
-  """The Sampler of `config` (samples, scene box, spacing, occupancy), or with config.sampler
-  set the sampler of that name (samplers/registry.py) built from it and its own config section
-  (config.<name>, e.g. config.proposal); ValueError naming the field when a setting cannot
-  work with the rest."""
+  """The sampler config.sampler names (samplers/registry.py; '' = the built-in placement),
+  built from the built-in Sampler of `config` (samples, scene box, spacing, occupancy) and its
+  own config section (config.<name>, e.g. config.proposal); ValueError naming the field when a
+  setting cannot work with the rest."""
   oc = config.occupancy
   if oc.enabled:
     if (config.data.scene_bound <= 0 and config.data.scene_bound != -1
@@ -113,12 +111,11 @@ def make_sampler(config):
   base = Sampler(config.num_samples, config.data.scene_bound, config.data.lindisp,
                  settings if oc.enabled else None, config.data.contraction,
                  config.data.inner_fraction, occupancy_box(config))
-  if not config.sampler:
-    return base
-  if config.num_fine_samples > 0 or config.data.ndc:
+  name = sampler_registry.section_name(config.sampler)
+  if name != sampler_registry.BUILTIN and (config.num_fine_samples > 0 or config.data.ndc):
     raise ValueError(f"config.sampler={config.sampler!r} places the samples itself: set "
                      "config.num_fine_samples=0 (and it does not work with config.data.ndc)")
-  section = config[config.sampler].to_dict() if config.sampler in config else {}
+  section = config[name].to_dict() if name in config else {}
   return sampler_registry.build(config.sampler, base, section)
 
 
@@ -176,6 +173,20 @@ def rays_per_step(config, dataset):
   return train_batches.rays_per_step(batch_settings(config), dataset.height, dataset.width)
 
 
+def schedule_steps(train_config):
+  """The steps the learning-rate schedule spans: max_steps if set, else default_steps."""
+  return int(train_config.max_steps or train_config.default_steps)
+
+
+def optimizer_settings(config):
+  """optimizer.OptimizerSettings of config.train (appearance codes: model.appearance_dims)."""
+  tc = config.train
+  names = {f.name for f in dataclasses.fields(optimizer.OptimizerSettings)}
+  shared = {name: tc[name] for name in names if name in tc}
+  return optimizer.OptimizerSettings(planned_steps=schedule_steps(tc),
+                                     appearance_codes=config.model.appearance_dims > 0, **shared)
+
+
 def step_settings(exp):
   """train_step.StepSettings of the run `exp` describes."""
   tc = exp.config.train
@@ -209,30 +220,24 @@ def loss_terms(config, ray_renderer):
   return terms + ray_renderer.sampler.loss_terms()  # a sampler brings its own (proposal.py)
 
 
-def make_train_step(exp, mesh=None):
-  """The jitted train step of `exp` (train_step.make_train_step; mesh: see there)."""
+def train_step_args(exp, mesh=None):
+  """The arguments of train_step.make_train_step for the run `exp` describes (mesh: see
+  there): the training renderer, the optimiser and its settings for a fitted schedule, the
+  loss terms, the StepSettings and the buffer hooks (the occupancy grid's refresh)."""
   ray_renderer = training_renderer(exp)
   hooks = ()
   if ray_renderer.sampler.occupancy is not None:
     hooks = (train_step.OccupancyRefresh(ray_renderer),)
-  return train_step.make_train_step(
-      ray_renderer, exp.tx, loss_terms(exp.config, ray_renderer), step_settings(exp),
-      functools.partial(optimizer_for, exp.config), mesh, hooks)
+  return dict(ray_renderer=ray_renderer, tx=exp.tx,
+              terms=loss_terms(exp.config, ray_renderer), settings=step_settings(exp),
+              optimizer_for=functools.partial(optimizer.make_optimizer,
+                                              optimizer_settings(exp.config)),
+              mesh=mesh, buffer_hooks=hooks)
 
 
-_STEPS = collections.OrderedDict()  # the few most recent train steps, see `cached_train_step`
-
-
-def cached_train_step(exp, mesh=None):
-  """`make_train_step`, reused for an equal config in the same process (tests, sweeps and
-  resumed runs then compile it once): the step depends on nothing else."""
-  key = (exp.config.to_json(), exp.near, exp.far, mesh)
-  if key not in _STEPS:
-    _STEPS[key] = make_train_step(exp, mesh)
-    while len(_STEPS) > 4:
-      _STEPS.popitem(last=False)
-  _STEPS.move_to_end(key)
-  return _STEPS[key]
+def make_train_step(exp, mesh=None):
+  """The jitted train step of `exp` (train_step.make_train_step of `train_step_args`)."""
+  return train_step.make_train_step(**train_step_args(exp, mesh))
 
 
 def make_train_data(exp):

@@ -1,9 +1,8 @@
 """What a run is made of, built once for every entry point (training, rendering, benchmarks,
 the viewer, tests): the config, the renderer, the optimiser, the datasets and the ray bounds;
-and restoring all of it from a workdir. The wiring lives beside it: from_data.py (the config
-completed from the data), components.py (each layer's settings and components), optimizer.py,
-train_state.py (the state and its checkpoint signature); their names are importable from here
-too, as they always were.
+and restoring all of it from a workdir. The wiring it calls lives beside it: from_data.py (the
+config completed from the data), components.py (each layer's settings and components) and
+signature.py (what a checkpoint records: the model signature, a fresh state, its template).
 """
 
 import dataclasses
@@ -12,39 +11,16 @@ from typing import Any
 import ml_collections
 import optax
 
-from nerf_jax.run import auto, config_lib
-from nerf_jax.train import checkpoints
+from nerf_jax.cameras.rays import camera_rays
 from nerf_jax.data import loaders
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.render.image_renderer import ImageSettings
-from nerf_jax.cameras.rays import camera_rays
 from nerf_jax.render.renderer import RayRenderer
-from nerf_jax.run.components import (  # re-exported
-    batch_settings, cached_train_step, data_settings, encoding_family, eval_settings,
-    image_settings, loss_terms, make_evaluator, make_field, make_ray_renderer, make_sampler,
-    make_train_data, make_train_step, network_settings, rays_per_step, step_settings,
-    training_renderer)
-from nerf_jax.run.from_data import (  # re-exported
-    CUT_SHARE, HULL_RESOLUTION, NDC_MARGIN, bounds, pixel_center, warn_if_cut, with_ndc_box,
-    with_scene_extent, with_visual_hull)
-from nerf_jax.run.optimizer import (  # re-exported
-    make_optimizer, make_schedule, optimizer_for, schedule_steps)
-from nerf_jax.run.train_state import (  # re-exported
-    init_state, model_signature, state_template, upgrade_state_dict)
-from nerf_jax.train.state import TrainState  # re-exported
+from nerf_jax.run import auto, components, config_lib, from_data
+from nerf_jax.run.signature import model_signature, state_template
+from nerf_jax.train import checkpoints, optimizer
+from nerf_jax.train.state import upgrade_state_dict
 
-
-__all__ = [
-    'CUT_SHARE', 'HULL_RESOLUTION', 'NDC_MARGIN',
-    'Experiment', 'TrainState', 'TrainingError', 'batch_settings', 'bounds',
-    'cached_train_step', 'data_settings', 'encoding_family', 'eval_settings', 'image_settings',
-    'init_state', 'loss_terms', 'make_evaluator', 'make_field', 'make_optimizer',
-    'make_ray_renderer', 'make_sampler', 'make_schedule', 'make_train_data', 'make_train_step',
-    'model_signature', 'network_settings', 'optimizer_for', 'pixel_center', 'rays_per_step',
-    'restore', 'schedule_steps', 'setup', 'state_template', 'step_settings',
-    'training_renderer', 'upgrade_state_dict', 'warn_if_cut', 'with_ndc_box',
-    'with_scene_extent', 'with_visual_hull'
-]
 
 class TrainingError(RuntimeError):
   """Training cannot go on (non-finite loss, bad config); the message says why and what to do."""
@@ -76,7 +52,7 @@ class Experiment:
   @property
   def pixel_center(self):
     """Where in its pixel each ray passes: config.data.pixel_center, or the data's own (-1)."""
-    return pixel_center(self.config, self.train_ds)
+    return from_data.pixel_center(self.config, self.train_ds)
 
   def rays(self, pose, camera=None):
     """Rays [H, W] of `pose` (float32 [4, 4] camera-to-world) through `camera` (default: the
@@ -89,18 +65,20 @@ class Experiment:
 def setup(config):
   """The Experiment of `config`: loads the data, builds the renderer and the optimiser."""
   config = config_lib.upgrade(config)
-  make_ray_renderer(config)  # a bad model or sampler setting fails before the data loads
-  train_ds, test_ds = loaders.load_dataset(data_settings(config.data))
+  components.make_ray_renderer(config)  # a bad model or sampler setting fails before the data
+  train_ds, test_ds = loaders.load_dataset(components.data_settings(config.data))
   if config.auto:
     config = auto.auto_config(config, train_ds)
-  pixel_center(config, train_ds)  # a bad value fails here, naming the field
-  near, far = bounds(config, train_ds)
-  config = with_scene_extent(config, train_ds)
-  config = with_ndc_box(config, train_ds, near, far)
-  config, hull = with_visual_hull(config, train_ds)
-  exp = Experiment(config, make_ray_renderer(config, len(train_ds)), image_settings(config),
-                   optimizer_for(config), train_ds, test_ds, near, far, hull)
-  warn_if_cut(exp)
+  from_data.pixel_center(config, train_ds)  # a bad value fails here, naming the field
+  near, far = from_data.bounds(config, train_ds)
+  config = from_data.with_scene_extent(config, train_ds)
+  config = from_data.with_ndc_box(config, train_ds, near, far)
+  config, hull = from_data.with_visual_hull(config, train_ds)
+  exp = Experiment(config, components.make_ray_renderer(config, len(train_ds)),
+                   components.image_settings(config),
+                   optimizer.make_optimizer(components.optimizer_settings(config)), train_ds,
+                   test_ds, near, far, hull)
+  from_data.warn_if_cut(exp)
   return exp
 
 

@@ -1,15 +1,16 @@
-"""Training: the loop of `train_and_evaluate` (logs, checkpoints, evaluations, signals) and
-the time budget fitted for it and for the benchmark (`fit_to_time`).
+"""Training, the job: `train_and_evaluate` reads the config, builds the run (experiment.py) and
+the jitted step (train_step.py), hands them to the loop with its hooks (train/loop.py,
+train/hooks.py), then scores the test views; and the time budget fitted for it and for the
+benchmark (`fit_to_time`).
 
-The batches are train_batches.py, the jitted step train_step.py, the evaluator evaluation.py.
 With several processes only process 0 reads and writes the workdir.
 """
 
+import collections
 import functools
 import io
 import json
 import os
-import signal
 import sys
 import time
 
@@ -18,33 +19,15 @@ import jax.numpy as jnp
 import ml_collections
 
 from nerf_jax.backend import determinism
-from nerf_jax.evaluate import lpips, visuals
-from nerf_jax.run import config_lib, experiment, outputs
-from nerf_jax.train import budget, checkpoints, parallel, progress, summary
-from nerf_jax.run.experiment import TrainingError, TrainState  # noqa: F401  (re-exported)
+from nerf_jax.evaluate import lpips
+from nerf_jax.run import components, config_lib, experiment, outputs
+from nerf_jax.run.experiment import TrainingError
+from nerf_jax.run.signature import init_state, model_signature, state_template
+from nerf_jax.train import (budget, checkpoints, hooks as hooks_lib, loop, optimizer, parallel,
+                            progress, summary, train_step as train_step_lib)
+from nerf_jax.train.state import upgrade_state_dict
 
-
-class _StopRequest:
-  """Turns SIGINT/SIGTERM into a flag the loop checks, so the run saves before it exits."""
-
-  def __init__(self):
-    self.signum = None
-
-  def __enter__(self):
-    self._old = {s: signal.signal(s, self._handle) for s in (signal.SIGINT, signal.SIGTERM)}
-    return self
-
-  def _handle(self, signum, frame):
-    self.signum = signum
-
-  def __exit__(self, *exc):
-    for s, handler in self._old.items():
-      signal.signal(s, handler)
-
-
-def _log(workdir, record):
-  with open(os.path.join(workdir, "metrics.jsonl"), "a") as f:
-    f.write(json.dumps(record) + "\n")
+_STEPS = collections.OrderedDict()  # the few most recent train steps (see `train_and_evaluate`)
 
 
 def train_and_evaluate(config, workdir, hooks=()):
@@ -54,7 +37,8 @@ def train_and_evaluate(config, workdir, hooks=()):
   `workdir/metrics.json`). Writes metrics.jsonl and TensorBoard events (workdir/tb) at log steps.
   The run lasts train.max_steps steps if set, else until train.max_seconds with the schedule
   fitted to the steps expected in it (budget.py), else train.default_steps steps; the run's
-  config.json holds the schedule it used.
+  config.json holds the schedule it used. SIGINT or SIGTERM saves a checkpoint, then raises
+  KeyboardInterrupt.
 
   hooks: step hooks, each given as a factory fn(exp, workdir, main) -> hook (exp: the run's
   experiment.Experiment; main: whether this is process 0), called once the run is set up; a
@@ -70,112 +54,88 @@ def train_and_evaluate(config, workdir, hooks=()):
   if main:
     os.makedirs(workdir, exist_ok=True)
   exp = experiment.setup(config)
-  config = exp.config  # as resolved from the data (config.auto, data.scene_bound = -1)
-  near, far = exp.near, exp.far
-  signature = experiment.model_signature(config)
+  signature = model_signature(exp.config)  # as resolved from the data (config.auto, ...)
   state, meta = _start_state(exp, workdir, signature)
-  elapsed = float(meta.get("wall_seconds", 0.0))
-  t_start = time.perf_counter() - elapsed  # a time budget's calibration counts against it
-
-  mesh = parallel.make_mesh(config.train.data_parallel)
-  step_rays = experiment.rays_per_step(config, exp.train_ds)
-  parallel.check_batch(step_rays, mesh)
-  data = parallel.replicate(experiment.make_train_data(exp), mesh)
-  key = jax.random.PRNGKey(config.seed + 1)
-  train_step = experiment.cached_train_step(exp, mesh)
-  last_step = experiment.schedule_steps(config.train)
+  # The run's seconds, a resumed run's earlier ones included (a time budget's calibration
+  # counts against it).
+  t_start = time.perf_counter() - float(meta.get("wall_seconds", 0.0))
+  elapsed = lambda: time.perf_counter() - t_start
+  mesh = parallel.make_mesh(exp.config.train.data_parallel)
+  parallel.check_batch(components.rays_per_step(exp.config, exp.train_ds), mesh)
+  data = parallel.replicate(components.make_train_data(exp), mesh)
+  key = jax.random.PRNGKey(exp.config.seed + 1)
+  # Reused for an equal run in the same process (tests, sweeps and resumed runs compile once).
+  cached = (exp.config.to_json(), exp.near, exp.far, mesh)
+  if cached not in _STEPS:
+    _keep(cached, train_step_lib.make_train_step(**components.train_step_args(exp, mesh)))
+  _STEPS.move_to_end(cached)
+  train_step = _STEPS[cached]
+  config, last_step = exp.config, components.schedule_steps(exp.config.train)
   if fits_time(config.train):
     config = _resumed_or_fitted(exp, train_step, data, key, mesh, meta, t_start)
-    planned = jnp.int32(config.train.max_steps)
-    train_step = functools.partial(train_step, planned_steps=planned)
+    train_step = functools.partial(train_step, planned_steps=jnp.int32(config.train.max_steps))
     last_step = sys.maxsize  # the clock ends the run
   if main:  # with the schedule the run uses
     checkpoints.atomic_write(os.path.join(workdir, "config.json"),
                              config.to_json(indent=2).encode())
-  tc = config.train
   state = parallel.replicate(state, mesh)
-  evaluate = experiment.make_evaluator(exp)
-  schedule = experiment.make_schedule(tc)
-  writer = summary.Writer(workdir, enabled=main and tc.tensorboard)
-  start_step = int(state.step)
+  writer = summary.Writer(workdir, enabled=main and config.train.tensorboard)
+  evaluate = components.make_evaluator(exp)
+  loop_hooks = _loop_hooks(exp, config, workdir, signature, evaluate, writer, mesh,
+                          int(state.step), last_step, elapsed)
+  loop_hooks = [hooks_lib.EveryStep(make_hook(exp, workdir, main), _variables_on(mesh))
+                for make_hook in hooks] + loop_hooks  # the caller's, after every step
+  out_of_time = lambda: 0 < config.train.max_seconds <= elapsed()
+  state, step, signum = loop.run(state, lambda s: train_step(s, data, key), loop_hooks,
+                                 int(state.step), last_step, out_of_time)
+  if signum:
+    raise KeyboardInterrupt(f"stopped by signal {signum} at step {step}; "
+                            f"checkpoint saved in {checkpoints.checkpoint_dir(workdir)}")
+  return _finish(exp, config, workdir, state, step, evaluate, writer, mesh, elapsed())
+
+
+def _keep(cached, train_step):
+  """Remember `train_step` under `cached`, keeping the 4 most recent."""
+  _STEPS[cached] = train_step
+  while len(_STEPS) > 4:
+    _STEPS.popitem(last=False)
+
+
+def _loop_hooks(exp, config, workdir, signature, evaluate, writer, mesh, start_step, last_step,
+                elapsed):
+  """The loop's hooks of a run of `config` (train/hooks.py), in the order they run."""
+  tc, main = config.train, parallel.is_main_process()
   window = progress.RateWindow(start_step)  # steps per second of training alone
-  step = start_step
-  planned = experiment.schedule_steps(tc)
+  variables = _variables_on(mesh)
+  check = lambda state: _check_finite(state, workdir)
+  save = lambda state: _save(workdir, state, signature, tc, elapsed())
   clocked = last_step == sys.maxsize  # a time budget: the clock, not a step count, is the total
-  position = lambda: int(time.perf_counter() - t_start) if clocked else step
-  bar = progress.Progress(int(tc.max_seconds) if clocked else planned,
-                          "train (seconds)" if clocked else "train", start=position(),
-                          stream=None if main else io.StringIO())
-  hooks = [make_hook(exp, workdir, main) for make_hook in hooks]
-  with _StopRequest() as stop:
-    while step < last_step:
-      state, stats = train_step(state, data, key)
-      step += 1
-      for hook in hooks:
-        hook.after_step(step, lambda: _one_device(state.variables, mesh))
-      budget_over = tc.max_seconds > 0 and time.perf_counter() - t_start >= tc.max_seconds
-      log_now = step % tc.log_every == 0 or step == last_step or budget_over or stop.signum
-      if log_now:
-        # The window ends when the device has done every step dispatched (module RateWindow).
-        state, stats = jax.block_until_ready((state, stats))
-        rays_s = window.rate(step) * step_rays
-        stats = jax.device_get(stats)
-        _check_finite(state, workdir)
-        wall = time.perf_counter() - t_start
-        record = {"step": step, "wall_seconds": round(wall, 3), "loss": float(stats["loss"]),
-                  "train_psnr": float(stats["psnr"]), "rays_per_second": round(rays_s)}
-        # Whatever else the loss terms report (train/losses.py), under its own name: e.g. a
-        # sample budget's rays_in_loss, the rays it held whole this step.
-        extra = {name: value.item() for name, value in stats.items()
-                 if name not in ("loss", "psnr")}
-        record.update(extra)
-        if tc.eval_every and step % tc.eval_every == 0:
-          images = {}
-          with window.excluded():
-            record["eval_psnr"] = float(evaluate(
-                _one_device(state.variables, mesh), max_views=tc.eval_views,
-                on_view=_first_view_into(images, near, far))["psnr"])
-            writer.images(step, images)
-        if main:
-          _log(workdir, record)
-        writer.scalars(step, {"train/loss": record["loss"], "train/psnr": record["train_psnr"],
-                              "train/learning_rate": float(schedule(step - 1)),
-                              "train/rays_per_second": rays_s,
-                              **{f"train/{name}": value for name, value in extra.items()},
-                              **({"eval/psnr": record["eval_psnr"]}
-                                 if "eval_psnr" in record else {})})
-        eta = max(planned - step, 0) * wall / max(step - start_step, 1)
-        if tc.max_seconds > 0:
-          eta = max(min(eta, tc.max_seconds - wall), 0.0)
-        of = f" of {progress.format_seconds(tc.max_seconds)}" if clocked else ""
-        bar.update(position(), info=f"loss {record['loss']:.5f} psnr {record['train_psnr']:.2f}")
-        bar.write(f"step {step}{'' if clocked else f'/{planned}'} loss {record['loss']:.5f} "
-                  f"psnr {record['train_psnr']:.2f} {rays_s:,.0f} rays/s "
-                  f"elapsed {progress.format_seconds(wall)}{of} "
-                  f"eta {progress.format_seconds(eta)}")
-      elif bar.due():
-        jax.block_until_ready(state.step)  # show steps done, not steps queued (a scalar sync)
-        bar.update(position())
-      if step % tc.checkpoint_every == 0 or step == last_step or budget_over or stop.signum:
-        with window.excluded():
-          _check_finite(state, workdir)  # never checkpoint a state that has seen a bad step
-          _save(workdir, state, signature, tc, time.perf_counter() - t_start)
-      if stop.signum:
-        bar.close()
-        raise KeyboardInterrupt(f"stopped by signal {stop.signum} at step {step}; "
-                                f"checkpoint saved in {checkpoints.checkpoint_dir(workdir)}")
-      if budget_over:
-        break
-  bar.close()
-  for hook in hooks:
-    hook.close()
-  train_seconds = time.perf_counter() - t_start
+  found = [
+      hooks_lib.Record(tc.log_every, window, components.rays_per_step(config, exp.train_ds),
+                       elapsed, check),
+      hooks_lib.Evaluate(tc.eval_every,
+                         lambda v, on_view: evaluate(v, max_views=tc.eval_views, on_view=on_view),
+                         variables, window, writer, exp.near, exp.far),
+      hooks_lib.MetricsFile(os.path.join(workdir, "metrics.jsonl")) if main else None,
+      hooks_lib.TensorBoard(writer, optimizer.make_schedule(components.optimizer_settings(config))),
+      hooks_lib.ProgressLine(components.schedule_steps(tc), tc.max_seconds, clocked, start_step,
+                             elapsed, stream=None if main else io.StringIO()),
+      hooks_lib.Checkpoint(tc.checkpoint_every, window, check, save)]
+  return [hook for hook in found if hook is not None]
+
+
+def _finish(exp, config, workdir, state, step, evaluate, writer, mesh, train_seconds):
+  """After the last step: score the test views (their images into workdir/eval with
+  render.after_training), write metrics.json and the final metrics.jsonl record, render the
+  video; returns the final metrics."""
+  main = parallel.is_main_process()
   _check_finite(state, workdir)
-  variables = _one_device(state.variables, mesh)
+  variables = _variables_on(mesh)(state)
   images = {}
-  result = evaluate(variables, out_dir=os.path.join(workdir, "eval")
-                    if config.render.after_training and main else None,
-                    on_view=_first_view_into(images, near, far))
+  result = evaluate(
+      variables, out_dir=os.path.join(workdir, "eval")
+      if config.render.after_training and main else None,
+      on_view=hooks_lib.first_view_into(images, exp.near, exp.far))
   writer.images(step, images)
   writer.scalars(step, {"test/psnr": result["psnr"], "test/ssim": result["ssim"]})
   writer.close()
@@ -184,9 +144,10 @@ def train_and_evaluate(config, workdir, hooks=()):
     return result
   checkpoints.atomic_write(os.path.join(workdir, "metrics.json"),
                            json.dumps(result, indent=2).encode())
-  _log(workdir, {"step": step, "wall_seconds": round(train_seconds, 3),
-                 "eval_psnr": result["psnr"], "eval_ssim": result["ssim"],
-                 **({"eval_lpips": result["lpips"]} if "lpips" in result else {}), "final": True})
+  hooks_lib.append_json_line(os.path.join(workdir, "metrics.jsonl"), {
+      "step": step, "wall_seconds": round(train_seconds, 3), "eval_psnr": result["psnr"],
+      "eval_ssim": result["ssim"], **({"eval_lpips": result["lpips"]} if "lpips" in result else {}),
+      "final": True})
   print(f"test PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.4f}, {lpips.describe(result)} "
         f"over {len(result['per_view'])} views after {step} steps ({train_seconds:.0f} s)",
         flush=True)
@@ -205,10 +166,10 @@ def _start_state(exp, workdir, signature):
   they see its files) and get meta {}, which only process 0 uses."""
   ckpt = checkpoints.latest_path(workdir) if parallel.is_main_process() else None
   if not ckpt:
-    state, meta = experiment.init_state(exp), {}
+    state, meta = init_state(exp), {}
   else:
-    state, meta = checkpoints.restore_with_meta(ckpt, experiment.state_template(exp), signature,
-                                                experiment.upgrade_state_dict)
+    state, meta = checkpoints.restore_with_meta(ckpt, state_template(exp), signature,
+                                                upgrade_state_dict)
     print(f"resuming from {ckpt} at step {int(state.step)}", flush=True)
   return parallel.from_main(state), meta
 
@@ -221,7 +182,7 @@ def fits_time(train_config):
 
 def fit_schedule(train_config, num_steps):
   """Set max_steps = num_steps (in place); warm-up keeps its share of the planned steps."""
-  share = train_config.warmup_steps / max(experiment.schedule_steps(train_config), 1)
+  share = train_config.warmup_steps / max(components.schedule_steps(train_config), 1)
   train_config.warmup_steps = int(round(share * num_steps))
   train_config.max_steps = int(num_steps)
 
@@ -237,7 +198,7 @@ def fit_to_time(exp, train_step, data, key, seconds_left, mesh=None):
   """
   config = ml_collections.ConfigDict(exp.config.to_dict())
   tc = config.train
-  state = parallel.replicate(experiment.init_state(exp), mesh)
+  state = parallel.replicate(init_state(exp), mesh)
   seconds = min(budget.CALIBRATION_SECONDS, budget.CALIBRATION_SHARE * tc.max_seconds)
   step_seconds, compile_seconds = budget.calibrate(
       lambda s: train_step(s, data, key, planned_steps=jnp.int32(1))[0], state, seconds)
@@ -257,21 +218,12 @@ def _resumed_or_fitted(exp, train_step, data, key, mesh, meta, t_start):
   return config
 
 
-def _one_device(params, mesh):
-  """Parameters for rendering on one device (a replicated copy would render on every device)."""
+def _variables_on(mesh):
+  """state -> its variables for rendering on one device (a copy replicated on `mesh` would
+  render on every device)."""
   if mesh is None:
-    return params
-  return jax.device_put(parallel.to_host(params), jax.local_devices()[0])
-
-
-def _first_view_into(images, near, far):
-  """An evaluator `on_view` callback putting the first view's TensorBoard images in `images`."""
-  def on_view(index, out, truth):
-    if index == 0:
-      images.update({"eval/rgb": visuals.to_uint8(out["rgb"]),
-                     "eval/depth": visuals.colorize(out["depth"], near, far),
-                     "eval/truth": visuals.to_uint8(truth)})
-  return on_view
+    return lambda state: state.variables
+  return lambda state: jax.device_put(parallel.to_host(state.variables), jax.local_devices()[0])
 
 
 def _save(workdir, state, signature, train_config, elapsed):
@@ -282,7 +234,7 @@ def _save(workdir, state, signature, train_config, elapsed):
     checkpoints.save(workdir, int(host_state.step), host_state, signature,
                      train_config.keep_checkpoints,
                      meta={"wall_seconds": elapsed,
-                           "schedule_steps": experiment.schedule_steps(train_config),
+                           "schedule_steps": components.schedule_steps(train_config),
                            "warmup_steps": int(train_config.warmup_steps)})
 
 

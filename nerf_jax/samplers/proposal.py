@@ -13,7 +13,7 @@ the target) and are trained to bound the target's weights. Names and axes, for r
   w_env: float32 [..., M] the envelope's weights >= 0.
 
 The leading axes [...] of t and of (t_env, w_env) broadcast against each other. Edges are finite
-(the samplers cap far at sampling.MAX_FAR = 1e10); the bound and the loss only compare them.
+(the samplers cap far at spacing.MAX_FAR = 1e10); the bound and the loss only compare them.
 
 Overlap, as in mip-NeRF 360's definition: intervals are half-open, [a, b), so they tile the ray, and
 two intervals overlap iff their intersection is not empty. So intervals that only share an edge do
@@ -35,7 +35,8 @@ import jax
 import jax.numpy as jnp
 
 from nerf_jax.fields import density_field
-from nerf_jax.samplers import registry, sampler as sampler_lib, sampling
+from nerf_jax.samplers import placement, registry, spacing
+from nerf_jax.volume import quadrature
 
 # The loss divides by w + _EPS. Any eps > 0 keeps it finite: the denominator is positive where
 # w = 0 (where the numerator is 0 too, as outer >= 0), each term max(0, w - outer)²/(w + eps) is
@@ -106,17 +107,17 @@ def resample(t, w, num_samples, key=None, padding=0.01):
 
   t: float32 [..., S + 1] sorted edges. w: float32 [..., S] weights >= 0. num_samples: int N >= 1.
   key: PRNG key, or None for deterministic edges. padding: float, added to every non-empty
-  interval's weight before normalising (`sampling.sample_pdf`; 0.01 as nerfacto's).
+  interval's weight before normalising (`spacing.sample_pdf`; 0.01 as nerfacto's).
   Returns sorted edges with t_0 and t_S exactly at the ends, gradients stopped.
 
-  N points are drawn with `sampling.sample_pdf` (key None: at the quantiles (k + 1/2)/N; with a
+  N points are drawn with `spacing.sample_pdf` (key None: at the quantiles (k + 1/2)/N; with a
   key: at N sorted uniform draws) and the interior edges are the midpoints between consecutive
   points: where both lie in one interval of (t, w), at the quantile k/N, so each new interval
   holds ~1/N of the (padded) weight. Zero-width intervals get no points (sample_pdf), all-zero
   weights give points evenly spread over the intervals (padding > 0) or over t (padding = 0).
   """
   t = jax.lax.stop_gradient(t)
-  points = sampling.sample_pdf(t, w, num_samples, key, padding)  # sorted, in [t_0, t_S]
+  points = spacing.sample_pdf(t, w, num_samples, key, padding)  # sorted, in [t_0, t_S]
   # 0.5·(a + b) lies in [a, b] for floats a <= b (rounding is monotone, halving a normal float is
   # exact, no overflow for edges <= 1e10), so the edges stay sorted and inside [t_0, t_S].
   inner = 0.5 * (points[..., 1:] + points[..., :-1])
@@ -124,29 +125,6 @@ def resample(t, w, num_samples, key=None, padding=0.01):
 
 
 # The sampler.
-
-# Densities are clamped here before multiplying by a width, as compositing.MAX_DENSITY (render/
-# lies above samplers/): an infinite density times a zero width would be inf·0 = NaN.
-_MAX_DENSITY = 1e30
-
-
-def weights(sigma, t):
-  """Compositing weights float32 [..., S] of densities sigma float32 [..., S] (per unit of t)
-  on the intervals of t float32 [..., S + 1]: compositing.compute_weights's quadrature,
-  w_i = (1 - exp(-tau_i))·exp(-sum_{j<i} tau_j), tau = sigma·(t_{i+1} - t_i).
-
-  Numerics: optical depths are summed, never multiplied, so behind an opaque interval the
-  transmittance underflows to exactly 0; with edges out to 1e10 tau may overflow to inf, which
-  gives alpha = 1 and transmittance 0 and, as exp(-inf) = 0 multiplies every path through it,
-  zero (not NaN) gradients; 1 - exp(-tau) is -expm1(-tau), exact for tiny tau (its derivative,
-  1 + expm1(-tau), has an absolute error of ~6e-8, nothing to a proposal).
-  """
-  sigma = jnp.minimum(sigma.astype(jnp.float32), _MAX_DENSITY)  # minimum: a NaN stays a NaN
-  tau = sigma * jnp.maximum(t[..., 1:] - t[..., :-1], 0.0)
-  before = jnp.concatenate([jnp.zeros_like(tau[..., :1]), jnp.cumsum(tau[..., :-1], axis=-1)],
-                           axis=-1)
-  return -jnp.expm1(-tau) * jnp.exp(-before)
-
 
 @dataclasses.dataclass(frozen=True)
 class Settings:
@@ -216,12 +194,13 @@ def _problem(s):
 
 
 @dataclasses.dataclass(frozen=True)
-class ProposalSampler(sampler_lib.Sampler):
+class ProposalSampler(placement.Sampler):
   """Samples placed by proposal levels (nerfacto's ProposalNetworkSampler).
 
   Each ray starts with settings.num_samples[0] intervals spaced as the Sampler's (linear in t
   inside the inner box and in disparity beyond with data.contraction, else stratified over the
-  scene box); level k's density function weighs its intervals (`weights`), and `resample`
+  scene box); level k's density function weighs its intervals (volume/quadrature.weights),
+  and `resample`
   draws the next level's edges from those weights (stop_gradient: no loss moves a proposal
   through the placement); the last level's weights place the NeRF's `num_samples`. The levels'
   (t, weights) go to the renderer's outputs for `Interlevel`, which trains each level to bound
@@ -287,18 +266,18 @@ class ProposalSampler(sampler_lib.Sampler):
     t = jax.lax.stop_gradient(self._initial_edges(rays, counts[0], keys[0]))
     levels = []
     for density, count, level_key in zip(density_fns, counts[1:], keys[1:]):
-      sigma = density(sampler_lib.points(rays, sampling.midpoints(t)))
-      w = weights(sampler_lib.per_unit_t(sigma, rays), t)
+      sigma = density(placement.points(rays, spacing.midpoints(t)))
+      w = quadrature.weights(placement.per_unit_t(sigma, rays), t, exact_derivative=False)
       levels.append({"t": t, "weights": w})
       t = resample(t, w, count, level_key, self.settings.padding)
-    return sampler_lib.on_edges(t), {"proposals": tuple(levels)}
+    return placement.on_edges(t), {"proposals": tuple(levels)}
 
   def _initial_edges(self, rays, count, key):
     """Edges float32 [..., count + 1] of the first level: `Sampler.stratified`'s spacing."""
     if self.contraction:
       return self._unbounded_edges(rays, count, key)
     t_near, t_far = self.bounds(rays)
-    return sampling.stratified(t_near, t_far, count, rays.shape, key, lindisp=self.lindisp)
+    return spacing.stratified(t_near, t_far, count, rays.shape, key, lindisp=self.lindisp)
 
   def place(self, rays, key=None, grid=None):
     raise TypeError("ProposalSampler places samples with its density fields: call "
@@ -324,7 +303,7 @@ class Interlevel:
 
 
 def build(base, section):
-  """The registry's builder (samplers/registry.py): a ProposalSampler with the built-in
+  """The sampler's builder (samplers/registry.py): a ProposalSampler with the built-in
   Sampler `base`'s samples, box and spacing and config.proposal's `section` (a mapping);
   ValueError naming the field for a setting that cannot work."""
   settings = settings_from(section)
@@ -338,7 +317,7 @@ def build(base, section):
   fields = tuple(density_field.density_field(_network(settings, r, base.grid_bound),
                                              base.contraction, base.scene_bound)
                  for r in settings.max_resolution)
-  shared = {f.name: getattr(base, f.name) for f in dataclasses.fields(sampler_lib.Sampler)}
+  shared = {f.name: getattr(base, f.name) for f in dataclasses.fields(placement.Sampler)}
   return ProposalSampler(**shared, settings=settings, fields=fields)
 
 
@@ -352,4 +331,4 @@ def _network(settings, max_resolution, bound):
   return density_field.HashDensity(log2_size=settings.log2_size, **shared)
 
 
-registry.register("proposal", build)
+SAMPLER = registry.SamplerKind(build)  # config.sampler = 'proposal' (samplers/registry.py)

@@ -1,39 +1,44 @@
-"""Samplers by name: adding one is a module of samplers/ and its config section.
+"""Samplers by name (config.sampler), through the one registry shape (backend/components.py).
 
-A sampler other than the built-in `sampler.Sampler` (stratified or occupancy placement) lives in
-`nerf_jax/samplers/<name>.py`, which calls `register(name, build)` when it is imported; the
-config selects it with `config.sampler = '<name>'` and sets it in its own section
-`config.<name>` (run/experiment.make_sampler). `build(name, base, section)` imports the module
-on first use, so nothing imports every sampler up front.
+A sampler's module defines `SAMPLER = registry.SamplerKind(build)`. The built-ins are
+'placement' (placement.py: stratified, or occupancy placement; config.sampler = '' means it)
+and 'proposal' (proposal.py); a new one is a module anywhere, chosen with config.sampler = its
+dotted module path, or given a short name with `REGISTRY.register(name, module path)`. Its
+settings are its own config section, config.<name> (the module name for a dotted path);
+run/components.make_sampler builds it. A module is imported the first time it is asked for.
 
-build(base, section) -> sampler: `base` is the built-in Sampler of the config (num_samples,
-scene_bound, contraction, inner_fraction: what every placement shares), `section` a plain dict
-of the sampler's config section. It returns an object with the interface of `sampler.Sampler`
-(`generate`, `init`, `signature`, `loss_terms`, `marchable` besides `bounds` and
-`unit_distance`; subclassing Sampler gives them all) and raises ValueError naming the field
-for a setting it cannot use.
+build(base, section) -> sampler: `base` is the built-in placement.Sampler of the config
+(num_samples, scene_bound, contraction, inner_fraction: what every placement shares), `section`
+a plain dict of the sampler's config section. It returns an object with the interface of
+`placement.Sampler` (`generate`, `init`, `signature`, `loss_terms`, `marchable` besides
+`bounds` and `unit_distance`; subclassing Sampler gives them all) and raises ValueError naming
+the field for a setting it cannot use.
 """
 
-import importlib
+import dataclasses
+from typing import Callable
 
-_BUILDERS = {}
+from nerf_jax.backend import components
+
+# The built-in placement's name; config.sampler = '' means it.
+BUILTIN = "placement"
+
+REGISTRY = components.Registry("sampler", "config.sampler", "SAMPLER", {
+    BUILTIN: "nerf_jax.samplers.placement", "proposal": "nerf_jax.samplers.proposal"})
 
 
-def register(name, build):
-  """Make `build(base, section) -> sampler` the sampler called `name` (config.sampler)."""
-  _BUILDERS[name] = build
+@dataclasses.dataclass(frozen=True)
+class SamplerKind:
+  """A sampler module's record (its SAMPLER). build(base, section) -> sampler (see above)."""
+  build: Callable
+
+
+def section_name(name):
+  """The config section of the sampler `name` (a short name or a dotted module path)."""
+  return (name or BUILTIN).rsplit(".", 1)[-1]
 
 
 def build(name, base, section):
-  """The sampler `name` built from `base` (sampler.Sampler) and `section` (dict), its module
-  imported first if needed; ValueError naming config.sampler for a name no module registers."""
-  if name not in _BUILDERS:
-    try:
-      importlib.import_module(f"nerf_jax.samplers.{name}")
-    except ImportError:
-      pass  # not a module of samplers/: the error below names the choices
-  if name not in _BUILDERS:
-    choices = ", ".join(repr(n) for n in ("", *sorted(_BUILDERS)))
-    raise ValueError(f"config.sampler={name!r}: no such sampler; use {choices} (a module "
-                     "nerf_jax/samplers/<name>.py that calls registry.register)")
-  return _BUILDERS[name](base, section)
+  """The sampler `name` ('' = the built-in placement) built from `base` (placement.Sampler)
+  and `section` (dict); ValueError naming config.sampler for a name that names none."""
+  return REGISTRY.lookup(name or BUILTIN).build(base, section)

@@ -1,2 +1,2 @@
-"""Training: the loop, the jitted step, batches, regularisers, the time budget, devices,
-checkpoints, progress and summaries."""
+"""Training, config-free: the loop and its hooks, the jitted step, the optimiser, the state,
+batches, regularisers, the time budget, devices, checkpoints, progress and summaries."""

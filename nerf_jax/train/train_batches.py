@@ -57,7 +57,7 @@ def make_train_data(ds, camera, rgb_background):
   """TrainData of every pixel of the images of `ds` (a Dataset), targets on `rgb_background`
   (float32 [3], background.parse's); rays are made per step from the poses and `camera`:
   (height, width, intrinsics, near, far, pixel_center, use_ndc), see TrainData.camera
-  (run/experiment.make_train_data passes the training camera's)."""
+  (run/components.make_train_data passes the training camera's)."""
   height, width, intrinsics, near, far, pixel_center, use_ndc = camera
   camera = (height, width, tuple(float(v) for v in intrinsics), float(near), float(far),
             float(pixel_center), bool(use_ndc))

@@ -4,7 +4,7 @@ is not applied and is reported.
 
 The step never sees a config: `make_train_step(ray_renderer, tx, terms, settings, ...)` takes
 the renderer, the optimiser, the loss terms (train/losses.py), `StepSettings` and the buffer
-hooks, all built once by the entry layer (run/experiment.py).
+hooks, all built once by the entry layer (run/components.train_step_args).
 
 With appearance codes each ray is rendered with its training image's code; with pose refinement
 each ray is made from its camera's corrected pose (cameras/pose_refinement.py), so the

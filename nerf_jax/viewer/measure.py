@@ -52,7 +52,7 @@ def command_to_first_frame(browser, workdir, port):
   the first frame's stats in the page (page load in the browser included) and to the viewer's
   line saying every frame size is compiled: a dict."""
   start = time.perf_counter()
-  proc = subprocess.Popen([sys.executable, "-m", "nerf_jax.view", f"--workdir={workdir}",
+  proc = subprocess.Popen([sys.executable, "-m", "nerf_jax.viewer", f"--workdir={workdir}",
                            f"--port={port}"], stdout=subprocess.PIPE, text=True)
   try:
     lines = _timed_lines(proc.stdout)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from absl import flags
 
-from nerf_jax import cli
+from nerf_jax.backend import errors
 from nerf_jax.render import renderer
 from nerf_jax.run import experiment
 from nerf_jax.run import train_lib
@@ -37,7 +37,7 @@ def test_render_bench_writes_frame_video_and_big_frame_figures(tmp_path, capsys)
           "--frames=2", "--sizes=40", f"--out={out}"]
   values = flags.FlagValues()  # private: absl's global flags hold each name once per process
   bench_cli.define_render_flags(values)
-  cli.parse_flags(argv, values)
+  errors.parse_flags(argv, values)
   bench_cli.render_speed(values)
   assert capsys.readouterr().out.strip().splitlines()[-1] == f"-> {out}"
   record = json.loads(out.read_text())

@@ -20,6 +20,7 @@ import pytest
 from absl import flags
 
 from nerf_jax import cli
+from nerf_jax.backend import errors
 from nerf_jax.data import scenes
 from nerf_jax.run import config_lib
 from nerf_jax.bench import cli as bench_cli
@@ -41,7 +42,7 @@ def _parse(define, program, *args, with_config=True):
   argv, spec = cli.resolve_config_argv(given) if with_config else (given, "")
   values = flags.FlagValues()
   define(values, argv)
-  cli.parse_flags(argv, values)
+  errors.parse_flags(argv, values)
   return values, spec, given
 
 

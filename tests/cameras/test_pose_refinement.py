@@ -11,7 +11,9 @@ import scipy.linalg
 
 from nerf_jax.cameras import pose_refinement
 from nerf_jax.fields.encodings import encoding, hashgrid
-from nerf_jax.run import experiment
+from nerf_jax.run import components, experiment
+from nerf_jax.run.signature import init_state, model_signature
+from nerf_jax.train.state import TrainState
 from nerf_jax.train import train_step
 from nerf_jax.cameras.rays import Rays
 from nerf_jax.data.scenes import photos
@@ -106,7 +108,7 @@ def test_grid_levels_open_coarse_to_fine(encoding_name):
   # The tiny grid with three levels (two stages of bands to open).
   config = small_config({**TINY_GRID, "model.encoding": encoding_name,
                          **THREE_LEVELS[encoding_name]}, base="fast")
-  field = experiment.make_field(config)
+  field = components.make_field(config)
   assert field.coarse_to_fine_stages == 2
   params = jitted(field.init)(jax.random.PRNGKey(0))
   points = jax.random.uniform(jax.random.PRNGKey(1), (5, 7, 3), minval=-1.0, maxval=1.0)
@@ -144,9 +146,9 @@ def test_grid_levels_open_coarse_to_fine(encoding_name):
 
 def test_refinement_is_off_by_default_and_leaves_the_state_as_it_was():
   exp = experiment.setup(small_config({"data.scene": "perturbed"}))
-  state = experiment.init_state(exp)
+  state = init_state(exp)
   assert set(state.params) == {"coarse"}
-  assert "pose_refinement" not in experiment.model_signature(exp.config)
+  assert "pose_refinement" not in model_signature(exp.config)
 
 
 class _AnalyticField:
@@ -165,11 +167,11 @@ def _train_corrections(exp, start, steps):
   [N, 6]; the step donates its state, so the caller's copy stays intact) with exp's stand-in
   network, which has no parameters of its own."""
   params = {"coarse": {}, "poses": jnp.asarray(start, jnp.float32)}
-  state = experiment.TrainState(step=jnp.array(0, jnp.int32), params=params,
+  state = TrainState(step=jnp.array(0, jnp.int32), params=params,
                                 opt_state=exp.tx.init(params),
                                 bad_step=jnp.array(-1, jnp.int32))
-  step = experiment.make_train_step(exp)
-  data = experiment.make_train_data(exp)
+  step = components.make_train_step(exp)
+  data = components.make_train_data(exp)
   for _ in range(steps):
     state, _ = step(state, data, jax.random.PRNGKey(0))
   return np.asarray(state.params["poses"])

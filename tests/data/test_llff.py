@@ -193,7 +193,7 @@ def test_llff_config_grids_hold_every_training_ray_in_ndc(forward, tmp_path):
   # must fall inside the grids' box found from the data, or parts of the photos would render
   # empty; and the box is no larger than the rays need. NDC rays are straight, so their ends
   # (t = 0 and t = 1) bound them; here they are checked at every pixel, not only the corners.
-  from nerf_jax.run import experiment  # pylint: disable=import-outside-toplevel
+  from nerf_jax.run import experiment, from_data  # pylint: disable=import-outside-toplevel
   from tests.helpers import small_config  # pylint: disable=import-outside-toplevel
   export_llff(forward, str(tmp_path))
   config = small_config({"data.path": str(tmp_path), "data.factor": 1}, base="llff")
@@ -205,5 +205,5 @@ def test_llff_config_grids_hold_every_training_ray_in_ndc(forward, tmp_path):
                            for r in map(exp.rays, exp.train_ds.poses) for t in (0.0, 1.0)])
   low, high = points.min(axis=0), points.max(axis=0)
   assert np.all(box[0] <= low) and np.all(high <= box[1]), (box, low, high)
-  np.testing.assert_allclose(box[1] - box[0], (high - low) * (1 + 2 * experiment.NDC_MARGIN),
+  np.testing.assert_allclose(box[1] - box[0], (high - low) * (1 + 2 * from_data.NDC_MARGIN),
                              rtol=1e-3)

@@ -11,7 +11,8 @@ import pytest
 
 from nerf_jax.evaluate import lpips
 from nerf_jax.render import image_renderer
-from nerf_jax.run import experiment
+from nerf_jax.run import components, experiment
+from nerf_jax.run.signature import init_state
 from tests.helpers import requires_lpips, small_config
 
 
@@ -167,9 +168,9 @@ def _evaluate(image_size, out_dir):
   """One test view of the debug scene at image_size² through make_evaluator, untrained model:
   (result, [(rgb, truth)])."""
   exp = experiment.setup(small_config({"data.image_size": image_size}))
-  variables = experiment.init_state(exp).variables
+  variables = init_state(exp).variables
   seen = []
-  evaluate = experiment.make_evaluator(exp)
+  evaluate = components.make_evaluator(exp)
   return evaluate(variables, max_views=1, out_dir=out_dir,
                   on_view=lambda i, out, truth: seen.append((out["rgb"], truth))), seen
 

@@ -11,8 +11,8 @@ import pytest
 
 from nerf_jax import rendering
 from nerf_jax.render import background, empty_space, image_renderer
-from nerf_jax.run import experiment
-from nerf_jax.samplers import sampling
+from nerf_jax.run import components, experiment
+from nerf_jax.samplers import spacing
 from nerf_jax.run import train_lib
 from tests.conftest import assert_beats_trivial
 from tests.helpers import ray_renderer, small_config
@@ -36,8 +36,8 @@ def _rays():
   xy = np.stack(np.meshgrid(np.linspace(-0.7, 0.7, 8), np.linspace(-0.7, 0.7, 8)), -1)
   origins = np.concatenate([xy.reshape(-1, 2), np.full((NUM_RAYS, 1), 2.0)], -1)
   directions = np.tile([0.0, 0.0, -1.0], (NUM_RAYS, 1))
-  t = sampling.stratified(1.0, 3.0, NUM_SAMPLES, (NUM_RAYS,))
-  points = origins[:, None, :] + directions[:, None, :] * sampling.midpoints(t)[..., None]
+  t = spacing.stratified(1.0, 3.0, NUM_SAMPLES, (NUM_RAYS,))
+  points = origins[:, None, :] + directions[:, None, :] * spacing.midpoints(t)[..., None]
   return (jnp.asarray(t), jnp.asarray(points, jnp.float32),
           jnp.asarray(directions, jnp.float32))
 
@@ -129,7 +129,7 @@ def test_a_round_bigger_than_a_buffer_is_queried_in_several(monkeypatch):
                                     {"render.march": False}, {"occupancy.enabled": True}])
 def test_marching_only_where_it_applies(change):
   marches = lambda config: image_renderer.marches(ray_renderer(config),
-                                                  experiment.image_settings(config))
+                                                  components.image_settings(config))
   assert marches(small_config(base="fast"))
   assert not marches(small_config(change, base="fast"))
 

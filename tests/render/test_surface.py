@@ -12,6 +12,7 @@ import pytest
 from nerf_jax.data import scenes
 from nerf_jax.render import surface
 from nerf_jax.run import experiment
+from nerf_jax.run.signature import model_signature, state_template
 from nerf_jax.train import checkpoints
 from nerf_jax.data.scenes.geometry import Box, Cylinder, Sphere
 from tests.helpers import small_config
@@ -106,7 +107,7 @@ def _sphere_field_workdir(workdir):
                          "model.grid.features": 1, "model.grid_bound": 1.0, "model.width": 4,
                          "model.density_activation": "relu"})
   state = jax.tree_util.tree_map(lambda s: np.zeros(s.shape, s.dtype),
-                                 experiment.state_template(experiment.setup(config)))
+                                 state_template(experiment.setup(config)))
   params = state.params
   net = params["coarse"]
   axis = np.linspace(-1.0, 1.0, 33)
@@ -119,7 +120,7 @@ def _sphere_field_workdir(workdir):
   os.makedirs(workdir)
   with open(os.path.join(workdir, "config.json"), "w") as f:
     f.write(config.to_json())
-  checkpoints.save(workdir, 1, state, experiment.model_signature(config))
+  checkpoints.save(workdir, 1, state, model_signature(config))
   return config
 
 

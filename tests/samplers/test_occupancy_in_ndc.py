@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from nerf_jax.cameras.rays import Rays
-from nerf_jax.run import experiment
+from nerf_jax.run import components, experiment
+from nerf_jax.run.signature import init_state
 from nerf_jax.samplers import occupancy
-from nerf_jax.samplers.sampler import Sampler
+from nerf_jax.samplers.placement import Sampler
 from tests.helpers import StandInNetwork, ray_renderer, small_config
 
 BOX = (-1.3, -0.8, -1.0, 1.1, 0.9, 0.98)  # a training rays' NDC box: not a cube, not centred
@@ -118,8 +119,8 @@ def test_a_forward_facing_run_trains_with_the_grid_and_records_its_box():
   exp = experiment.setup(config)
   box = tuple(exp.config.model.grid_box)
   assert len(box) == 6 and exp.renderer.sampler.occupancy_box == box  # from the rays
-  step, data = experiment.make_train_step(exp), experiment.make_train_data(exp)
-  state = experiment.init_state(exp)
+  step, data = components.make_train_step(exp), components.make_train_data(exp)
+  state = init_state(exp)
   first = None
   for _ in range(12):
     state, stats = step(state, data, jax.random.PRNGKey(0))
@@ -127,11 +128,11 @@ def test_a_forward_facing_run_trains_with_the_grid_and_records_its_box():
   assert np.isfinite(float(stats["loss"])) and float(stats["loss"]) < first
   grid = np.asarray(state.buffers["occupancy"])
   assert grid.max() > 0 and occupancy.occupied_mask(grid, 1.0).mean() < 1.0  # some cells empty
-  out = experiment.make_evaluator(exp)(state.variables, max_views=1)
+  out = components.make_evaluator(exp)(state.variables, max_views=1)
   assert np.isfinite(out["psnr"])
 
 
 def test_ndc_with_a_scene_box_is_refused_naming_the_field():
   config = small_config(**{"data.ndc": True, "data.scene_bound": 1.5, "occupancy.enabled": True})
   with pytest.raises(ValueError, match="config.data.scene_bound = 0"):
-    experiment.make_sampler(config)
+    components.make_sampler(config)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.samplers import proposal
-from nerf_jax.samplers import sampling
+from nerf_jax.samplers import spacing
 from tests.helpers import loss_ref, outer_ref, overlaps
 
 pytestmark = pytest.mark.usefixtures("debug_nans")  # conftest.py: a NaN anywhere raises
@@ -189,10 +189,10 @@ def _hot(e, k):
 
 def _far_edges(rng, rays, n, share=None):
   """`_edges` spread log-uniformly over [0.5, 1e10], as an unbounded scene's (most are huge)."""
-  lo, hi = np.log(0.5), np.log(sampling.MAX_FAR)
+  lo, hi = np.log(0.5), np.log(spacing.MAX_FAR)
   log_share = None if share is None else np.log(share.astype(np.float64)).astype(np.float32)
   e = np.exp(_edges(rng, (rays,), n, lo, hi, log_share).astype(np.float64)).astype(np.float32)
-  e[:, 0], e[:, -1] = 0.5, sampling.MAX_FAR
+  e[:, 0], e[:, -1] = 0.5, spacing.MAX_FAR
   return np.sort(e, axis=-1)
 
 

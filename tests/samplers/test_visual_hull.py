@@ -10,8 +10,9 @@ import pytest
 from nerf_jax.cameras import rays
 from nerf_jax.fields.networks import grid as grid_network
 from nerf_jax.fields.encodings import grid
-from nerf_jax.run import experiment
-from nerf_jax.samplers import occupancy, sampler, visual_hull
+from nerf_jax.run import components, experiment
+from nerf_jax.run.signature import init_state, model_signature
+from nerf_jax.samplers import occupancy, placement, visual_hull
 from tests.helpers import TINY_GRID, jitted, small_config
 from tests.helpers import trilinear_brute
 
@@ -114,10 +115,10 @@ def test_axis_resolutions_with_long_cells_along_z():
 
 def test_a_grid_field_with_long_cells_along_z_has_fewer_lattice_points_there():
   config = small_config(TINY_GRID, base="fast", **{"model.grid_cell_aspect": (1.0, 1.0, 4.0)})
-  params = experiment.make_ray_renderer(config).init(jax.random.PRNGKey(0))["params"]["coarse"]
+  params = components.make_ray_renderer(config).init(jax.random.PRNGKey(0))["params"]["coarse"]
   assert params["grid_16"].shape == (16, 16, 5, 4)  # 15 cells of x's side along z are 3.75
-  assert experiment.model_signature(config)["grid_cell_aspect"] == [1.0, 1.0, 4.0]
-  assert "grid_cell_aspect" not in experiment.model_signature(small_config(base="fast"))
+  assert model_signature(config)["grid_cell_aspect"] == [1.0, 1.0, 4.0]
+  assert "grid_cell_aspect" not in model_signature(small_config(base="fast"))
 
 
 def test_grid_field_over_a_box_is_empty_outside_it():
@@ -143,17 +144,17 @@ def test_a_run_with_the_visual_hull_samples_only_inside_it():
   assert hull.shape == (16, 16, 16) and 0.0 < hull.mean() < 1.0
   box = np.reshape(exp.config.model.grid_box, (2, 3))
   assert np.all(box[0] > -exp.config.data.scene_bound - 1e-6) and np.all(box[1] > box[0])
-  state = experiment.init_state(exp)
+  state = init_state(exp)
   np.testing.assert_array_equal(np.asarray(state.buffers["occupancy"]), hull)
-  step = experiment.make_train_step(exp)
-  data = experiment.make_train_data(exp)
+  step = components.make_train_step(exp)
+  data = components.make_train_data(exp)
   for _ in range(2):  # step 0 refreshes the grid from the field (update_every = 1)
     state, _ = step(state, data, jax.random.PRNGKey(0))
   grid_after = np.asarray(state.buffers["occupancy"])
   assert grid_after.max() > 0 and np.all(grid_after[hull == 0] == 0)
   ray_batch = exp.rays(exp.train_ds.poses[0])
   samples = jitted(exp.renderer.sampler.place)(ray_batch, None, state.buffers["occupancy"])
-  points = np.asarray(jitted(sampler.points)(ray_batch, samples.distances))[
+  points = np.asarray(jitted(placement.points)(ray_batch, samples.distances))[
       np.asarray(samples.valid)]
   assert len(points) > 0
   in_hull = jitted(occupancy.lookup, bound=exp.config.data.scene_bound)(

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from nerf_jax.evaluate import evaluation, metrics
-from nerf_jax.run import experiment
+from nerf_jax.run import components, experiment
+from nerf_jax.run.signature import init_state, model_signature
 from nerf_jax.run import train_lib
 from nerf_jax.data import loaders
 from nerf_jax.data.scenes import photos
@@ -19,7 +20,7 @@ def _field_and_params(base, dims, num_images=5):
   # On the fast base, the tiny grid: the head is what is tested.
   config = small_config(TINY_GRID if base == "fast" else {}, base=base,
                         **{"model.appearance_dims": dims})
-  field = experiment.make_field(config, num_images)
+  field = components.make_field(config, num_images)
   return field, jitted(field.init)(jax.random.PRNGKey(0))
 
 
@@ -53,7 +54,7 @@ def test_off_by_default_leaves_the_network_as_it_was():
   ignored = field.query_in_chunks(params, points, dirs, image=jnp.array([0, 1]))
   for a, b in zip(plain, ignored):
     np.testing.assert_array_equal(a, b)
-  assert "appearance_dims" not in experiment.model_signature(small_config())
+  assert "appearance_dims" not in model_signature(small_config())
 
 
 def test_the_exposure_capture_has_the_stated_gains_on_training_views_only():
@@ -81,9 +82,9 @@ def test_left_half_without_codes_scores_the_right_half_and_says_so():
   config = small_config({"data.scene": "exposure", "data.num_views": 6, "data.holdout_from": 4,
                          "data.image_size": 16, "render.appearance_protocol": "left_half"})
   exp = experiment.setup(config)
-  variables = {"params": experiment.init_state(exp).params}
+  variables = {"params": init_state(exp).params}
   rendered = {}
-  result = experiment.make_evaluator(exp)(variables, on_view=lambda i, out, truth: rendered.update(
+  result = components.make_evaluator(exp)(variables, on_view=lambda i, out, truth: rendered.update(
       {i: (out["rgb"], truth)}))
   assert result["appearance"] == evaluation.NO_CODE_HALF
   for view in result["per_view"]:
@@ -144,11 +145,11 @@ def test_codes_absorb_known_per_photo_gains(tmp_path, monkeypatch):
   exp = experiment.setup(config)
   exp.test_ds.images[:] = np.clip(1.5 * exp.test_ds.images, 0, 1)
   variables = restored_variables(workdir)
-  fitted = experiment.make_evaluator(exp)(variables)
+  fitted = components.make_evaluator(exp)(variables)
   monkeypatch.setattr(evaluation, "FIT_STEPS", 0)  # the code stays the mean: the same half
-  unfitted = experiment.make_evaluator(exp)(variables)
+  unfitted = components.make_evaluator(exp)(variables)
   assert fitted["appearance"].startswith("left half")
   assert fitted["psnr"] > unfitted["psnr"] + 0.5, (fitted["psnr"], unfitted["psnr"])
   config.render.appearance_protocol = "whole"
   with pytest.raises(ValueError, match="appearance_protocol='whole'"):
-    experiment.make_evaluator(experiment.setup(config))
+    components.make_evaluator(experiment.setup(config))

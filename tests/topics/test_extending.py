@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from nerf_jax.fields import registry
-from nerf_jax.run import experiment, train_lib
+from nerf_jax.run import components, experiment, train_lib
+from nerf_jax.run.signature import init_state, model_signature
 from tests.helpers import ROOT, TINY_GRID, small_config
 
 DOC = pathlib.Path(ROOT) / "docs" / "extending.md"
@@ -45,14 +46,14 @@ def test_the_docs_encoding_trains_and_restores_from_its_config_section(triplane_
   network = exp.renderer.field.network
   assert type(network).__name__ == "TriPlaneNeRF" and network.resolution == 16
   assert exp.renderer.field.pos_encode_dims is None  # raw positions: the planes encode them
-  params = experiment.init_state(exp).params["coarse"]
+  params = init_state(exp).params["coarse"]
   assert sorted(k for k in params if k.startswith("plane_")) == ["plane_01", "plane_02", "plane_12"]
   assert params["plane_01"].shape == (16, 16, 8)
-  signature = experiment.model_signature(config)
+  signature = model_signature(config)
   assert signature["encoding"] == "triplane" and signature["triplane_resolution"] == 16
   # Its planes take the total variation (its table_axes), as the built-in tables do.
   config.train.tv_weight = 0.1
-  tv = [t for t in experiment.loss_terms(config, exp.renderer) if hasattr(t, "table_axes")]
+  tv = [t for t in components.loss_terms(config, exp.renderer) if hasattr(t, "table_axes")]
   assert dict(tv[0].table_axes) == {"plane_": 2}
   config.train.tv_weight = 0.0
 
@@ -73,7 +74,7 @@ def test_a_registered_name_and_a_wrong_one(triplane_config):
     registry._MODULES.pop("triplane_for_test")  # pylint: disable=protected-access
   triplane_config.model.triplane.resoluton = 8  # misspelt: an error naming it
   with pytest.raises(ValueError, match="model.triplane has no setting 'resoluton'"):
-    experiment.make_field(triplane_config)
+    components.make_field(triplane_config)
   triplane_config.model.encoding = "no_such_family"
   with pytest.raises(ValueError, match="posenc, grid, hash, tensorf or a module path"):
-    experiment.make_field(triplane_config)
+    components.make_field(triplane_config)

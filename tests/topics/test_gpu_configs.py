@@ -8,7 +8,7 @@ import pytest
 
 from nerf_jax.fields.networks.grid import GridNeRF
 from nerf_jax.fields.networks.hash import HashNeRF
-from nerf_jax.run import config_lib, experiment, train_lib
+from nerf_jax.run import components, config_lib, train_lib
 from nerf_jax.train import losses
 from tests.helpers import small_config
 
@@ -25,7 +25,7 @@ def _hash_rows(levels, base, finest, log2_size):
 
 def _param_shapes(config):
   """{name: shape} of the coarse network's parameters, from shapes alone (nothing allocated)."""
-  rr = experiment.make_ray_renderer(config)
+  rr = components.make_ray_renderer(config)
   shapes = jax.eval_shape(rr.init, jax.random.PRNGKey(0))["params"]["coarse"]
   return rr, jax.tree_util.tree_map(lambda a: a.shape, shapes)
 
@@ -65,12 +65,12 @@ def test_llff_has_finer_levels_and_total_variation_in_ndc():
   config = config_lib.load("gpu/llff")
   rr, shapes = _param_shapes(config)
   assert isinstance(rr.field.network, GridNeRF) and config.data.ndc
-  # Before the NDC box is found (experiment.with_ndc_box) the grids cover the cube: the finest
+  # Before the NDC box is found (from_data.with_ndc_box) the grids cover the cube: the finest
   # level has 512 points across and 512 / 4 (+ 1) in depth, its cells 4x as long.
   assert shapes["grid_512"] == (512, 512, 129, 4)
   assert max(config.model.grid.resolutions) == 4 * max(config_lib.load("llff").model.grid
                                                        .resolutions)
-  terms = experiment.loss_terms(config, rr)
+  terms = components.loss_terms(config, rr)
   assert [t.weight for t in terms if isinstance(t, losses.TotalVariation)] == [1e-2]
   assert config.train.batch_rays * config.num_samples == SAMPLES_PER_STEP
 

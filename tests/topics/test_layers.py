@@ -3,11 +3,11 @@
 1. Imports run down the layers (LAYERS, lowest first): a module imports from its own folder and
    the folders below it, never above; UPWARD lists the arrows that still run up (none now).
 2. No ConfigDict is read below the entry layer. Outside the entry modules (ENTRY: cli.py,
-   view.py, run/, bench/, viewer/; the old-path aliases at the top of nerf_jax/ are checked,
+   run/, bench/, viewer/; the old-path aliases at the top of nerf_jax/ are checked,
    and read none) no function takes a `config` / `*_config` argument, no code reads a
    `config.` / `*_config.` attribute, and none reads an attribute named `config` (`exp.config`;
    jax.config, JAX's flags, aside): each layer
-   receives its own small, typed settings, built once by run/experiment.py (docstrings and
+   receives its own small, typed settings, built once by run/components.py (docstrings and
    messages may name config fields). The data loaders, the train batches, the train step and
    the evaluator are below the entry layer.
 """
@@ -19,13 +19,13 @@ import re
 import nerf_jax
 
 PACKAGE = pathlib.Path(nerf_jax.__file__).parent
-ENTRY = re.compile(r"^(cli|view)\.py$|^(run|bench|viewer)/")
+ENTRY = re.compile(r"^cli\.py$|^(run|bench|viewer)/")
 CONFIG_NAME = re.compile(r"^(config|\w+_config)$")
 
-# The folders of nerf_jax, lowest layer first; 'entry' is the rest (cli, view, viewer/, bench/,
+# The folders of nerf_jax, lowest layer first; 'entry' is the rest (cli, viewer/, bench/,
 # the old-path aliases) and configs/.
-LAYERS = ("backend", "cameras", "fields", "samplers", "render", "data", "evaluate", "train",
-          "run", "entry")
+LAYERS = ("backend", "cameras", "volume", "fields", "samplers", "render", "data", "evaluate",
+          "train", "run", "entry")
 # Imports that still run up a layer, as (importing module, imported module): none (issue 39
 # replaced them with settings, a step hook and backend/errors.py).
 UPWARD = set()

@@ -21,7 +21,8 @@ from nerf_jax import rendering
 from nerf_jax.cameras import rays
 from nerf_jax.fields import activations
 from nerf_jax.fields.encodings import encoding
-from nerf_jax.samplers import sampling
+from nerf_jax.samplers import spacing
+from nerf_jax.volume import quadrature
 
 LOW_PRECISION = [jnp.bfloat16, jnp.float16]
 # Unit roundoff u of each low-precision dtype (half its machine epsilon).
@@ -65,8 +66,8 @@ def _colour(rgb, sigma, t, background):
 
 # Jacobians of one ray's colour [3] with respect to its rgb [S, 3] and sigma [S].
 _colour_jacobians = jax.jit(jax.jacobian(_colour, argnums=(0, 1)))
-_stratified = jax.jit(sampling.stratified, static_argnums=(2, 3, 5))
-_sample_pdf = jax.jit(sampling.sample_pdf, static_argnums=(2,))
+_stratified = jax.jit(spacing.stratified, static_argnums=(2, 3, 5))
+_sample_pdf = jax.jit(spacing.sample_pdf, static_argnums=(2,))
 
 
 def _edges(deltas, start=0.0):
@@ -316,7 +317,7 @@ def test_case06_activation_gradients_finite_over_raw_range():
 
   # Naive: exp evaluated in float16 overflows at raw = 11.1; the compositing clamp gives that
   # sample a zero gradient, and the backward pass of exp multiplies it by exp(raw) = inf.
-  clamped_f16_exp = lambda r: jnp.minimum(jnp.exp(r).astype(jnp.float32), rendering.MAX_DENSITY)
+  clamped_f16_exp = lambda r: jnp.minimum(jnp.exp(r).astype(jnp.float32), quadrature.MAX_DENSITY)
   with pytest.raises(FloatingPointError):
     jax.grad(clamped_f16_exp)(jnp.asarray(12.0, jnp.float16))
 
@@ -366,8 +367,8 @@ def _naive_lindisp(near, far, s):
 
 def _field_render(directions):
   """Sample, encode and composite along rays from the origin: a stand-in for the field."""
-  t = sampling.stratified(2.0, 6.0, 8, directions.shape[:1])
-  points = directions[:, None, :] * sampling.midpoints(t)[..., None]
+  t = spacing.stratified(2.0, 6.0, 8, directions.shape[:1])
+  points = directions[:, None, :] * spacing.midpoints(t)[..., None]
   feats = encoding.positional_encoding(points, 4)
   view = encoding.positional_encoding(rays.safe_normalize(directions), 2)
   sigma = jax.nn.softplus(jnp.sum(feats, -1))
@@ -595,7 +596,7 @@ def test_case11_low_precision_mlp_composited():
   rays_, num = 16, 32
   t = np.asarray(_stratified(2.0, 6.0, num, (rays_,), None, False))
   directions = np.random.default_rng(1).normal(size=(rays_, 3)).astype(np.float32)
-  points = np.array([0.0, 0.0, 4.0]) + directions[:, None, :] * sampling.midpoints(t)[..., None]
+  points = np.array([0.0, 0.0, 4.0]) + directions[:, None, :] * spacing.midpoints(t)[..., None]
   feats = encoding.positional_encoding(0.25 * points.astype(np.float32), 6)
   params = _numpy_init(_tiny_model("float32"), feats, seed=3)
   ref, lows = _numpy(_mlp_composites_and_grads(params, feats, t))
@@ -614,11 +615,11 @@ def test_case11_low_precision_mlp_composited():
 @functools.lru_cache(maxsize=None)
 def _train_setup():
   """The debug config's model, optimizer and jitted train step (compiled once), and 2 views."""
-  from nerf_jax.run import experiment
+  from nerf_jax.run import components, experiment  # pylint: disable=g-import-not-at-top
   from nerf_jax.train import train_batches  # pylint: disable=g-import-not-at-top
   from tests.helpers import small_config  # pylint: disable=g-import-not-at-top
   exp = experiment.setup(small_config({"train.batch_rays": 64}))
-  step = experiment.make_train_step(exp)
+  step = components.make_train_step(exp)
   # Two views of a random 8x8 target from cameras 4 units from the origin; near 2, far 6.
   ray_list = [rays.get_rays(8, 8, 10.0, pose) for pose in rays.orbit_poses(num_frames=2)]
   data = train_batches.TrainData(
@@ -631,9 +632,9 @@ def _train_setup():
 
 @functools.lru_cache(maxsize=None)
 def _jitted_init_state():
-  from nerf_jax.run import experiment  # pylint: disable=g-import-not-at-top
+  from nerf_jax.run.signature import init_state  # pylint: disable=g-import-not-at-top
   exp, _, _ = _train_setup()
-  return jax.jit(lambda: experiment.init_state(exp))  # one compile, not op by op
+  return jax.jit(lambda: init_state(exp))  # one compile, not op by op
 
 
 def _init_state():
@@ -666,7 +667,7 @@ def test_case12_train_step_from_degenerate_start(start):
 
 # --- 13. Edges out to 1e10: rays into an unbounded scene ---------------------------------------
 
-_stratified_unbounded = jax.jit(sampling.stratified_unbounded, static_argnums=(3, 4))
+_stratified_unbounded = jax.jit(spacing.stratified_unbounded, static_argnums=(3, 4))
 
 
 @pytest.mark.parametrize("far", [1e10, np.inf])
@@ -677,8 +678,8 @@ def test_case13_edges_out_to_1e10(far, use_key):
   sigma[1] = 1e-12  # thin everywhere: the far interval alone has tau = 1e-2
   sigma[2] = np.exp(np.random.default_rng(13).normal(0.0, 3.0, num))  # log-normal
   sigma[3, -1] = 1e-8  # a sky: empty until the last interval, opaque over it (tau = 100)
-  sigma[4, -1] = rendering.MAX_DENSITY  # tau = 1e30·1e10 = inf in float32
-  sigma[5] = rendering.MAX_DENSITY  # opaque everywhere
+  sigma[4, -1] = quadrature.MAX_DENSITY  # tau = 1e30·1e10 = inf in float32
+  sigma[5] = quadrature.MAX_DENSITY  # opaque everywhere
   sigma[6, num // 2] = 1e3  # a surface just outside the inner region
   sigma[7] = np.inf  # an overflowing activation (clamped at MAX_DENSITY)
   key = jax.random.PRNGKey(13) if use_key else None

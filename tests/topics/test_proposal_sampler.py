@@ -14,11 +14,13 @@ import numpy as np
 import pytest
 
 from nerf_jax.cameras.rays import Rays, get_rays, pose_spherical
-from nerf_jax.render import compositing, image_renderer
-from nerf_jax.run import experiment, train_lib
-from nerf_jax.samplers import proposal, sampler as sampler_lib, sampling
+from nerf_jax.render import image_renderer
+from nerf_jax.run import components, experiment, train_lib
+from nerf_jax.run.signature import model_signature
+from nerf_jax.samplers import placement, proposal, spacing
 from nerf_jax.samplers.occupancy import OccupancySettings
 from nerf_jax.train import losses
+from nerf_jax.volume import quadrature
 from tests.conftest import params_equal, restored_variables
 from tests.helpers import jitted, small_config
 from tests.helpers import loss_ref
@@ -50,7 +52,7 @@ def _rays(count=24):
 @pytest.fixture(scope="module", params=["", "linf"], ids=["bounded", "contracted"])
 def rendered(request):
   """(ray renderer, variables, rays, render outputs with a key) of the tiny proposal config."""
-  rr = experiment.make_ray_renderer(_config(request.param))
+  rr = components.make_ray_renderer(_config(request.param))
   variables = rr.init(jax.random.PRNGKey(0))
   rays = _rays()
   outputs = jax.jit(lambda v, r, k: rr.render(v, r, k))(variables, rays, jax.random.PRNGKey(1))
@@ -62,9 +64,9 @@ def rendered(request):
 @pytest.mark.slow  # trains or renders for more than ~10 s on 2 cores
 def test_builtin_sampler_generates_what_it_placed_and_brings_nothing():
   rays, key = _rays(), jax.random.PRNGKey(2)
-  plain = sampler_lib.Sampler(16, BOUND)
+  plain = placement.Sampler(16, BOUND)
   oc = OccupancySettings(resolution=8, candidates=32)
-  occupied = sampler_lib.Sampler(8, BOUND, occupancy=oc)
+  occupied = placement.Sampler(8, BOUND, occupancy=oc)
   grid = jnp.ones((8, 8, 8), jnp.float32)
   for rs, variables in ((plain, {}), (occupied, {"occupancy": grid})):
     samples, extras = jitted(rs.generate)(rays, key, {"params": {}, **variables})
@@ -78,39 +80,39 @@ def test_builtin_sampler_generates_what_it_placed_and_brings_nothing():
 
 def test_builtin_renderer_has_no_sampler_parameters_outputs_or_terms():
   config = small_config()
-  rr = experiment.make_ray_renderer(config)
-  assert type(rr.sampler) is sampler_lib.Sampler  # pylint: disable=unidiomatic-typecheck
+  rr = components.make_ray_renderer(config)
+  assert type(rr.sampler) is placement.Sampler  # pylint: disable=unidiomatic-typecheck
   variables = rr.init(jax.random.PRNGKey(0))
   assert sorted(variables["params"]) == sorted(rr.networks)
   assert "sampler" not in rr.render(variables, _rays(4))
   assert not any(key.startswith(("sampler", "proposal"))
-                 for key in experiment.model_signature(config))
-  assert [type(t) for t in experiment.loss_terms(config, rr)] == [losses.Colour]
+                 for key in model_signature(config))
+  assert [type(t) for t in components.loss_terms(config, rr)] == [losses.Colour]
 
 
 # The proposal sampler.
 
 def test_sampler_owns_its_levels_parameters_signature_and_term():
   config = _config("linf")
-  rr = experiment.make_ray_renderer(config)
+  rr = components.make_ray_renderer(config)
   assert isinstance(rr.sampler, proposal.ProposalSampler) and not rr.sampler.marchable
-  assert not image_renderer.marches(rr, experiment.image_settings(config))
+  assert not image_renderer.marches(rr, components.image_settings(config))
   variables = rr.init(jax.random.PRNGKey(0))
   assert sorted(variables["params"]) == ["coarse", "proposal_0", "proposal_1"]
   # The NeRF's parameters are those of the built-in sampler's renderer: same key, same values.
-  plain = experiment.make_ray_renderer(_config("linf", sampler=""))
+  plain = components.make_ray_renderer(_config("linf", sampler=""))
   assert params_equal(variables["params"]["coarse"],
                       plain.init(jax.random.PRNGKey(0))["params"]["coarse"])
-  signature = experiment.model_signature(config)
+  signature = model_signature(config)
   assert signature["sampler"] == "proposal" and signature["proposal_max_resolution"] == [16, 32]
-  terms = experiment.loss_terms(config, rr)
+  terms = components.loss_terms(config, rr)
   assert isinstance(terms[-1], proposal.Interlevel) and terms[-1].weight == 1.0
 
 
 def test_samples_are_sorted_inside_the_bounds_and_finite(rendered):
   rr, variables, rays, _ = rendered
   near, far = rr.sampler.bounds(rays)
-  far = jnp.minimum(far, sampling.MAX_FAR)  # contraction: far = inf, sampled out to 1e10
+  far = jnp.minimum(far, spacing.MAX_FAR)  # contraction: far = inf, sampled out to 1e10
   for key in (None, jax.random.PRNGKey(3)):
     samples, extras = jax.jit(rr.sampler.generate)(rays, key, variables)
     levels = extras["proposals"]
@@ -127,12 +129,12 @@ def test_samples_are_sorted_inside_the_bounds_and_finite(rendered):
       w = np.asarray(lv["weights"])
       assert np.all(w >= 0) and np.all(np.sum(w, -1) <= 1 + 1e-5)
   if rr.sampler.contraction:
-    assert np.all(far == sampling.MAX_FAR)
+    assert np.all(far == spacing.MAX_FAR)
 
 
 def test_the_shipped_config_has_one_dense_lattice_level_and_places_finite_samples():
   config = small_config({"data.scene_bound": BOUND}, base="scenes/garden_proposal")
-  rr = experiment.make_ray_renderer(config)
+  rr = components.make_ray_renderer(config)
   variables = rr.init(jax.random.PRNGKey(0))
   level = variables["params"]["proposal_0"]
   assert sorted(variables["params"]) == ["coarse", "proposal_0"]
@@ -141,7 +143,7 @@ def test_the_shipped_config_has_one_dense_lattice_level_and_places_finite_sample
   t = np.asarray(samples.t)
   assert t.shape == (24, 33) and extras["proposals"][0]["t"].shape == (24, 65)
   assert np.all(np.isfinite(t)) and np.all(np.diff(t, axis=-1) >= 0)
-  assert np.all(t[:, -1] == sampling.MAX_FAR)
+  assert np.all(t[:, -1] == spacing.MAX_FAR)
 
 
 def test_interlevel_term_matches_the_brute_force(rendered):
@@ -162,7 +164,7 @@ def test_a_proposal_with_the_nerfs_density_bounds_its_weights(contraction):
   """A step function along each ray, constant (the quadrature is exact): per ray a density of
   0 (empty), 0.05 (thin), 1 or 1e3 (opaque) per unit length. Every level with the NeRF's own
   density bounds the NeRF's weights, and the interlevel loss is 0."""
-  rr = experiment.make_ray_renderer(_config(contraction))
+  rr = components.make_ray_renderer(_config(contraction))
   rays = _rays()
   per_ray = jnp.asarray(np.resize([0.0, 0.05, 1.0, 1e3], 24), jnp.float32)
   density = lambda points: jnp.broadcast_to(per_ray[:, None], points.shape[:-1])
@@ -170,8 +172,8 @@ def test_a_proposal_with_the_nerfs_density_bounds_its_weights(contraction):
   @jax.jit
   def place(key):
     samples, extras = rr.sampler.generate_from(rays, [density, density], key)
-    sigma = sampler_lib.per_unit_t(density(sampler_lib.points(rays, samples.distances)), rays)
-    return samples.t, compositing.compute_weights(sigma, samples.t)[0], extras["proposals"]
+    sigma = placement.per_unit_t(density(placement.points(rays, samples.distances)), rays)
+    return samples.t, quadrature.compute_weights(sigma, samples.t)[0], extras["proposals"]
 
   for key in (None, jax.random.PRNGKey(4)):
     t, w, levels = place(key)
@@ -202,7 +204,7 @@ def test_photometric_loss_trains_the_nerf_and_interlevel_the_proposals_only(rend
 
 
 @pytest.mark.parametrize("fields, match", [
-    ({"sampler": "nope"}, "config.sampler='nope'"),
+    ({"sampler": "nope"}, "config.sampler must be one of placement, proposal"),
     ({"proposal.max_resolution": (64,)}, "config.proposal.max_resolution"),
     ({"proposal.num_samples": (32, 0)}, "config.proposal.num_samples"),
     ({"proposal.padding": -1.0}, "config.proposal.padding"),
@@ -213,7 +215,7 @@ def test_photometric_loss_trains_the_nerf_and_interlevel_the_proposals_only(rend
 ])
 def test_settings_that_cannot_work_are_one_line_naming_the_field(fields, match):
   with pytest.raises(ValueError) as info:
-    experiment.make_ray_renderer(_config(**fields))
+    components.make_ray_renderer(_config(**fields))
   assert match in str(info.value) and "\n" not in str(info.value)
 
 
@@ -238,8 +240,8 @@ def test_training_lowers_the_loss_and_the_checkpoint_restores(tmp_path):
       "interlevel"]
   exp, state = experiment.restore(workdir)
   assert sorted(state.params) == ["coarse", "proposal_0", "proposal_1"]
-  again = experiment.make_evaluator(exp)(restored_variables(workdir))
+  again = components.make_evaluator(exp)(restored_variables(workdir))
   assert again["per_view"] == json.loads(open(f"{workdir}/metrics.json").read())["per_view"]
   # A checkpoint of the proposal sampler does not restore under the built-in one.
-  assert experiment.model_signature(config) != experiment.model_signature(
+  assert model_signature(config) != model_signature(
       _config("linf", sampler=""))

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.render import renderer
-from nerf_jax.run import experiment
+from nerf_jax.run import components
 from nerf_jax.train import losses
 from tests.helpers import SPLIT_GRID, TINY_GRID, ball_in_first_density_level, jitted
 from tests.helpers import small_config, small_view_rays
@@ -51,7 +51,7 @@ def _renderers(split):
             "occupancy.enabled": True,
             "occupancy.resolution": 16, "model.colour_fraction": 1.0 if split else 0.0}
   config = small_config(base="fast", **fields)
-  plain = experiment.make_ray_renderer(config)
+  plain = components.make_ray_renderer(config)
   variables = jitted(plain.init)(jax.random.PRNGKey(0))
   if split:
     variables["params"]["coarse"] = ball_in_first_density_level(variables["params"]["coarse"])
@@ -143,4 +143,4 @@ def test_the_colour_loss_reports_what_the_rays_asked_of_the_budget():
 def test_a_budget_needs_the_occupancy_grid():
   config = small_config(base="fast", **{"train.sample_budget": 1000})
   with pytest.raises(ValueError, match="occupancy.enabled"):
-    experiment.make_ray_renderer(config)
+    components.make_ray_renderer(config)

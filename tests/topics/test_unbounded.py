@@ -10,8 +10,8 @@ import pytest
 
 from nerf_jax.fields import contraction
 from nerf_jax.fields.networks import grid as grid_network
-from nerf_jax.run import experiment
-from nerf_jax.samplers import occupancy, sampler, sampling
+from nerf_jax.run import components, experiment, from_data
+from nerf_jax.samplers import occupancy, placement, spacing
 from nerf_jax.fields.field import Field
 from nerf_jax.cameras.rays import Rays
 from tests.helpers import jitted, small_config
@@ -27,17 +27,17 @@ def _rays(num=64, seed=0):
 @pytest.mark.parametrize("kind", ["l2", "linf"])
 def test_contracted_placement_is_linear_inside_and_in_disparity_beyond(kind):
   rays = _rays()
-  placed = sampler.Sampler(32, scene_bound=1.5, contraction=kind, inner_fraction=0.25)
+  placed = placement.Sampler(32, scene_bound=1.5, contraction=kind, inner_fraction=0.25)
   t = placed.place(rays).t
   t_inner = contraction.inner_exit(rays.origins, rays.directions, 1.5, kind)
-  expected = sampling.stratified_unbounded(rays.near, t_inner, jnp.inf, 32, rays.shape,
+  expected = spacing.stratified_unbounded(rays.near, t_inner, jnp.inf, 32, rays.shape,
                                            inner_fraction=0.25)
   np.testing.assert_array_equal(t, expected)
   # The rays run to (effectively) infinity, not to their far bound, and stay sorted and finite.
   assert np.all(np.isfinite(t)) and np.all(np.diff(t, axis=-1) >= 0)
   assert np.all(t[:, -1] >= 1e9)
   # A bounded sampler stops at the box: the contraction is what lets samples go beyond.
-  bounded = sampler.Sampler(32, scene_bound=1.5).place(rays).t
+  bounded = placement.Sampler(32, scene_bound=1.5).place(rays).t
   assert np.all(bounded[:, -1] <= 5.0 + 1e-5)
 
 
@@ -75,15 +75,15 @@ def _photos(exp):
 def test_a_box_that_cuts_most_rays_says_so_in_one_line(capsys):
   exp = experiment.setup(small_config({"data.scene_bound": 0.5}))  # the cameras sit at radius 4
   assert "leave the scene box" not in capsys.readouterr().out  # opacity: the rest is empty
-  experiment.warn_if_cut(_photos(exp))
+  from_data.warn_if_cut(_photos(exp))
   lines = [l for l in capsys.readouterr().out.splitlines() if "leave the scene box" in l]
   assert len(lines) == 1 and "data.contraction" in lines[0]
   # A box holding the whole of [near, far] (radius 4 + far 6) cuts nothing.
-  experiment.warn_if_cut(_photos(experiment.setup(small_config({"data.scene_bound": 10.0}))))
+  from_data.warn_if_cut(_photos(experiment.setup(small_config({"data.scene_bound": 10.0}))))
   assert "leave the scene box" not in capsys.readouterr().out
   # Contracted: nothing is cut.
   exp = experiment.setup(small_config({"data.scene_bound": 0.5, "data.contraction": "linf"}))
-  experiment.warn_if_cut(_photos(exp))
+  from_data.warn_if_cut(_photos(exp))
   assert "leave the scene box" not in capsys.readouterr().out
 
 
@@ -91,21 +91,21 @@ def test_contraction_refuses_what_it_cannot_do_yet():
   config = small_config({"data.scene_bound": 1.5, "data.contraction": "linf",
                          "num_fine_samples": 8})
   with pytest.raises(ValueError, match="contraction"):
-    experiment.make_sampler(config)
+    components.make_sampler(config)
 
 
 def test_occupancy_in_contracted_space_samples_only_occupied_cells():
   # Occupied: the contracted cells of a shell between world radius 3 and 6 (L-inf), i.e.
   # contracted |c| in [1.5 * (2 - 1/2), 1.5 * (2 - 1/4)] = [2.25, 2.625].
   oc = occupancy.OccupancySettings(resolution=16, candidates=128)
-  rs = sampler.Sampler(16, scene_bound=1.5, occupancy=oc, contraction="linf")
+  rs = placement.Sampler(16, scene_bound=1.5, occupancy=oc, contraction="linf")
   centres = np.asarray(occupancy.cell_centres(16, rs.grid_bound))
   radius = np.max(np.abs(centres), axis=-1)
   grid = np.where((radius > 2.25) & (radius < 2.625), 10.0, 0.0).astype(np.float32)
   rays = Rays.create(jnp.zeros((32, 3)), jnp.asarray(np.random.default_rng(1).normal(
       size=(32, 3)), jnp.float32), 0.1, 5.0)
   placed = jitted(rs.place)(rays, jax.random.PRNGKey(0), jnp.asarray(grid))
-  world = sampler.points(rays, placed.distances)[np.asarray(placed.valid)]
+  world = placement.points(rays, placed.distances)[np.asarray(placed.valid)]
   assert len(world) > 32  # every ray crosses the shell
   # Each valid sample lies in the occupied shell (up to a cell of contracted space, 0.1875).
   cells = np.max(np.abs(np.asarray(contraction.contract(world, 1.5, "linf"))), axis=-1)

@@ -138,7 +138,7 @@ def test_page_shows_rendered_frames_and_dragging_changes_them(workdir):
 
 @pytest.mark.slow  # a subprocess
 def test_command_without_checkpoint_prints_one_line(tmp_path):
-  result = subprocess.run([sys.executable, "-m", "nerf_jax.view", f"--workdir={tmp_path}"],
+  result = subprocess.run([sys.executable, "-m", "nerf_jax.viewer", f"--workdir={tmp_path}"],
                           cwd=ROOT, capture_output=True, text=True, timeout=120,
                           env={**os.environ, "PYTHONPATH": ROOT})
   assert result.returncode == 1

@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 from flax import serialization
 
-from nerf_jax.run import experiment
+from nerf_jax.run import components, experiment
+from nerf_jax.train import optimizer
+from nerf_jax.run.signature import init_state, model_signature, state_template
 from nerf_jax.train import checkpoints, losses, train_step
 from tests.conftest import params_equal
 from tests.helpers import small_config
@@ -65,7 +67,7 @@ def test_the_huber_colour_loss_is_the_mean_over_whole_rays_and_psnr_stays_the_sq
 def test_a_negative_huber_delta_is_refused_naming_the_field():
   config = small_config(**{"train.huber_delta": -0.1})
   with pytest.raises(ValueError, match="config.train.huber_delta=-0.1"):
-    experiment.loss_terms(config, experiment.make_ray_renderer(config))
+    components.loss_terms(config, components.make_ray_renderer(config))
 
 
 # --- L2 on the networks' weight matrices ---------------------------------------------------
@@ -102,7 +104,7 @@ def test_network_l2_adds_lambda_w_to_the_gradient_of_weight_matrices_only(l2):
   config = small_config(**{"train.network_l2": l2, "train.warmup_steps": 0, "train.lr": 1e-2,
                            "train.lr_final": 1e-2, "train.adam_b2": 0.99,
                            "train.adam_eps": 1e-3})
-  tx = experiment.make_optimizer(config.train)
+  tx = optimizer.make_optimizer(components.optimizer_settings(config))
   params, grads = _tree()
   state = tx.init(params)
   for _ in range(3):
@@ -120,7 +122,7 @@ def test_network_l2_adds_lambda_w_to_the_gradient_of_weight_matrices_only(l2):
 def test_a_negative_network_l2_is_refused_naming_the_field():
   config = small_config(**{"train.network_l2": -1e-6})
   with pytest.raises(ValueError, match="config.train.network_l2=-1e-06"):
-    experiment.make_optimizer(config.train)
+    components.optimizer_settings(config)
 
 
 # --- the weights' moving average -------------------------------------------------------------
@@ -142,8 +144,8 @@ def ema_run():
   so the reference can average what each step left."""
   config = small_config(EMA)
   exp = experiment.setup(config)
-  step, data = experiment.make_train_step(exp), experiment.make_train_data(exp)
-  state = experiment.init_state(exp)
+  step, data = components.make_train_step(exp), components.make_train_data(exp)
+  state = init_state(exp)
   seen = [jax.device_get(state.params)]
   for _ in range(4):
     state, _ = step(state, data, jax.random.PRNGKey(0))
@@ -169,20 +171,20 @@ def test_the_train_state_keeps_the_average_of_every_steps_weights(ema_run):
 def test_a_run_without_the_average_keeps_none_and_renders_its_weights():
   config = small_config(**{"train.max_steps": 1})
   exp = experiment.setup(config)
-  state = experiment.init_state(exp)
+  state = init_state(exp)
   assert state.ema == {} and state.variables["params"] is state.params
-  assert "ema" not in experiment.model_signature(config)
+  assert "ema" not in model_signature(config)
 
 
 def test_the_average_is_checkpointed_and_an_older_checkpoint_is_refused_in_one_line(
     ema_run, tmp_path):
   config, exp, _, state = ema_run
-  signature = experiment.model_signature(config)
+  signature = model_signature(config)
   assert signature["ema"] is True
   workdir = str(tmp_path)
   checkpoints.save(workdir, 4, state, signature)
   restored = checkpoints.restore(checkpoints.latest_path(workdir),
-                                 experiment.state_template(exp), signature)
+                                 state_template(exp), signature)
   assert params_equal(restored.ema["params"], state.ema["params"])
   # A checkpoint of the same run without the average (saved before it was set) is refused
   # by the signature, with the field named, not restored into a state that expects one.
@@ -193,11 +195,11 @@ def test_the_average_is_checkpointed_and_an_older_checkpoint_is_refused_in_one_l
   checkpoints.save(str(tmp_path / "old"), 4, old, plain)
   with pytest.raises(checkpoints.CheckpointError, match="ema: checkpoint None vs config True"):
     checkpoints.restore(checkpoints.latest_path(str(tmp_path / "old")),
-                        experiment.state_template(exp), signature)
+                        state_template(exp), signature)
 
 
 @pytest.mark.parametrize("decay", [-0.1, 1.0])
 def test_an_ema_decay_outside_zero_to_one_is_refused_naming_the_field(decay):
   config = small_config(**{"train.ema_decay": decay})
   with pytest.raises(ValueError, match=f"config.train.ema_decay={decay}"):
-    experiment.step_settings(experiment.setup(config))
+    components.step_settings(experiment.setup(config))

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.run import experiment
+from nerf_jax.run.signature import init_state, model_signature
 from nerf_jax.train import checkpoints, parallel
 from nerf_jax.run import train_lib
 from tests.conftest import restored_variables
@@ -32,18 +33,19 @@ import json, sys
 import jax
 import numpy as np
 from nerf_jax.configs import debug
-from nerf_jax.run import experiment
-from nerf_jax.train import parallel, train_step
+from nerf_jax.run import components, experiment
+from nerf_jax.run.signature import init_state
+from nerf_jax.train import parallel
 
 config = debug.get_config()
 exp = experiment.setup(config)
-data = experiment.make_train_data(exp)
+data = components.make_train_data(exp)
 key = jax.random.PRNGKey(1)
 
 def run(mesh):
-  state = parallel.replicate(experiment.init_state(exp), mesh)
+  state = parallel.replicate(init_state(exp), mesh)
   replicated = parallel.replicate(data, mesh)
-  step = experiment.make_train_step(exp, mesh)
+  step = components.make_train_step(exp, mesh)
   hlo = step.lower(state, replicated, key).compile().as_text()
   losses = []
   for _ in range(STEPS):
@@ -149,11 +151,11 @@ def test_two_processes_match_one(tmp_path):
   # only process 0's workdir holds: process 1 must take process 0's start state.
   config = small_config()
   exp = experiment.setup(config)
-  state = experiment.init_state(exp)
+  state = init_state(exp)
   state = state.replace(params=exp.renderer.init(jax.random.PRNGKey(7))["params"])
   single_dir, workdirs = tmp_path / "single", [tmp_path / "p0", tmp_path / "p1"]
   for workdir in (single_dir, workdirs[0]):
-    checkpoints.save(str(workdir), 0, jax.device_get(state), experiment.model_signature(config))
+    checkpoints.save(str(workdir), 0, jax.device_get(state), model_signature(config))
   logs = [tmp_path / "log0.txt", tmp_path / "log1.txt"]
   procs = _start_two_processes(workdirs, logs)
   try:

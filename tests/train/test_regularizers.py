@@ -9,8 +9,9 @@ import pytest
 
 from nerf_jax.cameras import rays
 from nerf_jax.fields import registry
-from nerf_jax.run import experiment
-from nerf_jax.samplers import sampler, sampling
+from nerf_jax.run import components, experiment
+from nerf_jax.run.signature import init_state
+from nerf_jax.samplers import placement, spacing
 from nerf_jax.train import regularizers
 from tests.helpers import TINY_GRID, small_config
 
@@ -61,8 +62,8 @@ def test_distortion_gradient_is_finite_and_analytic():
 def one_step_stats(overrides):
   """The stats of one train step from a fresh state of small_config(overrides)."""
   exp = experiment.setup(small_config(overrides))
-  step = experiment.make_train_step(exp)
-  _, stats = step(experiment.init_state(exp), experiment.make_train_data(exp),
+  step = components.make_train_step(exp)
+  _, stats = step(init_state(exp), components.make_train_data(exp),
                   jax.random.PRNGKey(3))
   return stats
 
@@ -82,9 +83,9 @@ def test_the_train_loss_adds_the_weighted_distortion_and_nothing_else():
 def test_unbounded_unit_inverts_the_unbounded_strata(near, t_inner, far):
   num, shape = 24, (5,)
   for key in (None, jax.random.PRNGKey(7)):
-    t = sampling.stratified_unbounded(near, t_inner, far, num, shape, key, 0.5)
-    s = np.asarray(sampling.unbounded_unit(t, near, t_inner, far, 0.5))
-    strata = np.asarray(sampling.stratified(0.0, 1.0, num, shape, key))  # the same s, in [0, 1]
+    t = spacing.stratified_unbounded(near, t_inner, far, num, shape, key, 0.5)
+    s = np.asarray(spacing.unbounded_unit(t, near, t_inner, far, 0.5))
+    strata = np.asarray(spacing.stratified(0.0, 1.0, num, shape, key))  # the same s, in [0, 1]
     np.testing.assert_allclose(s, strata, atol=2e-5)
 
 
@@ -94,7 +95,7 @@ def test_unit_distance_does_not_depend_on_the_scene_scale():
   directions = rng.normal(size=(6, 3)).astype(np.float32)
   t = np.sort(rng.uniform(2.0, 6.0, (6, 17)), axis=-1).astype(np.float32)
   w = rng.uniform(0.0, 0.1, (6, 16)).astype(np.float32)
-  bounded = sampler.Sampler(16, scene_bound=3.0)
+  bounded = placement.Sampler(16, scene_bound=3.0)
   losses = []
   for k in (1.0, 40.0):  # the same scene in units 40 times smaller: t, near, far scale by k
     scaled = rays.Rays.create(k * origins, directions, k * 2.0, k * 6.0)
@@ -142,11 +143,11 @@ def test_lattice_tables_and_the_weighted_tv_in_the_train_loss():
   for weight in (0.0, 10.0):
     config = small_config(TINY_GRID, base="fast", **{"train.tv_weight": weight})
     exp = experiment.setup(config)
-    state = experiment.init_state(exp)
+    state = init_state(exp)
     tv = sum(float(regularizers.total_variation(t, a))
              for t, a in registry.lattice_tables(state.params, grid_axes))
-    _, stats[weight] = experiment.make_train_step(exp)(
-        state, experiment.make_train_data(exp), jax.random.PRNGKey(3))
+    _, stats[weight] = components.make_train_step(exp)(
+        state, components.make_train_data(exp), jax.random.PRNGKey(3))
   # Same render: only the loss grows, by the weight times the random start's variation.
   np.testing.assert_allclose(stats[10.0]["psnr"], stats[0.0]["psnr"], rtol=1e-6)
   np.testing.assert_allclose(float(stats[10.0]["loss"] - stats[0.0]["loss"]), 10.0 * tv,

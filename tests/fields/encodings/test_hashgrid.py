@@ -11,7 +11,8 @@ import optax
 import pytest
 
 from nerf_jax.fields.encodings import grid, hashgrid
-from nerf_jax.run import experiment
+from nerf_jax.run import components
+from nerf_jax.run.signature import model_signature
 from nerf_jax.fields.networks.hash import HashNeRF
 from tests.helpers import grey_view_loss, ray_renderer, small_config
 
@@ -210,11 +211,11 @@ def test_hash_model_trains_one_step_through_the_ray_renderer():
 
 def test_config_signature_and_errors():
   config = small_config(base="hash")
-  assert experiment.make_field(config).pos_encode_dims is None  # the grids are the encoding
-  signature = experiment.model_signature(config)
+  assert components.make_field(config).pos_encode_dims is None  # the grids are the encoding
+  signature = model_signature(config)
   assert signature["hash_log2_size"] == config.model.hash.log2_size
   assert signature["hash_max_resolution"] == config.model.hash.max_resolution
-  model = experiment.make_field(config).network
+  model = components.make_field(config).network
   assert model.max_resolution == 2048 and model.log2_size == config.model.hash.log2_size
   points = jnp.array([[0.0, 0.0, 0.0], [1.2, 0.0, 0.0]])  # inside, outside the box (bound 1)
   small = _small_model()
@@ -223,7 +224,7 @@ def test_config_signature_and_errors():
   assert float(raw_sigma[0]) > -1e4 and float(raw_sigma[1]) == -1e5
   config.model.encoding = "hashgrid"
   with pytest.raises(ValueError, match="config.model.encoding"):
-    experiment.make_field(config)
+    components.make_field(config)
   with pytest.raises(ValueError, match="model.hash.gather_dtype"):
     hashgrid.encode(jnp.zeros((64, 1)), jnp.zeros((1, 3)), (4,), 6, "float64")
 

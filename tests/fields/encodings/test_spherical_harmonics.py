@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.fields.encodings import spherical_harmonics as sh
-from nerf_jax.run import components, train_state
+from nerf_jax.run import components, signature
 from tests.helpers import small_config
 
 
@@ -80,8 +80,8 @@ def test_a_field_with_sh_directions_feeds_degree_squared_features_and_records_it
   rgb_flipped, sigma_flipped = field.query(params, points, -dirs)
   np.testing.assert_array_equal(sigma, sigma_flipped)  # density ignores the direction
   assert not np.allclose(rgb, rgb_flipped)  # colour does not
-  assert train_state.model_signature(config)["dir_encoding"] == "sh"
-  assert "dir_encoding" not in train_state.model_signature(small_config({}))  # as saved before
+  assert signature.model_signature(config)["dir_encoding"] == "sh"
+  assert "dir_encoding" not in signature.model_signature(small_config({}))  # as saved before
 
 
 def test_an_unknown_direction_encoding_is_a_one_line_error():

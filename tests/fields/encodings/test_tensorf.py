@@ -7,7 +7,7 @@ import numpy as np
 import optax
 
 from nerf_jax.fields.encodings import grid, tensorf
-from nerf_jax.run import experiment
+from nerf_jax.run.signature import model_signature
 from nerf_jax.bench import encodings as bench_encodings
 from nerf_jax.fields.networks.tensorf import TensoRFNeRF
 from tests.helpers import grey_view_loss, jitted, ray_renderer, small_config
@@ -79,7 +79,7 @@ def test_tensorf_model_shapes_box_and_one_training_step():
   params = jitted(rr.init)(jax.random.PRNGKey(0))["params"]
   coarse = params["coarse"]
   assert coarse["plane_16_0"].shape == (16, 16, 4) and coarse["line_8_2"].shape == (8, 4)
-  signature = experiment.model_signature(config)
+  signature = model_signature(config)
   assert signature["encoding"] == "tensorf" and signature["tensorf_rank"] == 4
   assert signature["tensorf_resolutions"] == [8, 16]
 

@@ -1,12 +1,12 @@
-"""sampler.Sampler: ray bounds cut to the scene box, and `place` — stratified samples over the box,
-or samples in the occupied cells of an occupancy grid — against brute force."""
+"""placement.Sampler: ray bounds cut to the scene box, and `place` — stratified samples over the
+box, or samples in the occupied cells of an occupancy grid — against brute force."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax.samplers import occupancy, sampler, sampling
+from nerf_jax.samplers import occupancy, placement, spacing
 from nerf_jax.samplers.occupancy import OccupancySettings
 from nerf_jax.cameras.rays import Rays
 
@@ -40,10 +40,10 @@ def test_bounds_are_the_box_segment_or_near_far_without_a_box():
   rays = _rays(64)
   t0, t1 = _box_bounds(rays, BOUND)
   assert np.all(t0 > NEAR) and np.all(t1 < FAR)  # the box cuts every ray on both sides
-  got = sampler.Sampler(16, BOUND).bounds(rays)
+  got = placement.Sampler(16, BOUND).bounds(rays)
   np.testing.assert_allclose(got[0], t0, rtol=1e-5)
   np.testing.assert_allclose(got[1], t1, rtol=1e-5)
-  near, far = sampler.Sampler(16).bounds(rays)
+  near, far = placement.Sampler(16).bounds(rays)
   assert np.all(np.asarray(near) == NEAR) and np.all(np.asarray(far) == FAR)
 
 
@@ -51,9 +51,9 @@ def test_bounds_are_the_box_segment_or_near_far_without_a_box():
 @pytest.mark.parametrize("lindisp", [False, True])
 def test_stratified_placement_is_stratified_sampling_over_the_box(key, lindisp):
   rays = _rays(64)
-  samples = sampler.Sampler(16, BOUND, lindisp).place(rays, key)
+  samples = placement.Sampler(16, BOUND, lindisp).place(rays, key)
   t0, t1 = _box_bounds(rays, BOUND)
-  expected = sampling.stratified(jnp.asarray(t0, jnp.float32), jnp.asarray(t1, jnp.float32), 16,
+  expected = spacing.stratified(jnp.asarray(t0, jnp.float32), jnp.asarray(t1, jnp.float32), 16,
                                  rays.shape, key, lindisp=lindisp)
   np.testing.assert_allclose(samples.t, expected, rtol=1e-5)
   np.testing.assert_allclose(samples.distances, 0.5 * (samples.t[:, 1:] + samples.t[:, :-1]),
@@ -79,9 +79,9 @@ def test_occupancy_placement_on_a_grid_occupied_everywhere_is_stratified():
   samples over its box segment: slot k spans candidates [k·M/K, (k+1)·M/K)."""
   settings = OccupancySettings(resolution=8, candidates=64)
   rays = _rays(32, seed=1)
-  samples = sampler.Sampler(16, BOUND, occupancy=settings).place(rays, None,
+  samples = placement.Sampler(16, BOUND, occupancy=settings).place(rays, None,
                                                                  settings.empty_grid())
-  plain = sampler.Sampler(16, BOUND).place(rays)
+  plain = placement.Sampler(16, BOUND).place(rays)
   assert samples.gapped and bool(samples.valid.all())
   np.testing.assert_allclose(samples.distances, plain.distances, rtol=1e-5)
   np.testing.assert_allclose(samples.t[:, ::2], plain.t, rtol=1e-5)  # the gaps are zero-width
@@ -97,7 +97,7 @@ def test_occupancy_placement_puts_every_sample_in_an_occupied_cell(key):
   settings = OccupancySettings(resolution=res, candidates=m, threshold=1.0)
   np.testing.assert_array_equal(occupancy.occupied_mask(_grid(mask), 1.0), mask)
   rays = _rays(128, seed=2, spread=0.6)
-  samples = sampler.Sampler(k, BOUND, occupancy=settings).place(rays, key, _grid(mask))
+  samples = placement.Sampler(k, BOUND, occupancy=settings).place(rays, key, _grid(mask))
   distances, valid = np.asarray(samples.distances, np.float64), np.asarray(samples.valid)
   points = np.asarray(rays.origins)[:, None] + np.asarray(rays.directions)[:, None] * \
       distances[..., None]
@@ -132,9 +132,9 @@ def test_points_and_world_length_scale_by_the_direction():
   rays = _rays(8)
   t = jnp.linspace(NEAR, FAR, 5)[None].repeat(8, 0)
   o, d = np.asarray(rays.origins, np.float64), np.asarray(rays.directions, np.float64)
-  np.testing.assert_allclose(sampler.points(rays, t), o[:, None] + d[:, None] * np.asarray(
+  np.testing.assert_allclose(placement.points(rays, t), o[:, None] + d[:, None] * np.asarray(
       t)[..., None], rtol=1e-6, atol=1e-6)
   norm = np.linalg.norm(d, axis=-1)[:, None]
-  np.testing.assert_allclose(sampler.world_t(t, rays), np.asarray(t) * norm, rtol=1e-6)
-  np.testing.assert_allclose(sampler.per_unit_t(jnp.ones((8, 5)), rays),
+  np.testing.assert_allclose(placement.world_t(t, rays), np.asarray(t) * norm, rtol=1e-6)
+  np.testing.assert_allclose(placement.per_unit_t(jnp.ones((8, 5)), rays),
                              np.broadcast_to(norm, (8, 5)), rtol=1e-6)

@@ -1,5 +1,5 @@
 """Checkpoints of earlier versions restore: the occupancy grid once lived in params['occupancy'],
-with Adam moments of its own (always zero: nothing trained it); experiment.upgrade_state_dict
+with Adam moments of its own (always zero: nothing trained it); upgrade_state_dict
 moves it to the buffers, and the run resumes exactly where it stood."""
 
 import jax
@@ -8,7 +8,10 @@ import numpy as np
 import pytest
 from flax import serialization
 
-from nerf_jax.run import experiment
+from nerf_jax.run import components, experiment
+from nerf_jax.train import optimizer
+from nerf_jax.run.signature import init_state, model_signature, state_template
+from nerf_jax.train.state import upgrade_state_dict
 from nerf_jax.train import checkpoints
 from tests.conftest import params_equal
 from tests.helpers import small_config
@@ -41,8 +44,8 @@ def trained():
   """(config, Experiment, TrainState after 3 steps: the grid and the moments are not zero)."""
   config = small_config(OCCUPANCY)
   exp = experiment.setup(config)
-  step, data = experiment.make_train_step(exp), experiment.make_train_data(exp)
-  state = experiment.init_state(exp)
+  step, data = components.make_train_step(exp), components.make_train_data(exp)
+  state = init_state(exp)
   for _ in range(3):
     state, _ = step(state, data, jax.random.PRNGKey(0))
   assert float(jnp.max(state.buffers["occupancy"])) > 0
@@ -55,11 +58,11 @@ def test_an_old_checkpoint_restores_into_the_new_train_state(trained, tmp_path):
   workdir = str(tmp_path / "old")
   (tmp_path / "old").mkdir()
   (tmp_path / "old" / "config.json").write_text(config.to_json())
-  signature = experiment.model_signature(config)
+  signature = model_signature(config)
   checkpoints.save(workdir, 3, old, signature)  # what the earlier version wrote
   path = checkpoints.latest_path(workdir)
   with pytest.raises(checkpoints.CheckpointError):  # not restorable as it is ...
-    checkpoints.restore(path, experiment.state_template(exp), signature)
+    checkpoints.restore(path, state_template(exp), signature)
   _, restored = experiment.restore(workdir)  # ... but through the upgrade
   assert "occupancy" not in restored.params
   assert int(restored.step) == 3 and int(restored.bad_step) == -1
@@ -67,18 +70,18 @@ def test_an_old_checkpoint_restores_into_the_new_train_state(trained, tmp_path):
   assert params_equal(restored.buffers, state.buffers)
   assert params_equal(restored.opt_state, state.opt_state)
   assert (jax.tree_util.tree_structure(restored) ==
-          jax.tree_util.tree_structure(experiment.state_template(exp)))
+          jax.tree_util.tree_structure(state_template(exp)))
 
 
 def test_upgrade_leaves_a_current_state_dict_and_one_without_occupancy_alone(trained):
   _, _, state = trained
   current = serialization.to_state_dict(state)
-  assert experiment.upgrade_state_dict(current) is current
+  assert upgrade_state_dict(current) is current
   # An old run without occupancy: params hold only the networks; buffers come back empty.
   old = jax.tree_util.tree_map(np.asarray, current)
   del old["buffers"]
   old["params"].pop("occupancy", None)
-  upgraded = experiment.upgrade_state_dict(old)
+  upgraded = upgrade_state_dict(old)
   assert upgraded["buffers"] == {} and set(upgraded["params"]) == {"coarse"}
   structure = jax.tree_util.tree_structure
   assert structure(upgraded["opt_state"]) == structure(current["opt_state"])
@@ -94,10 +97,10 @@ def test_a_run_saved_before_appearance_lr_keeps_what_it_trained_with():
   del saved["train"]["appearance_lr"]
   old = config_lib.complete(saved)
   assert old.train.appearance_lr == old.train.lr
-  state = experiment.init_state(experiment.setup(old))
+  state = init_state(experiment.setup(old))
   assert set(state.opt_state.inner_states) == {"field", "poses"}  # codes in the field's Adam
   current = config_lib.complete(small_config({"model.appearance_dims": 4}).to_dict())
-  state = experiment.init_state(experiment.setup(current))
+  state = init_state(experiment.setup(current))
   assert set(state.opt_state.inner_states) == {"field", "codes"}
   assert current.train.appearance_lr == 3e-4 != current.train.lr
 
@@ -108,8 +111,8 @@ def test_pose_refinement_keeps_the_optimiser_state_its_checkpoints_saved():
   import optax
   config = small_config({"train.pose_refinement": True, "data.scene": "perturbed"})
   exp = experiment.setup(config)
-  state = experiment.init_state(exp)
-  schedule = experiment.make_schedule(config.train)
+  state = init_state(exp)
+  schedule = optimizer.make_schedule(components.optimizer_settings(config))
   saved_style = optax.multi_transform(
       {"field": optax.adam(schedule), "poses": optax.adam(schedule)},
       lambda params: {k: "poses" if k == "poses" else "field" for k in params})

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 
 from nerf_jax.backend import draws
 from nerf_jax.fields import contraction
-from nerf_jax.samplers import occupancy, sampling
+from nerf_jax.samplers import occupancy, registry, spacing
 from nerf_jax.samplers.occupancy import OccupancySettings
 from nerf_jax.cameras.rays import ray_box_bounds
 
@@ -71,7 +71,7 @@ class Samples:
 
 def on_edges(t):
   """Samples at the midpoints of the intervals of t float32 [..., S + 1]."""
-  distances = sampling.midpoints(t)
+  distances = spacing.midpoints(t)
   return Samples(t, distances, jnp.ones(distances.shape, bool))
 
 
@@ -85,7 +85,7 @@ class Sampler:
   over the scene box (occupancy.py), passed to `place` as `grid`.
   contraction: '' (bounded), or 'l2' / 'linf' for an unbounded scene (contraction.py): the box
   of half-size scene_bound is the inner region, sampled linearly in t; beyond it samples are
-  linear in disparity out to far = infinity (sampling.stratified_unbounded), `inner_fraction`
+  linear in disparity out to far = infinity (spacing.stratified_unbounded), `inner_fraction`
   of them inside.
   occupancy_box: with occupancy in NDC (no scene box: scene_bound 0), the box (min x, y, z,
   max x, y, z) the grid covers, mapped onto its cube (occupancy.to_cube); None elsewhere.
@@ -113,7 +113,7 @@ class Sampler:
     if self.contraction:
       return self._unbounded_edges(rays, self.num_samples, key)
     t_near, t_far = self.bounds(rays)
-    return sampling.stratified(t_near, t_far, self.num_samples, rays.shape, key,
+    return spacing.stratified(t_near, t_far, self.num_samples, rays.shape, key,
                                lindisp=self.lindisp)
 
   def _unbounded_edges(self, rays, count, key=None):
@@ -121,19 +121,19 @@ class Sampler:
     t_near, t_far = self.bounds(rays)
     t_inner = contraction.inner_exit(rays.origins, rays.directions, self.scene_bound,
                                      self.contraction)
-    return sampling.stratified_unbounded(t_near, t_inner, t_far, count, rays.shape, key,
+    return spacing.stratified_unbounded(t_near, t_inner, t_far, count, rays.shape, key,
                                          self.inner_fraction)
 
   def unit_distance(self, t, rays):
     """s float32 [..., K]: distances t float32 [..., K] along `rays` [...] as a normalised ray
     distance, mip-NeRF 360's s, in which its distortion loss is measured so that the loss does
     not depend on the scene's units. Bounded: the share of the rays' [near, far] before t
-    (NDC's t already is one); unbounded: `sampling.unbounded_unit`, the share of the samples
+    (NDC's t already is one); unbounded: `spacing.unbounded_unit`, the share of the samples
     before t (linear inside the inner box, in disparity beyond, as the samples are spaced)."""
     if self.contraction:
       t_inner = contraction.inner_exit(rays.origins, rays.directions, self.scene_bound,
                                        self.contraction)
-      return sampling.unbounded_unit(t, rays.near, t_inner, jnp.inf, self.inner_fraction)
+      return spacing.unbounded_unit(t, rays.near, t_inner, jnp.inf, self.inner_fraction)
     near, far = rays.near[..., None], rays.far[..., None]
     return (t - near) / jnp.maximum(far - near, 1e-6)  # far > near for any data; never 1/0
 
@@ -207,10 +207,10 @@ class Sampler:
       # Candidates spaced as the samples would be (unbounded: in disparity beyond the inner
       # box; NDC: evenly in its t), each looked up at its point in the grid's cube.
       edges = (self._unbounded_edges(rays, oc.candidates) if self.contraction else
-               sampling.stratified(*self.bounds(rays), oc.candidates, rays.shape,
+               spacing.stratified(*self.bounds(rays), oc.candidates, rays.shape,
                                    lindisp=self.lindisp))
       t_far = edges[..., -1]
-      cells = self.grid_cells(points(rays, sampling.midpoints(edges)))
+      cells = self.grid_cells(points(rays, spacing.midpoints(edges)))
       occupied = (occupancy.lookup(mask, cells, self.grid_bound)
                   & (t_far > edges[..., 0])[..., None])  # an empty segment has no candidates
       starts, ends, valid = occupancy.occupied_slots(edges, occupied, self.num_samples, t_far)
@@ -222,3 +222,14 @@ class Sampler:
     u = 0.5 if key is None else draws.uniform(key, starts.shape, jnp.float32)
     return Samples(occupancy.interleave_gaps(starts, ends, t_far),
                    starts + (ends - starts) * u, valid, gapped=True)
+
+
+def build(base, section):
+  """The built-in placement's builder (samplers/registry.py): `base` itself, whose settings are
+  the config's num_samples, data.* and occupancy.* (run/components.make_sampler); `section` is
+  empty."""
+  del section
+  return base
+
+
+SAMPLER = registry.SamplerKind(build)  # config.sampler = '' or 'placement'

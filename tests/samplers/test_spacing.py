@@ -1,17 +1,17 @@
-"""Tests of nerf_jax.samplers.sampling: stratified edges and inverse-CDF resampling."""
+"""Tests of nerf_jax.samplers.spacing: stratified edges and inverse-CDF resampling."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax.samplers import sampling
+from nerf_jax.samplers import spacing
 
 # One batch of RAYS rays with S samples and N resamples for every test, and jitted entry points:
 # few compilations keep the suite fast.
 RAYS, S, N = 4, 16, 32
-stratified = jax.jit(sampling.stratified, static_argnums=(2, 3, 5))
-sample_pdf = jax.jit(sampling.sample_pdf, static_argnums=(2,))
+stratified = jax.jit(spacing.stratified, static_argnums=(2, 3, 5))
+sample_pdf = jax.jit(spacing.sample_pdf, static_argnums=(2,))
 NEAR = np.array([2.0, 0.5, 1.0, 2.0], np.float32)
 FAR = np.array([6.0, 0.5 + 1e-6, 100.0, 6.0], np.float32)  # ray 1: a few ulps wide
 
@@ -34,7 +34,7 @@ def test_stratified_deterministic_is_evenly_spaced():
   t = _strata()
   for r in (0, 2, 3):
     np.testing.assert_allclose(t[r], np.linspace(NEAR[r], FAR[r], S + 1), rtol=1e-6)
-  np.testing.assert_allclose(sampling.midpoints(t)[0], 2.125 + 0.25 * np.arange(S), rtol=1e-6)
+  np.testing.assert_allclose(spacing.midpoints(t)[0], 2.125 + 0.25 * np.arange(S), rtol=1e-6)
   # Scalar bounds broadcast to the batch shape.
   np.testing.assert_array_equal(stratified(2.0, 6.0, S, (RAYS,), None, False), _strata(
       near=np.full(RAYS, 2.0, np.float32), far=np.full(RAYS, 6.0, np.float32)))
@@ -42,7 +42,7 @@ def test_stratified_deterministic_is_evenly_spaced():
 
 def test_stratified_jittered_midpoints_stay_in_their_strata():
   t = _strata(jax.random.PRNGKey(3)).astype(np.float64)
-  mids = sampling.midpoints(t)[[0, 2, 3]]
+  mids = spacing.midpoints(t)[[0, 2, 3]]
   even = np.stack([np.linspace(NEAR[r], FAR[r], S + 1) for r in (0, 2, 3)])
   tol = 1e-5 * even[:, -1:]
   assert np.all(mids >= even[:, :-1] - tol) and np.all(mids <= even[:, 1:] + tol)
@@ -129,7 +129,7 @@ def test_sample_pdf_determinism():
 
 
 def _sum_of_samples(t, weights):
-  return jnp.sum(sampling.sample_pdf(t, weights, N))
+  return jnp.sum(spacing.sample_pdf(t, weights, N))
 
 
 def test_sample_pdf_gradients_stopped():
@@ -141,21 +141,22 @@ def test_sample_pdf_gradients_stopped():
 
 def test_merge_edges_and_midpoints():
   t = np.array([0.0, 1.0, 2.0, 4.0], np.float32)
-  merged = sampling.merge_edges(t, np.array([3.0, 0.5], np.float32))
+  merged = spacing.merge_edges(t, np.array([3.0, 0.5], np.float32))
   np.testing.assert_array_equal(merged, [0.0, 0.5, 1.0, 2.0, 3.0, 4.0])
-  np.testing.assert_array_equal(sampling.midpoints(t), [0.5, 1.5, 3.0])
+  np.testing.assert_array_equal(spacing.midpoints(t), [0.5, 1.5, 3.0])
 
 
 @pytest.mark.parametrize("batch", [(), (3,), (2, 4)])
 def test_sample_pdf_with_a_single_interval_is_uniform_in_it(batch):
-  # One coarse interval [t0, t1]: the pdf is uniform there, so quantile u lands at t0 + u·(t1 - t0).
+  # One coarse interval [t0, t1]: the pdf is uniform there, so quantile u lands at
+  # t0 + u·(t1 - t0).
   t0 = jnp.broadcast_to(jnp.linspace(1.0, 2.0, max(1, int(np.prod(batch)))).reshape(batch), batch)
   t = jnp.stack([t0, t0 + 4.0], axis=-1)
   weights = jnp.full((*batch, 1), 0.3)
-  got = sampling.sample_pdf(t, weights, 5)
+  got = spacing.sample_pdf(t, weights, 5)
   u = (np.arange(5) + 0.5) / 5
   np.testing.assert_allclose(got, np.asarray(t0)[..., None] + 4.0 * u, rtol=1e-6)
-  jittered = np.asarray(sampling.sample_pdf(t, weights, 5, jax.random.PRNGKey(0)))
+  jittered = np.asarray(spacing.sample_pdf(t, weights, 5, jax.random.PRNGKey(0)))
   assert jittered.shape == (*batch, 5)
   start = np.asarray(t0)[..., None]
   assert np.all(jittered >= start) and np.all(jittered <= start + 4.0)
@@ -163,7 +164,7 @@ def test_sample_pdf_with_a_single_interval_is_uniform_in_it(batch):
 
 # --- stratified_unbounded -----------------------------------------------------------------------
 
-stratified_unbounded = jax.jit(sampling.stratified_unbounded, static_argnums=(3, 4))
+stratified_unbounded = jax.jit(spacing.stratified_unbounded, static_argnums=(3, 4))
 # Rays: in then out of the inner region; starting outside it (t_inner < near); leaving it exactly
 # at near; never leaving it before far; near = 0 with a miss (t_inner = 0); far = inf; near = far.
 U_NEAR = np.array([0.5, 2.0, 1.0, 0.5, 0.0, 0.2, 3.0], np.float32)

@@ -1,4 +1,5 @@
-"""Sampling distances along rays.
+"""How samples are spaced along rays: stratified and inverse-CDF draws of their distances
+(where the built-in Sampler puts them is placement.py).
 
 A ray's samples are described by sorted interval edges `t: float32 [..., S + 1]`: sample i covers
 [t_i, t_{i+1}] and is evaluated at its midpoint. t is the ray parameter (z-depth, see rays.py)
@@ -92,8 +93,8 @@ def stratified_unbounded(near, t_inner, far, num_samples, batch_shape, key=None,
                          inner_fraction=0.5):
   """Stratified edges for rays into an unbounded scene: linear in t, then linear in disparity.
 
-  Inside the contraction's inner region (`nerf_jax.fields.contraction`) space is not squeezed and the
-  edges are evenly spaced in t; beyond it, where contracted space shrinks like 1/t, they are
+  Inside the contraction's inner region (`nerf_jax.fields.contraction`) space is not squeezed and
+  the edges are evenly spaced in t; beyond it, where contracted space shrinks like 1/t, they are
   evenly spaced in disparity 1/t (nerfstudio's piecewise uniform / linear-in-disparity sampler
   with a per-ray split). With f the ray's inner share (below), the edges are t(s) for
   stratified s in [0, 1] (`stratified`'s strata and jitter, in s):

@@ -1,6 +1,7 @@
-"""The train state of a run and what its checkpoints record: the model signature (the shared
-fields, then the encoding family's and the sampler's entries), a fresh state, its shapes, and
-the upgrade of states saved by earlier versions.
+"""What a run's checkpoints record, from its config: the model signature (the shared fields,
+then the encoding family's and the sampler's entries), a fresh TrainState (train/state.py) and
+its template, the shapes a checkpoint restores into (states of earlier versions are upgraded by
+train/state.upgrade_state_dict).
 """
 
 
@@ -67,29 +68,6 @@ def init_state(exp):
     ema = {"params": jax.tree_util.tree_map(jnp.array, params)}
   return TrainState(step=jnp.array(0, jnp.int32), params=params, opt_state=exp.tx.init(params),
                     bad_step=jnp.array(-1, jnp.int32), buffers=buffers, ema=ema)
-
-
-def upgrade_state_dict(state):
-  """A saved TrainState dict (checkpoints.py) of an earlier version made current: the
-  occupancy grid once lived in params['occupancy'] (with Adam moments that stayed zero); it
-  now lives in buffers. States saved before train.ema_decay existed hold no 'ema' ({})."""
-  if "ema" not in state:
-    state = dict(state, ema={})
-  if "buffers" in state:
-    return state
-  state = dict(state, params=dict(state["params"]), buffers={})
-  if "occupancy" in state["params"]:
-    state["buffers"]["occupancy"] = state["params"].pop("occupancy")
-  state["opt_state"] = _without_occupancy(state["opt_state"])
-  return state
-
-
-def _without_occupancy(tree):
-  """`tree` (nested dicts) without the 'occupancy' entry of any dict that holds 'coarse'."""
-  if not isinstance(tree, dict):
-    return tree
-  return {k: _without_occupancy(v) for k, v in tree.items()
-          if not (k == "occupancy" and "coarse" in tree)}
 
 
 def state_template(exp):

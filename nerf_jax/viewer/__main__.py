@@ -1,4 +1,4 @@
-"""Fly around a trained NeRF in the browser: `python -m nerf_jax.view`, `nerf-view`.
+"""Fly around a trained NeRF in the browser: `python -m nerf_jax.viewer`, `nerf-view`.
 
   pip install -e ".[viewer]"
   nerf-view --workdir=runs/fast            # then open the printed address
@@ -10,6 +10,7 @@ import time
 from absl import app, flags
 
 from nerf_jax import cli
+from nerf_jax.backend import errors
 
 
 def serve(workdir, host, port, fps, still_height, out_dir):
@@ -46,7 +47,7 @@ def main():
     cli.run_main(lambda: serve(workdir.value, host.value, port.value, fps.value,
                                still_height.value, out.value))
 
-  app.run(run, flags_parser=cli.parse_flags)
+  app.run(run, flags_parser=errors.parse_flags)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,64 @@
+"""The training loop (train/loop.py) and its hooks' schedules (train/hooks.py), with a stand-in
+step: which hooks run after which step, in what order, and how a run ends."""
+
+import os
+import signal
+
+from nerf_jax.train import hooks, loop
+
+
+class _Spy(hooks.Hook):
+  """Records (name, step, final) when due; due every `every` steps and at the final step."""
+
+  def __init__(self, name, every, log):
+    self.name, self.every_steps, self.log = name, every, log
+
+  def due(self, end):
+    return hooks.every(end.step, self.every_steps) or end.final
+
+  def __call__(self, end):
+    self.log.append((self.name, end.step, end.final))
+
+  def close(self):
+    self.log.append((self.name, "closed", None))
+
+
+def _step(state):
+  return state + 1, {"loss": 0.0}
+
+
+def test_hooks_run_in_order_when_due_and_close_in_reverse():
+  log = []
+  state, step, signum = loop.run(0, _step, [_Spy("a", 2, log), _Spy("b", 3, log)], 0, 6)
+  assert (state, step, signum) == (6, 6, None)
+  expected = []
+  for s in range(1, 7):
+    expected += [(name, s, s == 6) for name, k in (("a", 2), ("b", 3)) if s % k == 0 or s == 6]
+  assert log == expected + [("b", "closed", None), ("a", "closed", None)]
+
+
+def test_a_resumed_run_counts_from_its_step_and_the_clock_ends_it_after_the_hooks():
+  log = []
+  clock = iter([False, False, True])
+  state, step, _ = loop.run(10, _step, [_Spy("a", 100, log)], 10, 1000, lambda: next(clock))
+  assert (state, step) == (13, 13)
+  assert log == [("a", 13, True), ("a", "closed", None)]
+
+
+def test_a_signal_ends_the_run_after_the_hooks_of_its_step_which_see_final():
+  log = []
+
+  def step_fn(state):
+    if state == 2:
+      os.kill(os.getpid(), signal.SIGTERM)  # handled by the loop: a flag, not an exit
+    return _step(state)
+
+  previous = signal.getsignal(signal.SIGTERM)
+  state, step, signum = loop.run(0, step_fn, [_Spy("ckpt", 100, log)], 0, 10)
+  assert (state, step, signum) == (3, 3, signal.SIGTERM)
+  assert log == [("ckpt", 3, True), ("ckpt", "closed", None)]
+  assert signal.getsignal(signal.SIGTERM) is previous  # the handler is put back
+
+
+def test_every_zero_is_never():
+  assert not hooks.every(5, 0) and hooks.every(6, 3) and not hooks.every(7, 3)
