@@ -83,7 +83,7 @@ def profile(config, repeats=10, warm_steps=0):
 
   def sample_encode(batch, k):
     placed = exp.renderer.sampler.place(batch, k, state.buffers.get("occupancy"))
-    return field.encode_positions(sampler.points(batch, placed.distances))
+    return field.network_points(sampler.points(batch, placed.distances))
   features = sample_encode(batch, key)
   rows.append(("sample + encode (fwd)", median_ms(sample_encode, batch, key, repeats=repeats),
                f"{features.shape}"))
