@@ -9,7 +9,7 @@ import pytest
 
 from nerf_jax.data import scenes
 from nerf_jax.fields import field
-from nerf_jax.fields.encodings import encoding
+from nerf_jax.fields.encodings import posenc
 from nerf_jax.render import background, compositing, renderer
 from nerf_jax.run import experiment
 from nerf_jax.run import train_lib
@@ -34,7 +34,7 @@ def _spy_one_step(monkeypatch, config):
   when it runs (one compilation of the step, where an eager step compiles each op)."""
   calls = {"query": [], "encode": [], "composite": []}
   query = field.Field.query
-  encode, composite = encoding.positional_encoding, compositing.composite
+  encode, composite = posenc.positional_encoding, compositing.composite
 
   def record(entry, *values):
     """entry (a list) gets values as numpy arrays, once the step runs (forward pass only)."""
@@ -56,7 +56,7 @@ def _spy_one_step(monkeypatch, config):
     return composite(rgb, sigma, t, background)
 
   monkeypatch.setattr(field.Field, "query", spy_query)
-  monkeypatch.setattr(encoding, "positional_encoding", spy_encode)
+  monkeypatch.setattr(posenc, "positional_encoding", spy_encode)
   monkeypatch.setattr(compositing, "composite", spy_composite)
   exp = experiment.setup(config)
   data = experiment.make_train_data(exp)
