@@ -89,7 +89,8 @@ def test_network_settings_are_config_models_shared_fields():
   assert (shared.hidden, shared.view_width, shared.view_depth) == (m.width, m.view_width,
                                                                     m.view_depth)
   assert shared.view_dependent and shared.appearance_dims == 4
-  assert shared.appearance_images == 7 and components.network_settings(config, 0).appearance_images == 1
+  assert shared.appearance_images == 7
+  assert components.network_settings(config, 0).appearance_images == 1
   assert shared.box == (-1.0, -2.0, -3.0, 1.0, 2.0, 3.0) and shared.bound == m.grid_bound
   # An unbounded scene: the lattices cover all of contracted space, twice the inner box.
   config = _config("grid", **{"data.contraction": "linf", "data.scene_bound": 2.5})

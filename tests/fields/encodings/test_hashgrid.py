@@ -1,6 +1,7 @@
 """Hash-grid encoding: the hash and the row indices against Python-integer brute force, dense
 levels against grid.trilinear, exact linear interpolation, the gradient's support, float16,
-fitting a 3D function with Adam, and one step of the hash grid and the lattice head through the real renderer."""
+fitting a 3D function with Adam, and one step of the hash grid and the lattice head through the
+real renderer."""
 
 import itertools
 

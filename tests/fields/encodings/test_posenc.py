@@ -1,4 +1,5 @@
-"""Tests of nerf_jax.fields.encodings.posenc against a float64 numpy loop in the reference's feature order."""
+"""Tests of nerf_jax.fields.encodings.posenc against a float64 numpy loop in the reference's
+feature order."""
 
 import jax
 import jax.numpy as jnp
