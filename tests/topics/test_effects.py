@@ -56,12 +56,13 @@ def _spy_one_step(monkeypatch, config):
     return composite(rgb, sigma, t, background)
 
   monkeypatch.setattr(field.Field, "query", spy_query)
-  monkeypatch.setattr(posenc, "positional_encoding", spy_encode)
   monkeypatch.setattr(compositing, "composite", spy_composite)
   exp = experiment.setup(config)
   data = experiment.make_train_data(exp)
+  state = experiment.init_state(exp)  # its network init encodes too: not the step's
+  monkeypatch.setattr(posenc, "positional_encoding", spy_encode)
   step = jax.jit(experiment.make_train_step(exp))
-  jax.block_until_ready(step(experiment.init_state(exp), data, jax.random.PRNGKey(0)))
+  jax.block_until_ready(step(state, data, jax.random.PRNGKey(0)))
   jax.effects_barrier()  # every callback has run
   calls["query"] = [(values[0], params) for values, params in calls["query"]]
   calls["composite"] = [(t, None if np.isnan(bg).all() else bg) for t, bg in calls["composite"]]
