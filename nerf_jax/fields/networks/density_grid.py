@@ -4,22 +4,21 @@ head. The grid encoding picks it when config.model.grid.density_resolutions is s
 are that section's (encodings/grid.Settings). See protocol.py for its call.
 """
 
-from typing import Any
-
 import flax.linen as nn
 import jax.numpy as jnp
 
 from nerf_jax.backend import draws
 from nerf_jax.fields import registry
 from nerf_jax.fields.encodings import grid, hashgrid
-from nerf_jax.fields.networks import heads
+from nerf_jax.fields.networks import heads, lattice
 
 
-class DensityGridNeRF(nn.Module):
+class DensityGridNeRF(lattice.LatticeHead):
   """The lattice head with density read straight from grids of its own: the raw density is
   interpolated, then activated (by the Field), so it stays sharp inside a cell; it is the sum
   of one-channel grids at several resolutions, so coarse shapes form in few steps and fine ones
-  on top. Colour comes from the feature grids (`encoding`, a grid.DenseGrid) and the tiny MLP.
+  on top. Colour comes from the feature grids (`encoding`, a grid.DenseGrid) and the tiny MLP
+  (the lattice head's fields; no appearance codes yet).
 
   The two halves can be evaluated alone (`part`): the density of every sample is a single
   trilinear read, and the renderer computes colour only where the weights say it matters
@@ -29,13 +28,6 @@ class DensityGridNeRF(nn.Module):
   levels and the hashed levels are encoding.settings' (density_resolutions...).
   part: 'all' -> (rgb, raw_sigma); 'density' -> raw_sigma; 'colour' -> rgb.
   """
-  encoding: Any
-  hidden: int = 64
-  view_dependent: bool = False
-  view_width: int = 32
-  view_depth: int = 1
-  dtype: str = "float32"
-  matmul_precision: str = "default"  # precision.NETWORK_PRECISIONS: 'default', 'high', 'highest'
 
   def _raw_density(self, unit):
     """Raw density float32 [...] at unit-box positions float32 [..., 3]: the sum of the dense
