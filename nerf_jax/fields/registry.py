@@ -58,6 +58,11 @@ class Encoding:
     """The dotted config path of its settings ('model.hash'; '' = the top level)."""
     return f"model.{self.name}" if self.section is None else self.section
 
+  @property
+  def shared_section(self):
+    """Whether its section holds other settings too (then only the declared ones are read)."""
+    return self.section is not None
+
   def natural_network(self, settings):
     """The name of the network that reads it by default."""
     return self.network(settings) if callable(self.network) else self.network
@@ -77,6 +82,15 @@ class Network:
   build: Callable[[Any, Any, Any], Any]
   settings: type = None
   section: str = "model"
+
+  @property
+  def section_path(self):
+    """The dotted config path of its settings."""
+    return self.section
+
+  @property
+  def shared_section(self):
+    return True  # config.model: the networks' settings beside the model's others
 
 
 ENCODINGS = components.Registry("encoding", "config.model.encoding", "ENCODING", {

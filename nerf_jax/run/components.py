@@ -38,15 +38,14 @@ def section_settings(record, config):
   """The settings dataclass of a field part's record (registry.Encoding / registry.Network)
   built from its config section (record.section_path; a shared one gives only the fields it
   declares); ValueError naming the field if the section is missing or a setting is wrong."""
-  path = record.section_path if isinstance(record, registry.Encoding) else record.section
+  path = record.section_path
   section = config
   for part in path.split(".") if path else ():
     if part not in section:
       raise ValueError(f"config.{path} is missing: the settings of {record.name!r}")
     section = section[part]
-  own = isinstance(record, registry.Encoding) and record.section is None
   return components.settings_from(record.settings, dict(section), path or "<top level>",
-                                  strict=own)
+                                  strict=not record.shared_section)
 
 
 def encoding_family(config):
