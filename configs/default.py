@@ -6,6 +6,11 @@
 
 import ml_collections
 
+from nerf_jax.backend import components
+from nerf_jax.fields import protocol
+from nerf_jax.fields.encodings import grid, hashgrid, posenc, tensorf
+from nerf_jax.fields.networks import mlp
+
 
 def get_config():
   config = ml_collections.ConfigDict()
@@ -13,9 +18,11 @@ def get_config():
   config.num_samples = 32  # NUM_SAMPLES: stratified (coarse) samples per ray
   config.num_fine_samples = 0  # extra samples drawn from the coarse weights (0 = no hierarchy)
   config.sampler = ""  # '' = stratified / occupancy placement; 'proposal' (config.proposal)
-  config.pos_encode_dims = 10  # POS_ENCODE_DIMS: frequency bands for positions
-  config.dir_encode_dims = 4  # frequency bands for viewing directions (view-dependent model)
-  config.dir_encoding = "frequency"  # directions: 'frequency' bands, or 'sh' of that degree
+  # Settings declared, each with its comment, in the dataclass of the part that owns it:
+  # pos_encode_dims (POS_ENCODE_DIMS, the positions' bands): fields/encodings/posenc.Settings;
+  # dir_encode_dims, dir_encoding (the viewing directions'): fields/protocol.DirectionSettings.
+  config.update(components.section(posenc.Settings))
+  config.update(components.section(protocol.DirectionSettings))
   config.auto = False  # decide the effects and the representation from the data (configs/auto.py)
   config.auto_decisions = ()  # what auto decided and why, one line each (filled by auto)
   config.auto_flags = ()  # fields set on the command line (filled by nerf-train): auto keeps them
@@ -44,31 +51,16 @@ def get_config():
   data.inner_fraction = 0.5  # unbounded scene: share of samples inside the box (the rest beyond)
 
   config.model = model = ml_collections.ConfigDict()
-  model.encoding = "posenc"  # 'posenc' (NeRF MLP), 'grid' (configs/fast.py), 'hash', 'tensorf'
+  model.encoding = "posenc"  # positions: 'posenc' (bands), 'grid' (fast.py), 'hash', 'tensorf'
+  model.network = ""  # the network reading them: '' = the encoding's own ('mlp', 'lattice'), a name
   model.grid_bound = 1.5  # grid and hash encodings: the grids cover [-bound, bound]^3
   model.grid_box = ()  # grid encodings: (min x, y, z, max x, y, z) of a tighter box; () = cube
   model.grid_cell_aspect = (1.0, 1.0, 1.0)  # grid and tensorf: relative x, y, z sides of a cell
-  model.grid = grid = ml_collections.ConfigDict()  # the grid encoding (fields/networks/grid.py)
-  grid.resolutions = (32, 64, 128)  # lattice points per side of each level
-  grid.features = 4  # features per lattice point
-  grid.density_resolutions = ()  # density from one-channel grids of these sizes; () = from the MLP
-  grid.density_hash_resolution = 0  # with density_resolutions: a hashed finer level (0 = none)
-  grid.density_hash_log2_size = 20  # log2 of the hashed density level's rows
-  grid.colour_hash_resolution = 0  # with density_resolutions: a hashed finer colour level
-  grid.colour_hash_log2_size = 20  # log2 of the hashed colour level's rows
-  model.hash = hashing = ml_collections.ConfigDict()  # the hash encoding (fields/networks/hash.py)
-  hashing.levels = 16  # resolution levels (configs/hash.py)
-  hashing.log2_size = 19  # log2 of the rows of each level's table
-  hashing.features = 2  # features per row
-  hashing.base_resolution = 16  # lattice points per side of the coarsest level
-  hashing.max_resolution = 2048  # lattice points per side of the finest level
-  hashing.gather_dtype = "float32"  # dtype of the gathered rows (the table stays float32)
-  model.tensorf = tensorf = ml_collections.ConfigDict()  # the factorised encoding (TensoRFNeRF)
-  tensorf.resolutions = (128, 256)  # lattice points along the box's longest side, per level
-  tensorf.rank = 16  # components per plane-line pair (3 x rank features per level)
-  model.depth = 8  # hidden layers
-  model.width = 64  # units per hidden layer (reference 64, paper 256)
-  model.skip_layers = (4,)  # re-inject the input after these layers (0-based)
+  # Each section below is the Settings dataclass of its part, every field with its comment there.
+  model.grid = ml_collections.ConfigDict(components.section(grid.Settings))  # encodings/grid.py
+  model.hash = ml_collections.ConfigDict(components.section(hashgrid.Settings))  # hashgrid.py
+  model.tensorf = ml_collections.ConfigDict(components.section(tensorf.Settings))  # tensorf.py
+  model.update(components.section(mlp.Settings))  # depth, width, skip_layers: networks/mlp.py
   model.view_dependent = False  # colour depends on the viewing direction (paper's 5D input)
   model.view_width = 32  # width of the view-dependent colour layer
   model.view_depth = 1  # colour layers of view_width after the direction joins (instant-ngp: 2)

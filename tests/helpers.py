@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax.fields.networks import grid as grid_network
+from nerf_jax.fields.networks import density_grid
 from nerf_jax.render import renderer as renderer_lib
 from nerf_jax.samplers import proposal
 from nerf_jax.run import components, config_lib
@@ -97,17 +97,17 @@ def jitted(fn, **static):
   """`fn` (a function of arrays and pytrees, or a bound method: RayRenderer.render, .init) as one
   compiled program, with the keyword arguments `static` bound: jax.jit(partial(fn, **static)).
   Tests call a model through it, not eagerly: run eagerly, each of a render's hundreds of
-  operations is compiled on its own (one render pair of tests/fields/networks/test_grid.py: 296
+  operations is compiled on its own (one render pair of tests/fields/networks/test_density_grid.py: 296
   compilations, 198 s on a loaded 2-core CPU; jitted, 18 s, the same values)."""
   return jax.jit(functools.partial(fn, **static))
 
 
 class StandInNetwork:
-  """Stands in for a Flax network (fields/network.Network) in `ray_renderer`:
+  """Stands in for a Flax network (fields/protocol.Network) in `ray_renderer`:
   `colour_density(points float32 [..., 3]) -> (rgb float32 [..., 3], sigma float32 [...])`, with
   no levels, and colour and density from one call."""
 
-  num_levels = 0
+  coarse_to_fine_stages = 0
   splits_density = False
 
   def __init__(self, colour_density):
@@ -222,7 +222,7 @@ def ball_in_first_density_level(params):
   res = params[names[0]].shape[0]
   c = np.linspace(-1.5, 1.5, res)
   x, y, z = np.meshgrid(c, c, c, indexing="ij")
-  ball = np.where(x ** 2 + y ** 2 + z ** 2 < 0.8 ** 2, 4.0, -5.0) / grid_network.DENSITY_GAIN
+  ball = np.where(x ** 2 + y ** 2 + z ** 2 < 0.8 ** 2, 4.0, -5.0) / density_grid.DENSITY_GAIN
   params[names[0]] = jnp.asarray(ball[..., None], jnp.float32)
   return params
 

@@ -83,11 +83,11 @@ def profile(config, repeats=10, warm_steps=0):
 
   field = exp.renderer.field
 
-  def sample_encode(batch, k):
+  def sample(batch, k):
     placed = exp.renderer.sampler.place(batch, k, state.buffers.get("occupancy"))
-    return field.encode_positions(placement.points(batch, placed.distances))
-  features = sample_encode(batch, key)
-  rows.append(("sample + encode (fwd)", median_ms(sample_encode, batch, key, repeats=repeats),
+    return field.network_points(placement.points(batch, placed.distances))
+  features = sample(batch, key)  # the points: the network applies its encoding (in its row)
+  rows.append(("sample (fwd)", median_ms(sample, batch, key, repeats=repeats),
                f"{features.shape}"))
 
   params = state.params["coarse"]

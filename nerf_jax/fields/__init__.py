@@ -1,2 +1,4 @@
-"""The radiance field family: the Field, its networks (the only Flax modules), density activations,
-scene contraction, and the encodings in encodings/."""
+"""The radiance field: the Field (field.py), its position and direction encodings (encodings/: one
+module per encoding, its math and settings), the networks that read them (networks/: the only
+Flax modules), the parts' calling conventions (protocol.py), the registries that find both by
+name (registry.py), density activations, scene contraction and the proposal density fields."""

@@ -2,7 +2,7 @@
 
 `HashDensity` is nerfacto's proposal network: a small multiresolution hash grid
 (encodings/hashgrid.py) and one hidden layer to a raw density, no colour and no viewing
-direction. It follows the call of network.py so a `field.Field` wraps it (contraction, density
+direction. It follows the call of protocol.py so a `field.Field` wraps it (contraction, density
 activation): applied to positions float32 [..., S, 3] (world or contracted) it returns
 (rgb float32 [..., S, 3], raw_sigma float32 [..., S]) with rgb all zeros, which
 `Field.query_density` drops (under jit no work is spent on it). `density_field(...)` builds
@@ -19,7 +19,7 @@ from nerf_jax.fields.encodings import grid, hashgrid
 
 class _DensityOnly(nn.Module):
   """What both density networks share: no levels for pose refinement, nothing to split, and the
-  head from features float32 [..., F] to (zero colour, raw density) (network.Network).
+  head from features float32 [..., F] to (zero colour, raw density) (protocol.Network).
   Lattice levels from base_resolution to max_resolution points per side (geometric), `features`
   channels, over [-bound, bound]^3; `hidden` units in the head's one hidden layer."""
   levels: int = 3
@@ -29,9 +29,11 @@ class _DensityOnly(nn.Module):
   hidden: int = 16
   bound: float = 1.5
 
-  @property
-  def num_levels(self):
-    return self.levels
+  coarse_to_fine_stages = 0  # never refined: nothing opens coarse to fine
+
+  def band_weights(self, bands):
+    del bands
+    return None
 
   @property
   def splits_density(self):
@@ -90,5 +92,5 @@ def density_field(network, contraction="", inner_radius=1.0):
   """A Field around the density-only `network`: positions taken raw (contracted first with
   `contraction` 'l2' / 'linf' about the box of half-size `inner_radius`), density through the
   truncated exponential of nerfacto's proposal networks (activations.safe_exp)."""
-  return field_lib.Field(network, pos_encode_dims=None, density_activation="exp",
+  return field_lib.Field(network, density_activation="exp",
                          contraction=contraction, inner_radius=inner_radius)

@@ -2,10 +2,10 @@
 
 A field maps points float32 [..., S, 3] and unit view directions float32 [..., 3] to colour
 rgb float32 [..., S, 3] and density sigma float32 [..., S] (per unit of world length). It wraps
-a Flax network (network.py: the calling convention; networks/: the built-in families) with the
-encoding of its inputs (encodings/encoding.py; the grid networks take raw positions, the grids
-are their encoding) and the density activation (activations.py).
-`Field` is built once (experiment.make_field) and queried as field.query(params, points,
+a Flax network (networks/; protocol.py: the calling convention), which applies its position
+encoding (encodings/) to the points, with the encoding of the viewing directions and the
+density activation (activations.py).
+`Field` is built once (run/components.make_field) and queried as field.query(params, points,
 viewdirs, key). Two optional per-query inputs: `image`, int32 [...] the training image of each
 ray, selects its appearance code (appearance_dims > 0; None = the mean code, as for held-out
 views), and `bands`, float32 [], how many positional-encoding bands, or grid levels after the
@@ -21,39 +21,32 @@ import jax.numpy as jnp
 
 from nerf_jax.backend import draws
 from nerf_jax.fields import activations, contraction
-from nerf_jax.fields.encodings import encoding, spherical_harmonics
-
-DIR_ENCODINGS = ("frequency", "sh")  # config.dir_encoding
+from nerf_jax.fields.encodings import posenc
 
 
 @dataclasses.dataclass(frozen=True)
 class Field:
   """A network and how its inputs and outputs are treated.
 
-  network: the Flax module (network.Network: an encoding family's, registry.py), applied to
-    encoded inputs.
-  pos_encode_dims: frequency bands of the positions' encoding; None = raw positions (the grid
-    networks: the grids are the encoding). dir_encode_dims: bands of the directions' encoding,
-    or its degree with dir_encoding 'sh'.
+  network: the Flax module (protocol.Network: a network of networks/ over its position
+    encoding), applied to the points.
+  directions: the encoding of the viewing directions (protocol.Encoding: encodings/posenc's
+    Frequency, encodings/spherical_harmonics'), read when view_dependent.
   view_dependent: colour takes the encoded viewing direction.
   density_activation: 'relu', 'softplus' or 'exp' (activations.py). density_noise: std of the
     noise added to raw density when a query has a key (training only).
   contraction: '' (world positions), or 'l2' / 'linf': positions are contracted about the inner
     region of half-size `inner_radius` first (contraction.py), so the network sees all of space
     inside [-2·inner_radius, 2·inner_radius]^3.
-  dir_encoding: 'frequency' (encoding.positional_encoding of the direction) or 'sh' (real
-    spherical harmonics, encodings/spherical_harmonics.py: instant-ngp's and nerfacto's).
   """
   network: Any
-  pos_encode_dims: Any = None
-  dir_encode_dims: int = 4
+  directions: Any = posenc.Frequency(4)
   view_dependent: bool = False
   density_activation: str = "relu"
   density_noise: float = 0.0
   contraction: str = ""
   inner_radius: float = 1.0
   appearance_dims: int = 0
-  dir_encoding: str = "frequency"
 
   @property
   def uses_images(self):
@@ -62,9 +55,7 @@ class Field:
 
   def init(self, key):
     """The network's parameters, from PRNG key `key`."""
-    pos_width = 3 if self.pos_encode_dims is None else encoding.encoded_width(
-        3, self.pos_encode_dims)
-    pos = jnp.zeros((1, pos_width), jnp.float32)
+    pos = jnp.zeros((1, 3), jnp.float32)
     dirs = jnp.zeros((1, self.dir_width), jnp.float32)
     # Compiled as one program: run op by op, a grid network's init compiled ~100 small programs
     # (~8 s on 2 cores); the values are the same (draws.normal_init).
@@ -73,44 +64,32 @@ class Field:
   @property
   def dir_width(self):
     """Features of `encode_directions`."""
-    if self.dir_encoding == "sh":
-      return spherical_harmonics.encoded_width(self.dir_encode_dims)
-    return encoding.encoded_width(3, self.dir_encode_dims)
+    return self.directions.width(3)
 
   def encode_directions(self, dirs):
     """The network's direction input for unit directions float32 [..., 3]: float32
     [..., dir_width]."""
-    if self.dir_encoding == "sh":
-      return spherical_harmonics.spherical_harmonics(dirs, self.dir_encode_dims)
-    return encoding.positional_encoding(dirs, self.dir_encode_dims)
+    return self.directions.features(None, dirs)
 
   @property
   def coarse_to_fine_stages(self):
     """What opens coarse to fine while poses are refined (the most `bands` means): the
-    positional encoding's bands, or a grid network's levels after the coarsest (always open);
-    0 for a network that weighs no levels (network.Network.num_levels)."""
-    if self.pos_encode_dims is not None:
-      return self.pos_encode_dims
-    return max(self.network.num_levels - 1, 0)
+    position encoding's bands, or a lattice's levels after the coarsest (always open); 0 for a
+    network that opens nothing (protocol.Network.coarse_to_fine_stages)."""
+    return self.network.coarse_to_fine_stages
 
   def level_weights(self, bands):
-    """float32 [levels] weights of a grid network's levels with `bands` open (None: all)."""
-    if bands is None or self.pos_encode_dims is not None or not self.coarse_to_fine_stages:
+    """The network's level_weights with `bands` open (None: all open, or nothing to open)."""
+    if bands is None or not self.coarse_to_fine_stages:
       return None
-    rest = encoding.coarse_to_fine_weights(bands, self.coarse_to_fine_stages)
-    return jnp.concatenate([jnp.ones((1,), jnp.float32), rest])
+    return self.network.band_weights(bands)
 
-  def encode_positions(self, points, bands=None):
-    """The network's position input for points float32 [..., 3]: encoded (with `bands` open,
-    see the module docstring), or the points (contracted first in an unbounded scene)."""
+  def network_points(self, points):
+    """The points the network takes for points float32 [..., 3]: contracted first in an
+    unbounded scene (the network encodes them)."""
     if self.contraction:
       points = contraction.contract(points, self.inner_radius, self.contraction)
-    if self.pos_encode_dims is None:
-      return points  # the grids are the encoding
-    if bands is None:
-      return encoding.positional_encoding(points, self.pos_encode_dims)
-    weights = encoding.coarse_to_fine_weights(bands, self.pos_encode_dims)
-    return encoding.positional_encoding(points, self.pos_encode_dims, weights)
+    return points
 
   def query(self, params, points, viewdirs, key=None, image=None, bands=None):
     """Colour and density at sample points.
@@ -124,7 +103,7 @@ class Field:
     if self.view_dependent:
       dirs = jnp.broadcast_to(viewdirs[..., None, :], points.shape)
       dir_features = self.encode_directions(dirs)
-    args = (self.encode_positions(points, bands), dir_features)
+    args = (self.network_points(points), dir_features)
     if self.uses_images:
       args += (image,)
     weights = self.level_weights(bands)
@@ -134,7 +113,7 @@ class Field:
 
   @property
   def splits_density(self):
-    """Whether the network gives density and colour separately (network.Network)."""
+    """Whether the network gives density and colour separately (protocol.Network)."""
     return self.network.splits_density
 
   def _activate(self, raw_sigma, key):
@@ -149,14 +128,14 @@ class Field:
     if not self.splits_density:
       dirs = jnp.zeros(points.shape[:-2] + (3,), points.dtype)
       return self.query(params, points, dirs, key)[1]
-    raw = self.network.apply({"params": params}, self.encode_positions(points), part="density")
+    raw = self.network.apply({"params": params}, self.network_points(points), part="density")
     return self._activate(raw, key)
 
   def query_colour(self, params, points, viewdirs):
     """rgb float32 [P, 3] at points float32 [P, 3] seen along unit directions float32 [P, 3]:
     the colour half alone (needs `splits_density`)."""
     dir_features = self.encode_directions(viewdirs) if self.view_dependent else None
-    return self.network.apply({"params": params}, self.encode_positions(points), dir_features,
+    return self.network.apply({"params": params}, self.network_points(points), dir_features,
                               part="colour")
 
   def query_in_chunks(self, params, points, viewdirs, key=None, chunk=0, image=None,

@@ -1,28 +1,21 @@
-"""The encoding families, found by name.
+"""The encodings and networks of a field, found by name (backend/components.Registry).
 
-An encoding family is one module that holds its network (a Flax module following
-network.Network), the frozen dataclass of its settings, and an `ENCODING = Encoding(...)` record
-saying how to build it and what its checkpoints record. `config.model.encoding` names it: a
-registered name ('posenc', 'grid', 'hash', 'tensorf', or one added with `register`), or the
-dotted path of any importable module that defines ENCODING (as big_vision names its models).
-Its settings are its own config section, `config.model.<name>` (run/experiment.py builds them
-with `settings_from`), so adding an encoding is one module plus its config section
-(docs/extending.md, tests/topics/test_extending.py).
+An encoding is one module of its own (encodings/<name>.py): its pure math, the frozen dataclass
+of its settings, and an `ENCODING = registry.Encoding(...)` record saying how to build it, which
+network reads it unless config.model.network names one, and what its checkpoints record.
+`config.model.encoding` names a position encoding ('posenc', 'grid', 'hash', 'tensorf', one
+added with `ENCODINGS.register`, or the dotted path of any module defining ENCODING: big_vision's
+"the module path is the registry"); `config.dir_encoding` a direction encoding ('frequency',
+'sh': modules defining DIRECTION_ENCODING, the same record). A network is a module of networks/
+defining `NETWORK = registry.Network(...)` ('mlp', 'lattice', 'density_grid'). Settings are
+their own config section (`Encoding.section_path`), built with components.settings_from, so
+adding an encoding is one module plus its config section (docs/extending.md).
 """
 
 import dataclasses
-import importlib
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Union
 
-from nerf_jax.fields import network
-
-# Built-in families: name -> module.
-_MODULES = {
-    "posenc": "nerf_jax.fields.networks.mlp",
-    "grid": "nerf_jax.fields.networks.grid",
-    "hash": "nerf_jax.fields.networks.hash",
-    "tensorf": "nerf_jax.fields.networks.tensorf",
-}
+from nerf_jax.backend import components
 
 
 def _nothing(settings):
@@ -32,89 +25,90 @@ def _nothing(settings):
 
 @dataclasses.dataclass(frozen=True)
 class Encoding:
-  """An encoding family.
+  """A position or direction encoding.
 
-  name: its config name; its settings are config.model.<name> (`section`).
-  settings: the frozen dataclass of its settings (its section's fields, each with a default).
-  build: (settings, network.NetworkSettings) -> the network (network.Network). It raises
-    ValueError naming the config field for settings that cannot work together.
-  signature: settings -> {key: JSON value}, the entries of the checkpoint signature (the
-    settings that fix its parameters' shapes and meaning); a checkpoint restores only under
-    equal entries, so keep a family's keys once released.
-  raw_positions: the network takes world positions (its lookup is the encoding); False: their
-    positional encoding with config.pos_encode_dims bands (the MLP).
+  name: its config name. settings: the frozen dataclass of its settings (each field with its
+    default and a one-line comment; validation in __post_init__ raising ValueError naming the
+    config field): config.<section_path>'s defaults come from it (components.section).
+  build: (settings, protocol.NetworkSettings) -> the encoding (protocol.Encoding), which the
+    network applies (a direction encoding: the Field).
+  network: the name of the network that reads it when config.model.network is '' ('mlp': NeRF's
+    MLP, 'lattice': the grids' tiny head), or settings -> that name.
+  signature: settings -> {key: JSON value}, the encoding's entries of the checkpoint signature
+    (components.signature: the settings that fix its parameters' shapes and meaning); keep a
+    released encoding's keys, so its checkpoints restore.
   table_axes: parameter-name prefixes of its lattice tables -> their spatial axes (the last axis
     holds features): the tables train.tv_weight's total variation applies to.
-  section: the dotted config path of its settings; None = model.<name>. A family whose section
-    is shared ('model') takes the fields its settings declare from it.
-  records_grid_section: its checkpoints also record config.model.grid's fields (the hash and
-    TensoRF families' have since they were added, so theirs keep restoring).
+  section: the dotted config path of its settings; None = model.<name>, '' = the top level. A
+    shared section ('', 'model') gives only the fields the settings declare.
+  records_grid_section: its checkpoints also record config.model.grid's lattice entries (the
+    hash and TensoRF encodings' have since they were added, so theirs keep restoring).
   """
   name: str
   settings: type
   build: Callable[[Any, Any], Any]
+  network: Union[str, Callable[[Any], str]] = "mlp"
   signature: Callable[[Any], dict] = _nothing
-  raw_positions: bool = True
   table_axes: Mapping[str, int] = dataclasses.field(default_factory=dict)
   section: str = None
   records_grid_section: bool = False
 
   @property
   def section_path(self):
-    """The dotted config path of the family's settings ('model.hash')."""
-    return self.section or f"model.{self.name}"
+    """The dotted config path of its settings ('model.hash'; '' = the top level)."""
+    return f"model.{self.name}" if self.section is None else self.section
+
+  @property
+  def shared_section(self):
+    """Whether its section holds other settings too (then only the declared ones are read)."""
+    return self.section is not None
+
+  def natural_network(self, settings):
+    """The name of the network that reads it by default."""
+    return self.network(settings) if callable(self.network) else self.network
 
 
-def register(name, module):
-  """Make `name` find the family in `module` (a dotted module path defining ENCODING)."""
-  _MODULES[name] = module
+@dataclasses.dataclass(frozen=True)
+class Network:
+  """A network that reads an encoding's features (networks/).
+
+  name: its config name (config.model.network). settings: the frozen dataclass of its own
+    settings (None: it has none beyond protocol.NetworkSettings), from config.<section>
+    (shared: only the fields it declares). build: (encoding, settings, protocol.NetworkSettings)
+    -> the Flax module (protocol.Network); it raises ValueError naming the config field for
+    settings that cannot work together.
+  """
+  name: str
+  build: Callable[[Any, Any, Any], Any]
+  settings: type = None
+  section: str = "model"
+
+  @property
+  def section_path(self):
+    """The dotted config path of its settings."""
+    return self.section
+
+  @property
+  def shared_section(self):
+    return True  # config.model: the networks' settings beside the model's others
 
 
-def names():
-  """The registered names, built-in first."""
-  return tuple(_MODULES)
-
-
-def lookup(name):
-  """The Encoding of `name` (registered, or a dotted module path). ValueError naming
-  config.model.encoding when there is none."""
-  path = _MODULES.get(name) or (name if "." in name else None)
-  known = ", ".join(names())
-  if path is None:
-    raise ValueError(f"config.model.encoding must be one of {known} or a module path, got "
-                     f"{name!r}")
-  try:
-    module = importlib.import_module(path)
-  except ImportError as e:
-    raise ValueError(f"config.model.encoding={name!r}: cannot import {path} ({e})") from None
-  family = getattr(module, "ENCODING", None)
-  if not isinstance(family, Encoding):
-    raise ValueError(f"config.model.encoding={name!r}: {path} defines no ENCODING = "
-                     "registry.Encoding(...) (docs/extending.md)")
-  return family
-
-
-def settings_from(family, section):
-  """The family's settings dataclass from `section` (a mapping of its config section). Every
-  field of an own section must be a setting (a misspelt one is an error naming it); a shared
-  section ('model') gives only the fields the settings declare."""
-  declared = {f.name for f in dataclasses.fields(family.settings)}
-  unknown = sorted(set(section) - declared)
-  if unknown and family.section is None:
-    raise ValueError(f"config.{family.section_path} has no setting {unknown[0]!r} (settings: "
-                     f"{', '.join(sorted(declared))})")
-  values = {k: tuple(v) if isinstance(v, list) else v for k, v in section.items()
-            if k in declared}
-  return family.settings(**values)
-
-
-def build(family, settings, shared):
-  """family.build(settings, shared), checked to follow network.Network."""
-  net = family.build(settings, shared)
-  if not isinstance(net, network.Network):
-    raise TypeError(f"encoding {family.name!r}: its network {type(net).__name__} lacks "
-                    "num_levels or splits_density (fields/network.py)")
-  return net
+ENCODINGS = components.Registry("encoding", "config.model.encoding", "ENCODING", {
+    "posenc": "nerf_jax.fields.encodings.posenc",
+    "grid": "nerf_jax.fields.encodings.grid",
+    "hash": "nerf_jax.fields.encodings.hashgrid",
+    "tensorf": "nerf_jax.fields.encodings.tensorf",
+})
+DIRECTION_ENCODINGS = components.Registry(
+    "direction encoding", "config.dir_encoding", "DIRECTION_ENCODING", {
+        "frequency": "nerf_jax.fields.encodings.posenc",
+        "sh": "nerf_jax.fields.encodings.spherical_harmonics",
+    })
+NETWORKS = components.Registry("network", "config.model.network", "NETWORK", {
+    "mlp": "nerf_jax.fields.networks.mlp",
+    "lattice": "nerf_jax.fields.networks.lattice",
+    "density_grid": "nerf_jax.fields.networks.density_grid",
+})
 
 
 def lattice_tables(params, table_axes):

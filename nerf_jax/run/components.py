@@ -1,5 +1,5 @@
 """Each layer's settings and components, built from the config once (the entry layer's job:
-nothing below run/ reads a config): the data's, the field (its encoding family), the sampler
+nothing below run/ reads a config): the data's, the field (its encodings and network), the sampler
 (by name), the renderers, the train step with its loss terms and hooks, the evaluator.
 """
 
@@ -7,8 +7,8 @@ import dataclasses
 import functools
 
 
-from nerf_jax.backend import precision
-from nerf_jax.fields import registry
+from nerf_jax.backend import components, precision
+from nerf_jax.fields import protocol, registry
 from nerf_jax.run import config_lib
 from nerf_jax.samplers import occupancy
 from nerf_jax.samplers import registry as sampler_registry
@@ -16,9 +16,8 @@ from nerf_jax.render import background
 from nerf_jax.train import losses, optimizer, train_batches, train_step
 from nerf_jax.data import loaders
 from nerf_jax.evaluate import evaluation
-from nerf_jax.fields import field as field_lib
 from nerf_jax.fields.field import Field
-from nerf_jax.fields.network import NetworkSettings
+from nerf_jax.fields.protocol import NetworkSettings
 from nerf_jax.render.image_renderer import ImageSettings
 from nerf_jax.render.renderer import RayRenderer
 from nerf_jax.samplers.placement import Sampler
@@ -33,22 +32,30 @@ def data_settings(data):
   return loaders.DataSettings(**{name: data[name] for name in names})
 
 
+def section_settings(record, config):
+  """The settings dataclass of a field part's record (registry.Encoding / registry.Network)
+  built from its config section (record.section_path; a shared one gives only the fields it
+  declares); ValueError naming the field if the section is missing or a setting is wrong."""
+  path = record.section_path
+  section = config
+  for part in path.split(".") if path else ():
+    if part not in section:
+      raise ValueError(f"config.{path} is missing: the settings of {record.name!r}")
+    section = section[part]
+  return components.settings_from(record.settings, dict(section), path or "<top level>",
+                                  strict=not record.shared_section)
+
+
 def encoding_family(config):
-  """The encoding family (fields/registry.py) config.model.encoding names, and its settings
+  """The position encoding (registry.Encoding) config.model.encoding names, and its settings
   built from its own section (config.model.<name>); ValueError naming the field if either is
   wrong."""
-  family = registry.lookup(config.model.encoding)
-  section = config
-  for part in family.section_path.split("."):
-    if part not in section:
-      raise ValueError(f"config.{family.section_path} is missing: the settings of encoding "
-                       f"{config.model.encoding!r}")
-    section = section[part]
-  return family, registry.settings_from(family, dict(section))
+  record = registry.ENCODINGS.lookup(config.model.encoding)
+  return record, section_settings(record, config)
 
 
 def network_settings(config, num_images=1):
-  """fields.network.NetworkSettings of config.model (num_images: see `make_field`)."""
+  """fields.protocol.NetworkSettings of config.model (num_images: see `make_field`)."""
   m = config.model
   # In an unbounded scene the grids cover the whole contracted space, twice the inner box.
   bound = 2.0 * config.data.scene_bound if config.data.contraction else m.grid_bound
@@ -60,25 +67,38 @@ def network_settings(config, num_images=1):
       box=tuple(m.grid_box), cell_aspect=tuple(m.grid_cell_aspect))
 
 
+def network_name(config):
+  """The name of the network that reads config.model.encoding: config.model.network, or ''
+  for the encoding's own (registry.Encoding.network)."""
+  record, settings = encoding_family(config)
+  return config.model.network or record.natural_network(settings)
+
+
 def make_field(config, num_images=1):
-  """The Field of `config.model` (and the top-level encoding bands): the network of the
-  encoding family `model.encoding` names (fields/registry.py), built from its own section
-  (model.grid, model.hash, ...) and the shared network settings. num_images: training images,
-  the rows of the appearance codes' table (model.appearance_dims > 0)."""
+  """The Field of `config.model` (and the top-level encoding fields): the position encoding
+  `model.encoding` names (fields/registry.py), built from its own section (model.grid,
+  model.hash, ...), read by the network `model.network` names (or the encoding's own), and the
+  direction encoding `dir_encoding` names. num_images: training images, the rows of the
+  appearance codes' table (model.appearance_dims > 0)."""
   m = config.model
-  family, settings = encoding_family(config)
+  record, settings = encoding_family(config)
   if m.appearance_dims < 0:
     raise ValueError(f"config.model.appearance_dims={m.appearance_dims}: use 0 (off) or the "
                      "length of each training image's appearance code (e.g. 8)")
   precision.network_precision(m.matmul_precision)  # ValueError naming the field if unknown
-  if config.dir_encoding not in field_lib.DIR_ENCODINGS:
-    raise ValueError(f"config.dir_encoding={config.dir_encoding!r}: use one of "
-                     f"{field_lib.DIR_ENCODINGS}")
-  network = registry.build(family, settings, network_settings(config, num_images))
-  return Field(network, None if family.raw_positions else config.pos_encode_dims,
-               config.dir_encode_dims, m.view_dependent, m.density_activation, m.density_noise,
-               config.data.contraction, max(config.data.scene_bound, 1e-6), m.appearance_dims,
-               config.dir_encoding)
+  shared = network_settings(config, num_images)
+  net_record = registry.NETWORKS.lookup(network_name(config))
+  net_settings = None
+  if net_record.settings is not None:
+    net_settings = section_settings(net_record, config)
+  network = net_record.build(record.build(settings, shared), net_settings, shared)
+  if not isinstance(network, protocol.Network):
+    raise TypeError(f"network {net_record.name!r}: {type(network).__name__} lacks "
+                    "coarse_to_fine_stages, band_weights or splits_density (fields/protocol.py)")
+  dir_record = registry.DIRECTION_ENCODINGS.lookup(config.dir_encoding)
+  directions = dir_record.build(section_settings(dir_record, config), shared)
+  return Field(network, directions, m.view_dependent, m.density_activation, m.density_noise,
+               config.data.contraction, max(config.data.scene_bound, 1e-6), m.appearance_dims)
 
 
 def make_sampler(config):

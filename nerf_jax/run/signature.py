@@ -1,6 +1,6 @@
 """What a run's checkpoints record, from its config: the model signature (the shared fields,
-then the encoding family's and the sampler's entries), a fresh TrainState (train/state.py) and
-its template, the shapes a checkpoint restores into (states of earlier versions are upgraded by
+then the encoding's and the sampler's entries), a fresh TrainState (train/state.py) and its
+template, the shapes a checkpoint restores into (states of earlier versions are upgraded by
 train/state.upgrade_state_dict).
 """
 
@@ -8,31 +8,38 @@ train/state.upgrade_state_dict).
 import jax
 import jax.numpy as jnp
 
+from nerf_jax.backend import components
 from nerf_jax.fields import registry
-from nerf_jax.fields.networks import grid as grid_network
+from nerf_jax.fields.encodings import grid
 from nerf_jax.train.state import TrainState
-from nerf_jax.run.components import encoding_family, make_ray_renderer, make_sampler
+from nerf_jax.run.components import (encoding_family, make_ray_renderer, make_sampler,
+                                     network_name, section_settings)
 
 
 def model_signature(config):
   """Config fields that fix the parameter shapes; a checkpoint only restores under the same.
 
-  The shared fields, then the encoding family's own entries (registry.Encoding.signature), then
-  the optional parts, each only when on so that checkpoints saved before it existed stay valid.
-  Keys keep the flat names checkpoints have always stored (grid_resolutions, hash_levels...).
+  The shared fields (the positions' bands, the directions', the MLP's settings: recorded
+  whatever the encoding, as they always were), then the encoding's own entries
+  (registry.Encoding.signature), then the optional parts, each only when on so that checkpoints
+  saved before it existed stay valid. Keys keep the flat names checkpoints have always stored
+  (grid_resolutions, hash_levels...); each derives from the settings dataclass that declares it
+  (components.signature).
   """
   m = config.model
-  signature = {"pos_encode_dims": config.pos_encode_dims,
-               "dir_encode_dims": config.dir_encode_dims, "depth": m.depth, "width": m.width,
-               "skip_layers": list(m.skip_layers), "view_dependent": m.view_dependent,
-               "view_width": m.view_width,
+  posenc, mlp = registry.ENCODINGS.lookup("posenc"), registry.NETWORKS.lookup("mlp")
+  signature = {**components.signature(section_settings(posenc, config), ""),
+               "dir_encode_dims": config.dir_encode_dims,
+               **components.signature(section_settings(mlp, config), ""),
+               "view_dependent": m.view_dependent, "view_width": m.view_width,
                "networks": list(make_ray_renderer(config).networks)}
   family, settings = encoding_family(config)
   if family.records_grid_section:
-    grid_family = registry.lookup("grid")
-    grid_settings = registry.settings_from(grid_family, dict(m.grid))
-    signature.update(grid_network.lattice_signature(grid_settings))
+    grid_settings = section_settings(registry.ENCODINGS.lookup("grid"), config)
+    signature.update(grid.lattice_signature(grid_settings))
   signature.update(family.signature(settings))
+  if config.model.network and config.model.network != family.natural_network(settings):
+    signature.update(network=network_name(config))  # another network than the encoding's own
   if config.occupancy.enabled:
     signature.update(occupancy_resolution=config.occupancy.resolution)
   if m.view_depth != 1:

@@ -10,7 +10,7 @@ import pytest
 import scipy.linalg
 
 from nerf_jax.cameras import pose_refinement
-from nerf_jax.fields.encodings import encoding, hashgrid
+from nerf_jax.fields.encodings import hashgrid, posenc
 from nerf_jax.run import components, experiment
 from nerf_jax.run.signature import init_state, model_signature
 from nerf_jax.train.state import TrainState
@@ -89,7 +89,7 @@ def test_the_simulated_pose_error_is_the_stated_amount():
 
 
 def test_coarse_to_fine_weights_open_band_by_band():
-  w = lambda a: np.asarray(encoding.coarse_to_fine_weights(jnp.float32(a), 4))
+  w = lambda a: np.asarray(posenc.coarse_to_fine_weights(jnp.float32(a), 4))
   np.testing.assert_array_equal(w(0.0), [0, 0, 0, 0])
   np.testing.assert_allclose(w(1.5), [1, 0.5, 0, 0], atol=1e-7)
   np.testing.assert_array_equal(w(4.0), [1, 1, 1, 1])  # all open: the plain encoding
@@ -124,9 +124,8 @@ def test_grid_levels_open_coarse_to_fine(encoding_name):
   if encoding_name == "grid":
     zeroed.update({name: jnp.zeros_like(params[name]) for name in ("grid_8", "grid_16")})
   else:
-    network = field.network
-    resolutions = hashgrid.level_resolutions(3, network.base_resolution, network.max_resolution)
-    coarse_rows = hashgrid.level_rows(resolutions, network.log2_size)[0]
+    settings = field.network.encoding.settings
+    coarse_rows = hashgrid.level_rows(settings.resolutions, settings.log2_size)[0]
     zeroed["hash_table"] = params["hash_table"].at[coarse_rows:].set(0.0)
   rgb_hand, sigma_hand = query(zeroed, points, dirs)
   rgb_closed, sigma_closed = query(params, points, dirs, bands=jnp.float32(0.0))
@@ -156,8 +155,9 @@ class _AnalyticField:
   so pose refinement is tested alone: rgb = sigmoid(sin(4 p + phase)), density 30·exp(-|p|²/0.3)
   (raw density through the config's relu)."""
 
-  def apply(self, variables, features, dir_features=None):
-    points = features[..., :3]  # the positional encoding starts with the position itself
+  coarse_to_fine_stages = 0  # it reads the points alone: no bands to open
+
+  def apply(self, variables, points, dir_features=None):
     rgb = jax.nn.sigmoid(2.0 * jnp.sin(4.0 * points + jnp.array([0.0, 1.0, 2.0])))
     return rgb, 30.0 * jnp.exp(-jnp.sum(points ** 2, axis=-1) / 0.3)
 
@@ -258,8 +258,10 @@ class _EmptyField:
   """A stand-in network with no density anywhere: every ray renders the background, so the
   images say nothing about the poses and only train.pose_prior acts on the corrections."""
 
-  def apply(self, variables, features, dir_features=None):
-    return jnp.full(features.shape[:-1] + (3,), 0.5), jnp.zeros(features.shape[:-1])
+  coarse_to_fine_stages = 0
+
+  def apply(self, variables, points, dir_features=None):
+    return jnp.full(points.shape[:-1] + (3,), 0.5), jnp.zeros(points.shape[:-1])
 
 
 @pytest.mark.parametrize("prior", [0.0, 10.0])

@@ -9,7 +9,7 @@ import pytest
 
 from nerf_jax.data import scenes
 from nerf_jax.fields import field
-from nerf_jax.fields.encodings import encoding
+from nerf_jax.fields.encodings import posenc
 from nerf_jax.render import background, compositing, renderer
 from nerf_jax.run import components, experiment
 from nerf_jax.run.signature import init_state
@@ -35,7 +35,7 @@ def _spy_one_step(monkeypatch, config):
   when it runs (one compilation of the step, where an eager step compiles each op)."""
   calls = {"query": [], "encode": [], "composite": []}
   query = field.Field.query
-  encode, composite = encoding.positional_encoding, compositing.composite
+  encode, composite = posenc.positional_encoding, compositing.composite
 
   def record(entry, *values):
     """entry (a list) gets values as numpy arrays, once the step runs (forward pass only)."""
@@ -57,12 +57,13 @@ def _spy_one_step(monkeypatch, config):
     return composite(rgb, sigma, t, background)
 
   monkeypatch.setattr(field.Field, "query", spy_query)
-  monkeypatch.setattr(encoding, "positional_encoding", spy_encode)
   monkeypatch.setattr(compositing, "composite", spy_composite)
   exp = experiment.setup(config)
   data = components.make_train_data(exp)
+  state = init_state(exp)  # its network init encodes too: not the step's
+  monkeypatch.setattr(posenc, "positional_encoding", spy_encode)
   step = jax.jit(components.make_train_step(exp))
-  jax.block_until_ready(step(init_state(exp), data, jax.random.PRNGKey(0)))
+  jax.block_until_ready(step(state, data, jax.random.PRNGKey(0)))
   jax.effects_barrier()  # every callback has run
   calls["query"] = [(values[0], params) for values, params in calls["query"]]
   calls["composite"] = [(t, None if np.isnan(bg).all() else bg) for t, bg in calls["composite"]]

@@ -1,21 +1,27 @@
-"""docs/extending.md's walk-through, run as written: its encoding module and config section are
-copied from the doc into a temporary package, trained a few steps through the library's own
-training job, and restored; no file of the tree is touched."""
+"""docs/extending.md's walk-through, run as written: its encoding module and its config file are
+written verbatim into new files, the config file is loaded by the library's own loader (nothing
+injected), trained a few steps through the library's training job, and restored; no file of the
+tree is touched."""
 
 import pathlib
 import re
 
 import jax
-import ml_collections
 import numpy as np
 import pytest
 
 from nerf_jax.fields import registry
-from nerf_jax.run import components, experiment, train_lib
-from nerf_jax.run.signature import init_state, model_signature
-from tests.helpers import ROOT, TINY_GRID, small_config
+from nerf_jax.run import components, config_lib, experiment, signature, train_lib
+from tests.helpers import ROOT
 
 DOC = pathlib.Path(ROOT) / "docs" / "extending.md"
+# The shrinking every quick training test applies (tests/helpers.TINY_GRID's sizes), on top of
+# the doc's config file as loaded.
+SHRINK = {"data.num_views": 6, "data.image_size": 16, "data.holdout_from": 5, "num_samples": 16,
+          "model.depth": 2, "model.width": 16, "model.fourier.features": 8,
+          "train.batch_rays": 256, "train.max_steps": 20, "train.log_every": 20,
+          "train.checkpoint_every": 20, "render.after_training": False,
+          "render.video_frames": 0, "render.chunk": 256, "render.march_grid": 16}
 
 
 def doc_block(name):
@@ -27,54 +33,91 @@ def doc_block(name):
 
 
 @pytest.fixture
-def triplane_config(tmp_path, monkeypatch):
-  """A tiny config of configs/fast.py with the doc's tri-plane family (a package in tmp_path)."""
-  package = tmp_path / "my_fields"
+def doc_files(tmp_path, monkeypatch):
+  """The doc's module (my_encodings/fourier.py) and config file (my_config.py), written into
+  tmp_path, which goes on sys.path as the doc's PYTHONPATH; returns the config file's path."""
+  package = tmp_path / "my_encodings"
   package.mkdir()
   (package / "__init__.py").write_text("")
-  (package / "triplane.py").write_text(doc_block("module"))
+  (package / "fourier.py").write_text(doc_block("module"))
+  (tmp_path / "my_config.py").write_text(doc_block("config"))
   monkeypatch.syspath_prepend(str(tmp_path))
-  config = small_config(TINY_GRID, base="fast")  # 30 steps, checkpointed at the end
-  exec(doc_block("config"), {"config": config, "ml_collections": ml_collections})  # pylint: disable=exec-used
-  config.model.triplane.resolution = 16
+  return str(tmp_path / "my_config.py")
+
+
+def _loaded(path):
+  """The doc's config file through config_lib.load, shrunk to a quick run."""
+  config = config_lib.load(path)
+  for field, value in SHRINK.items():
+    config_lib.set_field(config, field, value)
   return config
 
 
-def test_the_docs_encoding_trains_and_restores_from_its_config_section(triplane_config, tmp_path):
-  config = triplane_config
-  exp = experiment.setup(config)
-  network = exp.renderer.field.network
-  assert type(network).__name__ == "TriPlaneNeRF" and network.resolution == 16
-  assert exp.renderer.field.pos_encode_dims is None  # raw positions: the planes encode them
-  params = init_state(exp).params["coarse"]
-  assert sorted(k for k in params if k.startswith("plane_")) == ["plane_01", "plane_02", "plane_12"]
-  assert params["plane_01"].shape == (16, 16, 8)
-  signature = model_signature(config)
-  assert signature["encoding"] == "triplane" and signature["triplane_resolution"] == 16
-  # Its planes take the total variation (its table_axes), as the built-in tables do.
-  config.train.tv_weight = 0.1
-  tv = [t for t in components.loss_terms(config, exp.renderer) if hasattr(t, "table_axes")]
-  assert dict(tv[0].table_axes) == {"plane_": 2}
-  config.train.tv_weight = 0.0
+def test_the_docs_encoding_is_gamma_of_its_fixed_gaussian_matrix(doc_files):
+  from my_encodings import fourier  # pylint: disable=g-import-not-at-top  (written by the fixture)
+  encoding = fourier.build(fourier.Settings(features=5, scale=3.0, seed=7), None)
+  b = np.asarray(encoding.matrix(), np.float64)
+  assert b.shape == (5, 3) and np.array_equal(b, np.asarray(encoding.matrix()))  # fixed
+  assert 1.0 < np.std(b) < 6.0  # scale 3
+  x = np.asarray(jax.random.uniform(jax.random.PRNGKey(0), (4, 6, 3), minval=-1.5, maxval=1.5))
+  angles = np.array([[[2 * np.pi * sum(p[d] * row[d] for d in range(3)) for row in b]
+                      for p in ray] for ray in x.astype(np.float64)])  # [4, 6, 5]
+  got = np.asarray(encoding.features(None, x))
+  assert got.shape == (4, 6, 10) == (4, 6, encoding.width(3))
+  np.testing.assert_allclose(got, np.concatenate([np.sin(angles), np.cos(angles)], -1),
+                             atol=1e-4)
+
+
+def test_the_docs_encoding_trains_and_restores_from_its_config_file(doc_files, tmp_path):
+  config = _loaded(doc_files)
+  field = components.make_field(config)
+  assert type(field.network).__name__ == "NerfMLP"  # the encoding's own network
+  assert type(field.network.encoding).__name__ == "FourierFeatures"
+  assert field.network.encoding.settings.scale == 4.0 and field.coarse_to_fine_stages == 0
+  params = field.init(jax.random.PRNGKey(0))
+  assert sorted(params) == ["layer_0", "layer_1", "output"]  # B is a constant, not a parameter
+  assert params["layer_0"]["kernel"].shape == (2 * 8, 16)  # gamma: 2 x features inputs
+  entries = signature.model_signature(config)
+  assert entries["encoding"] == "fourier" and entries["fourier_features"] == 8
+  assert entries["fourier_seed"] == 0 and "network" not in entries
 
   workdir = str(tmp_path / "run")
   train_lib.train_and_evaluate(config, workdir)
   restored, state = experiment.restore(workdir)
-  assert int(state.step) == 30
-  assert type(restored.renderer.field.network).__name__ == "TriPlaneNeRF"
+  assert int(state.step) == 20
+  assert type(restored.renderer.field.network.encoding).__name__ == "FourierFeatures"
   trained = jax.tree_util.tree_map(np.asarray, state.params["coarse"])
-  assert not np.allclose(trained["plane_01"], params["plane_01"])  # the planes learnt
+  initial = signature.init_state(experiment.setup(config)).params["coarse"]
+  assert not np.allclose(trained["layer_0"]["kernel"], initial["layer_0"]["kernel"])  # learnt
 
 
-def test_a_registered_name_and_a_wrong_one(triplane_config):
-  registry.register("triplane_for_test", "my_fields.triplane")
+def test_the_docs_encoding_under_another_network_and_a_registered_name(doc_files):
+  config = _loaded(doc_files)
+  config.model.network = "lattice"  # the grids' tiny head on the Fourier features
+  field = components.make_field(config)
+  assert type(field.network).__name__ == "LatticeHead"
+  assert field.init(jax.random.PRNGKey(0))["hidden"]["kernel"].shape == (16, 16)
+  assert signature.model_signature(config)["network"] == "lattice"
+  registry.ENCODINGS.register("fourier_for_test", "my_encodings.fourier")
   try:
-    assert registry.lookup("triplane_for_test") is registry.lookup("my_fields.triplane")
+    assert "fourier_for_test" in registry.ENCODINGS.names()
+    assert (registry.ENCODINGS.lookup("fourier_for_test")
+            is registry.ENCODINGS.lookup("my_encodings.fourier"))
   finally:
-    registry._MODULES.pop("triplane_for_test")  # pylint: disable=protected-access
-  triplane_config.model.triplane.resoluton = 8  # misspelt: an error naming it
-  with pytest.raises(ValueError, match="model.triplane has no setting 'resoluton'"):
-    components.make_field(triplane_config)
-  triplane_config.model.encoding = "no_such_family"
-  with pytest.raises(ValueError, match="posenc, grid, hash, tensorf or a module path"):
-    components.make_field(triplane_config)
+    registry.ENCODINGS.unregister("fourier_for_test")
+
+
+def test_the_docs_encoding_names_a_wrong_setting_or_name(doc_files):
+  config = _loaded(doc_files)
+  config.model.fourier.scael = 2.0  # misspelt: an error naming it
+  with pytest.raises(ValueError, match="model.fourier has no setting 'scael'"):
+    components.make_field(config)
+  config = _loaded(doc_files)
+  config.model.fourier.scale = -1.0  # checked in the settings' __post_init__
+  with pytest.raises(ValueError, match="config.model.fourier needs features >= 1 and scale > 0"):
+    components.make_field(config)
+  config.model.encoding = "no_such_encoding"
+  known = ", ".join(registry.ENCODINGS.names())
+  with pytest.raises(ValueError, match=f"config.model.encoding must be one of {known} or a "
+                     "module path, got 'no_such_encoding'"):
+    components.make_field(config)

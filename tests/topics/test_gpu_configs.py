@@ -6,8 +6,9 @@ import jax
 import numpy as np
 import pytest
 
-from nerf_jax.fields.networks.grid import GridNeRF
-from nerf_jax.fields.networks.hash import HashNeRF
+from nerf_jax.fields.encodings.grid import DenseGrid
+from nerf_jax.fields.encodings.hashgrid import HashGrid
+from nerf_jax.fields.networks.lattice import LatticeHead
 from nerf_jax.run import components, config_lib, train_lib
 from nerf_jax.train import losses
 from tests.helpers import small_config
@@ -33,7 +34,8 @@ def _param_shapes(config):
 def test_lego_is_instant_ngps_field_with_its_sample_budget():
   config = config_lib.load("gpu/lego")
   rr, shapes = _param_shapes(config)
-  assert isinstance(rr.field.network, HashNeRF)
+  assert isinstance(rr.field.network, LatticeHead)
+  assert isinstance(rr.field.network.encoding, HashGrid)
   assert shapes["hash_table"] == (_hash_rows(16, 16, 2048, 19), 2)  # 6,080,903 rows
   assert shapes["hidden"]["kernel"] == (16 * 2, 64)  # 16 levels x 2 features -> 64 wide
   assert shapes["view"]["kernel"] == (64 + 27, 64)  # + 4 frequency bands of the direction
@@ -50,7 +52,8 @@ def test_lego_is_instant_ngps_field_with_its_sample_budget():
 def test_capture_contracts_space_with_a_larger_field():
   config = config_lib.load("gpu/capture")
   rr, shapes = _param_shapes(config)
-  assert isinstance(rr.field.network, HashNeRF)
+  assert isinstance(rr.field.network, LatticeHead)
+  assert isinstance(rr.field.network.encoding, HashGrid)
   assert config.data.contraction == "linf" and config.data.scene_bound == -1
   assert shapes["hash_table"] == (_hash_rows(16, 16, 4096, 21), 2)  # 22,548,944 rows
   assert shapes["hash_table"][0] > 3 * _hash_rows(16, 16, 2048, 19)  # larger than lego's
@@ -64,7 +67,7 @@ def test_capture_contracts_space_with_a_larger_field():
 def test_llff_has_finer_levels_and_total_variation_in_ndc():
   config = config_lib.load("gpu/llff")
   rr, shapes = _param_shapes(config)
-  assert isinstance(rr.field.network, GridNeRF) and config.data.ndc
+  assert isinstance(rr.field.network.encoding, DenseGrid) and config.data.ndc
   # Before the NDC box is found (from_data.with_ndc_box) the grids cover the cube: the finest
   # level has 512 points across and 512 / 4 (+ 1) in depth, its cells 4x as long.
   assert shapes["grid_512"] == (512, 512, 129, 4)

@@ -20,7 +20,7 @@ import pytest
 from nerf_jax import rendering
 from nerf_jax.cameras import rays
 from nerf_jax.fields import activations
-from nerf_jax.fields.encodings import encoding
+from nerf_jax.fields.encodings import posenc
 from nerf_jax.samplers import spacing
 from nerf_jax.volume import quadrature
 
@@ -369,8 +369,8 @@ def _field_render(directions):
   """Sample, encode and composite along rays from the origin: a stand-in for the field."""
   t = spacing.stratified(2.0, 6.0, 8, directions.shape[:1])
   points = directions[:, None, :] * spacing.midpoints(t)[..., None]
-  feats = encoding.positional_encoding(points, 4)
-  view = encoding.positional_encoding(rays.safe_normalize(directions), 2)
+  feats = posenc.positional_encoding(points, 4)
+  view = posenc.positional_encoding(rays.safe_normalize(directions), 2)
   sigma = jax.nn.softplus(jnp.sum(feats, -1))
   rgb = jax.nn.sigmoid(feats[..., :3] + view[:, None, :3])
   out = rendering.composite(rgb, sigma, t, jnp.ones(3))
@@ -493,7 +493,7 @@ def test_case10_positional_encoding_accuracy(scale):
   x64 = np.random.default_rng(10).uniform(-scale, scale, 4096)
   x64[0] = scale
   x = x64.astype(np.float32)[:, None]
-  out = np.asarray(jax.jit(encoding.positional_encoding, static_argnums=1)(x, num_freqs),
+  out = np.asarray(jax.jit(posenc.positional_encoding, static_argnums=1)(x, num_freqs),
                    np.float64)
   xs = x[:, 0].astype(np.float64)  # the float32 input, exactly
   half_ulp = np.spacing(np.abs(x[:, 0])).astype(np.float64) / 2
@@ -597,7 +597,7 @@ def test_case11_low_precision_mlp_composited():
   t = np.asarray(_stratified(2.0, 6.0, num, (rays_,), None, False))
   directions = np.random.default_rng(1).normal(size=(rays_, 3)).astype(np.float32)
   points = np.array([0.0, 0.0, 4.0]) + directions[:, None, :] * spacing.midpoints(t)[..., None]
-  feats = encoding.positional_encoding(0.25 * points.astype(np.float32), 6)
+  feats = posenc.positional_encoding(0.25 * points.astype(np.float32), 6)
   params = _numpy_init(_tiny_model("float32"), feats, seed=3)
   ref, lows = _numpy(_mlp_composites_and_grads(params, feats, t))
   assert np.min(ref["acc"]) < 0.1 and np.max(ref["acc"]) > 0.9  # empty and opaque rays

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from nerf_jax.fields import contraction
-from nerf_jax.fields.networks import grid as grid_network
+from nerf_jax.fields.encodings import grid, posenc
+from nerf_jax.fields.networks import lattice
 from nerf_jax.run import components, experiment, from_data
 from nerf_jax.samplers import occupancy, placement, spacing
 from nerf_jax.fields.field import Field
@@ -43,17 +44,18 @@ def test_contracted_placement_is_linear_inside_and_in_disparity_beyond(kind):
 
 @pytest.mark.slow  # trains or renders for more than ~10 s on 2 cores
 def test_the_field_sees_contracted_positions():
-  network = grid_network.GridNeRF(resolutions=(4,), features=2, bound=3.0, hidden=8)
-  field = Field(network, None, 2, contraction="linf", inner_radius=1.5)
+  encoding = grid.DenseGrid(grid.Settings(resolutions=(4,), features=2), grid.Space(3.0))
+  network = lattice.LatticeHead(encoding, hidden=8)
+  field = Field(network, posenc.Frequency(2), contraction="linf", inner_radius=1.5)
   points = jnp.array([[0.5, -0.2, 0.1], [30.0, 0.0, -2.0], [1e8, 1e8, 0.0]], jnp.float32)
-  encoded = jitted(field.encode_positions)(points)
+  encoded = jitted(field.network_points)(points)
   np.testing.assert_allclose(encoded, contraction.contract(points, 1.5, "linf"), rtol=1e-6)
   assert np.all(np.abs(encoded) <= 3.0)  # inside the grids' box of half-size 2 x 1.5
   params = jitted(field.init)(jax.random.PRNGKey(0))
   _, sigma = jitted(field.query)(params, points[:, None, :], jnp.zeros_like(points))
   assert np.all(np.isfinite(sigma))
   # Without the contraction, far points fall outside the grids and get no density at all.
-  plain = Field(network, None, 2)
+  plain = Field(network, posenc.Frequency(2))
   _, far_sigma = jitted(plain.query)(params, points[1:, None, :], jnp.zeros_like(points[1:]))
   assert np.all(far_sigma == 0.0)
 
@@ -135,7 +137,7 @@ def test_an_automatic_bounded_box_is_the_grids_box_too():
   exp = experiment.setup(small_config({"data.scene_bound": -1.0, "model.encoding": "grid"}))
   cameras = float(np.max(np.abs(exp.train_ds.poses[:, :3, 3])))  # built-in: no aabb
   assert exp.config.data.scene_bound == pytest.approx(cameras, abs=1e-4)
-  assert exp.renderer.field.network.bound == pytest.approx(cameras, abs=1e-4)
+  assert exp.renderer.field.network.encoding.space.bound == pytest.approx(cameras, abs=1e-4)
   assert exp.renderer.sampler.scene_bound == exp.config.data.scene_bound
 
 

@@ -137,7 +137,7 @@ def test_lattice_tables_and_the_weighted_tv_in_the_train_loss():
   every = {"grid_": 3, "density_": 3, "plane_": 2, "line_": 1}
   assert sorted(axes for _, axes in registry.lattice_tables(params, every)) == [1, 2, 3]
   # A family's own prefixes only (registry.Encoding.table_axes): the grid family's dense grids.
-  grid_axes = registry.lookup("grid").table_axes
+  grid_axes = registry.ENCODINGS.lookup("grid").table_axes
   assert [axes for _, axes in registry.lattice_tables(params, grid_axes)] == [3]
   stats = {}
   for weight in (0.0, 10.0):

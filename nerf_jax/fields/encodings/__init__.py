@@ -1,2 +1,3 @@
-"""Position encodings: positional (frequency) encoding, dense grids, hash grids, TensoRF
-factorisations."""
+"""Encodings, one module each (its pure math, its settings and its registry record): the
+frequency bands (posenc.py), dense grids (grid.py), hash grids (hashgrid.py), TensoRF
+factorisations (tensorf.py), spherical harmonics of directions (spherical_harmonics.py)."""

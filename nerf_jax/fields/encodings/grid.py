@@ -1,4 +1,6 @@
-"""Dense feature grids with trilinear interpolation (the fast encoding).
+"""Dense feature grids with trilinear interpolation (the fast encoding, config name 'grid';
+settings config.model.grid), and what every lattice encoding shares: the box it covers
+(`Space`) and the coarse-to-fine window over its levels.
 
 A grid covers a box: the scene box [-bound, bound]^3, or a tighter one (min and max corners, e.g.
 the visual hull's, visual_hull.py) with as many lattice points per side as keep its cells cubic
@@ -11,8 +13,15 @@ Interpolation gathers the 8 lattice points around each position; its gradient is
 into the grid, so the cost per sample is independent of the grid size.
 """
 
+import dataclasses
+from typing import Sequence
+
 import jax.numpy as jnp
 import numpy as np
+
+from nerf_jax.backend import components, draws
+from nerf_jax.fields import registry
+from nerf_jax.fields.encodings import posenc
 
 
 def to_unit_cube(points, bound):
@@ -72,3 +81,137 @@ def trilinear(grid, unit):
 def multires_features(grids, unit):
   """Concatenated trilinear features of several grids: float32 [..., sum of F]."""
   return jnp.concatenate([trilinear(g, unit) for g in grids], axis=-1)
+
+
+def weigh_levels(h, level_weights):
+  """Features float [..., L·F] of L equal-width levels, level l scaled by level_weights[l]
+  (float32 [L]; None = unchanged): BARF's coarse-to-fine window over a lattice's levels."""
+  if level_weights is None:
+    return h
+  levels = level_weights.shape[0]
+  scaled = h.reshape(*h.shape[:-1], levels, -1) * level_weights[:, None].astype(h.dtype)
+  return scaled.reshape(h.shape)
+
+
+def level_window(bands, stages):
+  """float32 [stages + 1] weights of a lattice's levels with `bands` open: the coarsest always
+  open, the others opening as posenc.coarse_to_fine_weights opens bands."""
+  rest = posenc.coarse_to_fine_weights(bands, stages)
+  return jnp.concatenate([jnp.ones((1,), jnp.float32), rest])
+
+
+@dataclasses.dataclass(frozen=True)
+class Space:
+  """The box a lattice covers: the cube [-bound, bound]^3, or `box` (min x, y, z, max x, y, z)
+  when set, in cells whose x, y, z sides are in the ratio `cell_aspect`."""
+  bound: float = 1.5
+  box: Sequence[float] = ()
+  cell_aspect: Sequence[float] = (1.0, 1.0, 1.0)
+
+  @classmethod
+  def of(cls, shared):
+    """The Space of protocol.NetworkSettings `shared`."""
+    return cls(shared.bound, tuple(shared.box), tuple(shared.cell_aspect))
+
+  def unit(self, points):
+    """World positions float32 [..., 3] in the box's unit cube, float32 [..., 3]."""
+    points = points.astype(jnp.float32)
+    if not self.box:
+      return to_unit_cube(points, self.bound)
+    return to_unit_box(points, (self.box[:3], self.box[3:]))
+
+  def shape(self, resolution):
+    """Lattice points per axis of a level with `resolution` along the axis with most cells."""
+    box = (self.box[:3], self.box[3:]) if self.box else ((-self.bound,) * 3, (self.bound,) * 3)
+    return axis_resolutions(resolution, box, self.cell_aspect)
+
+  def inside(self, points):
+    """bool [...]: whether world positions float32 [..., 3] lie inside the box."""
+    return inside_box(self.unit(points))
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+  """config.model.grid."""
+  resolutions: Sequence[int] = (32, 64, 128)  # lattice points per side of each level
+  features: int = 4  # features per lattice point
+  density_resolutions: Sequence[int] = ()  # density from one-channel grids; () = from the head
+  density_hash_resolution: int = 0  # with density_resolutions: a hashed finer level (0 = none)
+  density_hash_log2_size: int = 20  # log2 of the hashed density level's rows
+  colour_hash_resolution: int = 0  # with density_resolutions: a hashed finer colour level
+  colour_hash_log2_size: int = 20  # log2 of the hashed colour level's rows
+
+  def __post_init__(self):
+    if not self.density_resolutions and (self.density_hash_resolution
+                                         or self.colour_hash_resolution):
+      raise ValueError("config.model.grid.density_hash_resolution and colour_hash_resolution "
+                       "add levels to the split network: they need "
+                       "config.model.grid.density_resolutions")
+
+
+@dataclasses.dataclass(frozen=True)
+class DenseGrid:
+  """Multiresolution dense feature grids over `space` (protocol.Encoding): parameters
+  'grid_<resolution>' float32 [Rx, Ry, Rz, features], 1e-2·N(0, 1) at the start."""
+  settings: Settings
+  space: Space
+
+  @property
+  def coarse_to_fine_stages(self):
+    return max(len(self.settings.resolutions) - 1, 0)
+
+  def band_weights(self, bands):
+    return level_window(bands, self.coarse_to_fine_stages)
+
+  def features(self, module, points, weights=None):
+    """float32 [..., levels·features] at world positions float32 [..., 3] (clamped to the box
+    outside it), level l scaled by weights[l]; the grids are `module`'s parameters."""
+    init = draws.normal_init(1e-2)
+    grids = [module.param(f"grid_{r}", init, (*self.space.shape(r), self.settings.features))
+             for r in self.settings.resolutions]
+    return weigh_levels(multires_features(grids, self.space.unit(points)), weights)
+
+  def inside(self, points):
+    return self.space.inside(points)
+
+  def width(self, dim):
+    del dim
+    return len(self.settings.resolutions) * self.settings.features
+
+
+def build(settings, shared):
+  """The DenseGrid of `settings` over the space of `shared` (protocol.NetworkSettings)."""
+  return DenseGrid(settings, Space.of(shared))
+
+
+def lattice_signature(settings):
+  """The dense levels' entries of a checkpoint signature (every lattice encoding records them:
+  registry.Encoding.records_grid_section)."""
+  return components.signature(settings, "grid_", exclude=_SPLIT)
+
+
+_SPLIT = ("density_resolutions", "density_hash_resolution", "density_hash_log2_size",
+          "colour_hash_resolution", "colour_hash_log2_size")
+
+
+def signature(settings):
+  """The grid encoding's entries beyond `lattice_signature`: the density grids and hashed
+  levels, only when set (so checkpoints saved before they existed stay valid)."""
+  entries = {"encoding": "grid"}
+  if settings.density_resolutions:
+    entries["grid_density_resolutions"] = list(settings.density_resolutions)
+    for part in ("density", "colour"):
+      if getattr(settings, f"{part}_hash_resolution"):
+        entries[f"grid_{part}_hash"] = [getattr(settings, f"{part}_hash_resolution"),
+                                        getattr(settings, f"{part}_hash_log2_size")]
+  return entries
+
+
+def _network(settings):
+  """The lattice head, or with density_resolutions the split network (networks/density_grid.py)."""
+  return "density_grid" if settings.density_resolutions else "lattice"
+
+
+# Lattice tables (train.tv_weight): the feature grids and the density levels, 3 spatial axes.
+ENCODING = registry.Encoding("grid", Settings, build, _network, signature,
+                             table_axes={"grid_": 3, "density_": 3}, records_grid_section=True)

@@ -1,4 +1,5 @@
-"""Multiresolution hash-grid encoding (instant-ngp, Müller et al. 2022).
+"""Multiresolution hash-grid encoding (instant-ngp, Müller et al. 2022): config name 'hash',
+settings config.model.hash (`Settings`), read by the lattice head unless model.network says.
 
 Names:
   unit:   float32 [..., 3]  positions in [0, 1]^3 (grid.to_unit_cube); outside is clamped
@@ -13,11 +14,16 @@ corner rows trilinearly; the L levels' features are concatenated, [..., L·F]. T
 sample is independent of T: one gather of 8·L rows (its gradient: a scatter-add of 8·L rows).
 """
 
+import dataclasses
 import functools
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from nerf_jax.backend import components, draws
+from nerf_jax.fields import registry
+from nerf_jax.fields.encodings import grid
 
 # instant-ngp's primes, one per axis; the first is 1 so neighbouring x share cache lines.
 PRIMES = (1, 2654435761, 805459861)
@@ -149,3 +155,73 @@ def encode(table, unit, resolutions, log2_size, dtype="float32"):
   else:
     features = _interpolate_low(table, rows, weights, jnp.dtype(dtype))
   return features.reshape(*features.shape[:-2], -1)
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+  """config.model.hash."""
+  levels: int = 16  # resolution levels
+  log2_size: int = 19  # log2 of the rows of each level's table
+  features: int = 2  # features per row
+  base_resolution: int = 16  # lattice points per side of the coarsest level
+  max_resolution: int = 2048  # lattice points per side of the finest level
+  gather_dtype: str = "float32"  # dtype of the gathered rows (the table stays float32)
+
+  def __post_init__(self):
+    level_rows(self.resolutions, self.log2_size)  # ValueErrors naming the fields
+    if self.gather_dtype not in DTYPES:
+      raise ValueError(f"model.hash.gather_dtype must be one of {DTYPES}, got "
+                       f"{self.gather_dtype!r}")
+
+  @property
+  def resolutions(self):
+    """Lattice points per side of each level (`level_resolutions`)."""
+    return level_resolutions(self.levels, self.base_resolution, self.max_resolution)
+
+
+@dataclasses.dataclass(frozen=True)
+class HashGrid:
+  """The hash grid of `settings` over `space` (protocol.Encoding): one parameter 'hash_table'
+  float32 [sum(level_rows), features] holding every level's rows, initialised uniform in ±1e-4
+  as in instant-ngp (the network starts from a nearly constant field, and no level dominates
+  before training)."""
+  settings: Settings
+  space: grid.Space
+
+  @property
+  def coarse_to_fine_stages(self):
+    return max(self.settings.levels - 1, 0)
+
+  def band_weights(self, bands):
+    return grid.level_window(bands, self.coarse_to_fine_stages)
+
+  def features(self, module, points, weights=None):
+    """float32 [..., levels·features] at world positions float32 [..., 3] (clamped to the box
+    outside it), level l scaled by weights[l]; the table is `module`'s parameter."""
+    s = self.settings
+    rows = sum(level_rows(s.resolutions, s.log2_size))
+    init = lambda key, shape: draws.uniform(key, shape, jnp.float32, -1e-4, 1e-4)
+    table = module.param("hash_table", init, (rows, s.features))
+    h = encode(table, self.space.unit(points), s.resolutions, s.log2_size, s.gather_dtype)
+    return grid.weigh_levels(h, weights)
+
+  def inside(self, points):
+    return self.space.inside(points)
+
+  def width(self, dim):
+    del dim
+    return self.settings.levels * self.settings.features
+
+
+def build(settings, shared):
+  """The HashGrid of `settings` over the space of `shared` (protocol.NetworkSettings)."""
+  return HashGrid(settings, grid.Space.of(shared))
+
+
+def signature(settings):
+  """The table's shape and the meaning of its rows (the gathered dtype changes neither)."""
+  return {"encoding": "hash", **components.signature(settings, "hash_", exclude=("gather_dtype",))}
+
+
+ENCODING = registry.Encoding("hash", Settings, build, "lattice", signature,
+                             records_grid_section=True)

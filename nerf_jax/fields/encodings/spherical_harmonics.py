@@ -1,4 +1,5 @@
-"""Spherical-harmonics encoding of view directions (instant-ngp's and nerfacto's, degree 4).
+"""Spherical-harmonics encoding of view directions (instant-ngp's and nerfacto's, degree 4;
+config.dir_encoding = 'sh', its degree config.dir_encode_dims).
 
 d: float32 [..., 3] unit directions (x, y, z). The encoding is the real spherical harmonics
 Y_l^m(d) of bands l = 0 .. degree - 1, m = -l .. l in order: degree² features, an orthonormal
@@ -12,7 +13,11 @@ a CPU it lost to the 4 bands by 0.07-0.12 dB (glossy, fox: docs/gpu.md), so no s
 uses it; it is here for instant-ngp-like setups and for comparison.
 """
 
+import dataclasses
+
 import jax.numpy as jnp
+
+from nerf_jax.fields import protocol, registry
 
 MAX_DEGREE = 5  # bands l = 0..4, 25 features
 
@@ -60,3 +65,41 @@ def spherical_harmonics(d, degree):
 def encoded_width(degree):
   """Features of `spherical_harmonics` at `degree`: degree²."""
   return degree * degree
+
+
+@dataclasses.dataclass(frozen=True)
+class SphericalHarmonics:
+  """The direction encoding of `degree` bands (protocol.Encoding): no parameters, nothing to
+  open coarse to fine."""
+  degree: int
+
+  coarse_to_fine_stages = 0
+
+  def band_weights(self, bands):
+    del bands
+    return None
+
+  def features(self, module, x, weights=None):
+    """`spherical_harmonics` of unit directions x float32 [..., 3] (module, weights: unused)."""
+    del module, weights
+    return spherical_harmonics(x, self.degree)
+
+  def inside(self, points):
+    del points
+    return None
+
+  def width(self, dim):
+    del dim
+    return encoded_width(self.degree)
+
+
+def build(settings, shared):
+  """The SphericalHarmonics of degree config.dir_encode_dims (protocol.DirectionSettings)."""
+  del shared
+  if not 1 <= settings.dir_encode_dims <= MAX_DEGREE:
+    raise ValueError(f"spherical harmonics: dir_encode_dims (the degree) must be in 1.."
+                     f"{MAX_DEGREE} with dir_encoding='sh', got {settings.dir_encode_dims}")
+  return SphericalHarmonics(settings.dir_encode_dims)
+
+
+DIRECTION_ENCODING = registry.Encoding("sh", protocol.DirectionSettings, build, section="")

@@ -1,4 +1,5 @@
-"""Vector–matrix factorised feature fields (TensoRF-VM, Chen et al. 2022).
+"""Vector–matrix factorised feature fields (TensoRF-VM, Chen et al. 2022): config name 'tensorf',
+settings config.model.tensorf (`Settings`), read by the lattice head unless model.network says.
 
 A 3-D feature field is a sum of three modes; mode m pairs a plane over two axes with a line
 along the third, and its C components multiply point by point:
@@ -16,8 +17,13 @@ Names:
   unit:   float32 [..., 3]              positions in [0, 1]^3 (grid.to_unit_cube / to_unit_box)
 """
 
+import dataclasses
+from typing import Sequence
+
 import jax.numpy as jnp
 
+from nerf_jax.backend import components, draws
+from nerf_jax.fields import registry
 from nerf_jax.fields.encodings import grid
 
 # (the plane's two axes, the line's axis) of each mode
@@ -59,3 +65,63 @@ def shapes(axis_points, rank):
   planes = [(axis_points[a], axis_points[b], rank) for (a, b), _ in MODES]
   lines = [(axis_points[c], rank) for _, c in MODES]
   return planes, lines
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+  """config.model.tensorf."""
+  resolutions: Sequence[int] = (128, 256)  # lattice points along the box's longest side, per level
+  rank: int = 16  # components per plane-line pair (3 x rank features per level)
+
+
+@dataclasses.dataclass(frozen=True)
+class TensoRF:
+  """Levels of vector-matrix factorised fields over `space` (protocol.Encoding). Each level is
+  a TensoRF-VM field with `rank` components per mode and `resolution` lattice points along the
+  box's longest side (3·rank features); the levels' features are concatenated. Parameters
+  'plane_<resolution>_<mode>' and 'line_<resolution>_<mode>' start at 0.1·N(0, 1), so their
+  products, the features, start at about the dense grids' 1e-2."""
+  settings: Settings
+  space: grid.Space
+
+  @property
+  def coarse_to_fine_stages(self):
+    return max(len(self.settings.resolutions) - 1, 0)
+
+  def band_weights(self, bands):
+    return grid.level_window(bands, self.coarse_to_fine_stages)
+
+  def features(self, module, points, weights=None):
+    """float32 [..., levels·3·rank] at world positions float32 [..., 3] (clamped to the box
+    outside it), level l scaled by weights[l]; the planes and lines are `module`'s parameters."""
+    init = draws.normal_init(0.1)
+    unit = self.space.unit(points)
+    features = []
+    for r in self.settings.resolutions:
+      plane_shapes, line_shapes = shapes(self.space.shape(r), self.settings.rank)
+      planes = [module.param(f"plane_{r}_{m}", init, s) for m, s in enumerate(plane_shapes)]
+      lines = [module.param(f"line_{r}_{m}", init, s) for m, s in enumerate(line_shapes)]
+      features.append(vm_features(planes, lines, unit))
+    return grid.weigh_levels(jnp.concatenate(features, axis=-1), weights)
+
+  def inside(self, points):
+    return self.space.inside(points)
+
+  def width(self, dim):
+    del dim
+    return len(self.settings.resolutions) * 3 * self.settings.rank
+
+
+def build(settings, shared):
+  """The TensoRF of `settings` over the space of `shared` (protocol.NetworkSettings)."""
+  return TensoRF(settings, grid.Space.of(shared))
+
+
+def signature(settings):
+  """The planes' and lines' shapes."""
+  return {"encoding": "tensorf", **components.signature(settings, "tensorf_")}
+
+
+# Lattice tables (train.tv_weight): the planes (2 spatial axes) and lines (1).
+ENCODING = registry.Encoding("tensorf", Settings, build, "lattice", signature,
+                             table_axes={"plane_": 2, "line_": 1}, records_grid_section=True)

@@ -1,12 +1,10 @@
-"""The 'posenc' family: NeRF's MLP on positionally encoded positions (encodings/encoding.py).
-
-Inputs are already encoded: pos_features float32 [..., Dp], dir_features float32 [..., Dd] (only
-if view_dependent), image int32 [...] or None (appearance_dims > 0); see network.py. Its settings
-are config.model's depth, width and skip_layers; the bands are config.pos_encode_dims.
+"""NeRF's MLP (network 'mlp'): the network that reads the frequency bands ('posenc') unless
+config.model.network names another; it reads any encoding's features. Its settings are
+config.model's depth, width and skip_layers (`Settings`). See protocol.py for its call.
 """
 
 import dataclasses
-from typing import Sequence
+from typing import Any, Sequence
 
 import flax.linen as nn
 import jax.numpy as jnp
@@ -18,12 +16,15 @@ from nerf_jax.fields.networks import heads
 class NerfMLP(nn.Module):
   """NeRF's MLP: `depth` ReLU layers of `width` with the input re-injected after `skip_layers`.
 
+  encoding: the position encoding it applies to its input points (protocol.Encoding); None: the
+  input is already features float32 [..., D] (encoded by the caller).
   view_dependent=False is the reference's position-only model (one linear head of 4 outputs).
   view_dependent=True is the paper's 5D model: density from position only; colour from a `width`
   feature plus the encoded direction through `view_depth` ReLU layers of `view_width`.
   dtype is the matmul dtype (float32, bfloat16 or float16); parameters stay float32 and the
   outputs are cast back to float32 so compositing is always done in float32. matmul_precision
   is the float32 matmuls' precision (nerf_jax.backend.precision: 'default' is TF32 on recent GPUs).
+  Where the encoding covers only a box (a lattice's), density outside it is raw -1e5.
   """
   depth: int = 8
   width: int = 256
@@ -35,9 +36,22 @@ class NerfMLP(nn.Module):
   matmul_precision: str = "default"  # precision.NETWORK_PRECISIONS: 'default', 'high', 'highest'
   appearance_images: int = 1
   appearance_dims: int = 0
+  encoding: Any = None
 
   @nn.compact
-  def __call__(self, pos_features, dir_features=None, image=None):
+  def __call__(self, points, dir_features=None, image=None, level_weights=None):
+    rgb, raw_sigma = self._layers(self._encode(points, level_weights), dir_features, image)
+    inside = None if self.encoding is None else self.encoding.inside(points)
+    if inside is not None:
+      raw_sigma = jnp.where(inside, raw_sigma, -1e5)
+    return rgb, raw_sigma
+
+  def _encode(self, points, level_weights):
+    if self.encoding is None:
+      return points
+    return self.encoding.features(self, points, level_weights)
+
+  def _layers(self, pos_features, dir_features, image):
     x = pos_features.astype(jnp.dtype(self.dtype))
     inputs = x
     for i in range(self.depth):
@@ -63,11 +77,12 @@ class NerfMLP(nn.Module):
     rgb = heads.dense(self, 3, "rgb")(h).astype(jnp.float32)
     return nn.sigmoid(rgb), raw_sigma
 
-
   @property
-  def num_levels(self):
-    """0: the Field opens the positional encoding's bands coarse to fine instead."""
-    return 0
+  def coarse_to_fine_stages(self):
+    return 0 if self.encoding is None else self.encoding.coarse_to_fine_stages
+
+  def band_weights(self, bands):
+    return self.encoding.band_weights(bands)
 
   @property
   def splits_density(self):
@@ -77,17 +92,16 @@ class NerfMLP(nn.Module):
 @dataclasses.dataclass(frozen=True)
 class Settings:
   """config.model's fields of the MLP."""
-  depth: int = 8  # ReLU layers
-  width: int = 256  # units per layer
-  skip_layers: Sequence[int] = (4,)  # layers after which the input is concatenated again
+  depth: int = 8  # hidden layers
+  width: int = 64  # units per hidden layer (reference 64, paper 256; the lattice head's too)
+  skip_layers: Sequence[int] = (4,)  # re-inject the input after these layers (0-based)
 
 
-def build(settings, shared):
-  """The NerfMLP of `settings` and the shared network settings (network.NetworkSettings)."""
+def build(encoding, settings, shared):
+  """The NerfMLP over `encoding` of `settings` and the shared settings
+  (protocol.NetworkSettings)."""
   return NerfMLP(depth=settings.depth, width=settings.width,
-                 skip_layers=tuple(settings.skip_layers), **shared.head)
+                 skip_layers=tuple(settings.skip_layers), encoding=encoding, **shared.head)
 
 
-# The MLP's checkpoints record depth, width and skip_layers with the model's shared fields
-# (run/experiment.model_signature), as they always have: nothing of its own here.
-ENCODING = registry.Encoding("posenc", Settings, build, raw_positions=False, section="model")
+NETWORK = registry.Network("mlp", build, Settings)

@@ -1,6 +1,7 @@
 """Hash-grid encoding: the hash and the row indices against Python-integer brute force, dense
 levels against grid.trilinear, exact linear interpolation, the gradient's support, float16,
-fitting a 3D function with Adam, and one step of HashNeRF through the real renderer."""
+fitting a 3D function with Adam, and one step of the hash grid and the lattice head through the
+real renderer."""
 
 import itertools
 
@@ -13,7 +14,7 @@ import pytest
 from nerf_jax.fields.encodings import grid, hashgrid
 from nerf_jax.run import components
 from nerf_jax.run.signature import model_signature
-from nerf_jax.fields.networks.hash import HashNeRF
+from nerf_jax.fields.networks.lattice import LatticeHead
 from tests.helpers import grey_view_loss, ray_renderer, small_config
 
 P1, P2 = 2654435761, 805459861
@@ -126,9 +127,10 @@ def test_level_resolutions_span_base_to_max_geometrically():
     hashgrid.level_rows(res, 30)
 
 
-def _small_model(**kw):
-  return HashNeRF(levels=4, log2_size=10, features=2, base_resolution=4, max_resolution=64,
-                  bound=1.0, hidden=16, **kw)
+def _small_model(gather_dtype="float32"):
+  settings = hashgrid.Settings(levels=4, log2_size=10, features=2, base_resolution=4,
+                               max_resolution=64, gather_dtype=gather_dtype)
+  return LatticeHead(hashgrid.HashGrid(settings, grid.Space(1.0)), hidden=16)
 
 
 def test_float16_rows_give_finite_values_and_gradients_close_to_float32():
@@ -193,7 +195,7 @@ HASH_DEBUG = {"model.encoding": "hash", "model.hash.levels": 4, "model.hash.log2
 
 def test_hash_model_trains_one_step_through_the_ray_renderer():
   rr = ray_renderer(small_config(HASH_DEBUG))
-  assert isinstance(rr.field.network, HashNeRF)
+  assert isinstance(rr.field.network.encoding, hashgrid.HashGrid)
   params = rr.init(jax.random.PRNGKey(0))["params"]
   table = params["coarse"]["hash_table"]
   assert table.shape == (4 ** 3 + 10 ** 3 + 2 * 2 ** 10, 2)  # 4, 10 dense; 25, 64 hashed
@@ -211,12 +213,13 @@ def test_hash_model_trains_one_step_through_the_ray_renderer():
 
 def test_config_signature_and_errors():
   config = small_config(base="hash")
-  assert components.make_field(config).pos_encode_dims is None  # the grids are the encoding
+  network = components.make_field(config).network  # the hash grid read by the lattice head
+  assert isinstance(network, LatticeHead) and isinstance(network.encoding, hashgrid.HashGrid)
   signature = model_signature(config)
   assert signature["hash_log2_size"] == config.model.hash.log2_size
   assert signature["hash_max_resolution"] == config.model.hash.max_resolution
-  model = components.make_field(config).network
-  assert model.max_resolution == 2048 and model.log2_size == config.model.hash.log2_size
+  settings = network.encoding.settings
+  assert settings.max_resolution == 2048 and settings.log2_size == config.model.hash.log2_size
   points = jnp.array([[0.0, 0.0, 0.0], [1.2, 0.0, 0.0]])  # inside, outside the box (bound 1)
   small = _small_model()
   _, raw_sigma = small.apply({"params": small.init(jax.random.PRNGKey(0), points)["params"]},
@@ -227,6 +230,10 @@ def test_config_signature_and_errors():
     components.make_field(config)
   with pytest.raises(ValueError, match="model.hash.gather_dtype"):
     hashgrid.encode(jnp.zeros((64, 1)), jnp.zeros((1, 3)), (4,), 6, "float64")
+  config.model.encoding = "hash"  # validated where the settings are built, naming the field
+  config.model.hash.gather_dtype = "float64"
+  with pytest.raises(ValueError, match="model.hash.gather_dtype must be one of"):
+    components.make_field(config)
 
 
 # Unit roundoff u of round-to-nearest: bfloat16 keeps 8 significant bits (7 stored), float16 11

@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from nerf_jax.fields import registry
 from nerf_jax.fields.encodings import spherical_harmonics as sh
 from nerf_jax.run import components, signature
 from tests.helpers import small_config
@@ -85,5 +86,7 @@ def test_a_field_with_sh_directions_feeds_degree_squared_features_and_records_it
 
 
 def test_an_unknown_direction_encoding_is_a_one_line_error():
-  with pytest.raises(ValueError, match="config.dir_encoding='spherical'"):
+  known = ", ".join(registry.DIRECTION_ENCODINGS.names())
+  with pytest.raises(ValueError, match=f"config.dir_encoding must be one of {known} or a module "
+                     "path, got 'spherical'"):
     components.make_field(small_config({"dir_encoding": "spherical"}))

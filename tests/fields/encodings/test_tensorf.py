@@ -1,4 +1,4 @@
-"""The vector-matrix factorised field (tensorf.py, networks/tensorf.TensoRFNeRF): its reads against a dense
+"""The vector-matrix factorised field (tensorf.py, read by networks/lattice.LatticeHead): its reads against a dense
 grid built from the same factors, its gradients, and a training step through the renderer."""
 
 import jax
@@ -9,7 +9,7 @@ import optax
 from nerf_jax.fields.encodings import grid, tensorf
 from nerf_jax.run.signature import model_signature
 from nerf_jax.bench import encodings as bench_encodings
-from nerf_jax.fields.networks.tensorf import TensoRFNeRF
+from nerf_jax.fields.networks.lattice import LatticeHead
 from tests.helpers import grey_view_loss, jitted, ray_renderer, small_config
 from tests.helpers import trilinear_brute
 
@@ -75,7 +75,8 @@ TENSORF_DEBUG = {"model.encoding": "tensorf", "model.tensorf.resolutions": (8, 1
 def test_tensorf_model_shapes_box_and_one_training_step():
   config = small_config(TENSORF_DEBUG)
   rr = ray_renderer(config)
-  assert isinstance(rr.field.network, TensoRFNeRF) and rr.field.pos_encode_dims is None
+  assert isinstance(rr.field.network, LatticeHead)
+  assert isinstance(rr.field.network.encoding, tensorf.TensoRF)
   params = jitted(rr.init)(jax.random.PRNGKey(0))["params"]
   coarse = params["coarse"]
   assert coarse["plane_16_0"].shape == (16, 16, 4) and coarse["line_8_2"].shape == (8, 4)
@@ -98,7 +99,8 @@ def test_tensorf_model_shapes_box_and_one_training_step():
 
 def test_tensorf_box_cells_and_out_of_box_density():
   box = (-1.0, -0.5, -0.25, 1.0, 0.5, 0.25)
-  model = TensoRFNeRF(resolutions=(9,), rank=2, box=box)
+  encoding = tensorf.TensoRF(tensorf.Settings(resolutions=(9,), rank=2), grid.Space(box=box))
+  model = LatticeHead(encoding)
   points = jnp.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.3]])  # inside; beyond the box in z
   params = model.init(jax.random.PRNGKey(0), points)["params"]
   assert grid.axis_resolutions(9, (box[:3], box[3:])) == (9, 5, 3)

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax.fields.networks import grid as grid_network
+from nerf_jax.fields.networks import density_grid
 from nerf_jax.fields.encodings import grid
 from nerf_jax.render import renderer
 from nerf_jax.run import components
@@ -15,9 +15,14 @@ from nerf_jax.run.signature import model_signature
 from tests.helpers import SPLIT_GRID, ball_in_first_density_level, jitted, small_config
 from tests.helpers import small_view_rays
 
+def _split_network(view_dependent=False, **settings):
+  """A DensityGridNeRF over the grid encoding of `settings` (grid.Settings) on the 1.5 cube."""
+  encoding = grid.DenseGrid(grid.Settings(**settings), grid.Space(1.5))
+  return density_grid.DensityGridNeRF(encoding, view_dependent=view_dependent)
+
+
 def test_each_half_of_the_split_network_equals_the_whole():
-  net = grid_network.DensityGridNeRF(resolutions=(4, 8), features=2, density_resolutions=(8,),
-                              view_dependent=True)
+  net = _split_network(True, resolutions=(4, 8), features=2, density_resolutions=(8,))
   points = jax.random.uniform(jax.random.PRNGKey(0), (50, 3), minval=-1.6, maxval=1.6)
   dirs = jax.random.normal(jax.random.PRNGKey(1), (50, 27))
   variables = net.init(jax.random.PRNGKey(2), points, dirs)
@@ -26,12 +31,12 @@ def test_each_half_of_the_split_network_equals_the_whole():
   np.testing.assert_array_equal(net.apply(variables, points, dirs, part="colour"), rgb)
   unit = grid.to_unit_cube(points, 1.5)
   inside = np.asarray(grid.inside_box(unit))
-  np.testing.assert_allclose(np.asarray(raw)[inside], grid_network.INITIAL_RAW_DENSITY, rtol=1e-6)
+  np.testing.assert_allclose(np.asarray(raw)[inside], density_grid.INITIAL_RAW_DENSITY, rtol=1e-6)
   assert np.all(np.asarray(raw)[~inside] == -1e5)  # a nearly empty start, empty outside
   density = jax.random.normal(jax.random.PRNGKey(4), variables["params"]["density_8"].shape)
   variables["params"]["density_8"] = density
   raw = net.apply(variables, points, part="density")
-  np.testing.assert_allclose(np.asarray(raw)[inside], grid_network.DENSITY_GAIN * np.asarray(
+  np.testing.assert_allclose(np.asarray(raw)[inside], density_grid.DENSITY_GAIN * np.asarray(
       grid.trilinear(density, unit)[..., 0])[inside], rtol=1e-5, atol=1e-5)
 
 
@@ -124,8 +129,8 @@ def _hashed_brute(table, point, resolution, log2_size):
 def _hashed_network(part):
   """(network, points float32 [40, 3], variables): a split network whose `part` ('density' or
   'colour') has a hashed level of 32^3 points in 2^8 rows, and random points in its box."""
-  net = grid_network.DensityGridNeRF(resolutions=(4,), features=2, density_resolutions=(8,),
-                              **{f"{part}_hash_resolution": 32, f"{part}_hash_log2_size": 8})
+  net = _split_network(resolutions=(4,), features=2, density_resolutions=(8,),
+                       **{f"{part}_hash_resolution": 32, f"{part}_hash_log2_size": 8})
   points = jax.random.uniform(jax.random.PRNGKey(0), (40, 3), minval=-1.4, maxval=1.4)
   return net, points, net.init(jax.random.PRNGKey(2), points, jnp.zeros((40, 3)))
 
@@ -137,7 +142,7 @@ def test_a_hashed_density_level_adds_its_hash_lookup_to_the_dense_levels():
   unit = grid.to_unit_cube(points, 1.5)
   density = jitted(net.apply, part="density")
   np.testing.assert_allclose(density(variables, points),
-                             grid_network.INITIAL_RAW_DENSITY, rtol=1e-6)  # the same faint start
+                             density_grid.INITIAL_RAW_DENSITY, rtol=1e-6)  # the same faint start
   params["density_8"] = jax.random.normal(jax.random.PRNGKey(3), params["density_8"].shape)
   params["hashed_density"] = jax.random.normal(jax.random.PRNGKey(4), (256, 1))
   raw = np.asarray(net.apply(variables, points, part="density"))  # op by op: the summation
@@ -146,7 +151,7 @@ def test_a_hashed_density_level_adds_its_hash_lookup_to_the_dense_levels():
   dense = np.asarray(grid.trilinear(params["density_8"], unit)[..., 0])
   hashed = [_hashed_brute(np.asarray(params["hashed_density"]), u, 32, 8)
             for u in np.asarray(unit)]
-  np.testing.assert_allclose(raw, grid_network.DENSITY_GAIN * (dense + np.array(hashed)),
+  np.testing.assert_allclose(raw, density_grid.DENSITY_GAIN * (dense + np.array(hashed)),
                              rtol=1e-5, atol=1e-5)
   # Its gradient reaches only the rows the points' corners hash to.
   grad = jitted(jax.grad(lambda p: jnp.sum(density({"params": p}, points))))(params)

@@ -1,4 +1,5 @@
-"""Positional (Fourier-feature) encoding.
+"""The frequency bands (NeRF's positional encoding, config name 'posenc'; 'frequency' for
+directions): the encoding's math, and its records (registry.Encoding).
 
 x: float32 [..., d] coordinates of order 1 (the scene fits in a few units around the origin).
 The encoding is [x, sin(2^0 x), cos(2^0 x), ..., sin(2^(L-1) x), cos(2^(L-1) x)], channels last,
@@ -14,8 +15,12 @@ is why scenes are scaled to coordinates of order 1. Pass float32 x: in bfloat16 
 and band 15 of |x| = 1 is off by order 1 as well. sin and cos are both computed directly: cos(y) as
 sin(y + π/2) would round y + π/2 and lose up to ulp(y)/2 more (2e-3 at |y| = 2^15). """
 
+import dataclasses
+
 import jax.numpy as jnp
 import numpy as np
+
+from nerf_jax.fields import protocol, registry
 
 
 def positional_encoding(x, num_freqs, band_weights=None):
@@ -51,3 +56,65 @@ def coarse_to_fine_weights(alpha, num_freqs):
   """
   k = jnp.arange(num_freqs, dtype=jnp.float32)
   return 0.5 * (1.0 - jnp.cos(jnp.pi * jnp.clip(alpha - k, 0.0, 1.0)))
+
+
+@dataclasses.dataclass(frozen=True)
+class Frequency:
+  """The encoding of coordinates by `num_freqs` bands (protocol.Encoding): no parameters; the
+  bands open one after another while poses are refined."""
+  num_freqs: int
+
+  @property
+  def coarse_to_fine_stages(self):
+    return self.num_freqs
+
+  def band_weights(self, bands):
+    """float32 [num_freqs]: `coarse_to_fine_weights` of alpha = bands."""
+    return coarse_to_fine_weights(bands, self.num_freqs)
+
+  def features(self, module, x, weights=None):
+    """`positional_encoding` of x float32 [..., d] (module: unused, no parameters)."""
+    del module
+    if weights is None:
+      return positional_encoding(x, self.num_freqs)
+    return positional_encoding(x, self.num_freqs, weights)
+
+  def inside(self, points):
+    del points
+    return None  # all of space
+
+  def width(self, dim):
+    return encoded_width(dim, self.num_freqs)
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+  """config's top-level field of the positions' bands (model.encoding 'posenc')."""
+  pos_encode_dims: int = 10  # POS_ENCODE_DIMS: frequency bands for positions
+
+  def __post_init__(self):
+    if self.pos_encode_dims < 0:
+      raise ValueError(f"config.pos_encode_dims={self.pos_encode_dims}: use 0 (the positions "
+                       "alone) or more bands")
+
+
+def build(settings, shared):
+  """The Frequency encoding of the positions (shared: unused)."""
+  del shared
+  return Frequency(settings.pos_encode_dims)
+
+
+def build_directions(settings, shared):
+  """The Frequency encoding of the directions (protocol.DirectionSettings; shared: unused)."""
+  del shared
+  if settings.dir_encode_dims < 0:
+    raise ValueError(f"config.dir_encode_dims={settings.dir_encode_dims}: use 0 (the directions "
+                     "alone) or more bands")
+  return Frequency(settings.dir_encode_dims)
+
+
+# The bands' count is a top-level field (config.pos_encode_dims), recorded with the shared
+# fields by run/train_state.model_signature, as it always was: nothing of its own here.
+ENCODING = registry.Encoding("posenc", Settings, build, network="mlp", section="")
+DIRECTION_ENCODING = registry.Encoding("frequency", protocol.DirectionSettings, build_directions,
+                                      section="")

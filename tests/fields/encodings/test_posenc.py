@@ -1,14 +1,15 @@
-"""Tests of nerf_jax.fields.encodings.encoding against a float64 numpy loop in the reference's feature order."""
+"""Tests of nerf_jax.fields.encodings.posenc against a float64 numpy loop in the reference's
+feature order."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax.fields.encodings import encoding
+from nerf_jax.fields.encodings import posenc
 
 # Jitted once per shape: op-by-op dispatch compiles every primitive separately and is slow.
-positional_encoding = jax.jit(encoding.positional_encoding, static_argnums=1)
+positional_encoding = jax.jit(posenc.positional_encoding, static_argnums=1)
 
 
 def _reference_encoding(x, num_freqs):
@@ -26,7 +27,7 @@ def test_width_and_values_match_reference_order(num_freqs, dim):
   x = np.random.default_rng(0).uniform(-1.5, 1.5, (5, 7, dim)).astype(np.float32)
   out = positional_encoding(x, num_freqs)
   assert out.shape == (5, 7, dim + 2 * dim * num_freqs)
-  assert out.shape[-1] == encoding.encoded_width(dim, num_freqs)
+  assert out.shape[-1] == posenc.encoded_width(dim, num_freqs)
   assert out.dtype == jnp.float32
   # Same float32 input evaluated in float64: only sin/cos rounding differs.
   np.testing.assert_allclose(out, _reference_encoding(x, num_freqs), rtol=0, atol=3e-7)
@@ -46,14 +47,14 @@ def test_feature_layout_by_hand():
 
 def test_zero_bands_is_identity():
   x = np.arange(6, dtype=np.float32).reshape(2, 3)
-  np.testing.assert_array_equal(encoding.positional_encoding(x, 0), x)
-  assert encoding.encoded_width(3, 0) == 3
+  np.testing.assert_array_equal(posenc.positional_encoding(x, 0), x)
+  assert posenc.encoded_width(3, 0) == 3
 
 
 def test_gradient_matches_analytic():
   x = np.array([0.3, -0.7, 0.05], np.float32)
   num_freqs = 3
-  grad = jax.jit(jax.grad(lambda v: jnp.sum(encoding.positional_encoding(v, num_freqs))))(x)
+  grad = jax.jit(jax.grad(lambda v: jnp.sum(posenc.positional_encoding(v, num_freqs))))(x)
   xs = np.asarray(x, np.float64)
   expected = 1.0 + sum(2.0 ** k * (np.cos(2.0 ** k * xs) - np.sin(2.0 ** k * xs))
                        for k in range(num_freqs))

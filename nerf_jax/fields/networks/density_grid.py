@@ -1,0 +1,117 @@
+"""The split lattice network (network 'density_grid', DVGO's recipe): density read straight from
+one-channel grids of its own, colour from the dense grid encoding's features through the tiny
+head. The grid encoding picks it when config.model.grid.density_resolutions is set; its settings
+are that section's (encodings/grid.Settings). See protocol.py for its call.
+"""
+
+import flax.linen as nn
+import jax.numpy as jnp
+
+from nerf_jax.backend import draws
+from nerf_jax.fields import registry
+from nerf_jax.fields.encodings import grid, hashgrid
+from nerf_jax.fields.networks import heads, lattice
+
+
+class DensityGridNeRF(lattice.LatticeHead):
+  """The lattice head with density read straight from grids of its own: the raw density is
+  interpolated, then activated (by the Field), so it stays sharp inside a cell; it is the sum
+  of one-channel grids at several resolutions, so coarse shapes form in few steps and fine ones
+  on top. Colour comes from the feature grids (`encoding`, a grid.DenseGrid) and the tiny MLP
+  (the lattice head's fields; no appearance codes yet).
+
+  The two halves can be evaluated alone (`part`): the density of every sample is a single
+  trilinear read, and the renderer computes colour only where the weights say it matters
+  (renderer.RayRenderer.colour_fraction). The density grid starts at raw INITIAL_RAW_DENSITY
+  everywhere: a faint haze (DVGO's low initial opacity), so no early floaters block the rays,
+  yet dense enough that the colour MLP's first gradients come from the surfaces. The density
+  levels and the hashed levels are encoding.settings' (density_resolutions...).
+  part: 'all' -> (rgb, raw_sigma); 'density' -> raw_sigma; 'colour' -> rgb.
+  """
+
+  def _raw_density(self, unit):
+    """Raw density float32 [...] at unit-box positions float32 [..., 3]: the sum of the dense
+    levels and, if set, the hashed level (instant-ngp's hash: its rows cost memory and Adam's
+    update in proportion to 2^log2_size, not to its resolution cubed)."""
+    s, space = self.encoding.settings, self.encoding.space
+    hashed = bool(s.density_hash_resolution)
+    start = INITIAL_RAW_DENSITY / DENSITY_GAIN / (len(s.density_resolutions) + hashed)
+    levels = [self.param(f"density_{r}", nn.initializers.constant(start), (*space.shape(r), 1))
+              for r in s.density_resolutions]
+    raw = sum(grid.trilinear(g, unit)[..., 0] for g in levels)
+    if hashed:
+      raw = raw + self._hashed_level("hashed_density", nn.initializers.constant(start), 1, unit,
+                                     s.density_hash_resolution, s.density_hash_log2_size)[..., 0]
+    return DENSITY_GAIN * raw
+
+  def _hashed_level(self, name, init, features, unit, resolution, log2_size):
+    """Features float32 [..., features] of a one-level hash grid (hashgrid.py) of `resolution`
+    points per side in 2^log2_size rows (fewer if its lattice fits), the parameter `name`."""
+    rows = hashgrid.level_rows((resolution,), log2_size)[0]
+    table = self.param(name, init, (rows, features))
+    return hashgrid.encode(table, unit, (resolution,), log2_size)
+
+  @nn.compact
+  def __call__(self, points, dir_features=None, part="all"):
+    s = self.encoding.settings
+    unit = self.encoding.space.unit(points)
+    raw_sigma = rgb = None
+    if part in ("all", "density"):
+      raw = self._raw_density(unit)
+      raw_sigma = jnp.where(grid.inside_box(unit), raw, -1e5)
+    if part in ("all", "colour"):
+      h = self.encoding.features(self, points)
+      if s.colour_hash_resolution:  # read only by the samples that get colour
+        fine = self._hashed_level("hashed_colour", draws.normal_init(1e-2), s.features, unit,
+                                  s.colour_hash_resolution, s.colour_hash_log2_size)
+        h = jnp.concatenate([h, fine], axis=-1)
+      h = nn.relu(heads.dense(self, self.hidden, "hidden")(h.astype(jnp.dtype(self.dtype))))
+      if self.view_dependent:
+        h = jnp.concatenate([h, dir_features.astype(h.dtype)], axis=-1)
+        h = heads.colour_layers(self, h)
+      rgb = nn.sigmoid(heads.dense(self, 3, "rgb")(h).astype(jnp.float32))
+    return {"all": (rgb, raw_sigma), "density": raw_sigma, "colour": rgb}[part]
+
+  coarse_to_fine_stages = 0  # its density grids take no coarse-to-fine window
+
+  def band_weights(self, bands):
+    del bands
+    return None
+
+  @property
+  def splits_density(self):
+    return True
+
+
+# Raw density at start: exp(-2) = 0.14 per scene unit (exp activation; the shifted softplus of
+# activations.py gives softplus(-2 - 1) = 0.05), a faint haze (~1/3 opacity across a 3-unit box).
+# Not fainter: at -5 (0.7% opacity) the colour's gradient in the first steps is a tiny, one-signed
+# pull of the random training backgrounds against the object, which Adam's normalised steps turn
+# into full steps; on the built-in `detail` every colour went to black (the sigmoid's flat end)
+# in 20 steps and stayed there (18.2 dB at 400 steps; 24.1 at -2; docs/quality_per_second.md).
+INITIAL_RAW_DENSITY = -2.0
+# The grid stores raw density / DENSITY_GAIN: Adam's steps, about lr in size whatever the
+# gradient, move raw density DENSITY_GAIN times faster than the features (DVGO trains its density
+# grid with a 10x larger learning rate), so a surface forms in tens of steps, not hundreds.
+DENSITY_GAIN = 10.0
+
+
+def build(encoding, settings, shared):
+  """The DensityGridNeRF over the grid encoding `encoding` (protocol.NetworkSettings: shared)."""
+  del settings  # its own are the grid encoding's
+  if not isinstance(encoding, grid.DenseGrid) or not encoding.settings.density_resolutions:
+    raise ValueError("config.model.network='density_grid' reads config.model.grid."
+                     "density_resolutions: it needs config.model.encoding='grid' with them set")
+  if shared.density_activation == "relu":
+    raise ValueError("config.model.grid.density_resolutions needs "
+                     "config.model.density_activation 'softplus' or 'exp': the density "
+                     "grid starts below zero, where relu has no gradient")
+  if shared.appearance_dims:
+    raise ValueError("config.model.grid.density_resolutions does not take appearance codes "
+                     "yet: set config.model.appearance_dims=0 or density_resolutions=()")
+  head = {k: v for k, v in shared.head.items() if k not in ("appearance_images",
+                                                            "appearance_dims")}
+  return DensityGridNeRF(encoding, hidden=shared.hidden, **head)
+
+
+NETWORK = registry.Network("density_grid", build)

@@ -1,0 +1,78 @@
+"""The lattice head (network 'lattice'): the grids' tiny MLP (instant-ngp's, DVGO's), the
+network that reads a lattice encoding ('grid', 'hash', 'tensorf') unless config.model.network
+names another; it reads any encoding's features. Its hidden width is config.model.width.
+
+Density and a feature come from one hidden layer over the encoding's features; colour from the
+feature (and the encoded direction, and the appearance code). Positions outside what the
+encoding covers (a lattice's box) get raw density -1e5, which every density activation maps to
+0 with a zero gradient (relu, softplus and exp all underflow to exactly 0 there). See
+protocol.py for its call.
+"""
+
+from typing import Any
+
+import flax.linen as nn
+import jax.numpy as jnp
+
+from nerf_jax.fields import registry
+from nerf_jax.fields.networks import heads
+
+
+def head(network, h, inside, dir_features, image=None):
+  """(rgb float32 [..., 3] in (0, 1), raw_sigma float32 [...]) of features h [..., F] in the
+  network's dtype: density and a feature from one hidden layer, colour from the feature (and
+  direction, and appearance code). inside: bool [...] or None, where density may be non-zero."""
+  h = nn.relu(heads.dense(network, network.hidden, "hidden")(h))
+  raw_sigma = heads.dense(network, 1, "sigma")(h)[..., 0].astype(jnp.float32)
+  if inside is not None:
+    raw_sigma = jnp.where(inside, raw_sigma, -1e5)
+  extra = [dir_features] if network.view_dependent else []
+  if network.appearance_dims:  # colour only: the code joins h after density is taken from it
+    extra.append(heads.appearance_codes(network, image, h.shape))
+  if extra:
+    h = jnp.concatenate([h, *(e.astype(h.dtype) for e in extra)], axis=-1)
+  if network.view_dependent:
+    h = heads.colour_layers(network, h)
+  rgb = heads.dense(network, 3, "rgb")(h).astype(jnp.float32)
+  return nn.sigmoid(rgb), raw_sigma
+
+
+class LatticeHead(nn.Module):
+  """An encoding's features (protocol.Encoding, applied to the points) + the tiny head.
+  level_weights: float32 or None, the encoding's coarse-to-fine window (pose refinement)."""
+  encoding: Any
+  hidden: int = 64
+  view_dependent: bool = False
+  view_width: int = 32
+  view_depth: int = 1
+  dtype: str = "float32"
+  appearance_images: int = 1
+  appearance_dims: int = 0
+  matmul_precision: str = "default"  # precision.NETWORK_PRECISIONS: 'default', 'high', 'highest'
+
+  @nn.compact
+  def __call__(self, points, dir_features=None, image=None, level_weights=None):
+    h = self.encoding.features(self, points, level_weights)
+    return head(self, h.astype(jnp.dtype(self.dtype)), self.encoding.inside(points),
+                dir_features, image)
+
+  @property
+  def coarse_to_fine_stages(self):
+    return self.encoding.coarse_to_fine_stages
+
+  def band_weights(self, bands):
+    return self.encoding.band_weights(bands)
+
+  @property
+  def splits_density(self):
+    """Density and colour come from one head (protocol.Network)."""
+    return False
+
+
+def build(encoding, settings, shared):
+  """The LatticeHead over `encoding`, config.model.width wide (protocol.NetworkSettings)."""
+  del settings  # none of its own
+  return LatticeHead(encoding, hidden=shared.hidden, **shared.head)
+
+
+NETWORK = registry.Network("lattice", build)

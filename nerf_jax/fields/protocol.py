@@ -1,0 +1,116 @@
+"""The calling conventions of a field's parts: the network (networks/, Flax), the position
+encoding it applies (encodings/), the direction encoding the Field applies (encodings/), and the
+settings every network shares. The records that find them by name are in registry.py.
+
+A network is applied as
+
+  network.apply({'params': p}, points, dir_features[, image][, level_weights=w])
+      -> (rgb float32 [..., S, 3] in (0, 1), raw_sigma float32 [..., S])
+
+  points:        float32 [..., S, 3]  world (or contracted) positions; the network applies its
+                 position encoding to them
+  dir_features:  float32 [..., S, D] or None  unit viewing directions through the direction
+                 encoding (view_dependent)
+  image:         int32 [...]  each ray's training image, passed only with appearance_dims > 0
+                 (its appearance code; None = the mean code, as for held-out views)
+  level_weights: float32 [...]  passed only while poses are refined: `band_weights(bands)`,
+                 BARF's coarse-to-fine window over the encoding's bands or levels
+
+raw_sigma is density before its activation (the Field adds noise and activates it). A network
+whose `splits_density` is True also takes `part='density'` (points alone -> raw_sigma) and
+`part='colour'` (points, dir_features -> rgb).
+
+An encoding (`Encoding`) is a small frozen dataclass of its settings. A network calls it inside
+its compact call as `encoding.features(module, points, weights)`; an encoding with tables
+creates them on that module (`module.param`), so they sit directly in the network's parameters
+under the names checkpoints have always stored ('hash_table', 'grid_32', ...). A direction
+encoding is called by the Field with module None (it has no parameters).
+"""
+
+import dataclasses
+from typing import Any, Protocol, Sequence, runtime_checkable
+
+
+class Encoding(Protocol):
+  """A position or direction encoding (see the module docstring)."""
+
+  @property
+  def coarse_to_fine_stages(self) -> int:
+    """How many bands (or levels after the always-open coarsest) open coarse to fine while
+    poses are refined; 0: nothing opens."""
+
+  def band_weights(self, bands) -> Any:
+    """float32 weights of the bands or levels with `bands` (float32 [], traced) open, as
+    `features` takes them."""
+
+  def features(self, module, x, weights=None, **per_sample) -> Any:
+    """float [..., F] of coordinates x float32 [..., 3] (points, or unit directions), the bands
+    or levels scaled by `weights` (None = all open). module: the Flax module (inside its compact
+    call) on which the encoding's parameters live, or None for one without. per_sample: further
+    per-sample inputs an encoding may take (none of the built-ins does)."""
+
+  def inside(self, points) -> Any:
+    """bool [...]: where points float32 [..., 3] lie inside what the encoding covers (a lattice's
+    box; the network gives no density outside), or None: everywhere."""
+
+  def width(self, dim) -> int:
+    """Features of `features` for `dim` input channels (None where tables decide: lattices)."""
+
+
+@runtime_checkable
+class Network(Protocol):
+  """The Flax module of a field (see the module docstring for its call)."""
+
+  @property
+  def coarse_to_fine_stages(self) -> int:
+    """Its encoding's (Encoding.coarse_to_fine_stages); 0 for a network that opens nothing."""
+
+  def band_weights(self, bands) -> Any:
+    """Its encoding's `band_weights`: what it takes as level_weights."""
+
+  @property
+  def splits_density(self) -> bool:
+    """Whether density and colour can be evaluated alone (`part`, module docstring)."""
+
+  def init(self, rngs: Any, *args, **kwargs) -> Any:
+    """Flax's init."""
+
+  def apply(self, variables: Any, *args, **kwargs) -> Any:
+    """Flax's apply."""
+
+
+@dataclasses.dataclass(frozen=True)
+class DirectionSettings:
+  """config's top-level fields of the field's direction input (model.view_dependent)."""
+  dir_encode_dims: int = 4  # frequency bands for viewing directions, or the degree with 'sh'
+  dir_encoding: str = "frequency"  # directions: 'frequency' bands, or 'sh' of that degree
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkSettings:
+  """What every encoding and network may take besides its own section (config.model's shared
+  fields), built once by run/components.network_settings. Each uses the ones that apply to it."""
+  view_dependent: bool = False  # colour takes the encoded viewing direction
+  view_width: int = 128  # width of the colour branch's layers after the direction joins
+  view_depth: int = 1  # how many such layers
+  hidden: int = 256  # width of the hidden layers (the MLP's, or the lattice head's)
+  dtype: str = "float32"  # matmul dtype of the layers (parameters stay float32)
+  matmul_precision: str = "default"  # backend.precision.NETWORK_PRECISIONS
+  appearance_images: int = 1  # rows of the appearance codes' table (training images)
+  appearance_dims: int = 0  # length of each image's appearance code (0 = none)
+  density_activation: str = "relu"  # the Field's density activation (activations.py)
+  bound: float = 1.5  # a lattice encoding covers [-bound, bound]^3 ...
+  box: Sequence[float] = ()  # ... or this (min x, y, z, max x, y, z) box when set
+  cell_aspect: Sequence[float] = (1.0, 1.0, 1.0)  # relative x, y, z sides of a lattice cell
+
+  @property
+  def head(self):
+    """The keyword arguments of the shared head fields of every built-in network."""
+    kwargs = dict(view_dependent=self.view_dependent, view_width=self.view_width,
+                  dtype=self.dtype, matmul_precision=self.matmul_precision)
+    if self.view_depth != 1:  # only then, so a network of its own need not know the field
+      kwargs.update(view_depth=self.view_depth)
+    if self.appearance_dims:  # only then, so the networks of runs without codes stay as they were
+      kwargs.update(appearance_images=self.appearance_images,
+                    appearance_dims=self.appearance_dims)
+    return kwargs
