@@ -14,7 +14,7 @@ from nerf_jax.fields import registry
 from nerf_jax.fields.encodings import grid, hashgrid, posenc, spherical_harmonics, tensorf
 from nerf_jax.fields.networks import density_grid, lattice, mlp
 from nerf_jax.run import components
-from nerf_jax.samplers import sampler as sampler_lib
+from nerf_jax.samplers import placement as sampler_lib
 from tests.helpers import small_config
 
 # Small sections for each built-in encoding, so the parameters' shapes stay tiny.

@@ -34,7 +34,7 @@ ELSEWHERE = ("../", "~", "/usr/", "/tmp/", "runs/", "data/nerf", "data/mine", "c
              "views/", "video/", "eval/", "checkpoints/", "http", "$", "scripts/", "internal/",
              "instant-ngp", "nerfstudio", "google/", "field_components/", "model_components/",
              "engine/", "models/", "src/", "lego/", "fern/", "fox/",
-             "configs/llff/", "configs/flower.txt")
+             "configs/llff/", "configs/flower.txt", "my_")  # my_*: the examples of yours
 TOP = ("nerf_jax", "configs", "docs", "tests", ".ci")  # the repository's folders
 FOLDERS = {p.name for p in ROOT.rglob("*") if p.is_dir() and ".git" not in p.parts}
 SPAN = re.compile(r"`([^`\n]+)`")
@@ -165,7 +165,8 @@ def problem_with(token, doc):
   slashed = SLASHED.match(token)
   if slashed:
     folder, module, attrs = slashed.groups()
-    path = module_file(folder.split("/") + [module])
+    folder = folder[len("nerf_jax/"):] if folder.startswith("nerf_jax/") else folder
+    path = module_file(folder.split("/") + [module]) if folder != "nerf_jax" else module_file([module])
     if path is None:
       return f"no module nerf_jax/{folder}/{module}.py"
     if defines(path, attrs.split(".")):
