@@ -123,11 +123,11 @@ def train_and_evaluate(config, workdir, hooks=()):
         _check_finite(state, workdir)
         wall = time.perf_counter() - t_start
         record = {"step": step, "wall_seconds": round(wall, 3), "loss": float(stats["loss"]),
-                  "train_psnr": float(stats["psnr"]), "rays_per_second": round(rays_s)}
-        # Whatever else the loss terms report (train/losses.py), under its own name: e.g. a
-        # sample budget's rays_in_loss, the rays it held whole this step.
+                  "train_psnr": float(stats["colour/psnr"]), "rays_per_second": round(rays_s)}
+        # Whatever else the loss terms report (train/losses/), as '<term>/<stat>': e.g. a
+        # sample budget's colour/rays_in_loss, the rays it held whole this step.
         extra = {name: value.item() for name, value in stats.items()
-                 if name not in ("loss", "psnr")}
+                 if name not in ("loss", "colour/psnr")}
         record.update(extra)
         if tc.eval_every and step % tc.eval_every == 0:
           images = {}

@@ -51,10 +51,10 @@ def test_the_docs_encoding_trains_and_restores_from_its_config_section(triplane_
   signature = experiment.model_signature(config)
   assert signature["encoding"] == "triplane" and signature["triplane_resolution"] == 16
   # Its planes take the total variation (its table_axes), as the built-in tables do.
-  config.train.tv_weight = 0.1
+  config.loss.total_variation.weight = 0.1
   tv = [t for t in experiment.loss_terms(config, exp.renderer) if hasattr(t, "table_axes")]
   assert dict(tv[0].table_axes) == {"plane_": 2}
-  config.train.tv_weight = 0.0
+  config.loss.total_variation.weight = 0.0
 
   workdir = str(tmp_path / "run")
   train_lib.train_and_evaluate(config, workdir)
