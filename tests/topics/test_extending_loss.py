@@ -4,8 +4,6 @@ library's own loader (nothing injected), and a few steps are trained through the
 training job with the term and without it; no file of the tree is touched."""
 
 import json
-import pathlib
-import re
 import sys
 
 import jax
@@ -14,20 +12,11 @@ import pytest
 
 from nerf_jax.run import components, experiment, train_lib
 from nerf_jax.train import losses
-from tests.helpers import ROOT, TINY_GRID, small_config
+from tests.helpers import TINY_GRID, doc_block, small_config
 
-DOC = pathlib.Path(ROOT) / "docs" / "extending.md"
 # The tiny grid run, shortened: 6 steps, logged every 3.
 STEPS = {**TINY_GRID, "train.max_steps": 6, "train.log_every": 3, "train.checkpoint_every": 6}
-
-
-def doc_block(name):
-  """The code block of docs/extending.md marked `<!-- tests/topics/test_extending_loss.py: name
-  -->`."""
-  marker = re.escape(f"<!-- tests/topics/test_extending_loss.py: {name} -->")
-  found = re.search(marker + r"\s*```python\n(.*?)```", DOC.read_text(), re.S)
-  assert found, f"docs/extending.md lost its {name} block"
-  return found.group(1)
+THIS = "tests/topics/test_extending_loss.py"
 
 
 @pytest.fixture
@@ -36,8 +25,8 @@ def config_file(tmp_path, monkeypatch):
   package = tmp_path / "my_losses"
   package.mkdir()
   (package / "__init__.py").write_text("")
-  (package / "opacity.py").write_text(doc_block("module"))
-  (tmp_path / "my_config.py").write_text(doc_block("config"))
+  (package / "opacity.py").write_text(doc_block("docs/extending.md", THIS, "module"))
+  (tmp_path / "my_config.py").write_text(doc_block("docs/extending.md", THIS, "config"))
   monkeypatch.syspath_prepend(str(tmp_path))
   yield str(tmp_path / "my_config.py")
   for name in [n for n in sys.modules if n == "my_losses" or n.startswith("my_losses.")]:

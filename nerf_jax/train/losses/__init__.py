@@ -71,6 +71,14 @@ class Loss:
   build: Callable
 
 
+def check_weight(weight, term, example):
+  """A term's weight setting (config.loss.<term>.weight): ValueError naming the field unless
+  it is >= 0 (0 = off). example: a weight that works, for the message."""
+  if weight < 0:
+    raise ValueError(f"config.loss.{term}.weight={weight}: use 0 (off) or a weight > 0 (e.g. "
+                     f"{example})")
+
+
 # The built-in terms, by the name config.loss.terms gives them.
 REGISTRY = components.Registry("loss term", "config.loss.terms", "LOSS", {
     "colour": "nerf_jax.train.losses.colour",

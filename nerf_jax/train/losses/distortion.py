@@ -17,9 +17,7 @@ class Settings:
   weight: float = 0.0  # weight of the distortion loss, ray distance in [0, 1] (0 = off)
 
   def __post_init__(self):
-    if self.weight < 0:
-      raise ValueError(f"config.loss.distortion.weight={self.weight}: use 0 (off) or a weight "
-                       "> 0 (e.g. 0.02)")
+    losses.check_weight(self.weight, "distortion", "0.02")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -15,9 +15,7 @@ class Settings:
   weight: float = 3.0  # pose refinement: weight of a pull of the corrections toward none
 
   def __post_init__(self):
-    if self.weight < 0:
-      raise ValueError(f"config.loss.pose_prior.weight={self.weight}: use 0 (off) or a weight "
-                       "> 0 (e.g. 3)")
+    losses.check_weight(self.weight, "pose_prior", "3")
 
 
 @dataclasses.dataclass(frozen=True)

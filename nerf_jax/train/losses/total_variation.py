@@ -14,9 +14,7 @@ class Settings:
   weight: float = 0.0  # grid encodings: total variation of the lattice tables (0 = off)
 
   def __post_init__(self):
-    if self.weight < 0:
-      raise ValueError(f"config.loss.total_variation.weight={self.weight}: use 0 (off) or a "
-                       "weight > 0 (TensoRF on LLFF: 0.01)")
+    losses.check_weight(self.weight, "total_variation", "0.01, TensoRF's on LLFF")
 
 
 @dataclasses.dataclass(frozen=True)
