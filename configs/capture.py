@@ -25,7 +25,7 @@ def get_config():
   config.data.scene_bound = -1.0  # the scene box (and the grids' box) from the data
   config.model.view_dependent = True  # real photos have gloss (fox: +0.57 dB, measured)
   config.dir_encode_dims = 4  # the paper's 4 bands for directions
-  config.train.distortion_weight = 0.02  # one surface per ray, not a cloud (fox: +1.5 dB)
+  config.loss.distortion.weight = 0.02  # one surface per ray, not a cloud (fox: +1.5 dB)
   config.train.lr_final = 1e-3  # a tenth of lr at the end (detail.py's; fox, measured)
   config.train.adam_b2 = 0.99  # Adam's faster second-moment decay, as detail.py
   config.train.max_seconds = 300.0  # five minutes; the schedule follows from it

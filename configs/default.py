@@ -10,6 +10,12 @@ from nerf_jax.backend import components
 from nerf_jax.fields import protocol
 from nerf_jax.fields.encodings import grid, hashgrid, posenc, tensorf
 from nerf_jax.fields.networks import mlp
+from nerf_jax.train.losses import colour, distortion, pose_prior, total_variation
+
+
+def _section(term):
+  """A loss term module's config section: its Settings' fields at their defaults."""
+  return ml_collections.ConfigDict(components.section(term.Settings))
 
 
 def get_config():
@@ -93,6 +99,15 @@ def get_config():
   proposal.loss_weight = 1.0  # weight of the interlevel loss that trains the proposal levels
   proposal.padding = 0.01  # weight added to every interval before resampling the next level
 
+  # The loss terms (nerf_jax/train/losses/, docs/extending.md): each has its section
+  # config.loss.<name>, whose fields, defaults and comments are its module's Settings.
+  config.loss = loss = ml_collections.ConfigDict()
+  loss.terms = ("colour", "distortion", "pose_prior", "total_variation")  # added in this order
+  loss.colour = _section(colour)  # photometric loss (always on): coarse_weight, huber_delta
+  loss.distortion = _section(distortion)  # mip-NeRF 360's distortion loss: weight (0 = off)
+  loss.pose_prior = _section(pose_prior)  # pose refinement: pull toward no correction: weight
+  loss.total_variation = _section(total_variation)  # lattice tables' smoothness: weight
+
   config.train = train = ml_collections.ConfigDict()
   train.max_steps = 0  # step budget (0 = fitted to max_seconds if set, else default_steps)
   train.max_seconds = 0.0  # wall-clock budget in seconds; alone, the run lasts exactly this long
@@ -110,18 +125,13 @@ def get_config():
   train.adam_eps = 1e-8  # Adam's denominator floor, sqrt(v) + eps (instant-ngp: 1e-15)
   train.network_l2 = 0.0  # L2 on the networks' weight matrices, in their gradient (0 = off)
   train.ema_decay = 0.0  # score and render the weights' moving average of this decay (0 = off)
-  train.huber_delta = 0.0  # colour loss: Huber, quadratic below this error (0 = squared error)
   train.network_lr = 0.0  # the MLP's Adam learning rate on the same schedule (0 = train.lr)
   train.remat_chunk = 128  # rays per cache-sized, recomputed field chunk in a step (0 = off)
-  train.coarse_loss_weight = 1.0  # weight of the coarse pass loss when a fine pass exists
-  train.distortion_weight = 0.0  # mip-NeRF 360's distortion loss, ray distance in [0, 1] (0 = off)
-  train.tv_weight = 0.0  # grid encodings: total variation of the lattice tables (0 = off)
   train.random_background = False  # data with opacity: composite on random colours (no floaters)
   train.pose_refinement = False  # learn an SE(3) correction of each training camera (BARF)
   train.appearance_lr = 3e-4  # appearance codes: Adam learning rate (the field's schedule)
   train.pose_lr = 3e-4  # pose refinement: Adam learning rate of the corrections (same decay)
   train.pose_coarse_to_fine = (0.1, 0.5)  # bands (grid levels) open between these shares of steps
-  train.pose_prior = 3.0  # pose refinement: weight of a pull of the corrections toward none
   train.pose_ray_share = 1.0  # pose refinement: share of a batch's rays that move the poses
   train.log_every = 100  # steps between progress lines and metrics.jsonl records
   train.eval_every = 0  # steps between test-view evaluations (0 = only at the end)

@@ -18,7 +18,7 @@ def get_config():
   config.model.view_dependent = True  # real photos have some gloss
   config.dir_encode_dims = 4  # the paper's 4 bands for directions
   config.train.random_background = False  # photos have no opacity to composite over
-  config.train.tv_weight = 0.0  # total variation of the tables
+  config.loss.total_variation.weight = 0.0  # total variation of the tables
   config.train.lr_final = 1e-3  # a tenth of lr at the end (detail.py's; fern, measured)
   config.train.adam_b2 = 0.99  # Adam's faster second-moment decay, as detail.py
   config.train.max_seconds = 600.0  # ten minutes; the step budget and schedule follow from it

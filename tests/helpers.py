@@ -8,6 +8,7 @@ import importlib.util
 import itertools
 import json
 import os
+import re
 
 import imageio.v3 as iio
 import jax
@@ -231,3 +232,14 @@ def small_view_rays():
   """The 144 rays (Rays [144]) of a 12×12 view of the box from 4 units away."""
   origins, directions = get_rays(12, 12, 14.0, pose_spherical(30.0, -20.0, 4.0), 0.5)
   return Rays.create(origins.reshape(-1, 3), directions.reshape(-1, 3), 2.0, 6.0)
+
+
+def doc_block(doc, test, name):
+  """The ```python block of the markdown file `doc` (a path under the checkout, 'docs/x.md')
+  that follows the marker `<!-- test: name -->`: a walk-through `test` runs as written. Fails
+  the calling test if the doc lost it."""
+  marker = re.escape(f"<!-- {test}: {name} -->")
+  with open(os.path.join(ROOT, doc)) as f:
+    found = re.search(marker + r"\s*```python\n(.*?)```", f.read(), re.S)
+  assert found, f"{doc} lost its {name} block"
+  return found.group(1)

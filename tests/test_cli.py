@@ -282,15 +282,25 @@ def test_saved_config_is_completed_with_todays_defaults(tmp_path):
 OLD_SPELLINGS = {"model.grid_resolutions": (8, 16), "model.grid_features": 2,
                  "model.hash_levels": 4, "model.hash_log2_size": 10, "model.hash_features": 4,
                  "model.hash_base_resolution": 4, "model.hash_max_resolution": 64,
-                 "model.hash_dtype": "float16"}
+                 "model.hash_dtype": "float16", "train.coarse_loss_weight": 0.5,
+                 "train.huber_delta": 0.05, "train.distortion_weight": 0.01,
+                 "train.pose_prior": 1.5, "train.tv_weight": 0.02}
+
+
+def _parent(tree, field):
+  """(the mapping holding dotted `field` in `tree`, the field's last name)."""
+  *path, name = field.split(".")
+  for part in path:
+    tree = tree[part]
+  return tree, name
 
 
 def test_old_spellings_cover_every_renamed_field_with_a_value_not_the_default():
   assert set(OLD_SPELLINGS) == set(config_lib.RENAMED)
-  defaults = default.get_config().model
+  defaults = default.get_config()
   for old, value in OLD_SPELLINGS.items():
-    _, section, name = config_lib.renamed(old).split(".")  # model.<section>.<name>
-    assert defaults[section][name] != value, old
+    section, name = _parent(defaults, config_lib.renamed(old))
+    assert section[name] != value, old
 
 
 def test_renamed_fields_on_the_command_line_give_the_new_names_config(capsys):
@@ -309,13 +319,15 @@ def test_renamed_fields_on_the_command_line_give_the_new_names_config(capsys):
 
 def test_renamed_fields_in_a_saved_config_or_a_config_file_give_the_new_names_config(tmp_path,
                                                                                      capsys):
-  """A config.json of a run from before the rename (flat model.grid_*/hash_* fields, no
-  model.grid or model.hash section) restores as the config with the new names; so does a
-  config file setting the old names (config_lib.upgrade, one line per old name)."""
+  """A config.json of a run from before the rename (flat model.grid_*/hash_* and train.*
+  loss fields, no model.grid, model.hash or loss section) restores as the config with the new
+  names; so does a config file setting the old names (config_lib.upgrade, one line per old
+  name)."""
   saved = small_config(TWO_STEPS).to_dict()
-  del saved["model"]["grid"], saved["model"]["hash"]
+  del saved["model"]["grid"], saved["model"]["hash"], saved["loss"]
   for old, value in OLD_SPELLINGS.items():
-    saved["model"][old.split(".")[1]] = list(value) if isinstance(value, tuple) else value
+    section, name = _parent(saved, old)
+    section[name] = list(value) if isinstance(value, tuple) else value
   (tmp_path / "config.json").write_text(json.dumps(saved))
   expected = small_config({**TWO_STEPS, **{config_lib.renamed(k): v
                                            for k, v in OLD_SPELLINGS.items()}})
@@ -323,7 +335,8 @@ def test_renamed_fields_in_a_saved_config_or_a_config_file_give_the_new_names_co
   # A config file (a ConfigDict accepts new attributes) that sets the old names.
   written = small_config(TWO_STEPS)
   for old, value in OLD_SPELLINGS.items():
-    written.model[old.split(".")[1]] = value
+    section, name = _parent(written, old)
+    section[name] = value
   capsys.readouterr()
   assert config_lib.upgrade(written).to_dict() == expected.to_dict()
   notes = capsys.readouterr().out.strip().splitlines()

@@ -40,7 +40,7 @@ def get_config():
   config.train.warmup_steps = 100  # nerfacc's linear warm-up over its first 100 steps
   config.train.adam_b2 = 0.99  # instant-ngp's beta2 (capture.py's, measured on fox)
   config.train.adam_eps = 1e-15  # instant-ngp's epsilon: rarely-hit table rows still move at lr
-  config.train.huber_delta = 0.1  # instant-ngp's Huber loss (won on lego on a CPU)
+  config.loss.colour.huber_delta = 0.1  # instant-ngp's Huber loss (won on lego on a CPU)
   config.train.max_seconds = 60.0  # the fox goal is at one minute
   config.render.chunk = 0  # rays per render call sized from the device's memory
   return config

@@ -41,7 +41,7 @@ def get_config():
   config.train.warmup_steps = 100  # nerfacc's linear warm-up over its first 100 steps
   config.train.adam_b2 = 0.99  # instant-ngp's beta2 (its beta1 0.9 is optax's default)
   config.train.adam_eps = 1e-15  # instant-ngp's epsilon: rarely-hit table rows still move at lr
-  config.train.huber_delta = 0.1  # instant-ngp's Huber loss (+0.06 dB on a CPU, docs/gpu.md)
+  config.loss.colour.huber_delta = 0.1  # instant-ngp's Huber loss (+0.06 dB on a CPU, docs/gpu.md)
   config.train.max_seconds = 60.0  # the one-minute goal; the schedule follows from it
   config.render.chunk = 0  # rays per render call sized from the device's memory
   config.render.num_samples = 64  # renders: twice training's samples (detail.py, measured)

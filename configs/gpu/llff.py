@@ -19,7 +19,7 @@ def get_config():
   config.model.grid.resolutions = (64, 128, 256, 512)  # finer levels: 512 across the NDC box
   config.model.grid.features = 4  # features per lattice point (llff.py's)
   config.model.grid_cell_aspect = (1.0, 1.0, 4.0)  # cells 4x longer in depth (DVGO's NDC grid)
-  config.train.tv_weight = 1e-2  # total variation of the tables, TensoRF's scale on LLFF
+  config.loss.total_variation.weight = 1e-2  # the tables' total variation, TensoRF's LLFF scale
   config.num_samples = 64  # samples per ray over NDC's [0, 1] (llff.py's)
   config.train.batch_rays = 4096  # TensoRF's and DVGO's rays per step on LLFF: 2^18 samples
   config.train.lr = 1e-2  # fast.py's and instant-ngp's Adam learning rate

@@ -14,6 +14,6 @@ def get_config():
   config = capture.get_config()
   config.data.scene = "garden"  # the built-in unbounded scene
   config.model.view_dependent = False  # Lambertian: no highlights to model
-  config.train.distortion_weight = 0.0  # content beyond the box ends rays on no surface (-0.57 dB)
+  config.loss.distortion.weight = 0.0  # content beyond the box ends rays on no surface (-0.57 dB)
   config.train.max_seconds = 0.0  # a step budget (default_steps) instead of capture's 5 minutes
   return config

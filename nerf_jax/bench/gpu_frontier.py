@@ -209,10 +209,10 @@ def budget_line(record):
   the budget, most drawn rays are sampled in vain; below it, budget slots go empty (either
   way a ray count adapted to the budget, as nerfacc's, would do better)."""
   stats, train = record.get("last_step_stats", {}), record.get("config", {}).get("train", {})
-  if "samples_wanted" not in stats or not train.get("sample_budget"):
+  if "colour/samples_wanted" not in stats or not train.get("sample_budget"):
     return None
-  wanted, budget = stats["samples_wanted"], train["sample_budget"]
-  return (f"the last step's budget: {stats['rays_in_loss']:,} of {train['batch_rays']:,} drawn "
+  wanted, budget = stats["colour/samples_wanted"], train["sample_budget"]
+  return (f"the last step's budget: {stats['colour/rays_in_loss']:,} of {train['batch_rays']:,} drawn "
           f"rays in the loss; they asked for {wanted:,} samples, {wanted / budget:.2f}× the "
           f"budget of {budget:,}")
 

@@ -96,7 +96,7 @@ SWEEPS = {
         Entry("grid", _VIEW, base="fast"),  # trains on random backgrounds (fast.py's default)
         Entry("grid fixed-bg", {**_VIEW, "train.random_background": False}, base="fast"),
         # 0.012 of the normalised ray distance: 0.003 in world units over `detail`'s [2, 6]
-        Entry("grid distortion", {**_VIEW, "train.distortion_weight": 0.012}, base="fast"),
+        Entry("grid distortion", {**_VIEW, "loss.distortion.weight": 0.012}, base="fast"),
         Entry("grid occupancy", {**_VIEW, "occupancy.enabled": True}, base="fast"),
         # configs/detail.py: occupancy 64^3, 32 samples x 4096 rays, lr 2e-2 (chosen on `detail`)
         Entry("detail", base="detail"),

@@ -80,8 +80,8 @@ def train_loop(step_fn, state, max_steps, max_seconds, probe_times, probe, clock
 
 
 def step_stats(stats):
-  """A train step's stats (train/losses.py: loss, psnr, a sample budget's rays_in_loss and
-  samples_wanted...) as Python numbers."""
+  """A train step's stats (train/losses/: loss, colour/psnr, a sample budget's
+  colour/rays_in_loss and colour/samples_wanted...) as Python numbers."""
   return {name: jax.device_get(value).item() for name, value in stats.items()}
 
 

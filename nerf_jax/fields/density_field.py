@@ -81,7 +81,7 @@ class GridDensity(_DensityOnly):
     resolutions = hashgrid.level_resolutions(self.levels, self.base_resolution,
                                              self.max_resolution)
     init = draws.normal_init(1e-2)
-    # "lattice_", no encoding's table prefix: train.tv_weight leaves the proposals alone.
+    # "lattice_", no encoding's table prefix: loss.total_variation leaves the proposals alone.
     grids = [self.param(f"lattice_{r}", init, (r, r, r, self.features))
              for r in resolutions]
     unit = grid.to_unit_cube(points.astype(jnp.float32), self.bound)

@@ -38,7 +38,7 @@ class Encoding:
     (components.signature: the settings that fix its parameters' shapes and meaning); keep a
     released encoding's keys, so its checkpoints restore.
   table_axes: parameter-name prefixes of its lattice tables -> their spatial axes (the last axis
-    holds features): the tables train.tv_weight's total variation applies to.
+    holds features): the tables the total variation (loss.total_variation) smooths.
   section: the dotted config path of its settings; None = model.<name>, '' = the top level. A
     shared section ('', 'model') gives only the fields the settings declare.
   records_grid_section: its checkpoints also record config.model.grid's lattice entries (the

@@ -46,8 +46,8 @@ class RayRenderer:
     sample budget): empty slots cost nothing, so a batch can hold more rays. A ray whose
     samples did not all fit is marked incomplete (out['complete']) and left out of the loss;
     the colour budget is then a share of the budget. out['valid_samples'] counts each ray's
-    valid samples, fitted or not (what the rays asked of the budget: losses.Colour logs their
-    sum, so a run shows whether its rays fill it). 0 = every slot of every ray.
+    valid samples, fitted or not (what the rays asked of the budget: train/losses/colour.py
+    logs their sum, so a run shows whether its rays fill it). 0 = every slot of every ray.
   """
   field: Field
   sampler: Sampler

@@ -224,19 +224,31 @@ def step_settings(exp):
 
 
 def loss_terms(config, ray_renderer):
-  """The train step's loss terms (train/losses.py) of `config`, in the order they are added."""
-  tc = config.train
-  if tc.huber_delta < 0:
-    raise ValueError(f"config.train.huber_delta={tc.huber_delta}: use 0 (squared error) or the "
-                     "colour error below which Huber's loss is quadratic (instant-ngp: 0.1)")
-  terms = [losses.Colour(tc.coarse_loss_weight, tc.huber_delta)]
-  if tc.distortion_weight > 0:
-    terms.append(losses.Distortion(tc.distortion_weight, ray_renderer.sampler.unit_distance))
-  if tc.pose_refinement and tc.pose_prior > 0:
-    terms.append(losses.PosePrior(tc.pose_prior))
-  if tc.tv_weight > 0:
-    table_axes = tuple(encoding_family(config)[0].table_axes.items())
-    terms.append(losses.TotalVariation(tc.tv_weight, table_axes))
+  """The train step's loss terms (train/losses/) of `config`: each of config.loss.terms (a
+  registered name or a module path, losses.REGISTRY) built from its section config.loss.<name>
+  (None from its build: off), then the sampler's own, in the order they are added. ValueError
+  naming the field for a term that is unknown, listed twice or without its section, or for
+  'colour' missing (the photometric loss is always on)."""
+  names = tuple(config.loss.terms)
+  if "colour" not in names:
+    raise ValueError(f"config.loss.terms={names}: must include 'colour' (the photometric "
+                     "loss is always on)")
+  context = losses.Context(ray_renderer, tuple(encoding_family(config)[0].table_axes.items()),
+                           config.train.pose_refinement)
+  terms, seen = [], set()
+  for name in names:
+    record = losses.REGISTRY.lookup(name)
+    if record.name in seen:
+      raise ValueError(f"config.loss.terms={names}: term {record.name!r} is listed twice")
+    seen.add(record.name)
+    if record.name not in config.loss:
+      raise ValueError(f"config.loss.{record.name} is missing: the settings of loss term "
+                       f"{name!r}")
+    settings = components.settings_from(record.settings, dict(config.loss[record.name]),
+                                        f"loss.{record.name}")
+    term = record.build(settings, context)
+    if term is not None:
+      terms.append(term)
   return terms + ray_renderer.sampler.loss_terms()  # a sampler brings its own (proposal.py)
 
 

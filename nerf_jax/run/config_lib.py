@@ -89,6 +89,11 @@ RENAMED = {
     "model.hash_base_resolution": "model.hash.base_resolution",
     "model.hash_max_resolution": "model.hash.max_resolution",
     "model.hash_dtype": "model.hash.gather_dtype",
+    "train.coarse_loss_weight": "loss.colour.coarse_weight",
+    "train.huber_delta": "loss.colour.huber_delta",
+    "train.distortion_weight": "loss.distortion.weight",
+    "train.pose_prior": "loss.pose_prior.weight",
+    "train.tv_weight": "loss.total_variation.weight",
 }
 
 
@@ -158,8 +163,11 @@ def _as_trained(saved):
     return saved
   if "appearance_lr" not in train and "lr" in train:
     train["appearance_lr"] = train["lr"]
-  if "pose_prior" not in train:  # corrections learnt without the prior
-    train["pose_prior"] = 0.0
+  # Corrections learnt without the prior (train.pose_prior, now loss.pose_prior.weight, moved
+  # by `_upgraded_dict` where the run had it).
+  prior = saved.setdefault("loss", {}).setdefault("pose_prior", {})
+  if isinstance(prior, dict) and "weight" not in prior:
+    prior["weight"] = 0.0
   return saved
 
 

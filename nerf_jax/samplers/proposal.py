@@ -29,7 +29,7 @@ the loss, and resampling only averages two of them.
 """
 
 import dataclasses
-from typing import Tuple
+from typing import ClassVar, Tuple
 
 import jax
 import jax.numpy as jnp
@@ -290,7 +290,8 @@ class Interlevel:
   train/): `weight` times the sum over levels of the rays' mean `interlevel_loss` of the level
   (outputs['sampler']['proposals']) against the NeRF's final pass (fine, else coarse), whose
   edges and weights are under stop_gradient: only the proposals learn from it.
-  Stats: 'interlevel', the unweighted sum."""
+  Stats (logged as 'interlevel/<stat>'): 'unweighted', the sum before the weight."""
+  name: ClassVar[str] = "interlevel"  # the namespace of its stats (train/losses.total)
   weight: float = 1.0
 
   def __call__(self, inputs):
@@ -299,7 +300,7 @@ class Interlevel:
     total = sum(jnp.mean(interlevel_loss(last["t"], last["weights"], level["t"],
                                          level["weights"]))
                 for level in outs["sampler"]["proposals"])
-    return self.weight * total, {"interlevel": total}
+    return self.weight * total, {"unweighted": total}
 
 
 def build(base, section):

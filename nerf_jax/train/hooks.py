@@ -58,8 +58,9 @@ class EveryStep(Hook):
 
 
 class Record(Hook):
-  """Starts a log step's record: step, wall_seconds, loss, train_psnr, rays_per_second and the
-  other stats of the loss terms under their own names (e.g. a sample budget's rays_in_loss).
+  """Starts a log step's record: step, wall_seconds, loss, train_psnr (the colour term's psnr),
+  rays_per_second and the other stats of the loss terms as '<term>/<stat>' (train/losses/: e.g.
+  a sample budget's colour/rays_in_loss).
 
   log_every: steps between records. window: the progress.RateWindow of the training rate.
   rays_per_step: rays in a step. elapsed() -> the run's seconds so far. check(state): raises if
@@ -79,10 +80,10 @@ class Record(Hook):
     stats = jax.device_get(end.stats)
     self.check(end.state)
     end.record = {"step": end.step, "wall_seconds": round(self.elapsed(), 3),
-                  "loss": float(stats["loss"]), "train_psnr": float(stats["psnr"]),
+                  "loss": float(stats["loss"]), "train_psnr": float(stats["colour/psnr"]),
                   "rays_per_second": round(end.rays_per_second)}
     end.extra = {name: value.item() for name, value in stats.items()
-                 if name not in ("loss", "psnr")}
+                 if name not in ("loss", "colour/psnr")}
     end.record.update(end.extra)
 
 

@@ -44,7 +44,7 @@ class StepEnd:
   out_of_time: () -> whether the run's time is up, asked once, by the first hook that asks.
   stop: the StopRequest of the loop (its signum is set once a signal arrived).
   record: on a log step, the record hooks.Record starts and the later hooks fill; else None.
-  extra: on a log step, the stats besides loss and psnr ({name: float}).
+  extra: on a log step, the stats besides loss and colour/psnr ({name: float}).
   rays_per_second: on a log step, the training rate since the previous log step.
   """
   step: int

@@ -3,7 +3,7 @@ refresh), render, add the loss terms, take a gradient step of the optimiser; a n
 is not applied and is reported.
 
 The step never sees a config: `make_train_step(ray_renderer, tx, terms, settings, ...)` takes
-the renderer, the optimiser, the loss terms (train/losses.py), `StepSettings` and the buffer
+the renderer, the optimiser, the loss terms (train/losses/), `StepSettings` and the buffer
 hooks, all built once by the entry layer (run/components.train_step_args).
 
 With appearance codes each ray is rendered with its training image's code; with pose refinement
@@ -120,7 +120,8 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
   donated.
 
   ray_renderer: the training RayRenderer (render/renderer.py). tx: the optimiser. terms: the
-  loss terms (train/losses.py), added in order; stats holds 'loss' and every stat they return.
+  loss terms (train/losses/), added in order; stats holds 'loss' and every stat they return,
+  as '<term name>/<stat>' (losses.total).
   settings: StepSettings. optimizer_for: planned_steps -> the optimiser on a schedule of that
   length, for a time budget's fitted schedule (planned_steps: int32 [], traced: one compiled
   step for any length); None when the step is always called without planned_steps.

@@ -55,13 +55,13 @@ def test_goals_are_met_short_or_not_measured():
 
 
 def test_the_table_says_how_the_sample_budget_was_used():
-  lego = {**_record(34.0, s60=33.9), "last_step_stats": {"rays_in_loss": 20000,
-                                                         "samples_wanted": 393216},
+  lego = {**_record(34.0, s60=33.9), "last_step_stats": {
+      "colour/rays_in_loss": 20000, "colour/samples_wanted": 393216},
           "config": {"train": {"batch_rays": 32768, "sample_budget": 262144}}}
   lines = gpu_frontier.scene_table({"lego": ("gpu/lego", 60.0, lego)}, "gpu")
   assert ("- lego: the last step's budget: 20,000 of 32,768 drawn rays in the loss; they asked "
           "for 393,216 samples, 1.50× the budget of 262,144") in lines
-  no_budget = {**_record(25.0), "last_step_stats": {"psnr": 25.0},
+  no_budget = {**_record(25.0), "last_step_stats": {"colour/psnr": 25.0},
                "config": {"train": {"batch_rays": 4096, "sample_budget": 0}}}
   assert gpu_frontier.budget_line(no_budget) is None
 
@@ -89,7 +89,7 @@ def test_the_script_runs_end_to_end_on_the_cpu_when_shrunk(tmp_path):
   record = report["scenes"]["lego"]["record"]
   assert "error" not in record, record.get("error")
   assert record["steps"] == 3 and record["test_psnr"] > 0
-  assert record["last_step_stats"]["samples_wanted"] > 0  # the budget's use, in the report
+  assert record["last_step_stats"]["colour/samples_wanted"] > 0  # the budget's use, in the report
   assert all(stage["status"].startswith("exit 0") for stage in report["stages"].values())
   text = (out / "frontier.md").read_text()
   assert "- lego: the last step's budget: " in text

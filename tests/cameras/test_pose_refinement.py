@@ -190,7 +190,7 @@ def test_refinement_recovers_a_known_perturbation(share):
                          "train.max_steps": 400,
                          # the mechanics alone: the default prior holds part of the correction
                          # back (to 0.68° of 1.10° here; docs/appearance_and_poses.md)
-                         "train.pose_prior": 0.0})
+                         "loss.pose_prior.weight": 0.0})
   exp = experiment.setup(config)
   renderer = ray_renderer(config, _AnalyticField())
   ds = exp.train_ds
@@ -256,7 +256,7 @@ def test_reprojection_error_of_a_sideways_move_is_focal_times_move_over_depth():
 
 class _EmptyField:
   """A stand-in network with no density anywhere: every ray renders the background, so the
-  images say nothing about the poses and only train.pose_prior acts on the corrections."""
+  images say nothing about the poses and only loss.pose_prior.weight acts on the corrections."""
 
   coarse_to_fine_stages = 0
 
@@ -268,7 +268,7 @@ class _EmptyField:
 def test_the_pose_prior_pulls_corrections_toward_none_where_images_say_nothing(prior):
   config = small_config({"data.scene": "perturbed", "data.num_views": 6, "data.holdout_from": 4,
                          "data.image_size": 8, "num_samples": 8, "train.pose_refinement": True,
-                         "train.pose_prior": prior, "train.batch_rays": 64,
+                         "loss.pose_prior.weight": prior, "train.batch_rays": 64,
                          "train.max_steps": 20, "train.warmup_steps": 0})
   exp = experiment.setup(config)
   exp = dataclasses.replace(exp, renderer=ray_renderer(config, _EmptyField()))

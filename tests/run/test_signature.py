@@ -123,7 +123,10 @@ def test_pose_refinement_keeps_the_optimiser_state_its_checkpoints_saved():
 def test_a_run_saved_before_pose_prior_keeps_its_corrections_free():
   from nerf_jax.run import config_lib
   saved = small_config({"train.pose_refinement": True}).to_dict()
-  del saved["train"]["pose_prior"]
-  assert config_lib.complete(saved).train.pose_prior == 0.0
+  del saved["loss"]  # before loss sections, and before train.pose_prior (their old home)
+  assert config_lib.complete(saved).loss.pose_prior.weight == 0.0
+  saved["train"]["pose_prior"] = 2.0  # a run saved with the prior, under its old name
+  assert config_lib.complete(saved).loss.pose_prior.weight == 2.0
   current = config_lib.complete(small_config({"train.pose_refinement": True}).to_dict())
-  assert current.train.pose_prior == config_lib.load("default").train.pose_prior > 0
+  assert (current.loss.pose_prior.weight == config_lib.load("default").loss.pose_prior.weight
+          > 0)

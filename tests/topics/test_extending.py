@@ -3,18 +3,14 @@ written verbatim into new files, the config file is loaded by the library's own 
 injected), trained a few steps through the library's training job, and restored; no file of the
 tree is touched."""
 
-import pathlib
-import re
-
 import jax
 import numpy as np
 import pytest
 
 from nerf_jax.fields import registry
 from nerf_jax.run import components, config_lib, experiment, signature, train_lib
-from tests.helpers import ROOT
+from tests import helpers
 
-DOC = pathlib.Path(ROOT) / "docs" / "extending.md"
 # The shrinking every quick training test applies (tests/helpers.TINY_GRID's sizes), on top of
 # the doc's config file as loaded.
 SHRINK = {"data.num_views": 6, "data.image_size": 16, "data.holdout_from": 5, "num_samples": 16,
@@ -26,10 +22,7 @@ SHRINK = {"data.num_views": 6, "data.image_size": 16, "data.holdout_from": 5, "n
 
 def doc_block(name):
   """The code block of docs/extending.md marked `<!-- tests/topics/test_extending.py: name -->`."""
-  marker = re.escape(f"<!-- tests/topics/test_extending.py: {name} -->")
-  found = re.search(marker + r"\s*```python\n(.*?)```", DOC.read_text(), re.S)
-  assert found, f"docs/extending.md lost its {name} block"
-  return found.group(1)
+  return helpers.doc_block("docs/extending.md", "tests/topics/test_extending.py", name)
 
 
 @pytest.fixture

@@ -10,7 +10,7 @@ from nerf_jax.fields.encodings.grid import DenseGrid
 from nerf_jax.fields.encodings.hashgrid import HashGrid
 from nerf_jax.fields.networks.lattice import LatticeHead
 from nerf_jax.run import components, config_lib, train_lib
-from nerf_jax.train import losses
+from nerf_jax.train.losses import total_variation
 from tests.helpers import small_config
 
 GPU_CONFIGS = ("gpu/lego", "gpu/capture", "gpu/llff")
@@ -44,7 +44,7 @@ def test_lego_is_instant_ngps_field_with_its_sample_budget():
   assert config.occupancy.enabled and config.occupancy.resolution == 128
   assert config.train.sample_budget == SAMPLES_PER_STEP
   assert (config.train.lr, config.train.adam_b2) == (1e-2, 0.99)
-  assert config.train.huber_delta == 0.1  # instant-ngp's loss: won on a CPU at equal steps
+  assert config.loss.colour.huber_delta == 0.1  # instant-ngp's loss: won on a CPU at equal steps
   assert config.train.ema_decay == 0.0  # lost there: scores use the last weights
   assert config.render.chunk == 0  # sized from the device's memory
 
@@ -61,7 +61,7 @@ def test_capture_contracts_space_with_a_larger_field():
   assert shapes["view"]["kernel"] == (128 + 27, 128)  # + capture.py's 4 direction bands
   assert shapes["view_1"]["kernel"] == (128, 128)  # nerfacto's two colour layers
   assert config.occupancy.enabled and config.train.sample_budget == SAMPLES_PER_STEP
-  assert config.train.distortion_weight > 0  # capture.py's measured effect, kept
+  assert config.loss.distortion.weight > 0  # capture.py's measured effect, kept
 
 
 def test_llff_has_finer_levels_and_total_variation_in_ndc():
@@ -74,7 +74,7 @@ def test_llff_has_finer_levels_and_total_variation_in_ndc():
   assert max(config.model.grid.resolutions) == 4 * max(config_lib.load("llff").model.grid
                                                        .resolutions)
   terms = components.loss_terms(config, rr)
-  assert [t.weight for t in terms if isinstance(t, losses.TotalVariation)] == [1e-2]
+  assert [t.weight for t in terms if isinstance(t, total_variation.TotalVariation)] == [1e-2]
   assert config.train.batch_rays * config.num_samples == SAMPLES_PER_STEP
 
 

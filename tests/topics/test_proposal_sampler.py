@@ -21,6 +21,7 @@ from nerf_jax.samplers import placement, proposal, spacing
 from nerf_jax.samplers.occupancy import OccupancySettings
 from nerf_jax.train import losses
 from nerf_jax.volume import quadrature
+from nerf_jax.train.losses import colour as colour_loss
 from tests.conftest import params_equal, restored_variables
 from tests.helpers import jitted, small_config
 from tests.helpers import loss_ref
@@ -87,7 +88,7 @@ def test_builtin_renderer_has_no_sampler_parameters_outputs_or_terms():
   assert "sampler" not in rr.render(variables, _rays(4))
   assert not any(key.startswith(("sampler", "proposal"))
                  for key in model_signature(config))
-  assert [type(t) for t in components.loss_terms(config, rr)] == [losses.Colour]
+  assert [type(t) for t in components.loss_terms(config, rr)] == [colour_loss.Colour]
 
 
 # The proposal sampler.
@@ -154,8 +155,8 @@ def test_interlevel_term_matches_the_brute_force(rendered):
              for lv in outputs["sampler"]["proposals"])
   value, stats = proposal.Interlevel(2.0)(inputs)
   # As tests/samplers/test_proposal.py: outer exact to ~1e-6, d(term)/d(outer) <= 2, 8 intervals.
-  np.testing.assert_allclose(stats["interlevel"], want, rtol=1e-5, atol=2e-6 * 8)
-  np.testing.assert_allclose(value, 2.0 * stats["interlevel"], rtol=1e-6)
+  np.testing.assert_allclose(stats["unweighted"], want, rtol=1e-5, atol=2e-6 * 8)
+  np.testing.assert_allclose(value, 2.0 * stats["unweighted"], rtol=1e-6)
   assert want > 1e-4  # untrained levels do not bound the NeRF
 
 
@@ -196,7 +197,7 @@ def test_photometric_loss_trains_the_nerf_and_interlevel_the_proposals_only(rend
       return term(losses.LossInputs(outs, target, rays, params))[0]
     return jax.jit(jax.grad(loss))(variables["params"])
 
-  colour, interlevel = grads(losses.Colour()), grads(proposal.Interlevel())
+  colour, interlevel = grads(colour_loss.Colour()), grads(proposal.Interlevel())
   nonzero = lambda tree: any(np.any(np.asarray(g) != 0) for g in jax.tree_util.tree_leaves(tree))
   for name in ("proposal_0", "proposal_1"):
     assert not nonzero(colour[name]) and nonzero(interlevel[name]), name
@@ -234,10 +235,10 @@ def test_training_lowers_the_loss_and_the_checkpoint_restores(tmp_path):
   result = train_lib.train_and_evaluate(config, workdir)
   assert result["steps"] == 40 and np.isfinite(result["psnr"])
   records = [json.loads(line) for line in open(f"{workdir}/metrics.jsonl")]
-  logged = [r for r in records if "interlevel" in r]
-  assert len(logged) == 8  # the term's stat is logged with the others
-  assert logged[-1]["loss"] < logged[0]["loss"] and logged[-1]["interlevel"] < logged[0][
-      "interlevel"]
+  logged = [r for r in records if "interlevel/unweighted" in r]
+  assert len(logged) == 8  # the term's stat is logged with the others, under its name
+  assert logged[-1]["loss"] < logged[0]["loss"] and logged[-1]["interlevel/unweighted"] < logged[
+      0]["interlevel/unweighted"]
   exp, state = experiment.restore(workdir)
   assert sorted(state.params) == ["coarse", "proposal_0", "proposal_1"]
   again = components.make_evaluator(exp)(restored_variables(workdir))

@@ -13,6 +13,7 @@ import pytest
 from nerf_jax.render import renderer
 from nerf_jax.run import components
 from nerf_jax.train import losses
+from nerf_jax.train.losses import colour
 from tests.helpers import SPLIT_GRID, TINY_GRID, ball_in_first_density_level, jitted
 from tests.helpers import small_config, small_view_rays
 
@@ -118,10 +119,10 @@ def test_the_loss_leaves_out_incomplete_rays():
   complete = jnp.array([True, True, False, True, False, False])
   keep = np.asarray(complete)
   want = np.mean((np.asarray(rgb)[keep] - np.asarray(target)[keep]) ** 2)
-  np.testing.assert_allclose(losses._mse(rgb, target, complete), want, rtol=1e-6)
-  np.testing.assert_allclose(losses._mse(rgb, target), np.mean(
+  np.testing.assert_allclose(colour.mse(rgb, target, complete), want, rtol=1e-6)
+  np.testing.assert_allclose(colour.mse(rgb, target), np.mean(
       (np.asarray(rgb) - np.asarray(target)) ** 2), rtol=1e-6)
-  assert float(losses._mse(rgb, target, jnp.zeros(6, bool))) == 0.0  # finite, not 0/0
+  assert float(colour.mse(rgb, target, jnp.zeros(6, bool))) == 0.0  # finite, not 0/0
 
 
 def test_the_colour_loss_reports_what_the_rays_asked_of_the_budget():
@@ -130,13 +131,13 @@ def test_the_colour_loss_reports_what_the_rays_asked_of_the_budget():
   complete = jnp.array([True, True, True, False, False, False])
   valid_samples = jnp.array([3, 0, 5, 7, 2, 0], jnp.int32)
   outputs = {"coarse": {"rgb": rgb, "complete": complete, "valid_samples": valid_samples}}
-  loss, stats = losses.Colour()(losses.LossInputs(outputs, target, None, {}))
+  loss, stats = colour.Colour()(losses.LossInputs(outputs, target, None, {}))
   assert int(stats["rays_in_loss"]) == 3
   assert int(stats["samples_wanted"]) == 17  # 3 + 0 + 5 + 7 + 2 + 0, fitted or not
   keep = np.asarray(complete)
   np.testing.assert_allclose(loss, np.mean((np.asarray(rgb)[keep] - np.asarray(target)[keep])
                                            ** 2), rtol=1e-6)
-  _, plain = losses.Colour()(losses.LossInputs({"coarse": {"rgb": rgb}}, target, None, {}))
+  _, plain = colour.Colour()(losses.LossInputs({"coarse": {"rgb": rgb}}, target, None, {}))
   assert set(plain) == {"psnr"}  # no budget, no budget stats
 
 

@@ -1,5 +1,5 @@
 """instant-ngp's training extras, each off by default: Huber's colour loss
-(train.huber_delta), a coupled L2 on the networks' weight matrices (train.network_l2) and the
+(loss.colour.huber_delta), a coupled L2 on the networks' weight matrices (train.network_l2) and the
 weights' moving average that scores and renders (train.ema_decay). Each is checked against a
 brute-force reference written here."""
 
@@ -13,6 +13,7 @@ from nerf_jax.run import components, experiment
 from nerf_jax.train import optimizer
 from nerf_jax.run.signature import init_state, model_signature, state_template
 from nerf_jax.train import checkpoints, losses, train_step
+from nerf_jax.train.losses import colour
 from tests.conftest import params_equal
 from tests.helpers import small_config
 
@@ -28,12 +29,12 @@ def _huber_brute(error, delta):
 
 def test_huber_matches_its_definition_and_its_gradient_is_the_clipped_error():
   error = np.array([-0.7, -0.1, -0.03, 0.0, 0.02, 0.1, 0.2500001, 3.0], np.float32)
-  np.testing.assert_allclose(losses.huber(jnp.asarray(error), 0.1), _huber_brute(error, 0.1),
+  np.testing.assert_allclose(colour.huber(jnp.asarray(error), 0.1), _huber_brute(error, 0.1),
                              rtol=1e-6, atol=1e-9)
-  grad = jax.vmap(jax.grad(lambda e: losses.huber(e, 0.1)))(jnp.asarray(error))
+  grad = jax.vmap(jax.grad(lambda e: colour.huber(e, 0.1)))(jnp.asarray(error))
   np.testing.assert_allclose(grad, np.clip(error, -0.1, 0.1), rtol=1e-6)
   # Continuous at the knee: both branches give delta²/2 there.
-  below, above = losses.huber(jnp.float32(0.1), 0.1), losses.huber(jnp.float32(0.1 + 1e-6), 0.1)
+  below, above = colour.huber(jnp.float32(0.1), 0.1), colour.huber(jnp.float32(0.1 + 1e-6), 0.1)
   assert abs(float(above) - float(below)) < 2e-7
 
 
@@ -53,20 +54,20 @@ def _colour_inputs(complete=None):
 def test_the_huber_colour_loss_is_the_mean_over_whole_rays_and_psnr_stays_the_squared_errors(
     complete):
   inputs, rgb, target = _colour_inputs(complete)
-  loss, stats = losses.Colour(huber_delta=0.1)(inputs)
+  loss, stats = colour.Colour(huber_delta=0.1)(inputs)
   keep = np.ones(6, bool) if complete is None else np.array(complete)
   error = (rgb - target)[keep]
   np.testing.assert_allclose(loss, _huber_brute(error, 0.1).mean(), rtol=1e-5)
   mse = np.mean(error ** 2)
   np.testing.assert_allclose(stats["psnr"], -10 * np.log10(mse), rtol=1e-5)
   # Off (0) it is the squared error, as before.
-  plain, _ = losses.Colour()(inputs)
+  plain, _ = colour.Colour()(inputs)
   np.testing.assert_allclose(plain, mse, rtol=1e-5)
 
 
 def test_a_negative_huber_delta_is_refused_naming_the_field():
-  config = small_config(**{"train.huber_delta": -0.1})
-  with pytest.raises(ValueError, match="config.train.huber_delta=-0.1"):
+  config = small_config(**{"loss.colour.huber_delta": -0.1})
+  with pytest.raises(ValueError, match="config.loss.colour.huber_delta=-0.1"):
     components.loss_terms(config, components.make_ray_renderer(config))
 
 

@@ -69,9 +69,9 @@ def one_step_stats(overrides):
 
 
 def test_the_train_loss_adds_the_weighted_distortion_and_nothing_else():
-  stats = {w: one_step_stats({"train.distortion_weight": w}) for w in (0.0, 0.5)}
+  stats = {w: one_step_stats({"loss.distortion.weight": w}) for w in (0.0, 0.5)}
   # Same render, same photometric error: only the loss grows, by a positive amount.
-  np.testing.assert_allclose(stats[0.5]["psnr"], stats[0.0]["psnr"], rtol=1e-6)
+  np.testing.assert_allclose(stats[0.5]["colour/psnr"], stats[0.0]["colour/psnr"], rtol=1e-6)
   assert float(stats[0.5]["loss"]) > float(stats[0.0]["loss"]) * 1.001
 
 
@@ -112,7 +112,7 @@ def test_the_distortion_term_of_an_unbounded_scene_stays_below_its_weight():
   # Edges run out to 1e10: in t the term would be ~1e9 and drown the photometric loss; in s,
   # a ray's distortion is at most (sum of weights)^2 · 1 <= 1.
   unbounded = {"data.scene_bound": 0.5, "data.contraction": "linf"}
-  stats = {w: one_step_stats({**unbounded, "train.distortion_weight": w}) for w in (0.0, 0.5)}
+  stats = {w: one_step_stats({**unbounded, "loss.distortion.weight": w}) for w in (0.0, 0.5)}
   extra = float(stats[0.5]["loss"]) - float(stats[0.0]["loss"])
   assert 0.0 < extra <= 0.5
 
@@ -141,7 +141,7 @@ def test_lattice_tables_and_the_weighted_tv_in_the_train_loss():
   assert [axes for _, axes in registry.lattice_tables(params, grid_axes)] == [3]
   stats = {}
   for weight in (0.0, 10.0):
-    config = small_config(TINY_GRID, base="fast", **{"train.tv_weight": weight})
+    config = small_config(TINY_GRID, base="fast", **{"loss.total_variation.weight": weight})
     exp = experiment.setup(config)
     state = init_state(exp)
     tv = sum(float(regularizers.total_variation(t, a))
@@ -149,6 +149,6 @@ def test_lattice_tables_and_the_weighted_tv_in_the_train_loss():
     _, stats[weight] = components.make_train_step(exp)(
         state, components.make_train_data(exp), jax.random.PRNGKey(3))
   # Same render: only the loss grows, by the weight times the random start's variation.
-  np.testing.assert_allclose(stats[10.0]["psnr"], stats[0.0]["psnr"], rtol=1e-6)
+  np.testing.assert_allclose(stats[10.0]["colour/psnr"], stats[0.0]["colour/psnr"], rtol=1e-6)
   np.testing.assert_allclose(float(stats[10.0]["loss"] - stats[0.0]["loss"]), 10.0 * tv,
                              rtol=1e-3)

@@ -212,6 +212,6 @@ def _network(settings):
   return "density_grid" if settings.density_resolutions else "lattice"
 
 
-# Lattice tables (train.tv_weight): the feature grids and the density levels, 3 spatial axes.
+# Lattice tables (loss.total_variation): the feature grids and the density levels, 3 spatial axes.
 ENCODING = registry.Encoding("grid", Settings, build, _network, signature,
                              table_axes={"grid_": 3, "density_": 3}, records_grid_section=True)

@@ -122,6 +122,6 @@ def signature(settings):
   return {"encoding": "tensorf", **components.signature(settings, "tensorf_")}
 
 
-# Lattice tables (train.tv_weight): the planes (2 spatial axes) and lines (1).
+# Lattice tables (loss.total_variation): the planes (2 spatial axes) and lines (1).
 ENCODING = registry.Encoding("tensorf", Settings, build, "lattice", signature,
                              table_axes={"plane_": 2, "line_": 1}, records_grid_section=True)

@@ -1,0 +1,107 @@
+"""The training loss as a list of named terms, one pure function each, found by name.
+
+A term is called as term(inputs) with a `LossInputs` and returns (loss: float32 [], stats: dict
+of float32 or int32 [] scalars to log); its `name` (str) namespaces its stats. The step adds the
+terms' losses in their order (`total`) and logs every stat as '<name>/<stat>' (the colour term's
+'colour/psnr', the proposal sampler's 'interlevel/unweighted').
+
+A term is one module defining `LOSS = losses.Loss(name, Settings, build)` (a `Loss` record):
+`config.loss.terms` lists the run's terms, in the order they are added, by their registered
+name (`REGISTRY`: colour, distortion, pose_prior, total_variation, the modules of this package)
+or the dotted path of any importable module; each term's settings are its own section,
+`config.loss.<name>` (docs/extending.md, "Adding a loss term"). The entry layer builds them
+(run/components.loss_terms) and appends the sampler's own terms (its `loss_terms()`).
+"""
+
+import dataclasses
+from typing import Any, Callable
+
+import flax.struct
+import jax.numpy as jnp
+
+from nerf_jax.backend import components
+
+
+@flax.struct.dataclass
+class LossInputs:
+  """What a loss term may look at, for one batch of B rays.
+
+  outputs: the renderer's outputs {'coarse': ..., ['fine': ...], ['sampler': ...]}
+    (render/renderer.py).
+  target: float32 [B, 3], the colours the rays should render. rays: the rays rendered (those of
+  the corrected cameras with pose refinement). params: the trained parameters.
+  """
+  outputs: dict
+  target: jnp.ndarray
+  rays: Any
+  params: dict
+
+
+# The render passes of the renderer's outputs (outputs['sampler'] is a sampler's, not a pass).
+PASSES = ("coarse", "fine")
+
+
+@dataclasses.dataclass(frozen=True)
+class Context:
+  """What a term's `build` may use besides its settings: the run's, built by the entry layer.
+
+  ray_renderer: the training RayRenderer (render/renderer.py; its sampler's `unit_distance`).
+  table_axes: ((parameter-name prefix, spatial axes), ...) of the field's lattice tables (the
+    encoding family's, fields/registry.py).
+  pose_refinement: whether the run refines the cameras (params['poses'] exists).
+  """
+  ray_renderer: Any
+  table_axes: tuple = ()
+  pose_refinement: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
+class Loss:
+  """A loss term's record, a term module's `LOSS`.
+
+  name: its config section (config.loss.<name>) and the namespace of its stats; the term it
+    builds has the same `name`.
+  settings: its frozen settings dataclass: the section's fields, defaults (components.section)
+    and validation (__post_init__, a ValueError naming the config field).
+  build: (settings, Context) -> the term (a callable on LossInputs with a `name`), or None when
+    the settings turn it off (a weight of 0).
+  """
+  name: str
+  settings: type
+  build: Callable
+
+
+def check_weight(weight, term, example):
+  """A term's weight setting (config.loss.<term>.weight): ValueError naming the field unless
+  it is >= 0 (0 = off). example: a weight that works, for the message."""
+  if weight < 0:
+    raise ValueError(f"config.loss.{term}.weight={weight}: use 0 (off) or a weight > 0 (e.g. "
+                     f"{example})")
+
+
+# The built-in terms, by the name config.loss.terms gives them.
+REGISTRY = components.Registry("loss term", "config.loss.terms", "LOSS", {
+    "colour": "nerf_jax.train.losses.colour",
+    "distortion": "nerf_jax.train.losses.distortion",
+    "pose_prior": "nerf_jax.train.losses.pose_prior",
+    "total_variation": "nerf_jax.train.losses.total_variation",
+})
+
+
+def total(terms, inputs):
+  """(loss float32 [], stats): the terms' losses added in order; stats holds 'loss' (the total)
+  and each term's stats as '<term.name>/<stat>'. ValueError when two terms would log the same
+  name (two terms of one name reporting the same stat)."""
+  loss, stats = None, {}
+  for term in terms:
+    if not isinstance(getattr(term, "name", None), str):
+      raise TypeError(f"loss term {term!r} has no name (str): the namespace of its stats")
+    value, term_stats = term(inputs)
+    loss = value if loss is None else loss + value
+    for stat, stat_value in term_stats.items():
+      key = f"{term.name}/{stat}"
+      if key in stats:
+        raise ValueError(f"loss terms clash: two terms named {term.name!r} both log {stat!r} "
+                         f"({key}); give each term a name of its own")
+      stats[key] = stat_value
+  return loss, {"loss": loss, **stats}

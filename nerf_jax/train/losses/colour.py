@@ -1,0 +1,92 @@
+"""The photometric loss (config.loss.colour; always on): the final pass's colour error, plus a
+weighted coarse pass's; squared error or Huber's loss; with a sample budget only whole rays
+count."""
+
+import dataclasses
+from typing import ClassVar
+
+import jax.numpy as jnp
+
+from nerf_jax.evaluate import metrics
+from nerf_jax.train import losses
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+  """config.loss.colour."""
+  coarse_weight: float = 1.0  # weight of the coarse pass's loss when a fine pass exists
+  huber_delta: float = 0.0  # Huber's loss, quadratic below this error (0 = squared error)
+
+  def __post_init__(self):
+    if self.huber_delta < 0:
+      raise ValueError(f"config.loss.colour.huber_delta={self.huber_delta}: use 0 (squared "
+                       "error) or the colour error below which Huber's loss is quadratic "
+                       "(instant-ngp: 0.1)")
+
+
+def mean_over_rays(per_channel, complete=None):
+  """The mean of per_channel float32 [B, 3] over the rays with complete bool [B] (None: all
+  rays). A sample budget always completes its first ray unless that ray alone has more valid
+  samples than the budget: max(count, 1) keeps it finite."""
+  if complete is None:
+    return jnp.mean(per_channel)
+  kept = jnp.where(complete[:, None], per_channel, 0.0)
+  return jnp.sum(kept) / (3.0 * jnp.maximum(jnp.sum(complete), 1))
+
+
+def mse(rgb, target, complete=None):
+  """Mean squared error of rgb float32 [B, 3] against target float32 [B, 3] (see
+  `mean_over_rays` for complete)."""
+  return mean_over_rays((rgb - target) ** 2, complete)
+
+
+def huber(error, delta):
+  """Huber's loss of error float32 [...] with knee delta > 0: error²/2 where |error| <= delta,
+  delta·(|error| - delta/2) beyond (instant-ngp's colour loss, delta 0.1). Its gradient is the
+  error clipped to ±delta: a few pixels far off (specks, edges the cameras disagree on) pull no
+  harder than a pixel delta off. jnp.where selects: both branches are finite for finite error."""
+  size = jnp.abs(error)
+  return jnp.where(size <= delta, 0.5 * error ** 2, delta * (size - 0.5 * delta))
+
+
+@dataclasses.dataclass(frozen=True)
+class Colour:
+  """The photometric loss: the mean squared error of the final pass, plus coarse_weight times
+  the coarse pass's when there is a fine pass; with huber_delta > 0 the mean `huber` loss of
+  each channel's error instead. With a sample budget only whole rays count.
+  Stats: psnr of the final pass (from its squared error, whatever the loss); with a sample
+  budget, rays_in_loss (the rays it held whole) and samples_wanted (the valid samples of every
+  drawn ray: above the budget, rays were drawn in vain; below it, budget slots went empty)."""
+  name: ClassVar[str] = "colour"
+  coarse_weight: float = 1.0
+  huber_delta: float = 0.0
+
+  def _pass_loss(self, rgb, target, complete):
+    if self.huber_delta <= 0:
+      return mse(rgb, target, complete)
+    return mean_over_rays(huber(rgb - target, self.huber_delta), complete)
+
+  def __call__(self, inputs):
+    outs = inputs.outputs
+    complete = outs["coarse"].get("complete")  # a sample budget: only whole rays count
+    names = [name for name in losses.PASSES if name in outs]
+    per_pass = {name: self._pass_loss(outs[name]["rgb"], inputs.target, complete)
+                for name in names}
+    loss = per_pass["coarse"] if "fine" not in per_pass else (
+        per_pass["fine"] + self.coarse_weight * per_pass["coarse"])
+    final_mse = per_pass[names[-1]] if self.huber_delta <= 0 else mse(
+        outs[names[-1]]["rgb"], inputs.target, complete)
+    stats = {"psnr": metrics.mse_to_psnr(final_mse)}
+    if complete is not None:  # how many rays the budget held whole, and what all asked of it
+      stats["rays_in_loss"] = jnp.sum(complete, dtype=jnp.int32)
+      stats["samples_wanted"] = jnp.sum(outs["coarse"]["valid_samples"], dtype=jnp.int32)
+    return loss, stats
+
+
+def build(settings, context):
+  """The term of `settings` (always on; context unused)."""
+  del context
+  return Colour(settings.coarse_weight, settings.huber_delta)
+
+
+LOSS = losses.Loss(Colour.name, Settings, build)
