@@ -88,7 +88,8 @@ def _central_second_moment(t0, t1):
   """E[(t - mu)^2] for density ∝ t^2 on [t0, t1], mu the midpoint: exact polynomial integrals
   in the shifted variable s = t - mu (no cancellation), float64."""
   mu, hw = 0.5 * (t0 + t1), 0.5 * (t1 - t0)
-  # ∫_{-hw}^{hw} s^2 (s + mu)^2 ds = 2 hw^5/5 + 2 mu^2 hw^3/3; ∫ (s + mu)^2 ds = 2 hw^3/3 + 2 mu^2 hw
+  # ∫_{-hw}^{hw} s^2 (s + mu)^2 ds = 2 hw^5/5 + 2 mu^2 hw^3/3;
+  # ∫_{-hw}^{hw} (s + mu)^2 ds = 2 hw^3/3 + 2 mu^2 hw.
   return (2 * hw ** 5 / 5 + 2 * mu ** 2 * hw ** 3 / 3) / (2 * hw ** 3 / 3 + 2 * mu ** 2 * hw)
 
 
@@ -154,8 +155,8 @@ def test_multisamples_match_the_frustum_gaussian(key):
   """The six points' mean is the Gaussian's to float32 rounding. Their covariance differs by
   the slight anisotropy and t-correlation of offsets that grow with t (cones.multisamples): in
   whitened terms (whitened_error) 0.62·hw/mu, measured in float64 for hw/mu from 5e-4 to 0.25
-  (closed form to first order: offsets' anisotropy b·|sum_j j·exp(2i·theta_j)|/(3·mu) = 0.39·hw/mu
-  and correlation with t 0.48·hw/mu, b = 0.338·hw the step of t_j). Bound: 0.65·hw/mu, plus
+  (closed form to first order: the offsets' anisotropy b·|sum_j j·exp(2i·theta_j)|/(3·mu) =
+  0.39·hw/mu and their correlation with t 0.48·hw/mu, b = 0.338·hw the step of t_j). Bound: 0.65·hw/mu, plus
   float32 rounding, which a flat frustum (wide and short) magnifies by its condition number:
   the covariance in world axes carries ~eps·λmax in its thinnest direction too."""
   rng = np.random.default_rng(1)
