@@ -35,9 +35,9 @@ PIXEL_TO_RADIUS = 2.0 / math.sqrt(12.0)
 # the division's gradient has 1/x^2, which overflows float32 for x < ~1e-19.
 TINY_SQUARE = 1e-18
 
-# Zip-NeRF's order of the hexagon's angles (in units of 60°): each of the two triangles 0, 2, 4
-# and 3, 5, 1 is balanced, and sum_j j·exp(i·theta_j) = 0, so the points' mean lies on the ray
-# and their offsets do not correlate with t (see `multisamples`).
+# Zip-NeRF's order of the hexagon's angles (in units of 60°): sum_j exp(i·theta_j) = 0 and
+# sum_j j·exp(i·theta_j) = 0, so offsets proportional to t_j (affine in j) average to 0: the
+# points' mean lies on the ray (see `multisamples`).
 HEXAGON = np.array([0, 2, 4, 3, 5, 1]) * (np.pi / 3)
 # The six points' t as mean + std·HEX_T: j = 0..5 evenly spaced, scaled to mean 0, variance 1.
 HEX_T = (np.arange(6) * 0.4 - 1.0) * np.sqrt(15.0 / 7.0)

@@ -183,20 +183,22 @@ def inner_exit(origins, directions, radius=1.0, kind="l2"):
 #   std: float32 [...] (an isotropic Gaussian's standard deviation).
 # Numerics: J is finite everywhere (see the module doc: ~2/|x| across the ray and ~1/|x|^2 along
 # it at large |x|, 0 at infinity), and so are its derivatives, which the gradients of J cov Jᵀ
-# w.r.t. the mean need (the same double wheres guard the origin). J cov Jᵀ is positive
+# w.r.t. the mean need: inside the inner region J = I is not differentiated at all (a double
+# where: contract's second derivative at tiny |x| is inf·0). J cov Jᵀ is positive
 # semi-definite as cov is; float32 rounding may leave eigenvalues ~1e-7·(the largest) below 0
 # (as for cov itself), and the result is symmetrised so that eigh sees a symmetric matrix.
 
 
 def _inside(points, radius, kind):
-  """bool [...]: whether points float32 [..., 3] lie in the inner region (norm <= radius).
+  """bool [...]: whether points float32 [..., 3] lie in the inner region: `contract`'s own test
+  (same norm, same comparison), so the two agree to the last bit on the boundary.
 
-  A mask only: no gradient is taken through it (stop_gradient), so the norm's derivative at 0,
-  infinite for the L2 norm, is never formed; |x|^2 overflowing to inf says 'outside' rightly.
+  A mask only: no gradient is taken through it (stop_gradient), so the norm's derivative, NaN
+  at tiny |x|, is never formed.
   """
-  x = jax.lax.stop_gradient(jnp.asarray(points, jnp.float32))
-  norm = (jnp.sqrt(jnp.sum(x * x, axis=-1)) if kind == "l2" else jnp.max(jnp.abs(x), axis=-1))
-  return norm <= radius
+  x, infinite = _at_infinity(jax.lax.stop_gradient(jnp.asarray(points, jnp.float32)))
+  norm, _ = _norm_and_direction(x, kind)
+  return ~(infinite | (norm > radius))
 
 
 def _contract_outside(points, inside, radius, kind):
