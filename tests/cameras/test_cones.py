@@ -156,9 +156,10 @@ def test_multisamples_match_the_frustum_gaussian(key):
   the slight anisotropy and t-correlation of offsets that grow with t (cones.multisamples): in
   whitened terms (whitened_error) 0.62·hw/mu, measured in float64 for hw/mu from 5e-4 to 0.25
   (closed form to first order: the offsets' anisotropy b·|sum_j j·exp(2i·theta_j)|/(3·mu) =
-  0.39·hw/mu and their correlation with t 0.48·hw/mu, b = 0.338·hw the step of t_j). Bound: 0.65·hw/mu, plus
-  float32 rounding, which a flat frustum (wide and short) magnifies by its condition number:
-  the covariance in world axes carries ~eps·λmax in its thinnest direction too."""
+  0.39·hw/mu and their correlation with t 0.48·hw/mu, b = 0.338·hw the step of t_j). Bound:
+  0.65·hw/mu, plus float32 rounding, which a flat frustum (wide and short) magnifies by its
+  condition number: the covariance in world axes carries ~eps·λmax in its thinnest direction.
+  Typical sampling (64 intervals over [2, 6]: hw/mu <= 0.016) stays within 1%."""
   rng = np.random.default_rng(1)
   o = np.float32([0.5, -1.0, 2.0])
   d = np.float32([0.3, 0.4, -1.0])
