@@ -22,7 +22,7 @@ the scale of a contracted Gaussian does not depend on whether it was taken befor
 
 Names and axes:
   std:        float32 [...]        a Gaussian's (isotropic) standard deviation, >= 0
-  cell_sizes: float32 [L]          each level's cell size, > 0
+  cells:      float32 [L]          each level's cell size, > 0 (`cell_sizes`)
   weights:    float32 [..., L]     in [0, 1]
 """
 
@@ -55,11 +55,11 @@ def cell_sizes(resolutions, side):
   return np.float32(side / (res - 1.0))
 
 
-def level_weights(std, cell_sizes):
+def level_weights(std, cells):
   """Zip-NeRF's weight of each level for a Gaussian of standard deviation std.
 
-  std: float32 [...], >= 0 (0: a point; inf allowed). cell_sizes: float32 [L], > 0, in std's
-  units. Returns float32 [..., L]: erf(h_l / (sqrt(8)·std)), 1 at std = 0, 0 at std = inf.
+  std: float32 [...], >= 0 (0: a point; inf allowed). cells: float32 [L], > 0, each level's
+  cell size (`cell_sizes`) in std's units. Returns float32 [..., L]: erf(h_l / (sqrt(8)·std)), 1 at std = 0, 0 at std = inf.
   Numerics: h/(sqrt(8)·std) is infinite at std = 0, and its derivative -h/(sqrt(8)·std^2)
   meets erf's derivative exp(-inf) = 0 as inf·0 = NaN in the gradient. std is floored at
   h/(sqrt(8)·MAX_ERF_ARGUMENT), where erf is already exactly 1 (its true derivative below
@@ -67,7 +67,7 @@ def level_weights(std, cell_sizes):
   argument 0, erf(0) = 0, gradient -h/inf = 0.
   """
   std = jnp.asarray(std, jnp.float32)[..., None]
-  h = jnp.asarray(cell_sizes, jnp.float32) / np.float32(np.sqrt(8.0))
+  h = jnp.asarray(cells, jnp.float32) / np.float32(np.sqrt(8.0))
   return erf(h / jnp.maximum(std, h / MAX_ERF_ARGUMENT))
 
 
