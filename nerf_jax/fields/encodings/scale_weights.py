@@ -59,7 +59,8 @@ def level_weights(std, cells):
   """Zip-NeRF's weight of each level for a Gaussian of standard deviation std.
 
   std: float32 [...], >= 0 (0: a point; inf allowed). cells: float32 [L], > 0, each level's
-  cell size (`cell_sizes`) in std's units. Returns float32 [..., L]: erf(h_l / (sqrt(8)·std)), 1 at std = 0, 0 at std = inf.
+  cell size (`cell_sizes`) in std's units. Returns float32 [..., L]: erf(h_l / (sqrt(8)·std)),
+  1 at std = 0, 0 at std = inf.
   Numerics: h/(sqrt(8)·std) is infinite at std = 0, and its derivative -h/(sqrt(8)·std^2)
   meets erf's derivative exp(-inf) = 0 as inf·0 = NaN in the gradient. std is floored at
   h/(sqrt(8)·MAX_ERF_ARGUMENT), where erf is already exactly 1 (its true derivative below
