@@ -41,7 +41,10 @@ Numerics (float32):
     ~2^24·radius onto the boundary, and a round trip at norm r loses ~r·1.2e-7 relative.
 """
 
+import jax
 import jax.numpy as jnp
+
+from nerf_jax.backend import precision
 
 KINDS = ("l2", "linf")
 
@@ -171,3 +174,116 @@ def inner_exit(origins, directions, radius=1.0, kind="l2"):
   half2 = (radius ** 2 - jnp.sum(q * q, axis=-1)) / safe_dd
   hit = (half2 >= 0.0) & (dd > 0.0)
   return jnp.where(hit, t0 + jnp.sqrt(jnp.where(hit, half2, 0.0)), 0.0)
+
+
+# Gaussians through the contraction (mip-NeRF 360, Barron et al. 2022, eq. 8-9): a Gaussian
+# N(mean, cov) maps to N(contract(mean), J cov Jᵀ), J the Jacobian of `contract` at the mean
+# (a linearisation: exact for the inner region, where contract is the identity and J = I).
+#   mean: float32 [..., 3]; cov: float32 [..., 3, 3]; var: float32 [..., 3] (a diagonal);
+#   std: float32 [...] (an isotropic Gaussian's standard deviation).
+# Numerics: J is finite everywhere (see the module doc: ~2/|x| across the ray and ~1/|x|^2 along
+# it at large |x|, 0 at infinity), and so are its derivatives, which the gradients of J cov Jᵀ
+# w.r.t. the mean need: inside the inner region J = I is not differentiated at all (a double
+# where: contract's second derivative at tiny |x| is inf·0). J cov Jᵀ is positive
+# semi-definite as cov is; float32 rounding may leave eigenvalues ~1e-7·(the largest) below 0
+# (as for cov itself), and the result is symmetrised so that eigh sees a symmetric matrix.
+
+
+def _inside(points, radius, kind):
+  """bool [...]: whether points float32 [..., 3] lie in the inner region: `contract`'s own test
+  (same norm, same comparison), so the two agree to the last bit on the boundary.
+
+  A mask only: no gradient is taken through it (stop_gradient), so the norm's derivative, NaN
+  at tiny |x|, is never formed.
+  """
+  x, infinite = _at_infinity(jax.lax.stop_gradient(jnp.asarray(points, jnp.float32)))
+  norm, _ = _norm_and_direction(x, kind)
+  return ~(infinite | (norm > radius))
+
+
+def _contract_outside(points, inside, radius, kind):
+  """contract(points), bit for bit, with contract evaluated only at points outside.
+
+  points: float32 [..., 3]. inside: bool [...] (`_inside`). Double where: contract's own
+  gradient is NaN at tiny non-zero points (|x| below ~1e-19: its norm's derivative divides by
+  |x|^2, which underflows); inside, contract is the identity, so the points themselves are its
+  value, and a point outside stands in for them in the discarded branch.
+  """
+  safe = jnp.where(inside[..., None], jnp.float32([2.0 * radius, 0.0, 0.0]), points)
+  return jnp.where(inside[..., None], points, contract(safe, radius, kind))
+
+
+def contraction_jacobian(points, radius=1.0, kind="l2"):
+  """The Jacobian of `contract` at each point, by forward-mode differentiation.
+
+  points: float32 [..., 3], finite. radius: float > 0. kind: 'l2' or 'linf'.
+  Returns float32 [..., 3, 3], J[..., i, j] = d contract_i / d x_j; the identity inside the
+  inner region.
+  """
+  _check(kind)
+  points = jnp.asarray(points, jnp.float32)
+  single = jax.jacfwd(lambda x: contract(x, radius, kind))
+  # Double where: inside, J = I exactly, and the Jacobian is taken at a point outside instead.
+  # contract's derivative divides by the norm m, its second derivative (what a gradient of J
+  # needs) by m^2: inf·0 = NaN for a point like (1e-30, 0, 0), whose m^2 underflows.
+  inside = _inside(points, radius, kind)
+  safe = jnp.where(inside[..., None], jnp.float32([2.0 * radius, 0.0, 0.0]), points)
+  jac = jnp.vectorize(single, signature="(n)->(n,n)")(safe)
+  return jnp.where(inside[..., None, None], jnp.eye(3, dtype=jnp.float32), jac)
+
+
+def contract_gaussian(mean, cov, radius=1.0, kind="l2"):
+  """A Gaussian with full covariance through the contraction, linearised at its mean.
+
+  mean: float32 [..., 3]. cov: float32 [..., 3, 3], positive semi-definite. radius, kind: as
+  `contract`. Returns (contract(mean): float32 [..., 3], J cov Jᵀ: float32 [..., 3, 3]).
+  """
+  jac = contraction_jacobian(mean, radius, kind)
+  # Full float32 (backend/precision.py): a TF32 product would perturb the small eigenvalues.
+  out = precision.einsum("...ij,...jk,...lk->...il", jac, cov, jac)
+  mean = _contract_outside(mean, _inside(mean, radius, kind), radius, kind)
+  return mean, 0.5 * (out + jnp.swapaxes(out, -1, -2))
+
+
+def contract_gaussian_diagonal(mean, var, radius=1.0, kind="l2"):
+  """A Gaussian with diagonal covariance through the contraction: the diagonal of J diag(var) Jᵀ.
+
+  mean: float32 [..., 3]. var: float32 [..., 3], >= 0. radius, kind: as `contract`.
+  Returns (contract(mean): float32 [..., 3], float32 [..., 3]): (J∘J)·var, a sum of
+  non-negative terms, so >= 0 exactly. The off-diagonal terms J diag(var) Jᵀ would gain across
+  the L2 contraction's curved shell are dropped: the integrated encoding reads only the
+  diagonal (each of its features depends on one coordinate).
+  """
+  jac = contraction_jacobian(mean, radius, kind)
+  mean = _contract_outside(mean, _inside(mean, radius, kind), radius, kind)
+  return mean, jnp.sum(jac * jac * var[..., None, :], axis=-1)
+
+
+def contract_isotropic(mean, std, radius=1.0, kind="l2"):
+  """An isotropic Gaussian through the contraction, kept isotropic (Zip-NeRF's scales).
+
+  mean: float32 [..., 3]. std: float32 [...], its standard deviation. radius, kind: as
+  `contract`. Returns (contract(mean): float32 [..., 3], std·|det J|^(1/3): float32 [...]): the
+  scale that keeps the Gaussian's volume (the geometric mean of J's singular values), 0 at
+  infinity.
+
+  The closed form, for both kinds: outside, contract(x) = radius·g(n)·x/radius with n =
+  |x|/radius (norm of `kind`) and g(n) = (2 - 1/n)/n, so J = g·I + g'(n)·x·(dn/dx)ᵀ, and
+  det J = g^2·(g + n·g') (dn/dx · x = n for any norm, homogeneous of degree 1) = g^2/n^2, i.e.
+  |det J|^(1/3) = (2 - 1/n)^(2/3)·n^(-4/3). The determinant of jacfwd's J in float32 would
+  cancel: at |x| = 1e6 its radial factor 1/n^2 is 1e-6 of the others, and det's rounding is
+  ~1e-7 of their product.
+  """
+  _check(kind)
+  mean = jnp.asarray(mean, jnp.float32)
+  # Double where: the norm (and the logs) only of points outside the inner region; inside the
+  # scale is 1, and the norm's derivative at tiny |x| (1/|x|^2 in _norm_and_direction's
+  # gradient) would be inf·0 = NaN.
+  inside = _inside(mean, radius, kind)
+  x, infinite = _at_infinity(jnp.where(inside[..., None], 2.0 * radius, mean))
+  norm, _ = _norm_and_direction(x, kind)
+  # n = inf (|x| > 3.4e38) gives exp(-inf) = 0, whose gradient is 0; points at infinity: 0.
+  n = jnp.where(infinite, 2.0, norm / radius)
+  log_scale = (2.0 / 3.0) * jnp.log(OUTER - 1.0 / n) - (4.0 / 3.0) * jnp.log(n)
+  scale = jnp.where(infinite, 0.0, jnp.where(inside, 1.0, jnp.exp(log_scale)))
+  return _contract_outside(mean, inside, radius, kind), std * scale
