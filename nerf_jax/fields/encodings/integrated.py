@@ -26,7 +26,7 @@ finite (2^15·mean is exact: a power of two; see encoding.py for their accuracy)
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax.fields.encodings.encoding import positional_encoding
+from nerf_jax.fields.encodings.posenc import positional_encoding
 
 
 def band_damping(var, num_freqs):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.cameras import cones
-from nerf_jax.fields.encodings.encoding import coarse_to_fine_weights, positional_encoding
+from nerf_jax.fields.encodings.posenc import coarse_to_fine_weights, positional_encoding
 from nerf_jax.fields.encodings.integrated import band_damping, integrated_positional_encoding
 
 pytestmark = pytest.mark.usefixtures("debug_nans")  # conftest.py: NaNs raise in this module
