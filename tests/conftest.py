@@ -1,5 +1,7 @@
-"""Shared test scaffolding: the configs shipped, one trained workdir per test session, the scores
-of trivial answers, restoring a run's parameters, comparing them, reading TensorBoard events.
+"""The test session's set-up and fixtures: the environment every test runs in (a GPU's arithmetic
+emulated, deterministic ops, the compilation cache), one trained workdir per test session, NaNs
+that raise, a fresh small config. Helper functions live in tests/helpers.py, the one helpers
+module.
 
 Markers: `slow` (a test that trains or spawns processes for more than ~10 s). The README's test
 command runs everything; `python -m pytest -m "not slow"` is the quick loop while editing.
@@ -27,30 +29,10 @@ from nerf_jax.backend import determinism  # noqa: E402  (imports jax; starts no 
 determinism.require()
 
 import jax  # noqa: E402  (after the environment above)
-import numpy as np
 import pytest
 
-from nerf_jax.evaluate import metrics
-from nerf_jax.render import background
-from nerf_jax.run import experiment
 from nerf_jax.run import train_lib
-from nerf_jax.configs import debug
 from tests.helpers import small_config
-
-# The margin (dB) a trained model must keep above the better trivial answer on the same views.
-# Measured: the shared run scores 24.6 dB where the mean training image scores 20.2 (+4.4 dB).
-TRIVIAL_MARGIN_DB = 3.0
-
-
-def shipped_configs():
-  """Every config name shipped under configs/ ('fast', 'scenes/fog', ...): tests that should hold
-  for all configs use this list, so a new config file is checked without editing them."""
-  root = os.path.dirname(debug.__file__)  # the installed configs/ package
-  names = []
-  for sub in ("", "scenes/", "gpu/"):
-    names += sorted(sub + f[:-3] for f in os.listdir(os.path.join(root, sub))
-                    if f.endswith(".py") and f != "__init__.py")
-  return names
 
 
 # The shared trained run: debug.py's model on 24 views (20 train, 4 test) of 32×32 of the
@@ -80,53 +62,9 @@ def trained_run(tmp_path_factory):
   return workdir, result
 
 
-def trivial_psnrs(exp):
-  """PSNR (dB, mean over `exp`'s test views) of two answers that learn nothing: the background
-  alone ('background': all black on black data) and the mean training image ('mean')."""
-  bg = background.parse(exp.config.data.background)
-  train = background.images_on_background(exp.train_ds, bg)[1]
-  test = background.images_on_background(exp.test_ds, bg)[1]
-  mean = train.mean(axis=0)
-  score = lambda guess: float(np.mean([metrics.psnr(np.broadcast_to(guess, t.shape), t)
-                                       for t in test]))
-  return {"background": score(bg), "mean": score(mean)}
 
 
-def assert_beats_trivial(psnr, exp, margin=TRIVIAL_MARGIN_DB):
-  """`psnr` (dB on exp's test views) is `margin` dB above the better trivial answer."""
-  trivial = trivial_psnrs(exp)
-  assert psnr > max(trivial.values()) + margin, (psnr, trivial)
 
-
-def restored_variables(workdir):
-  """The variables of the newest checkpoint in `workdir`: {'params': ..., **buffers} (the
-  trained parameters and the occupancy grid, if any)."""
-  return experiment.restore(str(workdir))[1].variables
-
-
-def params_equal(a, b):
-  """Whether two parameter trees hold exactly the same arrays."""
-  leaves = zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b))
-  return all(np.array_equal(x, y) for x, y in leaves)
-
-
-def tensorboard_scalars(workdir):
-  """{tag: [(step, value), ...]} of the scalar TensorBoard events in workdir/tb (a TFRecord
-  reader: each record is its length, the length's crc, the Event proto, the proto's crc)."""
-  from tensorboardX.proto import event_pb2  # pylint: disable=import-outside-toplevel
-  tags = {}
-  folder = os.path.join(str(workdir), "tb")
-  for name in sorted(os.listdir(folder)):
-    data = open(os.path.join(folder, name), "rb").read()
-    pos = 0
-    while pos < len(data):
-      length = int.from_bytes(data[pos:pos + 8], "little")
-      event = event_pb2.Event.FromString(data[pos + 12:pos + 12 + length])
-      pos += 12 + length + 4
-      for value in event.summary.value:
-        if value.WhichOneof("value") == "simple_value":
-          tags.setdefault(value.tag, []).append((event.step, value.simple_value))
-  return tags
 
 
 @pytest.fixture

@@ -24,7 +24,7 @@ from nerf_jax.run.signature import model_signature, state_template
 from nerf_jax.train import checkpoints
 from nerf_jax.configs import debug, default
 from nerf_jax.data import DataError
-from tests.conftest import shipped_configs
+from tests.helpers import shipped_configs
 from tests.helpers import blender_folder as _blender
 from tests.helpers import small_config
 

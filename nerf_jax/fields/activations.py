@@ -2,7 +2,7 @@
 
 raw: float [...] any value; the result sigma is float32 [...] (or float64 for float64 raw).
 The value and gradient stay finite for finite raw, and for raw = ±inf the value is inf or 0 with a
-finite gradient (compositing clamps an infinite density, see compositing.MAX_DENSITY).
+finite gradient (compositing clamps an infinite density, see volume/quadrature.MAX_DENSITY).
 
 Each activation first promotes raw to at least float32: compositing is float32 anyway, and in
 float16 exp overflows at raw = 11.1, after which the backward pass multiplies inf by the zero

@@ -14,7 +14,7 @@ from nerf_jax.render import background, empty_space, image_renderer
 from nerf_jax.run import components, experiment
 from nerf_jax.samplers import spacing
 from nerf_jax.run import train_lib
-from tests.conftest import assert_beats_trivial
+from tests.helpers import assert_beats_trivial
 from tests.helpers import ray_renderer, small_config
 
 NUM_RAYS, NUM_SAMPLES = 64, 32

@@ -9,8 +9,9 @@ import pytest
 
 from nerf_jax.fields import field
 from nerf_jax.render import image_renderer, renderer
-from nerf_jax.cameras.rays import Rays, get_rays, pose_spherical
+from nerf_jax.cameras.rays import Rays
 from tests.helpers import PATHS_RTOL, jitted, ray_renderer, small_config
+from tests import helpers
 
 
 def _init(**overrides):
@@ -22,8 +23,7 @@ def _init(**overrides):
 
 
 def _rays(n=37):
-  origins, directions = get_rays(9, 10, 8.0, pose_spherical(20.0, -30.0, 4.0))
-  return origins.reshape(-1, 3)[:n], directions.reshape(-1, 3)[:n]
+  return helpers.view_rays(9, 10, 8.0, 20.0, -30.0, 4.0, n)
 
 
 @pytest.mark.parametrize("fine", [0, 8])

@@ -2,7 +2,7 @@
 and size, the eval depth `.npy` files, TensorBoard's scalars against metrics.jsonl, and
 `render.py --mode=views` from `.json` and [N, 3, 4] poses.
 
-All read the shared trained run (conftest.trained_run). The independent path renders every ray
+All read the shared trained run (conftest.py's trained_run). The independent path renders every ray
 of a view in one `RayRenderer.render` call on rays from `rays.get_rays`, without the chunked
 image renderer the outputs go through.
 """
@@ -19,7 +19,7 @@ from nerf_jax.render import background, renderer
 from nerf_jax.run import experiment, outputs
 from nerf_jax.evaluate.visuals import to_uint8
 from nerf_jax.cameras.rays import Rays, get_rays
-from tests.conftest import tensorboard_scalars
+from tests.helpers import tensorboard_scalars
 from tests.helpers import PATHS_RTOL, jitted, requires_ffmpeg
 
 

@@ -13,7 +13,7 @@ from nerf_jax.train import optimizer
 from nerf_jax.run.signature import init_state, model_signature, state_template
 from nerf_jax.train.state import upgrade_state_dict
 from nerf_jax.train import checkpoints
-from tests.conftest import params_equal
+from tests.helpers import params_equal
 from tests.helpers import small_config
 
 # A grid model with the occupancy grid (refreshed every step), as test_occupancy trains it.

@@ -15,21 +15,16 @@ from nerf_jax.train import checkpoints
 from nerf_jax.run import train_lib
 from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.cameras.rays import Rays
-from tests.conftest import params_equal, restored_variables
+from tests.helpers import params_equal, restored_variables
 from tests.helpers import StandInNetwork, jitted, ray_renderer, small_config
+from tests import helpers
 
 BOUND = 1.5
 
 
 def _rays(num, seed=0):
-  """Rays from a sphere of radius 4 towards random points near the origin."""
-  rng = np.random.default_rng(seed)
-  origins = rng.normal(size=(num, 3))
-  origins = 4.0 * origins / np.linalg.norm(origins, axis=-1, keepdims=True)
-  targets = rng.uniform(-0.8, 0.8, size=(num, 3))
-  directions = targets - origins
-  directions /= np.linalg.norm(directions, axis=-1, keepdims=True)
-  return jnp.asarray(origins, jnp.float32), jnp.asarray(directions, jnp.float32)
+  """Rays from a sphere of radius 4 towards random points near the origin (unit directions)."""
+  return helpers.sphere_rays(num, seed)
 
 
 def _sphere_sigma(points, radius=0.5, density=50.0):

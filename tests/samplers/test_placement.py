@@ -9,6 +9,7 @@ import pytest
 from nerf_jax.samplers import occupancy, placement, spacing
 from nerf_jax.samplers.occupancy import OccupancySettings
 from nerf_jax.cameras.rays import Rays
+from tests import helpers
 
 BOUND, NEAR, FAR = 1.5, 1.0, 9.0  # every ray's box segment lies inside [NEAR, FAR]
 
@@ -16,14 +17,7 @@ BOUND, NEAR, FAR = 1.5, 1.0, 9.0  # every ray's box segment lies inside [NEAR, F
 def _rays(num, seed=0, spread=0.8):
   """Rays [num] from a sphere of radius 4 towards random points within `spread` of the origin
   (every one crosses the box of BOUND), directions not unit (|d| in [0.8, 1.25])."""
-  rng = np.random.default_rng(seed)
-  origins = rng.normal(size=(num, 3))
-  origins = 4.0 * origins / np.linalg.norm(origins, axis=-1, keepdims=True)
-  directions = rng.uniform(-spread, spread, size=(num, 3)) - origins
-  directions *= rng.uniform(0.8, 1.25, (num, 1)) / np.linalg.norm(directions, axis=-1,
-                                                                  keepdims=True)
-  return Rays.create(jnp.asarray(origins, jnp.float32), jnp.asarray(directions, jnp.float32),
-                     NEAR, FAR)
+  return Rays.create(*helpers.sphere_rays(num, seed, spread, unit=False), NEAR, FAR)
 
 
 def _box_bounds(rays, bound):

@@ -12,7 +12,7 @@ from nerf_jax.run.signature import init_state, model_signature
 from nerf_jax.run import train_lib
 from nerf_jax.data import loaders
 from nerf_jax.data.scenes import photos
-from tests.conftest import restored_variables
+from tests.helpers import restored_variables
 from tests.helpers import TINY_GRID, jitted, load_data, small_config
 
 

@@ -15,7 +15,7 @@ import pytest
 from nerf_jax import cli
 from nerf_jax.train import checkpoints
 from nerf_jax.run import train_lib
-from tests.conftest import params_equal, restored_variables
+from tests.helpers import params_equal, restored_variables
 from tests.helpers import small_config
 
 from tests.helpers import ROOT

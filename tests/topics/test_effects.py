@@ -16,7 +16,7 @@ from nerf_jax.run.signature import init_state
 from nerf_jax.run import train_lib
 from nerf_jax.cameras.rays import Rays
 from nerf_jax.data.scenes import simulator
-from tests.conftest import assert_beats_trivial
+from tests.helpers import assert_beats_trivial
 from tests.helpers import jitted, small_config
 
 SCENES = ["diffuse", "glossy", "fog", "white", "forward"]

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax.cameras.rays import Rays, get_rays, pose_spherical
+from nerf_jax.cameras.rays import Rays
 from nerf_jax.render import image_renderer
 from nerf_jax.run import components, experiment, train_lib
 from nerf_jax.run.signature import model_signature
@@ -22,9 +22,10 @@ from nerf_jax.samplers.occupancy import OccupancySettings
 from nerf_jax.train import losses
 from nerf_jax.volume import quadrature
 from nerf_jax.train.losses import colour as colour_loss
-from tests.conftest import params_equal, restored_variables
+from tests.helpers import params_equal, restored_variables
 from tests.helpers import jitted, small_config
 from tests.helpers import loss_ref
+from tests import helpers
 
 pytestmark = pytest.mark.usefixtures("debug_nans")  # conftest.py: a NaN anywhere raises
 
@@ -45,9 +46,7 @@ def _config(contraction="", **fields):
 def _rays(count=24):
   """Rays [count] of one camera 6 units out, some through the box, some past it: near 0.5,
   far 40 (the bounded sampler cuts them to the box; contraction samples out to 1e10)."""
-  origins, directions = get_rays(6, 4, 3.0, pose_spherical(30.0, -20.0, 6.0))
-  origins, directions = origins.reshape(-1, 3)[:count], directions.reshape(-1, 3)[:count]
-  return Rays.create(origins, directions, 0.5, 40.0)
+  return Rays.create(*helpers.view_rays(6, 4, 3.0, 30.0, -20.0, 6.0, count), 0.5, 40.0)
 
 
 @pytest.fixture(scope="module", params=["", "linf"], ids=["bounded", "contracted"])

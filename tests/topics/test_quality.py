@@ -1,8 +1,8 @@
 """Training learns the scene: quality above trivial answers, depth, and each effect shown to work.
 
-Most checks read the one shared trained run (conftest.trained_run). A check passes only if the
+Most checks read the one shared trained run (conftest.py's trained_run). A check passes only if the
 model beats answers that learn nothing — the background alone and the mean training image,
-scored on the same test views — by conftest.TRIVIAL_MARGIN_DB.
+scored on the same test views — by helpers.TRIVIAL_MARGIN_DB.
 """
 
 import json
@@ -12,7 +12,7 @@ import pytest
 
 from nerf_jax.run import components, experiment
 from nerf_jax.run.signature import init_state
-from tests.conftest import assert_beats_trivial, trivial_psnrs
+from tests.helpers import assert_beats_trivial, trivial_psnrs
 from tests.helpers import small_config
 
 # Bounds on the shared run's depth on opaque test pixels (scene units; their true depths have a

@@ -13,8 +13,9 @@ import pytest
 
 from nerf_jax.render import image_renderer, renderer
 from nerf_jax.run import components
-from nerf_jax.cameras.rays import Rays, get_rays, pose_spherical
+from nerf_jax.cameras.rays import Rays
 from tests.helpers import TINY_GRID, jitted, ray_renderer, small_config
+from tests import helpers
 
 TRAINED, RENDERED = 8, 32  # samples per ray in training and in renders
 
@@ -33,9 +34,7 @@ def _blob_variables(rr):
 
 
 def _rays():
-  origins, directions = get_rays(12, 12, 15.0, pose_spherical(10.0, -30.0, 4.0))
-  return Rays.create(np.asarray(origins).reshape(-1, 3), np.asarray(directions).reshape(-1, 3),
-                     2.0, 6.0)
+  return Rays.create(*helpers.view_rays(12, 12, 15.0, 10.0, -30.0, 4.0), 2.0, 6.0)
 
 
 def _draw(config, variables, rays):

@@ -18,8 +18,8 @@ from nerf_jax.run.signature import init_state, model_signature, state_template
 from nerf_jax.train import checkpoints, train_batches
 from nerf_jax.run import train_lib
 from nerf_jax.cameras.rays import Rays
-from tests.conftest import params_equal as _params_equal
-from tests.conftest import restored_variables
+from tests.helpers import params_equal as _params_equal
+from tests.helpers import restored_variables
 from tests.helpers import small_config
 
 from tests.helpers import ROOT

@@ -13,7 +13,7 @@ from nerf_jax.run import components, config_lib, experiment
 from nerf_jax.train import optimizer
 from nerf_jax.train import budget, checkpoints
 from nerf_jax.run import train_lib
-from tests.conftest import shipped_configs
+from tests.helpers import shipped_configs
 from tests.helpers import small_config
 
 

@@ -14,7 +14,7 @@ from nerf_jax.train import optimizer
 from nerf_jax.run.signature import init_state, model_signature, state_template
 from nerf_jax.train import checkpoints, losses, train_step
 from nerf_jax.train.losses import colour
-from tests.conftest import params_equal
+from tests.helpers import params_equal
 from tests.helpers import small_config
 
 

@@ -22,7 +22,7 @@ from nerf_jax.run import experiment
 from nerf_jax.run.signature import init_state, model_signature
 from nerf_jax.train import checkpoints, parallel
 from nerf_jax.run import train_lib
-from tests.conftest import restored_variables
+from tests.helpers import restored_variables
 from tests.helpers import small_config
 
 from tests.helpers import ROOT

@@ -13,6 +13,7 @@ from nerf_jax.data import scenes
 from nerf_jax.data import export, loaders
 from nerf_jax.data.scenes import cache, detail, raycast, tracer
 from tests.helpers import load_data, small_config
+from tests import helpers
 
 SCENE = detail.SCENE
 S = SCENE.supersample
@@ -132,9 +133,8 @@ def test_plinth_face_depth_alpha_and_edge_coverage():
 
 
 def _rays_to(point, view_dirs, dist=3.0):
-  v = np.asarray(view_dirs, np.float64)
-  v /= np.linalg.norm(v, axis=-1, keepdims=True)
-  return (point + dist * v).astype(np.float32), (-2.0 * v).astype(np.float32)
+  """helpers.rays_to in float32."""
+  return tuple(a.astype(np.float32) for a in helpers.rays_to(point, view_dirs, dist))
 
 
 def _trace(origins, directions, near, far, pad=512):

@@ -10,6 +10,7 @@ from nerf_jax.data import scenes
 from nerf_jax.data.scenes import garden, simulator
 from nerf_jax.data.scenes import scene as scene_lib
 from nerf_jax.data.scenes.geometry import Box, Cylinder, Sphere
+from tests import helpers
 
 LOOK_DOWN = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4.0], [0, 0, 0, 1]])  # at z = 4
 
@@ -77,11 +78,7 @@ def test_intersection_interval_matches_point_membership(shape):
   assert np.all(np.isfinite(entry))
 
 
-def _rays_to(point, view_dirs, dist=3.0):
-  """Rays from `point + dist * v` towards `point` (direction length arbitrary: 2)."""
-  v = np.asarray(view_dirs, np.float64)
-  v /= np.linalg.norm(v, axis=-1, keepdims=True)
-  return point + dist * v, -2.0 * v
+_rays_to = helpers.rays_to
 
 
 def _top_of_red_sphere(scene_name):
