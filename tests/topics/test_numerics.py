@@ -701,6 +701,7 @@ def test_case13_edges_out_to_1e10(far, use_key):
   assert out["depth"][3] > 1e9  # the sky's depth: in its interval, not at the inner region
 
   # Naive: an edge at far = inf makes the last interval infinite, and an empty sample over it is
-  # 0·inf = NaN.
-  with pytest.raises(FloatingPointError):
-    jnp.asarray(0.0, jnp.float32) * (jnp.asarray(np.inf, jnp.float32) - t[0, -2])
+  # 0·inf = NaN. (In numpy: jax's eager dispatch may reuse a scalar op compiled in an earlier
+  # module, whose NaN check debug_nans cannot then add.)
+  with np.errstate(invalid="ignore"):
+    assert np.isnan(np.float32(0.0) * (np.float32(np.inf) - t[0, -2]))
