@@ -10,6 +10,7 @@ from nerf_jax.backend import components
 from nerf_jax.fields import protocol
 from nerf_jax.fields.encodings import grid, hashgrid, posenc, tensorf
 from nerf_jax.fields.networks import mlp
+from nerf_jax.samplers import occupancy, proposal
 from nerf_jax.train.losses import colour, distortion, pose_prior, total_variation
 
 
@@ -78,26 +79,14 @@ def get_config():
   model.matmul_precision = "default"  # networks' f32 matmuls: default (TF32 on GPUs), high, highest
   model.appearance_dims = 0  # per-training-image appearance code (GLO) for colour; 0 = off
 
+  # The occupancy grid: `enabled`, then its Settings (samplers/occupancy.OccupancySettings).
   config.occupancy = occ = ml_collections.ConfigDict()
   occ.enabled = False  # sample only in occupied cells of a grid over data.scene_bound's box
-  occ.resolution = 32  # occupancy cells per side of the box
-  occ.candidates = 256  # candidate intervals per ray; the occupied ones share num_samples samples
-  occ.update_every = 16  # train steps between probing the density field again
-  occ.probes = 2  # probes per cell side at each refresh, at jittered positions
-  occ.decay = 0.95  # each refresh keeps max(decay·old, new): probes add up, gone density fades
-  occ.threshold = 1.0  # density (per scene unit) from which a cell counts as occupied
+  occ.update(components.section(occupancy.OccupancySettings))
 
-  config.proposal = proposal = ml_collections.ConfigDict()  # config.sampler = 'proposal'
-  proposal.num_samples = (256, 96)  # samples per ray of each proposal level (NeRF: num_samples)
-  proposal.field = "hash"  # levels' density fields: 'hash' (nerfacto's) or 'grid' (dense, CPU)
-  proposal.max_resolution = (128, 256)  # finest lattice of each level's density field
-  proposal.levels = 5  # lattice levels of each density field (one level: base_resolution)
-  proposal.log2_size = 17  # 'hash': log2 of each level's rows
-  proposal.features = 2  # features per lattice point (hash row)
-  proposal.base_resolution = 16  # coarsest lattice
-  proposal.hidden = 16  # units of the density fields' one hidden layer
-  proposal.loss_weight = 1.0  # weight of the interlevel loss that trains the proposal levels
-  proposal.padding = 0.01  # weight added to every interval before resampling the next level
+  # config.sampler = 'proposal': its section, every field with its comment, is the Settings
+  # dataclass of nerf_jax/samplers/proposal.py.
+  config.proposal = ml_collections.ConfigDict(components.section(proposal.Settings))
 
   # The loss terms (nerf_jax/train/losses/, docs/extending.md): each has its section
   # config.loss.<name>, whose fields, defaults and comments are its module's Settings.

@@ -120,7 +120,8 @@ def make_sampler(config):
       raise ValueError("config.occupancy.enabled with config.data.ndc needs "
                        "config.data.scene_bound = 0: the grid covers the training rays' NDC "
                        "box (model.grid_box)")
-  settings = occupancy.OccupancySettings(**{k: v for k, v in oc.items() if k != "enabled"})
+  settings = components.settings_from(occupancy.OccupancySettings,
+                                      {k: v for k, v in oc.items() if k != "enabled"}, "occupancy")
   if config.data.contraction:
     if config.data.scene_bound <= 0 and config.data.scene_bound != -1:
       raise ValueError("config.data.contraction needs config.data.scene_bound > 0 or -1 "

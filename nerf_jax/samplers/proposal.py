@@ -34,6 +34,7 @@ from typing import ClassVar, Tuple
 import jax
 import jax.numpy as jnp
 
+from nerf_jax.backend import components
 from nerf_jax.fields import density_field
 from nerf_jax.samplers import placement, registry, spacing
 from nerf_jax.volume import quadrature
@@ -128,28 +129,25 @@ def resample(t, w, num_samples, key=None, padding=0.01):
 
 @dataclasses.dataclass(frozen=True)
 class Settings:
-  """How the proposal levels sample (config.proposal; nerfacto's defaults).
+  """How the proposal levels sample (config.proposal; nerfacto's defaults). The levels' density
+  fields are fields/density_field.py's (HashDensity, GridDensity), their lattice levels geometric
+  from base_resolution to max_resolution (hashgrid.level_resolutions: one level is
+  base_resolution). Validated on construction (ValueError naming the config field)."""
+  num_samples: Tuple[int, ...] = (256, 96)  # samples per ray of each level (NeRF: num_samples)
+  field: str = "hash"  # levels' density fields: 'hash' (nerfacto's) or 'grid' (dense, CPU)
+  max_resolution: Tuple[int, ...] = (128, 256)  # finest lattice of each level's density field
+  levels: int = 5  # lattice levels of each density field (one level: base_resolution)
+  log2_size: int = 17  # 'hash': log2 of each level's rows
+  features: int = 2  # features per lattice point (hash row)
+  base_resolution: int = 16  # coarsest lattice
+  hidden: int = 16  # units of the density fields' one hidden layer
+  loss_weight: float = 1.0  # weight of the interlevel loss that trains the proposals (0: never)
+  padding: float = 0.01  # weight added to every interval before resampling the next level
 
-  num_samples: samples per ray of each proposal level, the first level's first (the NeRF's
-    are config.num_samples). field: each level's density field, 'hash' (nerfacto's hash grid,
-    fields/density_field.HashDensity) or 'grid' (dense lattices, GridDensity: cheaper on a
-    CPU). max_resolution: the finest lattice of each level's field, one per level. levels,
-    features, base_resolution: the fields' lattice levels, geometric from base to max
-    (hashgrid.level_resolutions: a single level is base_resolution); log2_size: the hash
-    grid's rows per level ('hash' only); hidden: units of their one hidden layer.
-  loss_weight: weight of the interlevel loss (`Interlevel`; 0 = the proposals never learn).
-  padding: weight added to every interval before resampling (`resample`).
-  """
-  num_samples: Tuple[int, ...] = (256, 96)
-  field: str = "hash"
-  max_resolution: Tuple[int, ...] = (128, 256)
-  levels: int = 5
-  log2_size: int = 17
-  features: int = 2
-  base_resolution: int = 16
-  hidden: int = 16
-  loss_weight: float = 1.0
-  padding: float = 0.01
+  def __post_init__(self):
+    problem = _problem(self)
+    if problem:
+      raise ValueError(f"config.proposal.{problem}")
 
 
 # The density fields a level may have (Settings.field).
@@ -159,17 +157,7 @@ FIELDS = ("hash", "grid")
 def settings_from(section):
   """Settings of config.proposal, `section` a mapping of its fields; ValueError naming the
   field for an unknown field or a value that cannot work."""
-  declared = {f.name for f in dataclasses.fields(Settings)}
-  unknown = sorted(set(section) - declared)
-  if unknown:
-    raise ValueError(f"config.proposal has no setting {unknown[0]!r} (settings: "
-                     f"{', '.join(sorted(declared))})")
-  values = {k: tuple(v) if isinstance(v, (list, tuple)) else v for k, v in section.items()}
-  settings = Settings(**values)
-  problem = _problem(settings)
-  if problem:
-    raise ValueError(f"config.proposal.{problem}")
-  return settings
+  return components.settings_from(Settings, section, "proposal")
 
 
 def _problem(s):
