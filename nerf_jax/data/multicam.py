@@ -69,6 +69,9 @@ def load(path, background=(0.0, 0.0, 0.0), split="train"):
   if not isinstance(files, list) or not files:
     raise DataError(f"{where}: 'file_path' must be a non-empty list")
   count = len(files)
+  for key in FIELDS:  # every list checked before any image is read
+    if key in meta or key in ("cam2world", "width", "height", "focal"):
+      _column(meta, key, count, where)
   col = lambda key: _column(meta, key, count, where)
   bg = validate.parse_background(background)
   images, accs, cameras = [], [], []
