@@ -127,6 +127,19 @@ class Dataset:
                       "camera; the format cannot store them")
     return float(fx)
 
+  def one_camera(self):
+    """The images that share image 0's camera, as a Dataset of one camera (`images` an [M, H,
+    W, 3] array, image_cameras None): what code that reads the images of one camera takes
+    (config=auto's measurements, the visual hull); `self` when it has one camera."""
+    if self.image_cameras is None:
+      return self
+    first = self.image_cameras.camera(0)
+    part = self.subset(np.flatnonzero([self.image_cameras.camera(k) == first
+                                       for k in range(len(self))]))
+    stack = lambda a: a if a is None or not isinstance(a, list) else np.stack(a)
+    return dataclasses.replace(part, images=stack(part.images), accs=stack(part.accs),
+                               depths=stack(part.depths), image_cameras=None)
+
   def __len__(self):
     return len(self.images)
 
