@@ -108,7 +108,7 @@ def _spy(monkeypatch, name):
   return calls
 
 
-@pytest.mark.parametrize("function,computed_for", [("specular", {"glossy", "detail"}),
+@pytest.mark.parametrize("function,computed_for", [("specular", {"glossy", "detail", "multiscale"}),
                                                    ("trace_medium", {"fog"}),
                                                    ("_shadow", {"glossy", "fog", "white",
                                                                 "forward"})])
