@@ -120,7 +120,7 @@ class Dataset:
     if self.image_cameras is not None:
       raise DataError(f"{self.name}: the images have cameras of their own (sizes or intrinsics "
                       "that differ); the format stores one camera: write mip-NeRF's multiscale "
-                      "format instead (nerf_jax.data.multicam.write)")
+                      "format instead (python -m nerf_jax.data.export --format=multiscale)")
     fx, fy, cx, cy = self.intrinsics
     if fx != fy or cx != self.width * 0.5 or cy != self.height * 0.5:
       raise DataError(f"{self.name}: intrinsics {self.intrinsics} are not a centred pinhole "

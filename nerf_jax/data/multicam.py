@@ -106,20 +106,22 @@ def load(path, background=(0.0, 0.0, 0.0), split="train"):
 def write(out_dir, splits):
   """Write `splits` ({split name: list of entries}) as a multiscale folder: each entry a dict
   with 'rgba' (float [H, W, 4] straight colour and alpha in [0, 1]), 'cam2world' (float [4, 4]),
-  'focal', 'label' (int), 'near', 'far', 'lossmult'; images go to images_{split}/."""
+  'focal', 'label' (int, or a str of digits, written as int; other str as they are), 'near',
+  'far', 'lossmult'; images go to images_{split}/."""
   meta = {}
   for split, entries in splits.items():
     folder = f"images_{split}"
     os.makedirs(os.path.join(out_dir, folder), exist_ok=True)
     columns = {key: [] for key in FIELDS}
     for k, e in enumerate(entries):
-      name = f"{folder}/{k:03d}_d{e['label']}.png"
+      label = int(e["label"]) if str(e["label"]).isdigit() else str(e["label"])
+      name = f"{folder}/{k:03d}_d{label}.png"
       iio.imwrite(os.path.join(out_dir, name),
                   np.round(np.clip(e["rgba"], 0.0, 1.0) * 255.0).astype(np.uint8))
       height, width = e["rgba"].shape[:2]
       row = {"file_path": name, "cam2world": np.asarray(e["cam2world"], np.float64).tolist(),
              "width": int(width), "height": int(height), "focal": float(e["focal"]),
-             "label": int(e["label"]), "near": float(e["near"]), "far": float(e["far"]),
+             "label": label, "near": float(e["near"]), "far": float(e["far"]),
              "lossmult": float(e["lossmult"]),
              "pix2cam": pix2cam(e["focal"], width, height).tolist()}
       for key in FIELDS:
