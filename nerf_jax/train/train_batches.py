@@ -117,9 +117,10 @@ def pixel_rays_of(data, image, pixel, poses=None):
     widths = cams[:, 4].astype(jnp.int32)
     i = (pixel % widths).astype(jnp.float32)
     j = (pixel // widths).astype(jnp.float32)
-    one = lambda i, j, c2w, cam: pixel_rays(i, j, cam[5], cam[4], (cam[0], cam[1], cam[2],
-                                                                   cam[3]),
-                                            c2w, near, far, pixel_center, use_ndc)
+
+    def one(i, j, c2w, cam):  # cam: fx, fy, cx, cy, width, height
+      return pixel_rays(i, j, cam[5], cam[4], tuple(cam[:4]), c2w, near, far, pixel_center,
+                        use_ndc)
     return jax.vmap(one)(i, j, poses[image], cams)
   i = (pixel % width).astype(jnp.float32)
   j = (pixel // width).astype(jnp.float32)

@@ -195,7 +195,8 @@ def test_whole_scene_is_in_view():
 
 
 def test_unknown_scene_lists_valid_names():
-  with pytest.raises(ValueError, match="diffuse, exposure, fog, forward, garden, glossy, perturbed"):
+  with pytest.raises(ValueError, match="diffuse, exposure, fog, forward, garden, glossy, "
+                                       "multiscale, perturbed"):
     scenes.get_scene("lego")
 
 
