@@ -5,6 +5,8 @@ from typing import Optional
 
 import numpy as np
 
+from nerf_jax.cameras.cameras import Cameras
+
 
 class DataError(ValueError):
   """Bad or missing input data; the one-line message names the file or field at fault."""
@@ -14,9 +16,20 @@ class DataError(ValueError):
 class Dataset:
   """Posed images of one scene (conventions of `nerf_jax.cameras.rays`).
 
-  images: float32 [N, H, W, 3] in [0, 1], composited on the background.
+  images: float32 [N, H, W, 3] in [0, 1], composited on the background, when every image has
+    the same size; images of different sizes (mip-NeRF's multiscale data): a list of N float32
+    [H_i, W_i, 3] arrays, and `accs`, `depths` lists of [H_i, W_i] arrays likewise. `image(i)`,
+    `acc(i)` read either form.
   poses: float32 [N, 4, 4], camera-to-world.
-  intrinsics: (fx, fy, cx, cy) in pixels.
+  intrinsics: (fx, fy, cx, cy) in pixels: the camera of every image, or with per-image cameras
+    that of image 0 (what shared-camera code uses: previews, camera paths, the viewer).
+  image_cameras: Cameras or None: each image's own size and intrinsics where they differ
+    between images; None = every image has `intrinsics` and the images' size. Read `cameras`
+    (always present). A Cameras whose entries are all the same is dropped (one camera).
+  lossmult: float32 [N] or None, the weight of each image's pixels in the colour loss
+    (mip-NeRF's multiscale data: 4^level, so that every scale counts equally).
+  labels: str array [N] or None, each image's scale label (multiscale data: '0', '1', ...):
+    the evaluation also scores each label apart (metrics.json's by_scale).
   near, far: float, z-depth bounds of the scene.
   depths: float32 [N, H, W] or None, ground-truth expected depth (built-in scenes only).
   accs: float32 [N, H, W] or None, opacity of each pixel over the background: ground truth for
@@ -52,14 +65,50 @@ class Dataset:
   aabb: Optional[np.ndarray] = None
   core: Optional[np.ndarray] = None
   true_poses: Optional[np.ndarray] = None
+  image_cameras: Optional[Cameras] = None
+  lossmult: Optional[np.ndarray] = None
+  labels: Optional[np.ndarray] = None
+
+  def __post_init__(self):
+    if self.image_cameras is not None and self.image_cameras.is_shared() and not isinstance(
+        self.images, list):
+      height, width, intrinsics = self.image_cameras.camera(0)
+      if (height, width) == tuple(self.images.shape[1:3]):
+        self.intrinsics, self.image_cameras = intrinsics, None
+    if self.image_cameras is not None:
+      self.intrinsics = self.image_cameras.camera(0)[2]
+    if self.labels is not None:
+      self.labels = np.asarray([str(v) for v in self.labels])
+    if self.lossmult is not None:
+      self.lossmult = np.asarray(self.lossmult, np.float32).reshape(-1)
+
+  @property
+  def cameras(self):
+    """Cameras: every image's size and intrinsics (built from `intrinsics` with one camera)."""
+    if self.image_cameras is not None:
+      return self.image_cameras
+    return Cameras.shared(len(self), self.height, self.width, self.intrinsics)
+
+  @property
+  def mixed_sizes(self):
+    """Whether the images differ in size (`images` is then a list)."""
+    return isinstance(self.images, list)
+
+  def image(self, index):
+    """float32 [H_i, W_i, 3], image `index`."""
+    return self.images[index]
+
+  def acc(self, index):
+    """float32 [H_i, W_i] or None, the opacity of image `index`."""
+    return None if self.accs is None else self.accs[index]
 
   @property
   def height(self):
-    return self.images.shape[1]
+    return self.images[0].shape[0]
 
   @property
   def width(self):
-    return self.images.shape[2]
+    return self.images[0].shape[1]
 
   @property
   def focal(self):
@@ -68,21 +117,41 @@ class Dataset:
   def pinhole_focal(self):
     """The single focal length; DataError unless the intrinsics are a centred pinhole (what the
     tiny_nerf, Blender and LLFF formats can store)."""
+    if self.image_cameras is not None:
+      raise DataError(f"{self.name}: the images have cameras of their own (sizes or intrinsics "
+                      "that differ); the format stores one camera: write mip-NeRF's multiscale "
+                      "format instead (python -m nerf_jax.data.export --format=multiscale)")
     fx, fy, cx, cy = self.intrinsics
     if fx != fy or cx != self.width * 0.5 or cy != self.height * 0.5:
       raise DataError(f"{self.name}: intrinsics {self.intrinsics} are not a centred pinhole "
                       "camera; the format cannot store them")
     return float(fx)
 
+  def one_camera(self):
+    """The images that share image 0's camera, as a Dataset of one camera (`images` an [M, H,
+    W, 3] array, image_cameras None): what code that reads the images of one camera takes
+    (config=auto's measurements, the visual hull); `self` when it has one camera."""
+    if self.image_cameras is None:
+      return self
+    first = self.image_cameras.camera(0)
+    part = self.subset(np.flatnonzero([self.image_cameras.camera(k) == first
+                                       for k in range(len(self))]))
+    stack = lambda a: a if a is None or not isinstance(a, list) else np.stack(a)
+    return dataclasses.replace(part, images=stack(part.images), accs=stack(part.accs),
+                               depths=stack(part.depths), image_cameras=None)
+
   def __len__(self):
     return len(self.images)
 
   def subset(self, indices):
     """The views `indices` (int array, slice or list), as a new Dataset."""
-    take = lambda a: None if a is None else a[indices]
-    return dataclasses.replace(self, images=self.images[indices], poses=self.poses[indices],
-                               depths=take(self.depths), accs=take(self.accs),
-                               true_poses=take(self.true_poses))
+    take = lambda a: None if a is None else _take(a, indices)
+    cameras = None if self.image_cameras is None else self.image_cameras.subset(indices)
+    return dataclasses.replace(self, images=_take(self.images, indices),
+                               poses=self.poses[indices], depths=take(self.depths),
+                               accs=take(self.accs), true_poses=take(self.true_poses),
+                               image_cameras=cameras, lossmult=take(self.lossmult),
+                               labels=take(self.labels))
 
   def split(self, holdout_from=-1):
     """(train, test): views [:holdout_from] and [holdout_from:].
@@ -104,3 +173,10 @@ class Dataset:
       raise DataError(f"{self.name}: cannot hold out every {every}th of {num} views")
     is_test = np.arange(num) % every == 0
     return self.subset(np.flatnonzero(~is_test)), self.subset(np.flatnonzero(is_test))
+
+
+def _take(values, indices):
+  """values[indices] of an array, or of a list (a list back)."""
+  if not isinstance(values, list):
+    return values[indices]
+  return [values[k] for k in np.arange(len(values))[indices]]

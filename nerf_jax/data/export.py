@@ -1,6 +1,9 @@
-"""Write a Dataset as a tiny_nerf .npz, a NeRF-synthetic (Blender) folder or an LLFF folder.
+"""Write a Dataset as a tiny_nerf .npz, a NeRF-synthetic (Blender) folder, an LLFF folder or a
+mip-NeRF multiscale folder (per-image cameras; the other formats store one camera and refuse
+data with cameras of their own in one line).
 
   python -m nerf_jax.data.export --scene=fog --format=blender --out=/tmp/fog [--alpha]
+  python -m nerf_jax.data.export --scene=multiscale --format=multiscale --out=/tmp/ms
   python -m nerf_jax.data.export --scene=white --format=npz --out=/tmp/white.npz [--rgb_only]
   python -m nerf_jax.data.export --scene=forward --format=llff --out=/tmp/forward
 
@@ -20,7 +23,8 @@ import sys
 import imageio.v3 as iio
 import numpy as np
 
-from nerf_jax.data import scenes
+from nerf_jax.data import multicam, scenes
+from nerf_jax.data.dataset import DataError
 from nerf_jax.data.llff import export_llff
 
 
@@ -72,10 +76,35 @@ def export_blender(dataset, dirpath, split_at=None, background=None):
         json.dump(meta, f, indent=1)
 
 
+def export_multiscale(dataset, dirpath, split_at=None):
+  """mip-NeRF's multiscale folder (data/multicam.py) of `dataset`, every view through its own
+  camera (a centred pinhole with fx = fy, else DataError); train = views[:split_at], test = val
+  = the rest (split_at None: the 80/20 split); opaque PNGs of the composited images; lossmult
+  and label from the data (1 and 0 without them)."""
+  parts = dict(zip(("train", "test"), dataset.split(-1 if split_at is None else split_at)))
+  splits = {}
+  for split, part in parts.items():
+    entries = []
+    for k in range(len(part)):
+      height, width, (fx, fy, cx, cy) = part.cameras.camera(k)
+      if fx != fy or cx != 0.5 * width or cy != 0.5 * height:
+        raise DataError(f"{dataset.name}: image {k} of {split} has intrinsics {(fx, fy, cx, cy)}: "
+                        "the multiscale format stores centred pinholes with one focal length")
+      image = part.image(k)
+      entries.append({"rgba": np.concatenate([image, np.ones_like(image[..., :1])], -1),
+                      "cam2world": part.poses[k], "focal": fx, "near": dataset.near,
+                      "far": dataset.far,
+                      "label": 0 if part.labels is None else part.labels[k],
+                      "lossmult": 1.0 if part.lossmult is None else part.lossmult[k]})
+    splits[split] = entries
+  multicam.write(dirpath, {**splits, "val": splits["test"]})
+
+
 def main(argv=None):
   parser = argparse.ArgumentParser(description="Export a built-in scene.")
   parser.add_argument("--scene", required=True, help=f"one of {', '.join(scenes.SCENES)}")
-  parser.add_argument("--format", required=True, choices=("npz", "blender", "llff"))
+  parser.add_argument("--format", required=True,
+                      choices=("npz", "blender", "llff", "multiscale"))
   parser.add_argument("--out", required=True, help=".npz file, or Blender or LLFF folder to write")
   parser.add_argument("--num_views", type=int, default=100)
   parser.add_argument("--image_size", type=int, default=None,
@@ -95,6 +124,8 @@ def main(argv=None):
       export_npz(dataset, args.out, rgb_only=args.rgb_only)
     elif args.format == "llff":
       export_llff(dataset, args.out)
+    elif args.format == "multiscale":
+      export_multiscale(dataset, args.out)
     else:
       export_blender(dataset, args.out, background=dataset.background if args.alpha else None)
   except (ValueError, OSError) as e:  # DataError is a ValueError

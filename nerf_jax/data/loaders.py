@@ -1,4 +1,5 @@
-"""Dataset loaders: tiny_nerf .npz, NeRF-synthetic (Blender) and LLFF folders, built-in scenes.
+"""Dataset loaders: tiny_nerf .npz, NeRF-synthetic (Blender), mip-NeRF multiscale and LLFF
+folders, built-in scenes.
 
 Every malformed input raises `DataError` with a one-line message naming the file and field.
 Every loader fills `Dataset.accs` and `Dataset.background` where the input tells them: RGBA
@@ -15,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from nerf_jax.data import scenes
-from nerf_jax.data import nerfstudio, validate
+from nerf_jax.data import multicam, nerfstudio, validate
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.data.llff import load_llff
 from nerf_jax.data.validate import composite, parse_background
@@ -170,7 +171,8 @@ def load_dataset(settings):
   holdout_from: views[holdout_from:] are the test views; -1 = the default split of the format:
   the reference's 80/20 for built-in scenes and .npz, every 8th view (0, 8, 16, ...) for LLFF
   (the original NeRF's convention) and for transforms.json folders unless the file names its
-  test images (`nerfstudio.load_split`); Blender folders have their own test split and ignore it.
+  test images (`nerfstudio.load_split`); Blender folders and mip-NeRF's multiscale folders
+  (metadata.json, `multicam.load`: per-image cameras) have their own test split and ignore it.
   factor also downscales transforms.json folders (nerfstudio / nerf-process output), and
   min_sharpness drops their blurry frames.
   """
@@ -198,6 +200,8 @@ def load_dataset(settings):
   if path.endswith(nerfstudio.FILENAME) or os.path.isfile(os.path.join(path, nerfstudio.FILENAME)):
     return nerfstudio.load_split(path, background, settings.factor or 1, holdout_from,
                                  settings.min_sharpness)
+  if os.path.isfile(os.path.join(path, multicam.FILENAME)):
+    return tuple(multicam.load(path, background, s) for s in ("train", "test"))
   if os.path.isfile(os.path.join(path, "transforms_train.json")):
     return tuple(load_blender(path, background, settings.half_res, s) for s in ("train", "test"))
   if os.path.isfile(os.path.join(path, "poses_bounds.npy")):

@@ -20,10 +20,13 @@ and to the points of ply_file_path), frames[].mask_path.
 Frames whose image is missing are skipped, with one printed line, as instant-ngp does; more than
 half missing is an error (the wrong folder or factor).
 
-Lens distortion is removed once, at load: every image is resampled (bilinear) into one shared
-pinhole camera — the mean of the frames' intrinsics — so the rest of the code sees a Dataset
-with plain (fx, fy, cx, cy). Frames without distortion whose intrinsics are that camera's are
-not resampled. Folders that `nerf-process` did not normalise are re-oriented and scaled at load
+Lens distortion is removed once, at load: each image is resampled (bilinear) into a pinhole
+camera, so the rest of the code sees plain (fx, fy, cx, cy). Frames of one camera (one size,
+intrinsics within 1e-6 px, one distortion) share one pinhole, the mean of their intrinsics, as
+`Dataset.intrinsics`; frames of several cameras keep their own intrinsics and size
+(`Dataset.image_cameras`; images of different sizes are a list), each resampled only to remove
+its own distortion. Frames without distortion whose intrinsics are their pinhole's are not
+resampled. Folders that `nerf-process` did not normalise are re-oriented and scaled at load
 (`nerf_jax.data.orient`).
 """
 
@@ -33,6 +36,7 @@ import os
 
 import numpy as np
 
+from nerf_jax.cameras.cameras import Cameras
 from nerf_jax.data import lens, orient, pointcloud, validate
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.data.validate import composite, parse_background
@@ -274,9 +278,6 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
     cameras.append(_camera(frame, meta, image.shape[:2], full_size, where))
     images.append(image.astype(np.float32))  # float64 for all frames would be 2x the memory
     names.append(frame["file_path"])
-  shapes = sorted({im.shape[:2] for im in images})
-  if len(shapes) > 1:
-    raise DataError(f"{meta_path}: images have different sizes {shapes}")
   images, intrinsics = _undistort(images, cameras)
   poses = np.stack(poses)
   near, far = meta.get("near"), meta.get("far")
@@ -292,15 +293,21 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
   core = orient.points_box(points) if unit is None else orient.carry_box(transform, unit)
   has_alpha = any(im.shape[-1] == 4 for im in images)
   bg = parse_background(background)
-  rgb = np.empty((len(images), *images[0].shape[:2], 3), np.float32)
-  accs = np.ones(rgb.shape[:-1], np.float32)
+  sizes = [im.shape[:2] for im in images]
+  one_size = len(set(sizes)) == 1
+  rgb = np.empty((len(images), *sizes[0], 3), np.float32) if one_size else [None] * len(images)
+  accs = np.ones(rgb.shape[:-1], np.float32) if one_size else [np.ones(n, np.float32)
+                                                                for n in sizes]
   for k, image in enumerate(images):  # frame by frame: no stacked float64 copy of them all
     rgb[k] = composite(image, bg)
     if image.shape[-1] == 4:
       accs[k] = image[..., 3]
     images[k] = None
+  own = None if isinstance(intrinsics, tuple) else Cameras.stack(
+      [(*size, lens.dataset_intrinsics(k)) for size, k in zip(sizes, intrinsics)])
   dataset = Dataset(rgb, poses.astype(np.float32),
-                    lens.dataset_intrinsics(intrinsics), near=near, far=far, name=root,
+                    lens.dataset_intrinsics(intrinsics if own is None else intrinsics[0]),
+                    near=near, far=far, name=root, image_cameras=own,
                     accs=accs if has_alpha else None,  # RGB: unknown
                     background=tuple(bg.tolist()),
                     pixel_center=0.0,  # the intrinsics hold cx - 0.5: rays through centres
@@ -320,16 +327,19 @@ def _points(root, meta, meta_path):
 
 
 def _undistort(images, cameras):
-  """Images resampled into one pinhole camera: (list of float32 [H, W, C], COLMAP-convention
-  (fx, fy, cx, cy))."""
-  target = tuple(float(v) for v in np.mean([c[0] for c in cameras], axis=0))
-  size = images[0].shape[:2]
+  """Images with their lens distortion removed (module docstring): (list of float32 [H_i, W_i,
+  C], COLMAP-convention intrinsics): one (fx, fy, cx, cy) tuple, the shared pinhole, for frames
+  of one camera; a list of each frame's own for frames of several."""
+  mean = tuple(float(v) for v in np.mean([c[0] for c in cameras], axis=0))
+  one = (len({im.shape[:2] for im in images}) == 1 and len({c[1] for c in cameras}) == 1 and
+         all(np.allclose(c[0], mean, rtol=0, atol=1e-6) for c in cameras))
+  targets = [mean if one else tuple(float(v) for v in c[0]) for c in cameras]
   out = []
-  for image, (intrinsics, dist) in zip(images, cameras):
+  for image, (intrinsics, dist), target in zip(images, cameras, targets):
     exact = not any(dist) and np.allclose(intrinsics, target, rtol=0, atol=1e-6)
-    out.append(image if exact else
-               lens.resample(image, intrinsics, dist, target, size).astype(np.float32))
-  return out, target
+    out.append(image if exact else lens.resample(image, intrinsics, dist, target,
+                                                 image.shape[:2]).astype(np.float32))
+  return out, (mean if one else targets)
 
 
 def _test_names(meta, names):

@@ -52,46 +52,63 @@ def make_evaluator(exp, settings):
   (rgb [H, W, 3], depth [H, W], acc [H, W]) and the true image float32 [H, W, 3] on
   settings.background (see `background.images_on_background`; the trainer sends the first one
   to TensorBoard).
+
+  Every test view is rendered through its own camera (`Dataset.cameras`); where the test data
+  has scale labels (`Dataset.labels`, mip-NeRF's multiscale data) the result also holds
+  `scores_by_scale`'s 'by_scale' and 'mean_over_scales', and each per_view entry its 'label'.
   """
   make_draw = image_renderer.make_image_renderer(exp.renderer, exp.image)
   bg = np.asarray(settings.background, np.float32)
   protocol = settings.appearance_protocol
   test_ds = exp.test_ds
-  camera = (test_ds.height, test_ds.width, test_ds.intrinsics)
+  shared = (test_ds.height, test_ds.width, test_ds.intrinsics)
+  camera = lambda i: shared if test_ds.image_cameras is None else test_ds.cameras.camera(i)
   truths = background.images_on_background(test_ds, bg)[1]
   half = appearance_protocol(protocol, exp.renderer.field.uses_images) == "left_half"
-  scored = (lambda a: a[:, test_ds.width // 2:]) if protocol == "left_half" else (lambda a: a)
-  lpips_skipped = lpips.unavailable_reason(test_ds.height, scored(truths[0]).shape[1])
+  scored = (lambda a: a[:, a.shape[1] // 2:]) if protocol == "left_half" else (lambda a: a)
   fit_code = make_code_fitter(exp.renderer) if half else None
+  lpips_reasons = {}  # (height, scored width) -> lpips.unavailable_reason
+
+  def lpips_reason(truth):
+    size = (truth.shape[0], scored(truth).shape[1])
+    if size not in lpips_reasons:
+      lpips_reasons[size] = lpips.unavailable_reason(*size)
+    return lpips_reasons[size]
 
   def evaluate(variables, max_views=None, out_dir=None, on_view=None):
     count = len(test_ds) if max_views is None else min(max_views, len(test_ds))
-    per_view = []
+    per_view, lpips_skipped = [], None
     draw = make_draw(variables)
     poses = held_out_poses(exp, variables)
     for i in range(count):
-      rays = exp.rays(poses[i], camera)
+      rays = exp.rays(poses[i], camera(i))
+      truth = truths[i]
       if fit_code is not None:  # this view's own code, from its left half
-        left = jax.tree_util.tree_map(lambda a: a[:, :test_ds.width // 2].reshape(
-            -1, *a.shape[2:]), rays)
-        target = jnp.asarray(truths[i][:, :test_ds.width // 2].reshape(-1, 3))
+        cut = truth.shape[1] // 2
+        left = jax.tree_util.tree_map(lambda a: a[:, :cut].reshape(-1, *a.shape[2:]), rays)
+        target = jnp.asarray(truth[:, :cut].reshape(-1, 3))
         draw = make_draw(fit_code(variables, left, target, jnp.asarray(bg, jnp.float32)))
       out = draw(rays, bg)
-      truth = truths[i]
       view = {"view": i, "psnr": float(metrics.psnr(scored(out["rgb"]), scored(truth))),
               "ssim": float(metrics.ssim(scored(out["rgb"]), scored(truth))),
               **geometry_errors(out, test_ds, i)}
-      if lpips_skipped is None:
+      skipped = lpips_reason(truth)
+      if skipped is None:
         view["lpips"] = float(lpips.lpips(scored(out["rgb"]), scored(truth)))
+      lpips_skipped = lpips_skipped or skipped
+      if test_ds.labels is not None:
+        view["label"] = str(test_ds.labels[i])
       per_view.append(view)
       if on_view is not None:
         on_view(i, out, truth)
       if out_dir:
         _write_eval_view(out_dir, i, out, truth, exp.near, exp.far)
-    names = dict.fromkeys(name for v in per_view for name in v if name != "view")
+    names = dict.fromkeys(name for v in per_view for name in v if name not in ("view", "label"))
     result = {name: float(np.mean([v[name] for v in per_view if name in v])) for name in names}
     if lpips_skipped is not None:
       result["lpips_skipped"] = lpips_skipped
+    if test_ds.labels is not None:
+      result.update(scores_by_scale(per_view))
     result.update(protocols(exp, variables, protocol))
     result.update(pose_scores(exp, variables))
     result["per_view"] = per_view
@@ -101,6 +118,25 @@ def make_evaluator(exp, settings):
     return result
 
   return evaluate
+
+
+SCALE_SCORES = ("psnr", "ssim", "lpips")  # what by_scale gives per label
+
+
+def scores_by_scale(per_view):
+  """{'by_scale': {label: {psnr, ssim, lpips, views}}, 'mean_over_scales': {psnr, ssim, lpips}}
+  of per-view scores (dicts with 'label' and the SCALE_SCORES they have): each label's view
+  mean, and the mean of the labels' means (every scale counts equally, as in mip-NeRF's
+  multiscale tables); a score no view of a label has is left out of that label."""
+  by_scale = {}
+  for label in dict.fromkeys(v["label"] for v in per_view):
+    views = [v for v in per_view if v["label"] == label]
+    scores = {name: float(np.mean([v[name] for v in views]))
+              for name in SCALE_SCORES if all(name in v for v in views)}
+    by_scale[label] = {**scores, "views": len(views)}
+  means = {name: float(np.mean([s[name] for s in by_scale.values()]))
+           for name in SCALE_SCORES if all(name in s for s in by_scale.values())}
+  return {"by_scale": by_scale, "mean_over_scales": means}
 
 
 def appearance_protocol(protocol, uses_images):

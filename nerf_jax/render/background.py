@@ -53,8 +53,15 @@ def images_on_background(dataset, new):
   against.
 
   With known opacity the background is swapped exactly (background.recomposite); without it
-  the images are used as they are (acc = ones).
+  the images are used as they are (acc = ones). Images of different sizes (a list,
+  `Dataset.images`) give lists of [H_i, W_i] and [H_i, W_i, 3] arrays.
   """
+  if isinstance(dataset.images, list):
+    if dataset.accs is None:
+      return [np.ones(a.shape[:-1], np.float32) for a in dataset.images], dataset.images
+    old = np.asarray(dataset.background, np.float32)
+    return dataset.accs, [recomposite(rgb, acc, old, new).astype(np.float32)
+                          for rgb, acc in zip(dataset.images, dataset.accs)]
   if dataset.accs is None:
     return np.ones(dataset.images.shape[:-1], np.float32), dataset.images
   old = np.asarray(dataset.background, np.float32)

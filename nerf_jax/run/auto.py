@@ -58,6 +58,7 @@ def auto_config(config, dataset, backend=None):
   given = _flat(config)
   user = {k: v for k, v in given.items()
           if (base.get(k) != v or k in config.auto_flags) and k not in _OWN}
+  dataset = dataset.one_camera()  # per-image cameras: measured on image 0's camera's views
   decisions = characterise.decide(dataset)
   effects, lines = {}, []
   if decisions is None:

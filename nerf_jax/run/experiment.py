@@ -40,13 +40,24 @@ class Experiment:
   far: float
   hull: Any = None  # float32 [R, R, R] visual hull on the occupancy grid's cells (data.visual_hull)
 
-  def camera(self, scale=1.0):
+  def camera(self, scale=1.0, image=None, dataset=None):
     """(height, width, intrinsics) of the training camera with `scale` times its pixels per side
-    (same field of view: focal lengths and principal point scale with the image)."""
-    ds = self.train_ds
-    height, width = max(1, round(ds.height * scale)), max(1, round(ds.width * scale))
-    sx, sy = width / ds.width, height / ds.height
-    fx, fy, cx, cy = ds.intrinsics
+    (same field of view: focal lengths and principal point scale with the image).
+
+    image: int or None, take the camera of image `image` of `dataset` (a Dataset; None = the
+    training images; Dataset.cameras) instead of the shared one (with per-image cameras, that
+    of training image 0)."""
+    if image is None:
+      ds = self.train_ds
+      base_height, base_width, intrinsics = ds.height, ds.width, ds.intrinsics
+    else:
+      ds = self.train_ds if dataset is None else dataset
+      base_height, base_width, intrinsics = ds.cameras.camera(image)
+      if ds.image_cameras is None:  # one camera: its intrinsics exactly as the data gives them
+        intrinsics = ds.intrinsics
+    height, width = max(1, round(base_height * scale)), max(1, round(base_width * scale))
+    sx, sy = width / base_width, height / base_height
+    fx, fy, cx, cy = intrinsics
     return height, width, (fx * sx, fy * sy, cx * sx, cy * sy)
 
   @property
@@ -55,8 +66,9 @@ class Experiment:
     return from_data.pixel_center(self.config, self.train_ds)
 
   def rays(self, pose, camera=None):
-    """Rays [H, W] of `pose` (float32 [4, 4] camera-to-world) through `camera` (default: the
-    training camera), as the config asks (pixel centres, NDC)."""
+    """Rays [H, W] of `pose` (float32 [4, 4] camera-to-world) through `camera` (height, width,
+    intrinsics; default: the training camera; an image's own: `camera(image=i, dataset=ds)`),
+    as the config asks (pixel centres, NDC)."""
     height, width, intrinsics = camera or self.camera()
     return camera_rays(height, width, intrinsics, pose, self.near, self.far,
                        self.pixel_center, self.config.data.ndc)

@@ -82,6 +82,7 @@ def with_visual_hull(config, dataset):
     why = "the data has no opacity" if dataset.accs is None else "the scene is unbounded"
     print(f"note: data.visual_hull is ignored: {why}", flush=True)
     return config, None
+  dataset = dataset.one_camera()  # per-image cameras: carved from image 0's camera's views
   occupied = config.occupancy.enabled
   bound = config.data.scene_bound if occupied else config.model.grid_bound
   resolution = config.occupancy.resolution if occupied else HULL_RESOLUTION

@@ -3,6 +3,11 @@
 Training data live on the device as flat per-pixel arrays (see `TrainData`); every step draws its
 own batch inside the jitted step from a key folded with the step number, so there is no host
 work or host-device transfer per step and a resumed run draws exactly the batches it would have.
+
+Images of one camera are rows of P pixels each. Images with cameras of their own (sizes or
+intrinsics that differ, `Dataset.image_cameras`) are one flat run of every pixel, image after
+image: a drawn pixel's image is found from `offsets` and its ray is made through that image's
+camera (`cameras`); only random rays can be drawn from them (batching='rays').
 """
 
 import dataclasses
@@ -10,6 +15,7 @@ import dataclasses
 import flax.struct
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from nerf_jax.render import background
 from nerf_jax.cameras.rays import Rays, pixel_rays
@@ -42,7 +48,13 @@ class TrainData:
   image, pixel: int32 [B], in a drawn batch (`draw_batch`) the training image of each ray (for
     its appearance code and its camera's correction) and the pixel's row-major index in it.
   camera: static (height, width, intrinsics, near, far, pixel_center, use_ndc): the arguments
-    of `rays.pixel_rays` that every image shares (with rays None).
+    of `rays.pixel_rays` that every image shares (with rays None); with per-image cameras
+    height, width and intrinsics are None.
+  offsets: int32 [N] or None: with per-image cameras, the flat index of each image's first
+    pixel; rgb is then float32 [T, 3] and acc float32 [T], T the pixels of all images.
+  cameras: float32 [N, 6] or None: with per-image cameras, (fx, fy, cx, cy, width, height).
+  lossmult: float32 [N] or None, each image's weight in the colour loss (Dataset.lossmult).
+  weight: float32 [B] or None, in a drawn batch each ray's loss weight (its image's lossmult).
   """
   rays: Rays
   rgb: jnp.ndarray
@@ -51,20 +63,47 @@ class TrainData:
   image: jnp.ndarray = None
   pixel: jnp.ndarray = None
   camera: tuple = flax.struct.field(pytree_node=False, default=None)
+  offsets: jnp.ndarray = None
+  cameras: jnp.ndarray = None
+  lossmult: jnp.ndarray = None
+  weight: jnp.ndarray = None
 
 
 def make_train_data(ds, camera, rgb_background):
   """TrainData of every pixel of the images of `ds` (a Dataset), targets on `rgb_background`
   (float32 [3], background.parse's); rays are made per step from the poses and `camera`:
   (height, width, intrinsics, near, far, pixel_center, use_ndc), see TrainData.camera
-  (run/components.make_train_data passes the training camera's)."""
+  (run/components.make_train_data passes the training camera's). With per-image cameras
+  (`ds.image_cameras`) the pixels are one flat run and each image's own camera is used (its
+  height, width and intrinsics in `camera` are ignored)."""
   height, width, intrinsics, near, far, pixel_center, use_ndc = camera
+  lossmult = None if ds.lossmult is None else jnp.asarray(ds.lossmult, jnp.float32)
+  if ds.image_cameras is not None:
+    return _flat_train_data(ds, (None, None, None, float(near), float(far),
+                                 float(pixel_center), bool(use_ndc)), rgb_background, lossmult)
   camera = (height, width, tuple(float(v) for v in intrinsics), float(near), float(far),
             float(pixel_center), bool(use_ndc))
   acc, rgb = _targets(ds, rgb_background)
   return TrainData(rays=None, rgb=jnp.asarray(rgb, jnp.float32).reshape(len(ds), -1, 3),
                    acc=jnp.asarray(acc, jnp.float32).reshape(len(ds), -1),
-                   poses=jnp.asarray(ds.poses, jnp.float32), camera=camera)
+                   poses=jnp.asarray(ds.poses, jnp.float32), camera=camera, lossmult=lossmult)
+
+
+def _flat_train_data(ds, camera, rgb_background, lossmult):
+  """TrainData of `ds`'s images with their own cameras: every pixel in one flat run."""
+  acc, rgb = _targets(ds, rgb_background)
+  cams = ds.cameras
+  counts = cams.num_pixels()
+  offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
+  table = np.concatenate([cams.table(), np.stack([cams.width, cams.height], -1)], -1)
+  return TrainData(rays=None,
+                   rgb=jnp.asarray(np.concatenate([np.reshape(a, (-1, 3)) for a in rgb]),
+                                   jnp.float32),
+                   acc=jnp.asarray(np.concatenate([np.reshape(a, -1) for a in acc]),
+                                   jnp.float32),
+                   poses=jnp.asarray(ds.poses, jnp.float32), camera=camera,
+                   offsets=jnp.asarray(offsets, jnp.int32),
+                   cameras=jnp.asarray(table, jnp.float32), lossmult=lossmult)
 
 
 def pixel_rays_of(data, image, pixel, poses=None):
@@ -73,6 +112,16 @@ def pixel_rays_of(data, image, pixel, poses=None):
   the refined cameras) and data.camera."""
   poses = data.poses if poses is None else poses
   height, width, intrinsics, near, far, pixel_center, use_ndc = data.camera
+  if data.offsets is not None:  # each ray through its own image's camera
+    cams = data.cameras[image]
+    widths = cams[:, 4].astype(jnp.int32)
+    i = (pixel % widths).astype(jnp.float32)
+    j = (pixel // widths).astype(jnp.float32)
+
+    def one(i, j, c2w, cam):  # cam: fx, fy, cx, cy, width, height
+      return pixel_rays(i, j, cam[5], cam[4], tuple(cam[:4]), c2w, near, far, pixel_center,
+                        use_ndc)
+    return jax.vmap(one)(i, j, poses[image], cams)
   i = (pixel % width).astype(jnp.float32)
   j = (pixel // width).astype(jnp.float32)
   one = lambda i, j, c2w: pixel_rays(i, j, height, width, intrinsics, c2w, near, far,
@@ -93,7 +142,10 @@ def draw_batch(data, settings, key, step=0, run_key=None):
   the run's PRNG key, used by image_order='epochs' (whole-image batching), where every epoch
   visits each training image once in an order drawn from the epoch number, dropping the
   remainder (as the Keras reference's batch(drop_remainder=True) epochs do).
+  With per-image cameras (TrainData.offsets) every pixel of every image is equally likely.
   """
+  if data.offsets is not None:
+    return _draw_flat(data, settings, key)
   num_images, num_pixels = data.rgb.shape[:2]
   if settings.batching == "images":
     per_step = settings.images_per_step
@@ -117,7 +169,22 @@ def draw_batch(data, settings, key, step=0, run_key=None):
   rays = (jax.tree_util.tree_map(take, data.rays) if data.rays is not None else
           pixel_rays_of(data, image, pixel))
   return TrainData(rays=rays, rgb=take(data.rgb), acc=take(data.acc),
-                   image=image.astype(jnp.int32), pixel=pixel.astype(jnp.int32))
+                   image=image.astype(jnp.int32), pixel=pixel.astype(jnp.int32),
+                   weight=None if data.lossmult is None else data.lossmult[image])
+
+
+def _draw_flat(data, settings, key):
+  """draw_batch of per-image cameras: batch_rays pixels drawn uniformly over all images."""
+  if settings.batching != "rays":
+    raise ValueError(f"config.train.batching={settings.batching!r}: images with cameras of "
+                     "their own (sizes or intrinsics that differ) train on random rays: use "
+                     "'rays'")
+  idx = jax.random.randint(key, (settings.batch_rays,), 0, data.rgb.shape[0])
+  image = (jnp.searchsorted(data.offsets, idx, side="right") - 1).astype(jnp.int32)
+  pixel = (idx - data.offsets[image]).astype(jnp.int32)
+  return TrainData(rays=pixel_rays_of(data, image, pixel), rgb=data.rgb[idx],
+                   acc=data.acc[idx], image=image, pixel=pixel,
+                   weight=None if data.lossmult is None else data.lossmult[image])
 
 
 def rays_per_step(settings, height, width):

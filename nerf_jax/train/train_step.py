@@ -174,7 +174,7 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
       outs = render(rays, render_key, bg)
     else:  # only the first `posed` rays' gradient reaches the poses
       outs = _render_split(render, rays, render_key, bg, posed)
-    return losses.total(terms, losses.LossInputs(outs, target, rays, params))
+    return losses.total(terms, losses.LossInputs(outs, target, rays, params, batch.weight))
 
   def update_buffers(state, run_key):
     for hook in buffer_hooks:

@@ -78,6 +78,40 @@ def test_colour_with_no_whole_ray_is_finite():
   assert float(loss) == 0.0 and int(stats["rays_in_loss"]) == 0
 
 
+LOSSMULT = np.array([1.0, 4.0, 16.0, 1.0, 64.0, 4.0], np.float32)  # each ray's image's lossmult
+
+
+@pytest.mark.parametrize("passes", [("coarse",), ("coarse", "fine")])
+@pytest.mark.parametrize("delta", [0.0, 0.1])
+@pytest.mark.parametrize("budget", [False, True])
+def test_a_per_ray_weight_makes_the_colour_loss_a_weighted_mean(passes, delta, budget):
+  """mip-NeRF's lossmult: sum(w · e) / sum(w) over the kept rays and channels, by hand."""
+  keep = COMPLETE if budget else np.ones(B, bool)
+
+  def ref(rgb):
+    num = den = 0.0
+    for ray in range(B):
+      for ch in range(3):
+        e = float(rgb[ray, ch]) - float(TARGET[ray, ch])
+        value = e * e if delta <= 0 else (e * e / 2 if abs(e) <= delta else
+                                          delta * (abs(e) - delta / 2))
+        num += keep[ray] * LOSSMULT[ray] * value
+        den += keep[ray] * LOSSMULT[ray]
+    return num / den
+
+  inputs = _colour_inputs(passes, budget).replace(weight=jnp.asarray(LOSSMULT))
+  loss, _ = colour.Colour(coarse_weight=0.3, huber_delta=delta)(inputs)
+  want = ref(RGB[passes[-1]]) + (0.3 * ref(RGB["coarse"]) if len(passes) == 2 else 0.0)
+  np.testing.assert_allclose(loss, want, rtol=1e-5)
+
+
+def test_equal_weights_give_the_unweighted_loss():
+  inputs = _colour_inputs(("coarse", "fine"))
+  plain = colour.Colour()(inputs)[0]
+  weighted = colour.Colour()(inputs.replace(weight=jnp.full(B, 4.0)))[0]
+  np.testing.assert_allclose(weighted, plain, rtol=1e-6)
+
+
 def _distortion_ref(s, w):
   """mip-NeRF 360's distortion of one ray as its double sum: edges s [S + 1], weights w [S]."""
   mids = [(s[i] + s[i + 1]) / 2 for i in range(len(w))]

@@ -14,7 +14,7 @@ import numpy as np
 
 from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.data.dataset import Dataset
-from nerf_jax.data.scenes import cache, detail, garden, simulator
+from nerf_jax.data.scenes import cache, detail, garden, multiscale, simulator
 from nerf_jax.data.scenes.geometry import Box, Cylinder, Sphere
 from nerf_jax.data.scenes.scene import Effects, Light, Material, Medium, Object, Scene
 
@@ -86,6 +86,8 @@ SCENES = {
                    background=(1.0, 1.0, 1.0)),
     "forward": _forward_scene(),
     "detail": detail.SCENE,
+    # `detail` at several camera distances and resolutions (scenes/multiscale.py).
+    "multiscale": multiscale.SCENE,
     "garden": garden.scene(_objects()),
     # `diffuse` as a photographer captures it (scenes/photos.py): per-photo exposure and white
     # balance, and training poses off by 1° and 2% of the scene's size.
@@ -130,9 +132,11 @@ def make_dataset(name, num_views=100, height=None, width=None, focal=None, radiu
   near, far: float or None (= the scene's bounds). pixel_center: where in each pixel its ray
   passes (0.5 centres, as a renderer samples; 0 corners), recorded in the Dataset. A scene with
   `supersample > 1` is rendered by `tracer` (s x s rays per pixel), through the disk `cache`
-  when large.
+  when large. 'multiscale' (scenes/multiscale.py): views at several distances and sizes
+  (height = level 0's side, width ignored; near, far None = its own).
   """
   scene = get_scene(name)
+  bounds = (near, far)  # as asked: the multiscale scene has its own defaults
   near = scene.near if near is None else near
   far = scene.far if far is None else far
   height = scene.image_size if height is None else height
@@ -142,6 +146,8 @@ def make_dataset(name, num_views=100, height=None, width=None, focal=None, radiu
     poses = forward_poses(num_views, seed=seed)
   else:
     poses = random_poses(num_views, radius, seed, scene.elevation)
+  if name == multiscale.SCENE.name:  # per-image cameras: its own module
+    return multiscale.make_dataset(poses, height, focal, pixel_center, *bounds, seed)
   shape = (num_views, height, width)
   if scene.supersample > 1:
     out = cache.render_images(scene, poses, height, width, focal, pixel_center, near, far)

@@ -30,11 +30,14 @@ class LossInputs:
     (render/renderer.py).
   target: float32 [B, 3], the colours the rays should render. rays: the rays rendered (those of
   the corrected cameras with pose refinement). params: the trained parameters.
+  weight: float32 [B] or None, each ray's weight in the colour loss (its image's
+  Dataset.lossmult: mip-NeRF's area weighting); None = every ray alike.
   """
   outputs: dict
   target: jnp.ndarray
   rays: Any
   params: dict
+  weight: Any = None
 
 
 # The render passes of the renderer's outputs (outputs['sampler'] is a sampler's, not a pass).

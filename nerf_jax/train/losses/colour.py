@@ -24,20 +24,26 @@ class Settings:
                        "(instant-ngp: 0.1)")
 
 
-def mean_over_rays(per_channel, complete=None):
+def mean_over_rays(per_channel, complete=None, weight=None):
   """The mean of per_channel float32 [B, 3] over the rays with complete bool [B] (None: all
   rays). A sample budget always completes its first ray unless that ray alone has more valid
-  samples than the budget: max(count, 1) keeps it finite."""
+  samples than the budget: max(count, 1) keeps it finite. weight: float32 [B] or None, each
+  ray's weight (mip-NeRF's lossmult): the weighted mean sum(w·e) / sum(w) over the kept rays."""
+  if weight is not None:
+    if complete is not None:
+      weight = jnp.where(complete, weight, 0.0)
+    return jnp.sum(weight[:, None] * per_channel) / (3.0 * jnp.maximum(jnp.sum(weight),
+                                                                       1e-12))
   if complete is None:
     return jnp.mean(per_channel)
   kept = jnp.where(complete[:, None], per_channel, 0.0)
   return jnp.sum(kept) / (3.0 * jnp.maximum(jnp.sum(complete), 1))
 
 
-def mse(rgb, target, complete=None):
+def mse(rgb, target, complete=None, weight=None):
   """Mean squared error of rgb float32 [B, 3] against target float32 [B, 3] (see
-  `mean_over_rays` for complete)."""
-  return mean_over_rays((rgb - target) ** 2, complete)
+  `mean_over_rays` for complete and weight)."""
+  return mean_over_rays((rgb - target) ** 2, complete, weight)
 
 
 def huber(error, delta):
@@ -53,7 +59,8 @@ def huber(error, delta):
 class Colour:
   """The photometric loss: the mean squared error of the final pass, plus coarse_weight times
   the coarse pass's when there is a fine pass; with huber_delta > 0 the mean `huber` loss of
-  each channel's error instead. With a sample budget only whole rays count.
+  each channel's error instead. With a sample budget only whole rays count. With per-ray
+  weights (LossInputs.weight, the data's lossmult) every mean is the weighted mean.
   Stats: psnr of the final pass (from its squared error, whatever the loss); with a sample
   budget, rays_in_loss (the rays it held whole) and samples_wanted (the valid samples of every
   drawn ray: above the budget, rays were drawn in vain; below it, budget slots went empty)."""
@@ -61,21 +68,22 @@ class Colour:
   coarse_weight: float = 1.0
   huber_delta: float = 0.0
 
-  def _pass_loss(self, rgb, target, complete):
+  def _pass_loss(self, rgb, target, complete, weight):
     if self.huber_delta <= 0:
-      return mse(rgb, target, complete)
-    return mean_over_rays(huber(rgb - target, self.huber_delta), complete)
+      return mse(rgb, target, complete, weight)
+    return mean_over_rays(huber(rgb - target, self.huber_delta), complete, weight)
 
   def __call__(self, inputs):
     outs = inputs.outputs
     complete = outs["coarse"].get("complete")  # a sample budget: only whole rays count
     names = [name for name in losses.PASSES if name in outs]
-    per_pass = {name: self._pass_loss(outs[name]["rgb"], inputs.target, complete)
+    weight = inputs.weight  # per-ray lossmult, where the data has it
+    per_pass = {name: self._pass_loss(outs[name]["rgb"], inputs.target, complete, weight)
                 for name in names}
     loss = per_pass["coarse"] if "fine" not in per_pass else (
         per_pass["fine"] + self.coarse_weight * per_pass["coarse"])
     final_mse = per_pass[names[-1]] if self.huber_delta <= 0 else mse(
-        outs[names[-1]]["rgb"], inputs.target, complete)
+        outs[names[-1]]["rgb"], inputs.target, complete, weight)
     stats = {"psnr": metrics.mse_to_psnr(final_mse)}
     if complete is not None:  # how many rays the budget held whole, and what all asked of it
       stats["rays_in_loss"] = jnp.sum(complete, dtype=jnp.int32)

@@ -108,7 +108,7 @@ def _spy(monkeypatch, name):
   return calls
 
 
-@pytest.mark.parametrize("function,computed_for", [("specular", {"glossy", "detail"}),
+@pytest.mark.parametrize("function,computed_for", [("specular", {"glossy", "detail", "multiscale"}),
                                                    ("trace_medium", {"fog"}),
                                                    ("_shadow", {"glossy", "fog", "white",
                                                                 "forward"})])
@@ -195,7 +195,8 @@ def test_whole_scene_is_in_view():
 
 
 def test_unknown_scene_lists_valid_names():
-  with pytest.raises(ValueError, match="diffuse, exposure, fog, forward, garden, glossy, perturbed"):
+  with pytest.raises(ValueError, match="diffuse, exposure, fog, forward, garden, glossy, "
+                                       "multiscale, perturbed"):
     scenes.get_scene("lego")
 
 
