@@ -43,6 +43,7 @@ class TrainData:
     its appearance code and its camera's correction) and the pixel's row-major index in it.
   camera: static (height, width, intrinsics, near, far, pixel_center, use_ndc): the arguments
     of `rays.pixel_rays` that every image shares (with rays None).
+  with_radii: static, the rays made per step carry their radii (pixel_rays' with_radii).
   """
   rays: Rays
   rgb: jnp.ndarray
@@ -51,20 +52,22 @@ class TrainData:
   image: jnp.ndarray = None
   pixel: jnp.ndarray = None
   camera: tuple = flax.struct.field(pytree_node=False, default=None)
+  with_radii: bool = flax.struct.field(pytree_node=False, default=False)
 
 
-def make_train_data(ds, camera, rgb_background):
+def make_train_data(ds, camera, rgb_background, with_radii=False):
   """TrainData of every pixel of the images of `ds` (a Dataset), targets on `rgb_background`
   (float32 [3], background.parse's); rays are made per step from the poses and `camera`:
   (height, width, intrinsics, near, far, pixel_center, use_ndc), see TrainData.camera
-  (run/components.make_train_data passes the training camera's)."""
+  (run/components.make_train_data passes the training camera's). with_radii: see TrainData."""
   height, width, intrinsics, near, far, pixel_center, use_ndc = camera
   camera = (height, width, tuple(float(v) for v in intrinsics), float(near), float(far),
             float(pixel_center), bool(use_ndc))
   acc, rgb = _targets(ds, rgb_background)
   return TrainData(rays=None, rgb=jnp.asarray(rgb, jnp.float32).reshape(len(ds), -1, 3),
                    acc=jnp.asarray(acc, jnp.float32).reshape(len(ds), -1),
-                   poses=jnp.asarray(ds.poses, jnp.float32), camera=camera)
+                   poses=jnp.asarray(ds.poses, jnp.float32), camera=camera,
+                   with_radii=bool(with_radii))
 
 
 def pixel_rays_of(data, image, pixel, poses=None):
@@ -76,7 +79,7 @@ def pixel_rays_of(data, image, pixel, poses=None):
   i = (pixel % width).astype(jnp.float32)
   j = (pixel // width).astype(jnp.float32)
   one = lambda i, j, c2w: pixel_rays(i, j, height, width, intrinsics, c2w, near, far,
-                                     pixel_center, use_ndc)
+                                     pixel_center, use_ndc, data.with_radii)
   return jax.vmap(one)(i, j, poses[image])
 
 
