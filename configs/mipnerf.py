@@ -16,4 +16,5 @@ def get_config():
   config.num_fine_samples = 64  # resampled from the coarse weights, as mip-NeRF's second pass
   config.model.shared_fine = True  # one MLP queried by both passes (mip-NeRF's single network)
   config.model.view_dependent = True  # colour takes the encoded viewing direction
+  config.model.density_activation = "softplus"  # mip-NeRF's: smooth, no dead density
   return config
