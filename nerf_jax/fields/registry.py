@@ -43,9 +43,10 @@ class Encoding:
     shared section ('', 'model') gives only the fields the settings declare.
   records_grid_section: its checkpoints also record config.model.grid's lattice entries (the
     hash and TensoRF encodings' have since they were added, so theirs keep restoring).
-  gaussians: it encodes each sample's Gaussian (the frustum of its interval, cameras/cones.py):
-    the Field hands `features` the diagonal variances as `var=` beside the means, and rays carry
-    their radii (Rays.radii); False: points.
+  cones: what it encodes of each sample's frustum (cameras/cones.py; the rays then carry their
+    radii, Rays.radii), or settings -> that: '' points; 'gaussians' mip-NeRF's Gaussian, the
+    Field hands `features` the means with their diagonal variances as `var=`; 'multisamples'
+    Zip-NeRF's six points, handed as `multisamples=(points, std)` beside the means.
   """
   name: str
   settings: type
@@ -55,7 +56,7 @@ class Encoding:
   table_axes: Mapping[str, int] = dataclasses.field(default_factory=dict)
   section: str = None
   records_grid_section: bool = False
-  gaussians: bool = False
+  cones: Union[str, Callable[[Any], str]] = ""
 
   @property
   def section_path(self):
@@ -66,6 +67,10 @@ class Encoding:
   def shared_section(self):
     """Whether its section holds other settings too (then only the declared ones are read)."""
     return self.section is not None
+
+  def cone_kind(self, settings):
+    """'' (points), 'gaussians' or 'multisamples': what the encoding of `settings` reads."""
+    return self.cones(settings) if callable(self.cones) else self.cones
 
   def natural_network(self, settings):
     """The name of the network that reads it by default."""

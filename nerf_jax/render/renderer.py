@@ -91,12 +91,12 @@ class RayRenderer:
     if samples.gapped and not budget:  # not recomputed in every reader (occupancy.computed_once)
       distances = occupancy.computed_once(distances)
     points = placement.points(rays, distances)
-    var = None
-    if self.field.cones:  # Gaussians of the samples' intervals, queried at their means
+    per_sample = None
+    if self.field.cones:  # the frustums of the samples' intervals, queried at their means
       if budget or (self.colour_fraction > 0 and self.field.splits_density):
-        raise ValueError("a field of cones (model.encoding 'ipe') does not work with "
+        raise ValueError("a field of cones ('ipe', or a lattice's antialias) does not work with "
                          "config.train.sample_budget or config.model.colour_fraction yet")
-      points, var = self.field.gaussians(rays, *sample_intervals(samples))
+      points, per_sample = self.field.cone_inputs(rays, *sample_intervals(samples))
     if budget:
       slots, complete = budgeted_slots(samples.valid, budget)
     if self.colour_fraction > 0 and self.field.splits_density:
@@ -112,7 +112,7 @@ class RayRenderer:
         rgb, sigma = self._query_at_slots(params, rays, points, slots, key, bands)
       else:
         rgb, sigma = self.field.query_in_chunks(params, points, rays.viewdirs, key,
-                                                remat_chunk, rays.image, bands, var)
+                                                remat_chunk, rays.image, bands, per_sample)
       rgb, sigma = samples.intervals(rgb, placement.per_unit_t(sigma, rays))
       out = compositing.composite(rgb, sigma, samples.t, background)
       out["t"] = samples.t

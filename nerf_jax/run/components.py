@@ -99,7 +99,7 @@ def make_field(config, num_images=1):
   directions = dir_record.build(section_settings(dir_record, config), shared)
   return Field(network, directions, m.view_dependent, m.density_activation, m.density_noise,
                config.data.contraction, max(config.data.scene_bound, 1e-6), m.appearance_dims,
-               cones=record.gaussians)
+               cones=record.cone_kind(settings))
 
 
 def make_sampler(config):

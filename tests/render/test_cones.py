@@ -71,11 +71,11 @@ def test_ipe_field_with_variance_zero_is_the_posenc_field_bit_for_bit():
   viewdirs = viewdirs / jnp.linalg.norm(viewdirs, axis=-1, keepdims=True)
   want = jax.jit(posenc.query)(params, points, viewdirs)
   zero = jnp.zeros_like(points)
-  got = jax.jit(lambda p, x, v, s: ipe.query(p, x, v, var=s))(params, points, viewdirs, zero)
+  got = jax.jit(lambda p, x, v, s: ipe.query(p, x, v, per_sample={'var': s}))(params, points, viewdirs, zero)
   for a, b in zip(got, want):
     np.testing.assert_array_equal(a, b)
   # And variance does change the features (the fine bands fade).
-  wide = jax.jit(lambda p, x, v, s: ipe.query(p, x, v, var=s))(params, points, viewdirs,
+  wide = jax.jit(lambda p, x, v, s: ipe.query(p, x, v, per_sample={'var': s}))(params, points, viewdirs,
                                                                zero + 0.1)
   assert not np.allclose(wide[0], want[0])
 
@@ -123,7 +123,7 @@ def test_renderer_queries_the_gaussians_of_its_samples():
     samples, _ = renderer.sampler.generate(rays)
     t = samples.t
     mean, var = renderer.field.gaussians(rays, t[..., :-1], t[..., 1:])
-    rgb, sigma = renderer.field.query(params, mean, rays.viewdirs, var=var)
+    rgb, sigma = renderer.field.query(params, mean, rays.viewdirs, per_sample={'var': var})
     return compositing.composite(rgb, placement.per_unit_t(sigma, rays), t)
   want = jax.jit(by_hand)(rays)
   np.testing.assert_allclose(out["coarse"]["rgb"], want["rgb"], rtol=1e-6, atol=1e-7)
@@ -150,7 +150,7 @@ def test_gradients_are_finite_for_huge_t(contraction):
   def loss(params, radii, origins):
     r = rays.replace(radii=radii, origins=origins)
     mean, var = field.gaussians(r, t[:, :-1], t[:, 1:])
-    rgb, sigma = field.query(params, mean, r.viewdirs, var=var)
+    rgb, sigma = field.query(params, mean, r.viewdirs, per_sample={'var': var})
     return jnp.sum(rgb) + jnp.sum(sigma)
   value, grads = jax.jit(jax.value_and_grad(loss, argnums=(0, 1, 2)))(params, rays.radii,
                                                                        rays.origins)

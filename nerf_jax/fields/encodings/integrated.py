@@ -88,4 +88,4 @@ def build(settings, shared):
 # run/signature.py): its checkpoints record only that they are ipe's (posenc's have the same
 # shapes).
 ENCODING = registry.Encoding("ipe", posenc.Settings, build, network="mlp", section="",
-                             signature=lambda settings: {"encoding": "ipe"}, gaussians=True)
+                             signature=lambda settings: {"encoding": "ipe"}, cones="gaussians")
