@@ -5,7 +5,7 @@ and the renderer against a pass written out by hand. jax_debug_nans is on: a NaN
 backward pass included, fails the test.
 """
 
-import dataclasses
+import math
 
 import jax
 import jax.numpy as jnp
@@ -14,6 +14,7 @@ import pytest
 
 from nerf_jax.cameras.rays import Rays
 from nerf_jax.render import compositing, renderer as renderer_lib
+from nerf_jax.fields.encodings import grid
 from nerf_jax.run import components
 from nerf_jax.samplers import placement
 from tests.helpers import small_config, sphere_rays
@@ -167,3 +168,69 @@ def test_a_field_of_points_ignores_radii():
   with_radii = jax.jit(renderer.render)(variables, rays)
   without = jax.jit(renderer.render)(variables, rays.replace(radii=None))
   np.testing.assert_array_equal(with_radii["fine"]["rgb"], without["fine"]["rgb"])
+
+
+# Zip-NeRF's antialiased lattices (model.grid.antialias, model.hash.antialias).
+
+TINY_LATTICE = {"num_samples": 8, "data.scene_bound": 1.5, "model.width": 16,
+                "model.grid.resolutions": (8, 16), "model.hash.levels": 3,
+                "model.hash.base_resolution": 4, "model.hash.max_resolution": 32,
+                "model.hash.log2_size": 10}
+
+
+def _lattice_field(encoding, antialias, **overrides):
+  config = small_config({**TINY_LATTICE, "model.encoding": encoding,
+                         f"model.{encoding}.antialias": antialias, **overrides}, base="fast")
+  return components.make_field(config)
+
+
+@pytest.mark.parametrize("encoding", ["grid", "hash"])
+def test_antialiased_lattice_at_radius_zero_is_the_plain_lattice(encoding):
+  plain, aa = _lattice_field(encoding, False), _lattice_field(encoding, True)
+  assert aa.cones == "multisamples" and not plain.cones
+  params = plain.init(jax.random.PRNGKey(2))
+  rays = _rays(radius=0.0)
+  # Zero-length intervals of a zero radius: the six points are the point itself, scale 0.
+  t = jnp.asarray(np.random.default_rng(3).uniform(3.0, 5.0, (6, 5)), jnp.float32)
+  points, per_sample = aa.cone_inputs(rays, t, t)
+  np.testing.assert_array_equal(per_sample["multisamples"][1], 0.0)
+  want = jax.jit(plain.query)(params, points, rays.viewdirs)
+  got = jax.jit(lambda p, x, v, c: aa.query(p, x, v, per_sample=c))(params, points,
+                                                                    rays.viewdirs, per_sample)
+  for a, b in zip(got, want):
+    np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)
+
+
+def test_antialiased_features_against_erf_weights_written_here():
+  rng = np.random.default_rng(4)
+  features = rng.normal(size=(5, 6, 3, 2)).astype(np.float32)  # [N, 6, L, F]
+  std = rng.uniform(0.0, 0.3, (5, 6)).astype(np.float32)
+  std[0] = 0.0  # points: every level whole
+  cells = np.float32([0.4, 0.1, 0.02])
+  got = np.asarray(jax.jit(grid.antialiased)(features, std, cells))
+  erf = np.vectorize(math.erf)
+  with np.errstate(divide="ignore"):
+    w = np.where(std[..., None] > 0, erf(cells / (np.sqrt(8.0) * std[..., None])), 1.0)
+  want = np.mean(features * w[..., None], axis=1).reshape(5, -1)
+  np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+  np.testing.assert_allclose(got[0], features[0].mean(axis=0).reshape(-1), rtol=1e-6)
+
+
+@pytest.mark.parametrize("contraction", ["", "l2"])
+def test_antialiased_grid_renders_and_has_finite_gradients(contraction):
+  overrides = {"data.contraction": contraction, "data.scene_bound": 1.0} if contraction else {}
+  config = small_config({**TINY_LATTICE, "model.grid.antialias": True, **overrides},
+                        base="fast")
+  renderer = components.make_ray_renderer(config)
+  variables = renderer.init(jax.random.PRNGKey(0))
+  rays = _rays(radius=0.02)
+
+  def loss(params, radii):
+    out = renderer.render({**variables, "params": params}, rays.replace(radii=radii))
+    return jnp.sum(renderer_lib.final(out)["rgb"])
+  value, grads = jax.jit(jax.value_and_grad(loss, argnums=(0, 1)))(variables["params"],
+                                                                    rays.radii)
+  assert np.isfinite(value)
+  assert all(np.all(np.isfinite(g)) for g in jax.tree_util.tree_leaves(grads))
+  # The frustums' scale reaches the features: wide cones render otherwise.
+  assert float(jax.jit(loss)(variables["params"], rays.radii * 20.0)) != float(value)
