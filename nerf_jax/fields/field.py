@@ -202,7 +202,7 @@ class Field:
     if not self.uses_images:
       image = None
     if not chunk or chunk >= num_rays or num_rays % chunk or points.ndim != 3:
-      return self.query(params, points, viewdirs, key, image, bands, per_sample)
+      return self._query(params, points, viewdirs, key, image, bands, per_sample)
     count = num_rays // chunk
     split = lambda a: None if a is None else a.reshape(count, chunk, *a.shape[1:])
 
@@ -210,12 +210,19 @@ class Field:
     def one_chunk(args):
       pts, dirs, index, images, cone = args
       chunk_key = None if key is None else jax.random.fold_in(key, index)
-      return self.query(params, pts, dirs, chunk_key, images, bands, cone)
+      return self._query(params, pts, dirs, chunk_key, images, bands, cone)
 
     cone = None if per_sample is None else jax.tree_util.tree_map(split, per_sample)
     rgb, sigma = jax.lax.map(one_chunk, (split(points), split(viewdirs), jnp.arange(count),
                                          split(image), cone))
     return rgb.reshape(*points.shape[:-1], 3), sigma.reshape(points.shape[:-1])
+
+  def _query(self, params, points, viewdirs, key, image, bands, per_sample):
+    """`query`, per_sample passed only when given (a Field subclass of points need not take
+    it)."""
+    if per_sample is None:
+      return self.query(params, points, viewdirs, key, image, bands)
+    return self.query(params, points, viewdirs, key, image, bands, per_sample)
 
   def at_points(self, params, points, viewdirs):
     """(rgb float32 [P, 3], sigma float32 [P]) at single points float32 [P, 3], each seen along
