@@ -5,6 +5,7 @@ and the renderer against a pass written out by hand. jax_debug_nans is on: a NaN
 backward pass included, fails the test.
 """
 
+import dataclasses
 import math
 
 import jax
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.cameras.rays import Rays
-from nerf_jax.render import compositing, renderer as renderer_lib
+from nerf_jax.render import compositing, image_renderer, renderer as renderer_lib
 from nerf_jax.fields.encodings import grid
 from nerf_jax.run import components
 from nerf_jax.samplers import placement
@@ -234,3 +235,17 @@ def test_antialiased_grid_renders_and_has_finite_gradients(contraction):
   assert all(np.all(np.isfinite(g)) for g in jax.tree_util.tree_leaves(grads))
   # The frustums' scale reaches the features: wide cones render otherwise.
   assert float(jax.jit(loss)(variables["params"], rays.radii * 20.0)) != float(value)
+
+
+def test_image_renderer_compiles_and_draws_rays_with_radii():
+  # Its compile step draws a probe ray of the kind it will draw: with a radius for cones.
+  config = small_config(SMALL, base="mipnerf")
+  renderer = components.make_ray_renderer(config)
+  variables = renderer.init(jax.random.PRNGKey(0))
+  settings = dataclasses.replace(components.image_settings(config), chunk=16)
+  draw = image_renderer.make_image_renderer(renderer, settings)(variables)
+  list(draw.compile_steps())
+  rays = _rays()
+  out = draw(rays)
+  want = jax.jit(renderer.render)(variables, rays)["fine"]["rgb"]
+  np.testing.assert_allclose(out["rgb"], want, rtol=1e-5, atol=1e-6)
