@@ -33,6 +33,9 @@ class Rays:
   near, far: float32 [...], the interval of t to sample.
   image: int32 [...] or None, the training image each ray comes from (per-ray conditioning:
     its appearance code, multinerf's cam_idx); None = no image (held-out views: the mean code).
+  radii: float32 [...] or None, each ray's base radius: its pixel's cone has radius radii·t at
+    t (cameras/cones.py; mip-NeRF's dx·2/√12); None = thin rays (filled only when asked:
+    `pixel_rays(..., with_radii=True)`, for encodings of cones).
   """
   origins: jnp.ndarray
   directions: jnp.ndarray
@@ -40,6 +43,7 @@ class Rays:
   near: jnp.ndarray
   far: jnp.ndarray
   image: Optional[jnp.ndarray] = None
+  radii: Optional[jnp.ndarray] = None
 
   @classmethod
   def create(cls, origins, directions, near, far, viewdirs=None):
@@ -120,33 +124,50 @@ def get_rays_intrinsics(height, width, intrinsics, c2w, pixel_center=0.0):
   return to_world(pixel_directions(height, width, fx, fy, cx, cy, pixel_center), c2w)
 
 
-def camera_rays(height, width, intrinsics, c2w, near, far, pixel_center=0.5, use_ndc=False):
+def camera_rays(height, width, intrinsics, c2w, near, far, pixel_center=0.5, use_ndc=False,
+                with_radii=False):
   """The `Rays` through every pixel of one camera, as the renderer queries the field.
 
   intrinsics: (fx, fy, cx, cy) in pixels. c2w: float32 [3, 4] or [4, 4]. near, far: float.
   use_ndc: map the rays to normalized device coordinates (forward-facing scenes, see ndc.py;
   the reference camera's focal is this camera's, and near/far should then be 0 and 1).
+  with_radii: fill Rays.radii (`pixel_rays`).
   Returns Rays with batch shape [height, width]; viewdirs are the unit world directions.
   """
   i, j = jnp.meshgrid(jnp.arange(width, dtype=jnp.float32),
                       jnp.arange(height, dtype=jnp.float32), indexing="xy")
-  return pixel_rays(i, j, height, width, intrinsics, c2w, near, far, pixel_center, use_ndc)
+  return pixel_rays(i, j, height, width, intrinsics, c2w, near, far, pixel_center, use_ndc,
+                    with_radii)
 
 
 def pixel_rays(i, j, height, width, intrinsics, c2w, near, far, pixel_center=0.5,
-               use_ndc=False):
+               use_ndc=False, with_radii=False):
   """`camera_rays` of the pixels at column i, row j (float32 [...]) of a height×width camera.
 
   The batch shape is that of i and j, not the image's, so a jitted caller working through an
   image in fixed-size pieces compiles once for every image size. height, width: int (NDC only).
+  with_radii: fill Rays.radii, each pixel's base radius: cones.base_radius(fx, fy) (the same for
+  every pixel of a pinhole camera); in NDC mip-NeRF's, PIXEL_TO_RADIUS times the distance
+  between the NDC directions of the pixel and of the one below it (row j + 1; mip-NeRF takes
+  the row above for its last row).
   """
   fx, fy, cx, cy = intrinsics
   origins, directions = to_world(_directions(i, j, fx, fy, cx, cy, pixel_center), c2w)
   viewdirs = safe_normalize(directions)
   if use_ndc:
-    origins, directions = ndc.ndc_rays(origins, directions, fx, width, height, near=1.0,
-                                       focal_y=fy)
-  return Rays.create(origins, directions, near, far, viewdirs)
+    to_ndc = lambda o, d: ndc.ndc_rays(o, d, fx, width, height, near=1.0, focal_y=fy)
+    if with_radii:
+      _, below = to_ndc(*to_world(_directions(i, j + 1.0, fx, fy, cx, cy, pixel_center), c2w))
+    origins, directions = to_ndc(origins, directions)
+  rays = Rays.create(origins, directions, near, far, viewdirs)
+  if not with_radii:
+    return rays
+  from nerf_jax.cameras import cones  # cones imports this module
+  if use_ndc:
+    radii = cones.PIXEL_TO_RADIUS * jnp.sqrt(jnp.sum((below - directions) ** 2, axis=-1))
+  else:
+    radii = jnp.broadcast_to(cones.base_radius(fx, fy), rays.shape)
+  return rays.replace(radii=radii)
 
 
 def ray_box_bounds(origins, directions, bound, near, far):

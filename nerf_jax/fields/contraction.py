@@ -114,10 +114,15 @@ def contract(points, radius=1.0, kind="l2"):
   _check(kind)
   points = jnp.asarray(points, jnp.float32)
   x, infinite = _at_infinity(points)
-  norm, direction = _norm_and_direction(x, kind)
+  norm, _ = _norm_and_direction(jax.lax.stop_gradient(x), kind)
   # In world units, with no division: points / radius rounded by an approximate division (GPUs)
   # would put a point on the inner boundary outside it.
   outside = infinite | (norm > radius)
+  # Double where: the squeezed branch is evaluated at a point outside where the point is inside
+  # (the norm's gradient divides by |x|^2, which underflows to 0 for tiny |x|: a NaN gradient
+  # at (1e-30, 0, 0) though the branch is discarded). Outside, the same ops on the same x.
+  x = jnp.where(outside[..., None], x, jnp.float32([2.0 * radius, 0.0, 0.0]))
+  norm, direction = _norm_and_direction(x, kind)
   # Double where: radius/norm only where norm > radius (a division by 0 at the origin would
   # poison the gradient). At infinity it is 0: the point lands on the outer boundary.
   inv_norm = jnp.where(infinite, 0.0, radius / jnp.where(outside, norm, radius))

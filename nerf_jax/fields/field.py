@@ -11,6 +11,12 @@ ray, selects its appearance code (appearance_dims > 0; None = the mean code, as 
 views), and `bands`, float32 [], how many positional-encoding bands, or grid levels after the
 coarsest, are open (BARF's coarse-to-fine α while poses are refined; None = all, as after
 training).
+A field whose encoding reads cones (`cones`, from Rays.radii) is queried at the means of its
+samples' frustums with what the encoding reads of them, `per_sample` (`cone_inputs`): their
+Gaussians' diagonal variances (mip-NeRF's integrated encoding), or Zip-NeRF's six points and
+their scales (antialiased lattices). Queried without them (the occupancy grid's, marching's and
+the viewer's probes: points with no interval) it sees points: variance 0, which is the point
+encoding exactly.
 """
 
 import dataclasses
@@ -20,6 +26,7 @@ import jax
 import jax.numpy as jnp
 
 from nerf_jax.backend import draws
+from nerf_jax.cameras import cones
 from nerf_jax.fields import activations, contraction
 from nerf_jax.fields.encodings import posenc
 
@@ -38,6 +45,8 @@ class Field:
   contraction: '' (world positions), or 'l2' / 'linf': positions are contracted about the inner
     region of half-size `inner_radius` first (contraction.py), so the network sees all of space
     inside [-2·inner_radius, 2·inner_radius]^3.
+  cones: what the position encoding reads of each sample's frustum (registry.Encoding.cones):
+    '' points, 'gaussians' or 'multisamples' (`cone_inputs`); rays then need their radii.
   """
   network: Any
   directions: Any = posenc.Frequency(4)
@@ -47,6 +56,7 @@ class Field:
   contraction: str = ""
   inner_radius: float = 1.0
   appearance_dims: int = 0
+  cones: str = ""
 
   @property
   def uses_images(self):
@@ -91,12 +101,49 @@ class Field:
       points = contraction.contract(points, self.inner_radius, self.contraction)
     return points
 
-  def query(self, params, points, viewdirs, key=None, image=None, bands=None):
+  def gaussians(self, rays, t0, t1):
+    """The Gaussians of the frustums [t0, t1) of `rays` [...] (with radii): (mean float32
+    [..., S, 3] in world space, var float32 [..., S, 3] the covariances' diagonals in the
+    network's space: contracted by contraction.contract_gaussian_diagonal in an unbounded
+    scene). t0, t1: float32 [..., S]. Query `query(params, mean, ..., var=var)`."""
+    if rays.radii is None:
+      raise ValueError("a field of cones needs rays with radii (pixel_rays(..., with_radii=True))")
+    mean, var = cones.frustum_gaussians(rays.origins, rays.directions, rays.radii, t0, t1,
+                                        diagonal=True)
+    if self.contraction:
+      _, var = contraction.contract_gaussian_diagonal(mean, var, self.inner_radius,
+                                                      self.contraction)
+    return mean, var
+
+  def multisamples(self, rays, t0, t1):
+    """Zip-NeRF's six points of each frustum [t0, t1) of `rays` [...] (with radii), and their
+    scales, in the network's space (contracted by contraction.contract_isotropic in an
+    unbounded scene): (float32 [..., S, 6, 3], float32 [..., S, 6]). t0, t1: float32 [..., S]."""
+    if rays.radii is None:
+      raise ValueError("a field of cones needs rays with radii (pixel_rays(..., with_radii=True))")
+    points, std = cones.multisamples(rays.origins, rays.directions, rays.radii, t0, t1)
+    if self.contraction:
+      points, std = contraction.contract_isotropic(points, std, self.inner_radius,
+                                                   self.contraction)
+    return points, std
+
+  def cone_inputs(self, rays, t0, t1):
+    """(points float32 [..., S, 3], per_sample) of the frustums [t0, t1) of `rays` [...]: where
+    `query` queries them (their means, world space) and what the encoding reads of them."""
+    if self.cones == "gaussians":
+      mean, var = self.gaussians(rays, t0, t1)
+      return mean, {"var": var}
+    t_mean = cones.frustum_moments(t0, t1)[0]
+    mean = rays.origins[..., None, :] + rays.directions[..., None, :] * t_mean[..., None]
+    return mean, {"multisamples": self.multisamples(rays, t0, t1)}
+
+  def query(self, params, points, viewdirs, key=None, image=None, bands=None, per_sample=None):
     """Colour and density at sample points.
 
     params: the network's parameters. points: float32 [..., S, 3]. viewdirs: float32 [..., 3]
     unit directions. key: PRNG key for the density noise (None = no noise). image, bands: see
-    the module docstring (image is ignored without appearance codes).
+    the module docstring (image is ignored without appearance codes). per_sample: None, or
+    `cone_inputs`' dict (a field of cones only).
     Returns rgb float32 [..., S, 3], sigma float32 [..., S].
     """
     dir_features = None
@@ -108,6 +155,7 @@ class Field:
       args += (image,)
     weights = self.level_weights(bands)
     kwargs = {} if weights is None else {"level_weights": weights}
+    kwargs.update(per_sample or {})
     rgb, raw_sigma = self.network.apply({"params": params}, *args, **kwargs)
     return rgb, self._activate(raw_sigma, key)
 
@@ -139,33 +187,42 @@ class Field:
                               part="colour")
 
   def query_in_chunks(self, params, points, viewdirs, key=None, chunk=0, image=None,
-                      bands=None):
+                      bands=None, per_sample=None):
     """`query` over chunks of `chunk` rays, each rematerialised in the backward pass.
 
     points: float32 [R, S, 3], viewdirs: float32 [R, 3]. chunk: rays per chunk, dividing R (0,
     R or a non-divisor = one call). A chunk's activations fit in the CPU's cache, and the
     backward pass recomputes them instead of reading them back from memory: about a third more
     FLOPs for less memory traffic. The density noise of chunk c is drawn from fold_in(key, c).
-    image: int32 [R] or None; bands: float32 [] or None (see `query`).
+    image: int32 [R] or None; bands: float32 [] or None; per_sample: None or a dict of arrays
+    [R, ...] (see `query`).
     Returns rgb float32 [R, S, 3], sigma float32 [R, S], equal to `query`'s up to rounding.
     """
     num_rays = points.shape[0]
     if not self.uses_images:
       image = None
     if not chunk or chunk >= num_rays or num_rays % chunk or points.ndim != 3:
-      return self.query(params, points, viewdirs, key, image, bands)
+      return self._query(params, points, viewdirs, key, image, bands, per_sample)
     count = num_rays // chunk
     split = lambda a: None if a is None else a.reshape(count, chunk, *a.shape[1:])
 
     @jax.checkpoint
     def one_chunk(args):
-      pts, dirs, index, images = args
+      pts, dirs, index, images, cone = args
       chunk_key = None if key is None else jax.random.fold_in(key, index)
-      return self.query(params, pts, dirs, chunk_key, images, bands)
+      return self._query(params, pts, dirs, chunk_key, images, bands, cone)
 
+    cone = None if per_sample is None else jax.tree_util.tree_map(split, per_sample)
     rgb, sigma = jax.lax.map(one_chunk, (split(points), split(viewdirs), jnp.arange(count),
-                                         split(image)))
+                                         split(image), cone))
     return rgb.reshape(*points.shape[:-1], 3), sigma.reshape(points.shape[:-1])
+
+  def _query(self, params, points, viewdirs, key, image, bands, per_sample):
+    """`query`, per_sample passed only when given (a Field subclass of points need not take
+    it)."""
+    if per_sample is None:
+      return self.query(params, points, viewdirs, key, image, bands)
+    return self.query(params, points, viewdirs, key, image, bands, per_sample)
 
   def at_points(self, params, points, viewdirs):
     """(rgb float32 [P, 3], sigma float32 [P]) at single points float32 [P, 3], each seen along

@@ -4,7 +4,7 @@ settings every network shares. The records that find them by name are in registr
 
 A network is applied as
 
-  network.apply({'params': p}, points, dir_features[, image][, level_weights=w])
+  network.apply({'params': p}, points, dir_features[, image][, level_weights=w][, **per_sample])
       -> (rgb float32 [..., S, 3] in (0, 1), raw_sigma float32 [..., S])
 
   points:        float32 [..., S, 3]  world (or contracted) positions; the network applies its
@@ -15,13 +15,19 @@ A network is applied as
                  (its appearance code; None = the mean code, as for held-out views)
   level_weights: float32 [...]  passed only while poses are refined: `band_weights(bands)`,
                  BARF's coarse-to-fine window over the encoding's bands or levels
+  per_sample:    passed only to a network whose encoding reads cones (registry.Encoding.cones),
+                 which hands them on to `encoding.features`: var=float32 [..., S, 3], the
+                 diagonal variances of the samples' Gaussians (points are their means), or
+                 multisamples=(float32 [..., S, 6, 3], float32 [..., S, 6]), Zip-NeRF's six
+                 points of each frustum and their scales; in the network's (contracted) space
 
 raw_sigma is density before its activation (the Field adds noise and activates it). A network
 whose `splits_density` is True also takes `part='density'` (points alone -> raw_sigma) and
 `part='colour'` (points, dir_features -> rgb).
 
 An encoding (`Encoding`) is a small frozen dataclass of its settings. A network calls it inside
-its compact call as `encoding.features(module, points, weights)`; an encoding with tables
+its compact call as `encoding.features(module, points, weights)`, or
+`encoding.features(module, means, weights, **per_sample)` for cones; an encoding with tables
 creates them on that module (`module.param`), so they sit directly in the network's parameters
 under the names checkpoints have always stored ('hash_table', 'grid_32', ...). A direction
 encoding is called by the Field with module None (it has no parameters).
@@ -47,7 +53,9 @@ class Encoding(Protocol):
     """float [..., F] of coordinates x float32 [..., 3] (points, or unit directions), the bands
     or levels scaled by `weights` (None = all open). module: the Flax module (inside its compact
     call) on which the encoding's parameters live, or None for one without. per_sample: further
-    per-sample inputs an encoding may take (none of the built-ins does)."""
+    per-sample inputs an encoding of cones takes (registry.Encoding.cones): `var` float32
+    [..., 3], the diagonal variances of Gaussians of means x ('ipe'), or `multisamples`
+    (points float32 [..., 6, 3], std float32 [..., 6]) ('grid', 'hash' with antialias)."""
 
   def inside(self, points) -> Any:
     """bool [...]: where points float32 [..., 3] lie inside what the encoding covers (a lattice's

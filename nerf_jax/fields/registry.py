@@ -3,7 +3,7 @@
 An encoding is one module of its own (encodings/<name>.py): its pure math, the frozen dataclass
 of its settings, and an `ENCODING = registry.Encoding(...)` record saying how to build it, which
 network reads it unless config.model.network names one, and what its checkpoints record.
-`config.model.encoding` names a position encoding ('posenc', 'grid', 'hash', 'tensorf', one
+`config.model.encoding` names a position encoding ('posenc', 'ipe', 'grid', 'hash', 'tensorf', one
 added with `ENCODINGS.register`, or the dotted path of any module defining ENCODING: big_vision's
 "the module path is the registry"); `config.dir_encoding` a direction encoding ('frequency',
 'sh': modules defining DIRECTION_ENCODING, the same record). A network is a module of networks/
@@ -43,6 +43,10 @@ class Encoding:
     shared section ('', 'model') gives only the fields the settings declare.
   records_grid_section: its checkpoints also record config.model.grid's lattice entries (the
     hash and TensoRF encodings' have since they were added, so theirs keep restoring).
+  cones: what it encodes of each sample's frustum (cameras/cones.py; the rays then carry their
+    radii, Rays.radii), or settings -> that: '' points; 'gaussians' mip-NeRF's Gaussian, the
+    Field hands `features` the means with their diagonal variances as `var=`; 'multisamples'
+    Zip-NeRF's six points, handed as `multisamples=(points, std)` beside the means.
   """
   name: str
   settings: type
@@ -52,6 +56,7 @@ class Encoding:
   table_axes: Mapping[str, int] = dataclasses.field(default_factory=dict)
   section: str = None
   records_grid_section: bool = False
+  cones: Union[str, Callable[[Any], str]] = ""
 
   @property
   def section_path(self):
@@ -62,6 +67,10 @@ class Encoding:
   def shared_section(self):
     """Whether its section holds other settings too (then only the declared ones are read)."""
     return self.section is not None
+
+  def cone_kind(self, settings):
+    """'' (points), 'gaussians' or 'multisamples': what the encoding of `settings` reads."""
+    return self.cones(settings) if callable(self.cones) else self.cones
 
   def natural_network(self, settings):
     """The name of the network that reads it by default."""
@@ -95,6 +104,7 @@ class Network:
 
 ENCODINGS = components.Registry("encoding", "config.model.encoding", "ENCODING", {
     "posenc": "nerf_jax.fields.encodings.posenc",
+    "ipe": "nerf_jax.fields.encodings.integrated",
     "grid": "nerf_jax.fields.encodings.grid",
     "hash": "nerf_jax.fields.encodings.hashgrid",
     "tensorf": "nerf_jax.fields.encodings.tensorf",

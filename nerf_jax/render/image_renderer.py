@@ -113,7 +113,7 @@ def bytes_per_ray(ray_renderer, variables, probe=PROBE_RAYS):
   renderer compiled for `probe` rays (its temporaries, outputs and rays, over `probe`); None
   where the backend gives no analysis. Marching queries at most the samples the plain path
   queries per ray, so this bounds its calls too. Compiles once; runs nothing."""
-  _, rays = _padded(_probe_ray(), probe)
+  _, rays = _padded(_probe_ray(ray_renderer), probe)
   lowered = make_chunk_renderer(ray_renderer).lower(variables, rays, jnp.zeros(3, jnp.float32))
   stats = lowered.compile().memory_analysis()
   if stats is None:
@@ -199,7 +199,7 @@ def _binder(ray_renderer, settings):
                                chunk=settings.chunk)
 
       def compile_steps():  # every call is padded to one chunk: one shape
-        draw(_probe_ray())
+        draw(_probe_ray(ray_renderer))
         yield math.inf
       return Draw(draw, compile_steps, settings.chunk)
     return bind
@@ -218,18 +218,20 @@ def with_samples(ray_renderer, num_samples):
       ray_renderer.sampler, num_samples=num_samples))
 
 
-def _probe_ray():
-  """One ray, Rays [1] (numpy), to compile with: its values do not matter, only its kind."""
+def _probe_ray(ray_renderer):
+  """One ray, Rays [1] (numpy), to compile with: its values do not matter, only its kind (with
+  a radius where `ray_renderer`'s field reads cones, as the rays it will draw)."""
   ones = np.ones((1,), np.float32)
   direction = np.array([[0.0, 0.0, -1.0]], np.float32)
-  return Rays(np.zeros((1, 3), np.float32), direction, direction, ones, 2.0 * ones)
+  rays = Rays(np.zeros((1, 3), np.float32), direction, direction, ones, 2.0 * ones)
+  return rays.replace(radii=1e-3 * ones) if ray_renderer.field.cones else rays
 
 
 class _Marcher:
   """The jitted pieces of empty_space.py for one renderer and settings (compiled once)."""
 
   def __init__(self, ray_renderer, settings):
-    self.settings = settings
+    self.settings, self.ray_renderer = settings, ray_renderer
     rs, field = ray_renderer.sampler, ray_renderer.field
     query = lambda params, points, viewdirs: field.at_points(params["coarse"], points, viewdirs)
     self.skip_grid = jax.jit(lambda params: empty_space.skip_grid(
@@ -267,7 +269,7 @@ class _Marcher:
     called as `draw` calls them. A call of n rays selects at most min(n, chunk)·g samples per
     round (g samples of each ray: the group, or all S when fewer)."""
     rc, chunk = self.settings, self.settings.chunk
-    _, part = _padded(_probe_ray(), chunk)
+    _, part = _padded(_probe_ray(self.ray_renderer), chunk)
     t, t_world, points, occupied, rank = self.plan(mask, part)
     sigma = jnp.zeros(occupied.shape, jnp.float32)
     rgb = jnp.zeros((*occupied.shape, 3), jnp.float32)

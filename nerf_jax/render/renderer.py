@@ -91,6 +91,12 @@ class RayRenderer:
     if samples.gapped and not budget:  # not recomputed in every reader (occupancy.computed_once)
       distances = occupancy.computed_once(distances)
     points = placement.points(rays, distances)
+    per_sample = None
+    if self.field.cones:  # the frustums of the samples' intervals, queried at their means
+      if budget or (self.colour_fraction > 0 and self.field.splits_density):
+        raise ValueError("a field of cones ('ipe', or a lattice's antialias) does not work with "
+                         "config.train.sample_budget or config.model.colour_fraction yet")
+      points, per_sample = self.field.cone_inputs(rays, *sample_intervals(samples))
     if budget:
       slots, complete = budgeted_slots(samples.valid, budget)
     if self.colour_fraction > 0 and self.field.splits_density:
@@ -106,7 +112,7 @@ class RayRenderer:
         rgb, sigma = self._query_at_slots(params, rays, points, slots, key, bands)
       else:
         rgb, sigma = self.field.query_in_chunks(params, points, rays.viewdirs, key,
-                                                remat_chunk, rays.image, bands)
+                                                remat_chunk, rays.image, bands, per_sample)
       rgb, sigma = samples.intervals(rgb, placement.per_unit_t(sigma, rays))
       out = compositing.composite(rgb, sigma, samples.t, background)
       out["t"] = samples.t
@@ -205,6 +211,15 @@ class RayRenderer:
       # the cube an NDC box is mapped onto: probe the points the field sees there
       density = lambda cells, fn=density: fn(rs.grid_points(cells))
     return occupancy.density_grid(density, oc.resolution, rs.grid_bound, oc.probes, key)
+
+
+def sample_intervals(samples):
+  """(t0, t1), each float32 [..., S]: the interval [t0, t1) of each sample of `samples`
+  (placement.Samples): intervals k, or 2k with gaps (E = 2S, occupancy.py)."""
+  t = samples.t
+  if samples.gapped:
+    return t[..., 0:-1:2], t[..., 1::2]
+  return t[..., :-1], t[..., 1:]
 
 
 def budgeted_slots(valid, budget):

@@ -98,7 +98,8 @@ def make_field(config, num_images=1):
   dir_record = registry.DIRECTION_ENCODINGS.lookup(config.dir_encoding)
   directions = dir_record.build(section_settings(dir_record, config), shared)
   return Field(network, directions, m.view_dependent, m.density_activation, m.density_noise,
-               config.data.contraction, max(config.data.scene_bound, 1e-6), m.appearance_dims)
+               config.data.contraction, max(config.data.scene_bound, 1e-6), m.appearance_dims,
+               cones=record.cone_kind(settings))
 
 
 def make_sampler(config):
@@ -280,7 +281,8 @@ def make_train_data(exp):
   camera = (height, width, intrinsics, exp.near, exp.far, exp.pixel_center,
             exp.config.data.ndc)
   return train_batches.make_train_data(exp.train_ds, camera,
-                                       background.parse(exp.config.data.background))
+                                       background.parse(exp.config.data.background),
+                                       with_radii=exp.renderer.field.cones)
 
 
 def eval_settings(config):

@@ -68,10 +68,12 @@ class Experiment:
   def rays(self, pose, camera=None):
     """Rays [H, W] of `pose` (float32 [4, 4] camera-to-world) through `camera` (height, width,
     intrinsics; default: the training camera; an image's own: `camera(image=i, dataset=ds)`),
-    as the config asks (pixel centres, NDC)."""
+    as the config asks (pixel centres, NDC), with their radii when the field reads cones
+    (Field.cones)."""
     height, width, intrinsics = camera or self.camera()
     return camera_rays(height, width, intrinsics, pose, self.near, self.far,
-                       self.pixel_center, self.config.data.ndc)
+                       self.pixel_center, self.config.data.ndc,
+                       with_radii=self.renderer.field.cones)
 
 
 def setup(config):

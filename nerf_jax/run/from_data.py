@@ -44,7 +44,7 @@ def with_ndc_box(config, dataset, near, far):
   are spent beyond them; an occupancy grid in NDC covers the same box, whatever the encoding.
   One line says so; the box is recorded in config.json."""
   m = config.model
-  boxed = m.encoding != "posenc" or config.occupancy.enabled
+  boxed = m.encoding not in ("posenc", "ipe") or config.occupancy.enabled
   if not config.data.ndc or not boxed or m.grid_box:
     return config
   # A pinhole camera maps its pixel grid projectively onto any plane, so the NDC ends of its

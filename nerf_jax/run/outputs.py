@@ -114,7 +114,7 @@ def mesh_bound(config):
   built-in scenes fit in a ball of radius 1.2)."""
   if config.data.scene_bound > 0:
     return float(config.data.scene_bound)
-  if config.model.encoding != "posenc":
+  if config.model.encoding not in ("posenc", "ipe"):  # a lattice
     return float(config.model.grid_bound)
   return 1.5
 

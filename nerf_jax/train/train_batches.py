@@ -55,6 +55,8 @@ class TrainData:
   cameras: float32 [N, 6] or None: with per-image cameras, (fx, fy, cx, cy, width, height).
   lossmult: float32 [N] or None, each image's weight in the colour loss (Dataset.lossmult).
   weight: float32 [B] or None, in a drawn batch each ray's loss weight (its image's lossmult).
+  with_radii: static, the rays made per step carry their radii (pixel_rays' with_radii), each
+    from its own image's camera.
   """
   rays: Rays
   rgb: jnp.ndarray
@@ -67,29 +69,32 @@ class TrainData:
   cameras: jnp.ndarray = None
   lossmult: jnp.ndarray = None
   weight: jnp.ndarray = None
+  with_radii: bool = flax.struct.field(pytree_node=False, default=False)
 
 
-def make_train_data(ds, camera, rgb_background):
+def make_train_data(ds, camera, rgb_background, with_radii=False):
   """TrainData of every pixel of the images of `ds` (a Dataset), targets on `rgb_background`
   (float32 [3], background.parse's); rays are made per step from the poses and `camera`:
   (height, width, intrinsics, near, far, pixel_center, use_ndc), see TrainData.camera
   (run/components.make_train_data passes the training camera's). With per-image cameras
   (`ds.image_cameras`) the pixels are one flat run and each image's own camera is used (its
-  height, width and intrinsics in `camera` are ignored)."""
+  height, width and intrinsics in `camera` are ignored). with_radii: see TrainData."""
   height, width, intrinsics, near, far, pixel_center, use_ndc = camera
   lossmult = None if ds.lossmult is None else jnp.asarray(ds.lossmult, jnp.float32)
   if ds.image_cameras is not None:
     return _flat_train_data(ds, (None, None, None, float(near), float(far),
-                                 float(pixel_center), bool(use_ndc)), rgb_background, lossmult)
+                                 float(pixel_center), bool(use_ndc)), rgb_background, lossmult,
+                            with_radii)
   camera = (height, width, tuple(float(v) for v in intrinsics), float(near), float(far),
             float(pixel_center), bool(use_ndc))
   acc, rgb = _targets(ds, rgb_background)
   return TrainData(rays=None, rgb=jnp.asarray(rgb, jnp.float32).reshape(len(ds), -1, 3),
                    acc=jnp.asarray(acc, jnp.float32).reshape(len(ds), -1),
-                   poses=jnp.asarray(ds.poses, jnp.float32), camera=camera, lossmult=lossmult)
+                   poses=jnp.asarray(ds.poses, jnp.float32), camera=camera, lossmult=lossmult,
+                   with_radii=bool(with_radii))
 
 
-def _flat_train_data(ds, camera, rgb_background, lossmult):
+def _flat_train_data(ds, camera, rgb_background, lossmult, with_radii):
   """TrainData of `ds`'s images with their own cameras: every pixel in one flat run."""
   acc, rgb = _targets(ds, rgb_background)
   cams = ds.cameras
@@ -103,7 +108,8 @@ def _flat_train_data(ds, camera, rgb_background, lossmult):
                                    jnp.float32),
                    poses=jnp.asarray(ds.poses, jnp.float32), camera=camera,
                    offsets=jnp.asarray(offsets, jnp.int32),
-                   cameras=jnp.asarray(table, jnp.float32), lossmult=lossmult)
+                   cameras=jnp.asarray(table, jnp.float32), lossmult=lossmult,
+                   with_radii=bool(with_radii))
 
 
 def pixel_rays_of(data, image, pixel, poses=None):
@@ -120,12 +126,12 @@ def pixel_rays_of(data, image, pixel, poses=None):
 
     def one(i, j, c2w, cam):  # cam: fx, fy, cx, cy, width, height
       return pixel_rays(i, j, cam[5], cam[4], tuple(cam[:4]), c2w, near, far, pixel_center,
-                        use_ndc)
+                        use_ndc, data.with_radii)
     return jax.vmap(one)(i, j, poses[image], cams)
   i = (pixel % width).astype(jnp.float32)
   j = (pixel // width).astype(jnp.float32)
   one = lambda i, j, c2w: pixel_rays(i, j, height, width, intrinsics, c2w, near, far,
-                                     pixel_center, use_ndc)
+                                     pixel_center, use_ndc, data.with_radii)
   return jax.vmap(one)(i, j, poses[image])
 
 

@@ -20,7 +20,8 @@ colorize, to_uint8 = visuals.colorize, visuals.to_uint8
 
 # One chunk of pixels' rays; compiled once for every frame size (rays.camera_rays's eager
 # operations would compile for each new size, ~0.5 s).
-_pixel_rays = jax.jit(rays.pixel_rays, static_argnames=("pixel_center", "use_ndc"))
+_pixel_rays = jax.jit(rays.pixel_rays,
+                      static_argnames=("pixel_center", "use_ndc", "with_radii"))
 
 
 @dataclasses.dataclass
@@ -31,6 +32,7 @@ class Scene:
     rgb [n, 3], depth [n], acc [n].
   dataset: the training data.Dataset (its poses, images and intrinsics are the cameras shown).
   near, far: float bounds. background: float32 [3]. pixel_center: the rays' (resolved).
+  with_radii: the rays carry their radii (a field of cones: Field.cones).
   """
   config: object
   make_draw: object
@@ -39,6 +41,7 @@ class Scene:
   far: float
   background: np.ndarray
   pixel_center: float = 0.5
+  with_radii: bool = False
 
   poses = property(lambda self: np.asarray(self.dataset.poses, np.float32))  # [N, 4, 4] c2w
   images = property(lambda self: self.dataset.images)  # float32 [N, H, W, 3]
@@ -65,7 +68,8 @@ class Scene:
     rows, columns = rows.astype(np.float32), columns.astype(np.float32)
     pieces = [jax.tree_util.tree_map(np.asarray, _pixel_rays(
         columns[i:i + chunk], rows[i:i + chunk], height, width, intrinsics, c2w, self.near,
-        self.far, pixel_center=self.pixel_center, use_ndc=self.config.data.ndc))
+        self.far, pixel_center=self.pixel_center, use_ndc=self.config.data.ndc,
+        with_radii=self.with_radii))
               for i in range(0, len(rows), chunk)]
     return jax.tree_util.tree_map(
         lambda *a: np.concatenate(a)[:num].reshape(height, width, *a[0].shape[1:]), *pieces)
@@ -92,7 +96,7 @@ def from_run(exp):
   return Scene(config=config, make_draw=image_renderer.make_image_renderer(exp.renderer, exp.image),
                dataset=exp.train_ds, near=float(exp.near), far=float(exp.far),
                background=background.parse(config.data.background),
-               pixel_center=exp.pixel_center)
+               pixel_center=exp.pixel_center, with_radii=exp.renderer.field.cones)
 
 
 def from_workdir(workdir):

@@ -153,3 +153,53 @@ def test_rays_pytree_reshape_and_viewdirs():
       flat.directions, axis=-1, keepdims=True), rtol=1e-6)
   leaves = jax.tree_util.tree_leaves(r)
   assert len(leaves) == 5
+
+
+# Rays.radii (pixel_rays' with_radii): the pixel's cone, mip-NeRF's dx·2/√12.
+
+def _ndc_direction_reference(i, j, fx, fy, cx, cy, c2w, width, height, near=1.0):
+  """float64 [..., 3]: the NDC direction of pixel (i, j)'s ray (pixel centres), as the difference
+  of the NDC images of its point at infinity and of its point on the plane z = -near: the NDC
+  ray runs from the one (s = 0) to the other (s = 1)."""
+  c2w = np.asarray(c2w, np.float64)
+  cam = np.stack([(i + 0.5 - cx) / fx, -(j + 0.5 - cy) / fy, -np.ones_like(i)], axis=-1)
+  d = cam @ c2w[:3, :3].T
+  o = np.broadcast_to(c2w[:3, 3], d.shape)
+  p = o + (-(near + o[..., 2]) / d[..., 2])[..., None] * d  # on the near plane
+  sx, sy = -2.0 * fx / width, -2.0 * fy / height
+  at_near = np.stack([sx * p[..., 0] / p[..., 2], sy * p[..., 1] / p[..., 2],
+                      1.0 + 2.0 * near / p[..., 2]], axis=-1)
+  at_infinity = np.stack([sx * d[..., 0] / d[..., 2], sy * d[..., 1] / d[..., 2],
+                          np.ones_like(i)], axis=-1)
+  return at_infinity - at_near
+
+
+def test_rays_have_no_radii_unless_asked():
+  kwargs = dict(height=4, width=5, intrinsics=(6.0, 7.0, 2.5, 2.0), c2w=np.eye(4), near=0.0,
+                far=1.0)
+  assert rays.camera_rays(**kwargs).radii is None
+  thin, cones = rays.camera_rays(**kwargs), rays.camera_rays(**kwargs, with_radii=True)
+  for a, b in zip((thin.origins, thin.directions, thin.viewdirs, thin.near, thin.far),
+                  (cones.origins, cones.directions, cones.viewdirs, cones.near, cones.far)):
+    np.testing.assert_array_equal(a, b)  # radii only add a field
+  # A pinhole's pixels are 1/fx apart (and 1/fy) in the plane z = -1: radius 2/√12·√(dx·dy).
+  expected = 2.0 / math.sqrt(12.0) / math.sqrt(6.0 * 7.0)
+  assert cones.radii.shape == (4, 5)
+  np.testing.assert_allclose(cones.radii, expected, rtol=1e-6)
+
+
+def test_ndc_radius_is_the_distance_to_the_next_rows_ndc_direction():
+  # Turned about z (forward-facing: the camera looks down -z), and moved.
+  c2w = np.array([[0.96, -0.28, 0.0, 0.3], [0.28, 0.96, 0.0, -0.2], [0.0, 0.0, 1.0, 0.5]],
+                 np.float32)
+  height, width, intr = 6, 8, (9.0, 8.0, 4.2, 2.9)
+  got = rays.camera_rays(height, width, intr, c2w, 0.0, 1.0, 0.5, use_ndc=True, with_radii=True)
+  i, j = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64),
+                     indexing="xy")
+  ref = lambda jj: _ndc_direction_reference(i, jj, *intr, c2w, width, height)
+  np.testing.assert_allclose(got.directions, ref(j), rtol=1e-5, atol=1e-6)
+  distance = np.linalg.norm(ref(j + 1.0) - ref(j), axis=-1)  # a finite difference of one row
+  np.testing.assert_allclose(got.radii, 2.0 / math.sqrt(12.0) * distance, rtol=1e-4)
+  # mip-NeRF's definition, with its quirk: rays of a camera at the world origin are parallel
+  # in NDC (their directions all (0, 0, 2)), so that camera's radii are 0; this one is moved.
+  assert np.all(got.radii > 1e-3)

@@ -185,6 +185,16 @@ def test_jacobian_finite_at_zero_boundary_and_far(kind):
                                  rtol=1e-5, atol=atol * 1e8 / np.linalg.norm(x))
 
 
+@pytest.mark.parametrize("kind", KINDS)
+def test_gradient_finite_at_tiny_nonzero_points(kind):
+  # |x|^2 underflows for |x| < ~1e-19: the discarded outside branch's norm derivative used to
+  # divide by it (a NaN gradient under debug_nans). Inside, contract is the identity: grad = 1.
+  tiny = np.array([[1e-30, 0.0, 0.0], [0.0, -1e-25, 1e-38], [1e-20, 1e-20, 1e-20]], np.float32)
+  grad = jax.jit(jax.grad(lambda x: jnp.sum(contraction.contract(x, RADIUS, kind))))(tiny)
+  np.testing.assert_array_equal(np.asarray(grad), np.ones_like(tiny))
+  np.testing.assert_array_equal(np.asarray(contract(tiny, RADIUS, kind)), tiny)
+
+
 def test_jacobian_matches_finite_differences_outside():
   for kind in KINDS:
     x = _random_points(7, num=20, low=0.2, high=1.0).astype(np.float64)

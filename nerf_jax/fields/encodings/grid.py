@@ -21,7 +21,7 @@ import numpy as np
 
 from nerf_jax.backend import components, draws
 from nerf_jax.fields import registry
-from nerf_jax.fields.encodings import posenc
+from nerf_jax.fields.encodings import posenc, scale_weights
 
 
 def to_unit_cube(points, bound):
@@ -93,6 +93,19 @@ def weigh_levels(h, level_weights):
   return scaled.reshape(h.shape)
 
 
+def antialiased(level_features, std, cells):
+  """Zip-NeRF's features of a frustum from those of its six multisamples: each level's features
+  weighted by scale_weights.level_weights of the sample's scale against the level's cell size,
+  then averaged over the six.
+
+  level_features: float [..., 6, L, F]. std: float32 [..., 6], each multisample's scale.
+  cells: float32 [L], each level's cell size in std's units. Returns float [..., L·F].
+  """
+  weights = scale_weights.level_weights(std, cells).astype(level_features.dtype)  # [..., 6, L]
+  features = jnp.mean(level_features * weights[..., None], axis=-3)  # [..., L, F]
+  return features.reshape(*features.shape[:-2], -1)
+
+
 def level_window(bands, stages):
   """float32 [stages + 1] weights of a lattice's levels with `bands` open: the coarsest always
   open, the others opening as posenc.coarse_to_fine_weights opens bands."""
@@ -129,6 +142,14 @@ class Space:
     """bool [...]: whether world positions float32 [..., 3] lie inside the box."""
     return inside_box(self.unit(points))
 
+  def cell_sizes(self, resolutions):
+    """float32 [L]: each level's cell size (world units) along the axis with most cells, for
+    levels of `resolutions` lattice points along it (scale_weights.cell_sizes)."""
+    box = (self.box[:3], self.box[3:]) if self.box else ((-self.bound,) * 3, (self.bound,) * 3)
+    sides = np.asarray(box[1], np.float64) - np.asarray(box[0], np.float64)
+    axis = int(np.argmax(sides / np.asarray(self.cell_aspect, np.float64)))  # axis_resolutions'
+    return scale_weights.cell_sizes(resolutions, sides[axis])
+
 
 @dataclasses.dataclass(frozen=True)
 class Settings:
@@ -140,8 +161,12 @@ class Settings:
   density_hash_log2_size: int = 20  # log2 of the hashed density level's rows
   colour_hash_resolution: int = 0  # with density_resolutions: a hashed finer colour level
   colour_hash_log2_size: int = 20  # log2 of the hashed colour level's rows
+  antialias: bool = False  # Zip-NeRF: 6 points per frustum, levels weighted by its scale
 
   def __post_init__(self):
+    if self.antialias and self.density_resolutions:
+      raise ValueError("config.model.grid.antialias works with the lattice head: it needs "
+                       "config.model.grid.density_resolutions = ()")
     if not self.density_resolutions and (self.density_hash_resolution
                                          or self.colour_hash_resolution):
       raise ValueError("config.model.grid.density_hash_resolution and colour_hash_resolution "
@@ -163,13 +188,21 @@ class DenseGrid:
   def band_weights(self, bands):
     return level_window(bands, self.coarse_to_fine_stages)
 
-  def features(self, module, points, weights=None):
+  def features(self, module, points, weights=None, multisamples=None):
     """float32 [..., levels·features] at world positions float32 [..., 3] (clamped to the box
-    outside it), level l scaled by weights[l]; the grids are `module`'s parameters."""
+    outside it), level l scaled by weights[l]; the grids are `module`'s parameters.
+    multisamples: None, or Zip-NeRF's (points float32 [..., 6, 3], std float32 [..., 6]) of
+    each frustum (settings.antialias): their features, `antialiased`, instead of points'."""
     init = draws.normal_init(1e-2)
     grids = [module.param(f"grid_{r}", init, (*self.space.shape(r), self.settings.features))
              for r in self.settings.resolutions]
-    return weigh_levels(multires_features(grids, self.space.unit(points)), weights)
+    if multisamples is None:
+      return weigh_levels(multires_features(grids, self.space.unit(points)), weights)
+    six, std = multisamples
+    unit = self.space.unit(six)
+    levels = jnp.stack([trilinear(g, unit) for g in grids], axis=-2)  # [..., 6, L, F]
+    cells = self.space.cell_sizes(self.settings.resolutions)
+    return weigh_levels(antialiased(levels, std, cells), weights)
 
   def inside(self, points):
     return self.space.inside(points)
@@ -187,7 +220,7 @@ def build(settings, shared):
 def lattice_signature(settings):
   """The dense levels' entries of a checkpoint signature (every lattice encoding records them:
   registry.Encoding.records_grid_section)."""
-  return components.signature(settings, "grid_", exclude=_SPLIT)
+  return components.signature(settings, "grid_", exclude=_SPLIT + ("antialias",))
 
 
 _SPLIT = ("density_resolutions", "density_hash_resolution", "density_hash_log2_size",
@@ -198,6 +231,8 @@ def signature(settings):
   """The grid encoding's entries beyond `lattice_signature`: the density grids and hashed
   levels, only when set (so checkpoints saved before they existed stay valid)."""
   entries = {"encoding": "grid"}
+  if settings.antialias:  # only when on: checkpoints saved before it keep restoring
+    entries["grid_antialias"] = True
   if settings.density_resolutions:
     entries["grid_density_resolutions"] = list(settings.density_resolutions)
     for part in ("density", "colour"):
@@ -213,5 +248,10 @@ def _network(settings):
 
 
 # Lattice tables (loss.total_variation): the feature grids and the density levels, 3 spatial axes.
+def _cones(settings):
+  return "multisamples" if settings.antialias else ""
+
+
 ENCODING = registry.Encoding("grid", Settings, build, _network, signature,
-                             table_axes={"grid_": 3, "density_": 3}, records_grid_section=True)
+                             table_axes={"grid_": 3, "density_": 3}, records_grid_section=True,
+                             cones=_cones)

@@ -166,6 +166,7 @@ class Settings:
   base_resolution: int = 16  # lattice points per side of the coarsest level
   max_resolution: int = 2048  # lattice points per side of the finest level
   gather_dtype: str = "float32"  # dtype of the gathered rows (the table stays float32)
+  antialias: bool = False  # Zip-NeRF: 6 points per frustum, levels weighted by its scale
 
   def __post_init__(self):
     level_rows(self.resolutions, self.log2_size)  # ValueErrors naming the fields
@@ -195,15 +196,23 @@ class HashGrid:
   def band_weights(self, bands):
     return grid.level_window(bands, self.coarse_to_fine_stages)
 
-  def features(self, module, points, weights=None):
+  def features(self, module, points, weights=None, multisamples=None):
     """float32 [..., levels·features] at world positions float32 [..., 3] (clamped to the box
-    outside it), level l scaled by weights[l]; the table is `module`'s parameter."""
+    outside it), level l scaled by weights[l]; the table is `module`'s parameter.
+    multisamples: None, or Zip-NeRF's (points float32 [..., 6, 3], std float32 [..., 6]) of
+    each frustum (settings.antialias): their features, grid.antialiased, instead of points'."""
     s = self.settings
     rows = sum(level_rows(s.resolutions, s.log2_size))
     init = lambda key, shape: draws.uniform(key, shape, jnp.float32, -1e-4, 1e-4)
     table = module.param("hash_table", init, (rows, s.features))
-    h = encode(table, self.space.unit(points), s.resolutions, s.log2_size, s.gather_dtype)
-    return grid.weigh_levels(h, weights)
+    if multisamples is None:
+      h = encode(table, self.space.unit(points), s.resolutions, s.log2_size, s.gather_dtype)
+      return grid.weigh_levels(h, weights)
+    six, std = multisamples
+    h = encode(table, self.space.unit(six), s.resolutions, s.log2_size, s.gather_dtype)
+    levels = h.reshape(*h.shape[:-1], s.levels, s.features)  # [..., 6, L, F]
+    cells = self.space.cell_sizes(s.resolutions)
+    return grid.weigh_levels(grid.antialiased(levels, std, cells), weights)
 
   def inside(self, points):
     return self.space.inside(points)
@@ -220,8 +229,13 @@ def build(settings, shared):
 
 def signature(settings):
   """The table's shape and the meaning of its rows (the gathered dtype changes neither)."""
-  return {"encoding": "hash", **components.signature(settings, "hash_", exclude=("gather_dtype",))}
+  entries = {"encoding": "hash",
+             **components.signature(settings, "hash_", exclude=("gather_dtype", "antialias"))}
+  if settings.antialias:  # only when on: checkpoints saved before it keep restoring
+    entries["hash_antialias"] = True
+  return entries
 
 
 ENCODING = registry.Encoding("hash", Settings, build, "lattice", signature,
-                             records_grid_section=True)
+                             records_grid_section=True,
+                             cones=lambda settings: "multisamples" if settings.antialias else "")

@@ -23,9 +23,13 @@ value (the exponent) meets the derivative of exp, which is exp itself. Bands up 
 finite (2^15·mean is exact: a power of two; see encoding.py for their accuracy).
 """
 
+import dataclasses
+
 import jax.numpy as jnp
 import numpy as np
 
+from nerf_jax.fields import registry
+from nerf_jax.fields.encodings import posenc
 from nerf_jax.fields.encodings.posenc import positional_encoding
 
 
@@ -58,3 +62,30 @@ def integrated_positional_encoding(mean, var, num_freqs, band_weights=None):
   damping = damping.reshape(*damping.shape[:-2], -1)
   identity = jnp.ones_like(mean)  # the mean is E[x]: not damped
   return features * jnp.concatenate([identity, damping], axis=-1)
+
+
+@dataclasses.dataclass(frozen=True)
+class Integrated(posenc.Frequency):
+  """The integrated encoding of Gaussians by `num_freqs` bands (protocol.Encoding, config name
+  'ipe'): NeRF's MLP reads it as it reads the bands; no parameters."""
+
+  def features(self, module, x, weights=None, var=None):
+    """`integrated_positional_encoding` of means x float32 [..., d] with diagonal variances var
+    float32 [..., d] (None or 0: points, positional_encoding exactly). module: unused."""
+    if var is None:
+      return super().features(module, x, weights)
+    return integrated_positional_encoding(x, var, self.num_freqs, weights)
+
+
+def build(settings, shared):
+  """The Integrated encoding of the positions: posenc's settings (config.pos_encode_dims bands;
+  shared: unused)."""
+  del shared
+  return Integrated(settings.pos_encode_dims)
+
+
+# The bands' setting is posenc's (config.pos_encode_dims, recorded with the shared fields by
+# run/signature.py): its checkpoints record only that they are ipe's (posenc's have the same
+# shapes).
+ENCODING = registry.Encoding("ipe", posenc.Settings, build, network="mlp", section="",
+                             signature=lambda settings: {"encoding": "ipe"}, cones="gaussians")

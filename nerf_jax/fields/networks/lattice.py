@@ -51,8 +51,8 @@ class LatticeHead(nn.Module):
   matmul_precision: str = "default"  # precision.NETWORK_PRECISIONS: 'default', 'high', 'highest'
 
   @nn.compact
-  def __call__(self, points, dir_features=None, image=None, level_weights=None):
-    h = self.encoding.features(self, points, level_weights)
+  def __call__(self, points, dir_features=None, image=None, level_weights=None, **per_sample):
+    h = self.encoding.features(self, points, level_weights, **per_sample)
     return head(self, h.astype(jnp.dtype(self.dtype)), self.encoding.inside(points),
                 dir_features, image)
 

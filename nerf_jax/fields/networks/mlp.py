@@ -39,17 +39,19 @@ class NerfMLP(nn.Module):
   encoding: Any = None
 
   @nn.compact
-  def __call__(self, points, dir_features=None, image=None, level_weights=None):
-    rgb, raw_sigma = self._layers(self._encode(points, level_weights), dir_features, image)
+  def __call__(self, points, dir_features=None, image=None, level_weights=None, **per_sample):
+    rgb, raw_sigma = self._layers(self._encode(points, level_weights, per_sample), dir_features,
+                                  image)
     inside = None if self.encoding is None else self.encoding.inside(points)
     if inside is not None:
       raw_sigma = jnp.where(inside, raw_sigma, -1e5)
     return rgb, raw_sigma
 
-  def _encode(self, points, level_weights):
+  def _encode(self, points, level_weights, per_sample):
     if self.encoding is None:
       return points
-    return self.encoding.features(self, points, level_weights)
+    # per_sample (a cone's: protocol.py) only when given, so encodings of points need not take it
+    return self.encoding.features(self, points, level_weights, **per_sample)
 
   def _layers(self, pos_features, dir_features, image):
     x = pos_features.astype(jnp.dtype(self.dtype))

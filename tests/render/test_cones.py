@@ -1,0 +1,251 @@
+"""Cones through the field and the renderer (model.encoding 'ipe', configs/mipnerf.py): the
+Field's Gaussians against mip-NeRF's frustum moments written here in float64 (the expanded
+quotients), the integrated encoding with variance 0 against the point encoding, bit for bit,
+and the renderer against a pass written out by hand. jax_debug_nans is on: a NaN anywhere, a
+backward pass included, fails the test.
+"""
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from nerf_jax.cameras.rays import Rays
+from nerf_jax.render import compositing, image_renderer, renderer as renderer_lib
+from nerf_jax.fields.encodings import grid
+from nerf_jax.run import components
+from nerf_jax.samplers import placement
+from tests.helpers import small_config, sphere_rays
+
+pytestmark = pytest.mark.usefixtures("debug_nans")  # conftest.py: NaNs raise in this module
+
+SMALL = {"num_samples": 8, "num_fine_samples": 8, "pos_encode_dims": 6, "model.width": 16,
+         "model.depth": 2, "model.skip_layers": ()}
+
+
+def _field(**overrides):
+  return components.make_field(small_config({**SMALL, **overrides}, base="mipnerf"))
+
+
+def _rays(num=6, radius=0.01, near=2.0, far=6.0, seed=0):
+  origins, directions = sphere_rays(num, seed, unit=False)
+  rays = Rays.create(origins, directions, near, far)
+  return rays.replace(radii=jnp.full(rays.shape, radius, jnp.float32))
+
+
+def _frustum_reference(o, d, radius, t0, t1):
+  """float64 (mean [..., S, 3], diagonal variance [..., S, 3]) of each frustum, from the
+  expanded moments of t under the density t^2 on [t0, t1] (mip-NeRF's eq. 7 before its
+  rewriting): E[t] = 3/4·(t1^4 - t0^4)/(t1^3 - t0^3), E[t^2] = 3/5·(t1^5 - t0^5)/(t1^3 - t0^3),
+  and the offset across the ray of variance radius^2·E[t^2]/4 per axis (a disc of radius
+  radius·t)."""
+  o, d = np.asarray(o, np.float64)[:, None], np.asarray(d, np.float64)[:, None]
+  t0, t1 = np.asarray(t0, np.float64), np.asarray(t1, np.float64)
+  cubes = t1 ** 3 - t0 ** 3
+  t_mean = 0.75 * (t1 ** 4 - t0 ** 4) / cubes
+  t_sq = 0.6 * (t1 ** 5 - t0 ** 5) / cubes
+  r_var = np.asarray(radius, np.float64)[:, None] ** 2 * t_sq / 4.0
+  dd = d * d
+  var = ((t_sq - t_mean ** 2)[..., None] * dd
+         + r_var[..., None] * (1.0 - dd / np.sum(dd, axis=-1, keepdims=True)))
+  return o + t_mean[..., None] * d, var
+
+
+def _contract_reference(x, radius):
+  """float64 L2 contraction, mip-NeRF 360's (2 - 1/n)·x/n with n = |x|/radius outside."""
+  n = np.linalg.norm(x, axis=-1, keepdims=True) / radius
+  return np.where(n <= 1.0, x, (2.0 - 1.0 / np.maximum(n, 1.0)) * x / np.maximum(n, 1.0))
+
+
+def test_ipe_field_with_variance_zero_is_the_posenc_field_bit_for_bit():
+  ipe, posenc = _field(), _field(**{"model.encoding": "posenc"})
+  assert ipe.cones and not posenc.cones
+  params = ipe.init(jax.random.PRNGKey(3))
+  again = posenc.init(jax.random.PRNGKey(3))  # the same parameters: the same names and shapes
+  assert all(np.array_equal(a, b) for a, b in zip(jax.tree_util.tree_leaves(params),
+                                                   jax.tree_util.tree_leaves(again)))
+  rng = np.random.default_rng(0)
+  points = jnp.asarray(rng.uniform(-1.5, 1.5, (5, 7, 3)), jnp.float32)
+  viewdirs = jnp.asarray(rng.normal(size=(5, 3)), jnp.float32)
+  viewdirs = viewdirs / jnp.linalg.norm(viewdirs, axis=-1, keepdims=True)
+  want = jax.jit(posenc.query)(params, points, viewdirs)
+  zero = jnp.zeros_like(points)
+  got = jax.jit(lambda p, x, v, s: ipe.query(p, x, v, per_sample={'var': s}))(params, points, viewdirs, zero)
+  for a, b in zip(got, want):
+    np.testing.assert_array_equal(a, b)
+  # And variance does change the features (the fine bands fade).
+  wide = jax.jit(lambda p, x, v, s: ipe.query(p, x, v, per_sample={'var': s}))(params, points, viewdirs,
+                                                               zero + 0.1)
+  assert not np.allclose(wide[0], want[0])
+
+
+def test_field_gaussians_are_the_frustums_of_the_intervals():
+  rays = _rays(radius=0.0)
+  rays = rays.replace(radii=jnp.asarray([0.0, 1e-3, 0.01, 0.05, 0.2, 0.5], jnp.float32))
+  t = jnp.sort(jnp.asarray(np.random.default_rng(1).uniform(2.0, 6.0, (6, 9)), jnp.float32))
+  mean, var = jax.jit(_field().gaussians)(rays, t[:, :-1], t[:, 1:])
+  ref_mean, ref_var = _frustum_reference(rays.origins, rays.directions, rays.radii, t[:, :-1],
+                                         t[:, 1:])
+  np.testing.assert_allclose(mean, ref_mean, rtol=1e-5, atol=1e-5)
+  # The expanded quotients cancel in float64 too (~1e-16·t^2/hw^2), and the float32 result
+  # carries rounding of t^2-sized terms: compared at 1e-3.
+  np.testing.assert_allclose(var, ref_var, rtol=1e-3, atol=1e-7)
+
+
+def test_field_gaussians_in_contracted_space_are_the_linearised_contraction():
+  radius = 1.0
+  field = _field(**{"data.contraction": "l2", "data.scene_bound": radius, "num_fine_samples": 0})
+  rays = _rays(radius=0.02)
+  t = jnp.asarray(np.geomspace(3.0, 40.0, 7)[None].repeat(6, 0), jnp.float32)
+  _, var = jax.jit(field.gaussians)(rays, t[:, :-1], t[:, 1:])
+  ref_mean, ref_var = _frustum_reference(rays.origins, rays.directions, rays.radii, t[:, :-1],
+                                         t[:, 1:])
+  # J by central differences of the float64 contraction: var' = sum_k J_ik^2 var_k.
+  h = 1e-6 * np.maximum(np.linalg.norm(ref_mean, axis=-1), 1.0)[..., None]
+  jac = np.stack([(_contract_reference(ref_mean + h * e, radius)
+                   - _contract_reference(ref_mean - h * e, radius)) / (2 * h)
+                  for e in np.eye(3)], axis=-1)  # [..., i, k]
+  want = np.sum(jac ** 2 * ref_var[..., None, :], axis=-1)
+  np.testing.assert_allclose(var, want, rtol=2e-3, atol=1e-9)
+
+
+def test_renderer_queries_the_gaussians_of_its_samples():
+  config = small_config(SMALL, base="mipnerf")
+  renderer = components.make_ray_renderer(config)
+  assert renderer.networks == ("coarse",)  # one MLP for both passes (model.shared_fine)
+  variables = renderer.init(jax.random.PRNGKey(0))
+  params = variables["params"]["coarse"]
+  rays = _rays()
+  out = jax.jit(renderer.render)(variables, rays)
+
+  def by_hand(rays):
+    samples, _ = renderer.sampler.generate(rays)
+    t = samples.t
+    mean, var = renderer.field.gaussians(rays, t[..., :-1], t[..., 1:])
+    rgb, sigma = renderer.field.query(params, mean, rays.viewdirs, per_sample={'var': var})
+    return compositing.composite(rgb, placement.per_unit_t(sigma, rays), t)
+  want = jax.jit(by_hand)(rays)
+  np.testing.assert_allclose(out["coarse"]["rgb"], want["rgb"], rtol=1e-6, atol=1e-7)
+  np.testing.assert_allclose(out["coarse"]["depth"], want["depth"], rtol=1e-6, atol=1e-6)
+  # The radii reach the encoding: wide cones render otherwise.
+  wide = jax.jit(renderer.render)(variables, rays.replace(radii=rays.radii * 50.0))
+  assert not np.allclose(wide["fine"]["rgb"], out["fine"]["rgb"])
+  with pytest.raises(ValueError, match="radii"):
+    renderer.render(variables, rays.replace(radii=None))
+
+
+@pytest.mark.parametrize("contraction", ["", "l2"])
+def test_gradients_are_finite_for_huge_t(contraction):
+  overrides = {"num_fine_samples": 0, "pos_encode_dims": 16}
+  if contraction:
+    overrides.update({"data.contraction": contraction, "data.scene_bound": 1.0})
+  field = _field(**overrides)
+  params = field.init(jax.random.PRNGKey(1))
+  rays = _rays(radius=0.01)
+  # Intervals from the scene out to 1e10 (the unbounded sampler's last edge, spacing.py).
+  t = jnp.asarray(np.concatenate([[2.0, 3.0, 10.0], np.geomspace(1e3, 1e10, 4)]),
+                  jnp.float32)[None].repeat(6, 0)
+
+  def loss(params, radii, origins):
+    r = rays.replace(radii=radii, origins=origins)
+    mean, var = field.gaussians(r, t[:, :-1], t[:, 1:])
+    rgb, sigma = field.query(params, mean, r.viewdirs, per_sample={'var': var})
+    return jnp.sum(rgb) + jnp.sum(sigma)
+  value, grads = jax.jit(jax.value_and_grad(loss, argnums=(0, 1, 2)))(params, rays.radii,
+                                                                       rays.origins)
+  assert np.isfinite(value)
+  assert all(np.all(np.isfinite(g)) for g in jax.tree_util.tree_leaves(grads))
+
+
+def test_a_field_of_points_ignores_radii():
+  # A plain field renders rays with radii exactly as without them.
+  config = small_config({**SMALL, "model.encoding": "posenc"}, base="mipnerf")
+  renderer = components.make_ray_renderer(config)
+  variables = renderer.init(jax.random.PRNGKey(0))
+  rays = _rays()
+  with_radii = jax.jit(renderer.render)(variables, rays)
+  without = jax.jit(renderer.render)(variables, rays.replace(radii=None))
+  np.testing.assert_array_equal(with_radii["fine"]["rgb"], without["fine"]["rgb"])
+
+
+# Zip-NeRF's antialiased lattices (model.grid.antialias, model.hash.antialias).
+
+TINY_LATTICE = {"num_samples": 8, "data.scene_bound": 1.5, "model.width": 16,
+                "model.grid.resolutions": (8, 16), "model.hash.levels": 3,
+                "model.hash.base_resolution": 4, "model.hash.max_resolution": 32,
+                "model.hash.log2_size": 10}
+
+
+def _lattice_field(encoding, antialias, **overrides):
+  config = small_config({**TINY_LATTICE, "model.encoding": encoding,
+                         f"model.{encoding}.antialias": antialias, **overrides}, base="fast")
+  return components.make_field(config)
+
+
+@pytest.mark.parametrize("encoding", ["grid", "hash"])
+def test_antialiased_lattice_at_radius_zero_is_the_plain_lattice(encoding):
+  plain, aa = _lattice_field(encoding, False), _lattice_field(encoding, True)
+  assert aa.cones == "multisamples" and not plain.cones
+  params = plain.init(jax.random.PRNGKey(2))
+  rays = _rays(radius=0.0)
+  # Zero-length intervals of a zero radius: the six points are the point itself, scale 0.
+  t = jnp.asarray(np.random.default_rng(3).uniform(3.0, 5.0, (6, 5)), jnp.float32)
+  points, per_sample = aa.cone_inputs(rays, t, t)
+  np.testing.assert_array_equal(per_sample["multisamples"][1], 0.0)
+  want = jax.jit(plain.query)(params, points, rays.viewdirs)
+  got = jax.jit(lambda p, x, v, c: aa.query(p, x, v, per_sample=c))(params, points,
+                                                                    rays.viewdirs, per_sample)
+  for a, b in zip(got, want):
+    np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)
+
+
+def test_antialiased_features_against_erf_weights_written_here():
+  rng = np.random.default_rng(4)
+  features = rng.normal(size=(5, 6, 3, 2)).astype(np.float32)  # [N, 6, L, F]
+  std = rng.uniform(0.0, 0.3, (5, 6)).astype(np.float32)
+  std[0] = 0.0  # points: every level whole
+  cells = np.float32([0.4, 0.1, 0.02])
+  got = np.asarray(jax.jit(grid.antialiased)(features, std, cells))
+  erf = np.vectorize(math.erf)
+  with np.errstate(divide="ignore"):
+    w = np.where(std[..., None] > 0, erf(cells / (np.sqrt(8.0) * std[..., None])), 1.0)
+  want = np.mean(features * w[..., None], axis=1).reshape(5, -1)
+  np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+  np.testing.assert_allclose(got[0], features[0].mean(axis=0).reshape(-1), rtol=1e-6)
+
+
+@pytest.mark.parametrize("contraction", ["", "l2"])
+def test_antialiased_grid_renders_and_has_finite_gradients(contraction):
+  overrides = {"data.contraction": contraction, "data.scene_bound": 1.0} if contraction else {}
+  config = small_config({**TINY_LATTICE, "model.grid.antialias": True, **overrides},
+                        base="fast")
+  renderer = components.make_ray_renderer(config)
+  variables = renderer.init(jax.random.PRNGKey(0))
+  rays = _rays(radius=0.02)
+
+  def loss(params, radii):
+    out = renderer.render({**variables, "params": params}, rays.replace(radii=radii))
+    return jnp.sum(renderer_lib.final(out)["rgb"])
+  value, grads = jax.jit(jax.value_and_grad(loss, argnums=(0, 1)))(variables["params"],
+                                                                    rays.radii)
+  assert np.isfinite(value)
+  assert all(np.all(np.isfinite(g)) for g in jax.tree_util.tree_leaves(grads))
+  # The frustums' scale reaches the features: wide cones render otherwise.
+  assert float(jax.jit(loss)(variables["params"], rays.radii * 20.0)) != float(value)
+
+
+def test_image_renderer_compiles_and_draws_rays_with_radii():
+  # Its compile step draws a probe ray of the kind it will draw: with a radius for cones.
+  config = small_config(SMALL, base="mipnerf")
+  renderer = components.make_ray_renderer(config)
+  variables = renderer.init(jax.random.PRNGKey(0))
+  settings = dataclasses.replace(components.image_settings(config), chunk=16)
+  draw = image_renderer.make_image_renderer(renderer, settings)(variables)
+  list(draw.compile_steps())
+  rays = _rays()
+  out = draw(rays)
+  want = jax.jit(renderer.render)(variables, rays)["fine"]["rgb"]
+  np.testing.assert_allclose(out["rgb"], want, rtol=1e-5, atol=1e-6)
