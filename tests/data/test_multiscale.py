@@ -9,7 +9,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from nerf_jax.data import export, loaders, multicam, multiscale, scenes
+from nerf_jax.data import export, multicam, multiscale, scenes
 from nerf_jax.data.dataset import DataError
 from tests.helpers import assert_data_error, load_data
 
