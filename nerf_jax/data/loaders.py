@@ -7,7 +7,6 @@ images give the opacity (alpha) and are composited on the `background` argument.
 """
 
 import dataclasses
-import json
 import math
 import os
 import zipfile
@@ -61,17 +60,6 @@ def load_npz(path, background=(0.0, 0.0, 0.0)):
                                               f"{path}: 'pixel_center'"), **extra)
 
 
-def _read_json(path):
-  if not os.path.isfile(path):
-    raise DataError(f"{path}: no such file")
-  with open(path) as f:
-    try:
-      return json.load(f)
-    except json.JSONDecodeError as e:
-      raise DataError(f"{path}: malformed JSON at line {e.lineno} column {e.colno}: "
-                      f"{e.msg}") from None
-
-
 def _field(obj, key, where):
   if not isinstance(obj, dict) or key not in obj:
     raise DataError(f"{where}: missing key {key!r}")
@@ -107,7 +95,7 @@ def load_blender(path, background=(0.0, 0.0, 0.0), half_res=False, split="train"
   `near`/`far` (default 2, 6). RGBA PNGs are composited on `background`; `accs` is their alpha
   (1 for RGB PNGs). Rendered images: pixel_center 0.5. Returns a Dataset."""
   meta_path = os.path.join(path, f"transforms_{split}.json")
-  meta = _read_json(meta_path)
+  meta = validate.read_json(meta_path)
   angle = validate.scalar(_field(meta, "camera_angle_x", meta_path),
                           f"{meta_path}: 'camera_angle_x'")
   frames = _field(meta, "frames", meta_path)

@@ -55,13 +55,7 @@ def load(path, background=(0.0, 0.0, 0.0), split="train"):
   composited on `background` and its alpha becomes `accs`; near, far: the smallest near and
   largest far of the split's images."""
   meta_path = os.path.join(path, FILENAME)
-  if not os.path.isfile(meta_path):
-    raise DataError(f"{meta_path}: no such file")
-  with open(meta_path) as f:
-    try:
-      meta = json.load(f)
-    except json.JSONDecodeError as e:
-      raise DataError(f"{meta_path}: malformed JSON at line {e.lineno}: {e.msg}") from None
+  meta = validate.read_json(meta_path)
   if not isinstance(meta, dict) or not isinstance(meta.get(split), dict):
     raise DataError(f"{meta_path}: missing split {split!r}")
   meta, where = meta[split], f"{meta_path}: {split}"

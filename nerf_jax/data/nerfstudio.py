@@ -65,21 +65,6 @@ def write(out_dir, frames, camera, extra):
     json.dump(meta, f, indent=2)
 
 
-def _read_meta(path):
-  if not os.path.isfile(path):
-    raise DataError(f"{path}: no such file")
-  with open(path) as f:
-    try:
-      meta = json.load(f)
-    except json.JSONDecodeError as e:
-      raise DataError(f"{path}: malformed JSON at line {e.lineno} column {e.colno}: "
-                      f"{e.msg}") from None
-  frames = meta.get("frames") if isinstance(meta, dict) else None
-  if not isinstance(frames, list) or not frames:
-    raise DataError(f"{path}: 'frames' must be a non-empty list")
-  return meta
-
-
 def _number(frame, meta, key, where, default=None):
   value = frame.get(key, meta.get(key, default))
   if value is None:
@@ -256,7 +241,7 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
   """
   meta_path = path if path.endswith(".json") else os.path.join(path, FILENAME)
   root = os.path.dirname(meta_path)
-  meta = _read_meta(meta_path)
+  meta = validate.read_json(meta_path)
   factor = int(factor) if factor else 1
   order = sorted(range(len(meta["frames"])), key=lambda k: str(meta["frames"][k].get("file_path")))
   for k in order:

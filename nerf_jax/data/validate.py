@@ -4,6 +4,9 @@ Every function raises `DataError` with a one-line message that starts with `wher
 field at fault) when its input is malformed.
 """
 
+import json
+import os
+
 import imageio.v3 as iio
 import numpy as np
 
@@ -77,3 +80,16 @@ def read_image(path):
     lines = str(e).strip().splitlines() or [type(e).__name__]  # imageio's can be many lines
     raise DataError(f"{path}: cannot read image ({lines[0]})") from None
   return unit_images(image, path)
+
+
+def read_json(path):
+  """The JSON document in the file `path`; DataError naming the file for a missing file or a
+  malformed document (its line and column)."""
+  if not os.path.isfile(path):
+    raise DataError(f"{path}: no such file")
+  with open(path) as f:
+    try:
+      return json.load(f)
+    except json.JSONDecodeError as e:
+      raise DataError(f"{path}: malformed JSON at line {e.lineno} column {e.colno}: "
+                      f"{e.msg}") from None
