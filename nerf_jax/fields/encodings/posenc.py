@@ -114,7 +114,7 @@ def build_directions(settings, shared):
 
 
 # The bands' count is a top-level field (config.pos_encode_dims), recorded with the shared
-# fields by run/train_state.model_signature, as it always was: nothing of its own here.
+# fields by run/signature.model_signature, as it always was: nothing of its own here.
 ENCODING = registry.Encoding("posenc", Settings, build, network="mlp", section="")
 DIRECTION_ENCODING = registry.Encoding("frequency", protocol.DirectionSettings, build_directions,
                                       section="")
