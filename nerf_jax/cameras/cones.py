@@ -127,6 +127,19 @@ def frustum_gaussians(origins, directions, radii, t0, t1, diagonal=False):
   return mean + origins[..., None, :], cov
 
 
+def centre_samples(origins, directions, radii, t0, t1):
+  """Each frustum's mean as one multisample (Zip-NeRF's level weighting without multisampling).
+
+  origins, directions: float32 [..., 3]. radii: float32 [...]. t0, t1: float32 [..., S].
+  Returns (points: float32 [..., S, 1, 3], scales: float32 [..., S, 1]): the point on the ray at
+  the frustum's mean t, and the scale `multisamples` gives a point there (radius·t/sqrt(2)).
+  """
+  t_mean = frustum_moments(t0, t1)[0]
+  points = origins[..., None, :] + t_mean[..., None] * directions[..., None, :]
+  rho = (radii[..., None] * np.float32(math.sqrt(0.5))) * t_mean
+  return points[..., None, :], rho[..., None]
+
+
 def perpendicular_basis(directions):
   """Two unit vectors perpendicular to each direction and to each other.
 

@@ -46,7 +46,8 @@ class Field:
     region of half-size `inner_radius` first (contraction.py), so the network sees all of space
     inside [-2·inner_radius, 2·inner_radius]^3.
   cones: what the position encoding reads of each sample's frustum (registry.Encoding.cones):
-    '' points, 'gaussians' or 'multisamples' (`cone_inputs`); rays then need their radii.
+    '' points, 'gaussians', 'multisamples' or 'scales' (`cone_inputs`); rays then need their
+    radii.
   """
   network: Any
   directions: Any = posenc.Frequency(4)
@@ -116,12 +117,14 @@ class Field:
     return mean, var
 
   def multisamples(self, rays, t0, t1):
-    """Zip-NeRF's six points of each frustum [t0, t1) of `rays` [...] (with radii), and their
-    scales, in the network's space (contracted by contraction.contract_isotropic in an
-    unbounded scene): (float32 [..., S, 6, 3], float32 [..., S, 6]). t0, t1: float32 [..., S]."""
+    """Zip-NeRF's six points of each frustum [t0, t1) of `rays` [...] (with radii), or its mean
+    alone (cones 'scales'), and their scales, in the network's space (contracted by
+    contraction.contract_isotropic in an unbounded scene): (float32 [..., S, M, 3], float32
+    [..., S, M]), M = 6 or 1. t0, t1: float32 [..., S]."""
     if rays.radii is None:
       raise ValueError("a field of cones needs rays with radii (pixel_rays(..., with_radii=True))")
-    points, std = cones.multisamples(rays.origins, rays.directions, rays.radii, t0, t1)
+    sampler = cones.centre_samples if self.cones == "scales" else cones.multisamples
+    points, std = sampler(rays.origins, rays.directions, rays.radii, t0, t1)
     if self.contraction:
       points, std = contraction.contract_isotropic(points, std, self.inner_radius,
                                                    self.contraction)

@@ -46,7 +46,8 @@ class Encoding:
   cones: what it encodes of each sample's frustum (cameras/cones.py; the rays then carry their
     radii, Rays.radii), or settings -> that: '' points; 'gaussians' mip-NeRF's Gaussian, the
     Field hands `features` the means with their diagonal variances as `var=`; 'multisamples'
-    Zip-NeRF's six points, handed as `multisamples=(points, std)` beside the means.
+    Zip-NeRF's six points, handed as `multisamples=(points, std)` beside the means; 'scales'
+    the same with each frustum's mean as its one point (levels weighted, no multisampling).
   """
   name: str
   settings: type
@@ -69,7 +70,7 @@ class Encoding:
     return self.section is not None
 
   def cone_kind(self, settings):
-    """'' (points), 'gaussians' or 'multisamples': what the encoding of `settings` reads."""
+    """'' (points), 'gaussians', 'multisamples' or 'scales': what `settings`' encoding reads."""
     return self.cones(settings) if callable(self.cones) else self.cones
 
   def natural_network(self, settings):

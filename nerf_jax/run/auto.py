@@ -9,6 +9,9 @@ from nerf_jax.run import characterise, config_lib
 
 APPEARANCE_DIMS = 8  # the appearance codes' length auto switches on (NeRF-W: 48, nerfacto: 32)
 LARGE_IMAGES = 400  # auto: object captures from this many pixels a side use configs/detail.py
+# Zip-NeRF's multisampling with its level weights, or the weights alone (multisample False):
+# on the multiscale lego at 10 CPU-minutes the weights alone score best (docs/multiscale.md).
+ANTIALIAS_MULTISAMPLE = False
 _OWN = ("auto", "auto_decisions", "auto_flags")  # auto's own fields, set by auto_config itself
 # On a GPU backend, the config of configs/gpu/ that takes each CPU choice's place (docs/gpu.md:
 # chosen for a GPU, unmeasured there until a GPU session measures them).
@@ -26,6 +29,28 @@ def for_backend(chosen, backend):
   gpu = GPU_CONFIGS[chosen]
   return gpu, (f"backend gpu: configs/{gpu}.py, sized for a GPU (unmeasured: docs/gpu.md), "
                f"in place of the CPU's configs/{chosen}.py")
+
+
+def cone_effects(config):
+  """{field: value} that make the representation `config` read cones (docs/multiscale.md): the
+  integrated positional encoding for 'posenc', Zip-NeRF's anti-aliasing for a lattice (its
+  multisampling as ANTIALIAS_MULTISAMPLE says), and rendering without marching (which queries
+  points). {} for an encoding without cones (TensoRF)."""
+  encoding = config.model.encoding
+  if encoding == "posenc":
+    return {"model.encoding": "ipe", "render.march": False}
+  if encoding in ("grid", "hash"):
+    return {f"model.{encoding}.antialias": True,
+            f"model.{encoding}.multisample": ANTIALIAS_MULTISAMPLE, "render.march": False}
+  return {}
+
+
+def cone_summary(config):
+  """One phrase naming what `cone_effects` switches on for `config`."""
+  effects = cone_effects(config)
+  if not effects:
+    return f"but model.encoding={config.model.encoding!r} has no anti-aliased form yet"
+  return ", ".join(f"{k}={v!r}" for k, v in effects.items())
 
 
 def _flat(config):
@@ -58,8 +83,8 @@ def auto_config(config, dataset, backend=None):
   given = _flat(config)
   user = {k: v for k, v in given.items()
           if (base.get(k) != v or k in config.auto_flags) and k not in _OWN}
-  dataset = dataset.one_camera()  # per-image cameras: measured on image 0's camera's views
-  decisions = characterise.decide(dataset)
+  decisions = characterise.decide(dataset)  # scales from every camera, the rest from image 0's
+  dataset = dataset.one_camera()
   effects, lines = {}, []
   if decisions is None:
     chosen = "capture"
@@ -72,11 +97,17 @@ def auto_config(config, dataset, backend=None):
       effects.update({"data.ndc": True, "data.lindisp": False})
     elif found["background"].found:
       chosen = "detail" if max(dataset.height, dataset.width) >= LARGE_IMAGES else "fast"
+      if chosen == "detail" and found["scales"].found:
+        chosen = "fast"
+        lines.append("configs/fast.py, not detail.py: detail.py's density grids and sample "
+                     "budget do not take cones yet")
       effects["train.random_background"] = True
     else:
       chosen = "capture"
   chosen, backend_line = for_backend(chosen, backend or jax.default_backend())
   result = config_lib.load(chosen)
+  if decisions is not None and found["scales"].found:
+    effects.update(cone_effects(result))
   if decisions is not None:
     bg = tuple(float(c) for c in dataset.background)
     effects["data.background"] = ("white" if bg == (1.0, 1.0, 1.0) else
@@ -91,14 +122,15 @@ def auto_config(config, dataset, backend=None):
                 "appearance": f"per-photo appearance codes (model.appearance_dims="
                               f"{APPEARANCE_DIMS})",
                 "view_dependence": "view dependence: colour from the viewing direction too "
-                                   "(model.view_dependent)"}
+                                   "(model.view_dependent)",
+                "scales": "cameras at several scales: cones, " + cone_summary(result)}
     for d in decisions:
       if d.found is None:  # the representation's own setting
         lines.append(f"view dependence {'on' if result.model.view_dependent else 'off'} as "
                      f"in configs/{chosen}.py: {d.reason}")
       else:
-        lines.append(f"{settings[d.name] if d.found else 'no ' + d.name.replace('_', ' ')}: "
-                     f"{d.reason}")
+        absent = "one scale" if d.name == "scales" else "no " + d.name.replace("_", " ")
+        lines.append(f"{settings[d.name] if d.found else absent}: {d.reason}")
     lines.append("pose refinement: off (nothing in the photos measures a pose error; "
                  "train.pose_refinement=True switches it on)")
   lines.append(backend_line)

@@ -10,6 +10,9 @@ found (True / False), and the measured reason, one line:
               a forward-facing capture (NDC rays);
   unbounded   no opacity, cameras around the subject (not forward-facing): the content fills
               every photo out to walls or sky, the case of real captures (the box from the data);
+  scales      the cameras' pixel footprints at the scene's centre (`pixel_footprints`: distance
+              over focal length) differ by FOOTPRINT_SPREAD or more (max over min): cameras at
+              several distances or resolutions, the case for cones (cameras/cones.py).
   appearance  photos of nearly the same view (each with its nearest camera) differ in mean
               colour by more than APPEARANCE_LOG_RATIO (log of the ratio, median over pairs):
               per-photo exposure or white balance.
@@ -40,11 +43,13 @@ HIGHLIGHT_LOG_RATIO = 0.2  # view dependence above this excess, e^0.2 = 1.22x (b
 DEPTH_AGREEMENT = 0.02  # a view sees a point when its own depth there agrees to 2%
 OPAQUE = 0.99  # surface points come from pixels at least this opaque (where opacity is known)
 HIGHLIGHT_VIEWS, HIGHLIGHT_POINTS = 16, 800  # reference views, and the points picked in each
+FOOTPRINT_SPREAD = 2.0  # cones when the cameras' pixel footprints at the centre differ 2x or more
+PARALLEL_AXES = 0.05  # focus_point: axes this close to parallel (mean sin^2) meet nowhere
 
 
 @dataclasses.dataclass(frozen=True)
 class Decision:
-  name: str  # 'background', 'forward', 'unbounded', 'appearance' or 'view_dependence'
+  name: str  # 'background', 'forward', 'unbounded', 'appearance', 'view_dependence', 'scales'
   found: Optional[bool]  # whether the capture calls for it; None: the data cannot tell
   reason: str  # one line: what was measured
 
@@ -63,6 +68,45 @@ def cone_degrees(poses):
   if norm < 1e-9:
     return 180.0
   return float(np.degrees(np.arccos(np.clip(dirs @ (mean / norm), -1.0, 1.0))).max())
+
+
+def focus_point(poses, near, far):
+  """float64 [3]: the point nearest every camera's optical axis (least squares), where the
+  cameras look. Axes too close to parallel to meet (mean sin^2 of their angle to the least
+  determined direction below PARALLEL_AXES: a forward-facing capture), or meeting behind most
+  cameras (looking outwards), give the point at depth sqrt(near·far) ahead of the cameras'
+  mean centre along their mean direction instead.
+
+  poses: float [N, 4, 4] camera-to-world. near, far: float > 0, the scene's z-depth bounds.
+  """
+  poses = np.asarray(poses, np.float64)
+  centres, dirs = poses[:, :3, 3], view_directions(poses)
+  projectors = np.eye(3) - dirs[:, :, None] * dirs[:, None, :]  # onto each axis' normal plane
+  a = projectors.mean(0)
+  b = np.einsum("nij,nj->i", projectors, centres) / len(poses)
+  if np.linalg.eigvalsh(a)[0] >= PARALLEL_AXES:
+    point = np.linalg.solve(a, b)
+    if np.mean(np.einsum("ni,ni->n", point - centres, dirs) > 0) > 0.5:
+      return point
+  mean_dir = dirs.mean(0) / max(np.linalg.norm(dirs.mean(0)), 1e-9)
+  return centres.mean(0) + np.sqrt(near * far) * mean_dir
+
+
+def pixel_footprints(dataset):
+  """float64 [N]: each camera's pixel size in world units at the scene's centre (`focus_point`):
+  its distance from there over its focal length (mean of fx, fy)."""
+  cameras = dataset.cameras
+  poses = np.asarray(dataset.poses, np.float64)
+  centre = focus_point(poses, dataset.near, dataset.far)
+  distance = np.linalg.norm(poses[:, :3, 3] - centre, axis=1)
+  return distance / (0.5 * (cameras.fx + cameras.fy))
+
+
+def footprint_spread(dataset):
+  """Largest over smallest of `pixel_footprints`: 1 for cameras alike, 8 for mip-NeRF's
+  multiscale Blender data (4 resolutions an octave apart)."""
+  footprints = pixel_footprints(dataset)
+  return float(footprints.max() / max(footprints.min(), 1e-12))
 
 
 def empty_share(dataset):
@@ -178,7 +222,16 @@ def highlight_excess(dataset, seed=0):
 
 def decide(dataset):
   """[Decision] of the rules (module docstring), or None when the capture has fewer than
-  MIN_CAMERAS cameras."""
+  MIN_CAMERAS cameras. The scales rule reads every camera; the others read those that share
+  image 0's camera (Dataset.one_camera)."""
+  if len(dataset) < MIN_CAMERAS:
+    return None
+  ratio = footprint_spread(dataset)
+  scales = Decision("scales", ratio >= FOOTPRINT_SPREAD,
+                    f"pixel footprints at the scene's centre differ {ratio:.2f}x between "
+                    f"cameras ({'>=' if ratio >= FOOTPRINT_SPREAD else '<'} "
+                    f"{FOOTPRINT_SPREAD:g}x)")
+  dataset = dataset.one_camera()
   if len(dataset) < MIN_CAMERAS:
     return None
   share = empty_share(dataset)
@@ -210,4 +263,4 @@ def decide(dataset):
                         f"a fifth of the surface points look {np.exp(excess):.2f}x brighter "
                         f"from two views than from most ({'>' if lit else '<='} "
                         f"{np.exp(HIGHLIGHT_LOG_RATIO):.2f}x)"))
-  return out
+  return out + [scales]

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from nerf_jax.cameras import cones
 from nerf_jax.cameras.rays import Rays
 from nerf_jax.render import compositing, image_renderer, renderer as renderer_lib
 from nerf_jax.fields.encodings import grid
@@ -179,16 +180,18 @@ TINY_LATTICE = {"num_samples": 8, "data.scene_bound": 1.5, "model.width": 16,
                 "model.hash.log2_size": 10}
 
 
-def _lattice_field(encoding, antialias, **overrides):
+def _lattice_field(encoding, antialias, multisample=True, **overrides):
   config = small_config({**TINY_LATTICE, "model.encoding": encoding,
-                         f"model.{encoding}.antialias": antialias, **overrides}, base="fast")
+                         f"model.{encoding}.antialias": antialias,
+                         f"model.{encoding}.multisample": multisample, **overrides}, base="fast")
   return components.make_field(config)
 
 
+@pytest.mark.parametrize("multisample", [True, False])
 @pytest.mark.parametrize("encoding", ["grid", "hash"])
-def test_antialiased_lattice_at_radius_zero_is_the_plain_lattice(encoding):
-  plain, aa = _lattice_field(encoding, False), _lattice_field(encoding, True)
-  assert aa.cones == "multisamples" and not plain.cones
+def test_antialiased_lattice_at_radius_zero_is_the_plain_lattice(encoding, multisample):
+  plain, aa = _lattice_field(encoding, False), _lattice_field(encoding, True, multisample)
+  assert aa.cones == ("multisamples" if multisample else "scales") and not plain.cones
   params = plain.init(jax.random.PRNGKey(2))
   rays = _rays(radius=0.0)
   # Zero-length intervals of a zero radius: the six points are the point itself, scale 0.
@@ -217,11 +220,27 @@ def test_antialiased_features_against_erf_weights_written_here():
   np.testing.assert_allclose(got[0], features[0].mean(axis=0).reshape(-1), rtol=1e-6)
 
 
-@pytest.mark.parametrize("contraction", ["", "l2"])
-def test_antialiased_grid_renders_and_has_finite_gradients(contraction):
+def test_centre_samples_are_the_multisamples_mean_with_its_scale():
+  # The frustum's mean is the six multisamples' mean (their balance, cones.multisamples); its
+  # scale is the one a multisample at the mean t would get: radius·t/sqrt(2).
+  rays = _rays(radius=0.03)
+  rng = np.random.default_rng(5)
+  t0 = jnp.asarray(rng.uniform(2.0, 5.0, (6, 4)), jnp.float32)
+  t1 = t0 + jnp.asarray(rng.uniform(0.01, 0.5, (6, 4)), jnp.float32)
+  six, _ = cones.multisamples(rays.origins, rays.directions, rays.radii, t0, t1)
+  one, scale = cones.centre_samples(rays.origins, rays.directions, rays.radii, t0, t1)
+  assert one.shape == (6, 4, 1, 3) and scale.shape == (6, 4, 1)
+  np.testing.assert_allclose(one[..., 0, :], np.mean(np.asarray(six), axis=-2), atol=2e-5)
+  mu, hw = (np.asarray(t0) + np.asarray(t1)) / 2, (np.asarray(t1) - np.asarray(t0)) / 2
+  t_mean = mu + 2 * mu * hw ** 2 / (3 * mu ** 2 + hw ** 2)  # mip-NeRF's, written here
+  np.testing.assert_allclose(scale[..., 0], 0.03 * t_mean / np.sqrt(2.0), rtol=1e-5)
+
+
+@pytest.mark.parametrize("contraction,multisample", [("", True), ("l2", True), ("", False)])
+def test_antialiased_grid_renders_and_has_finite_gradients(contraction, multisample):
   overrides = {"data.contraction": contraction, "data.scene_bound": 1.0} if contraction else {}
-  config = small_config({**TINY_LATTICE, "model.grid.antialias": True, **overrides},
-                        base="fast")
+  config = small_config({**TINY_LATTICE, "model.grid.antialias": True,
+                         "model.grid.multisample": multisample, **overrides}, base="fast")
   renderer = components.make_ray_renderer(config)
   variables = renderer.init(jax.random.PRNGKey(0))
   rays = _rays(radius=0.02)

@@ -10,6 +10,7 @@ from nerf_jax import cli
 from nerf_jax.cameras import rays
 from nerf_jax.data import scenes
 from nerf_jax.run import auto, characterise, config_lib
+from nerf_jax.cameras.cameras import Cameras
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.data.scenes import photos
 from tests.helpers import load_data
@@ -34,7 +35,8 @@ def test_opacity_with_empty_pixels_is_an_object_on_a_background():
   accs[:, 2:6, 2:6] = 1.0  # the subject in the middle, empty around it
   assert _found(_capture(AROUND, accs)) == {"background": True, "forward": False,
                                              "unbounded": False, "appearance": False,
-                                             "view_dependence": None}  # no depth: not measured
+                                             "view_dependence": None,  # no depth: not measured
+                                             "scales": False}
   full = np.ones((20, 8, 8), np.float32)  # opacity known but nothing empty: no background
   assert not _found(_capture(AROUND, full))["background"]
 
@@ -51,8 +53,65 @@ def test_cameras_within_a_cone_are_forward_facing():
 
 def test_cameras_around_a_frame_filling_scene_are_unbounded():
   assert _found(_capture(AROUND)) == {"background": False, "forward": False, "unbounded": True,
-                                      "appearance": False, "view_dependence": None}
+                                      "appearance": False, "view_dependence": None,
+                                      "scales": False}
   assert not _found(_capture(AHEAD))["unbounded"]
+
+
+def test_the_focus_point_is_where_the_axes_meet():
+  # Cameras on a hemisphere of radius 4 looking at (0.3, -0.2, 0.1): the point, to rounding.
+  target = np.array([0.3, -0.2, 0.1])
+  poses = np.array(AROUND, np.float64)
+  poses[:, :3, 3] += target
+  np.testing.assert_allclose(characterise.focus_point(poses, 2.0, 6.0), target, atol=1e-6)
+  # Parallel axes meet nowhere: the cameras' mean centre, sqrt(near·far) ahead.
+  ahead = np.array(AHEAD, np.float64)
+  ahead[:, :3, :3] = np.eye(3)
+  want = ahead[:, :3, 3].mean(0) + np.array([0.0, 0.0, -3.0])
+  np.testing.assert_allclose(characterise.focus_point(ahead, 1.0, 9.0), want, atol=1e-9)
+
+
+def test_cameras_at_several_distances_and_resolutions_call_for_cones():
+  # The footprint, distance over focal length, written here: cameras at distance 4 with focal
+  # 8 see 0.5 units per pixel at the centre. Halving the focal of a third of them (an image at
+  # half the resolution) or doubling their distance both give a 2x spread; 1.5x is below it.
+  poses = np.array(AROUND, np.float64)
+  base = _capture(poses)
+  np.testing.assert_allclose(characterise.pixel_footprints(base),
+                             np.linalg.norm(poses[:, :3, 3], axis=1) / 8.0, rtol=1e-6)
+  assert characterise.footprint_spread(base) == pytest.approx(1.0)
+  assert not _found(base)["scales"]
+  for factor, expected in ((2.0, True), (1.5, False)):
+    far = poses.copy()
+    far[::3, :3, 3] *= factor
+    assert characterise.footprint_spread(_capture(far)) == pytest.approx(factor, rel=1e-6)
+    assert _found(_capture(far))["scales"] == expected
+  small = dataclasses.replace(base, image_cameras=Cameras.stack(
+      [(8, 8, (4.0 if i % 3 == 0 else 8.0,) * 2 + (4.0, 4.0)) for i in range(len(poses))]))
+  assert characterise.footprint_spread(small) == pytest.approx(2.0, rel=1e-6)
+  assert _found(small)["scales"]
+
+
+def test_auto_turns_cones_on_for_the_multiscale_scene_and_off_for_one_scale(capsys):
+  multi = _auto("multiscale")
+  assert multi.model.encoding == "grid" and multi.model.grid.antialias
+  assert multi.model.grid.multisample == auto.ANTIALIAS_MULTISAMPLE
+  assert not multi.render.march  # marching queries points
+  out = capsys.readouterr().out
+  assert "auto: cameras at several scales: cones" in out
+  for scene in ("diffuse", "forward", "garden"):
+    assert not _auto(scene).model.grid.antialias
+  assert "auto: one scale: pixel footprints" in capsys.readouterr().out
+
+
+def test_cone_effects_follow_the_encoding():
+  config = config_lib.load("default")
+  assert auto.cone_effects(config) == {"model.encoding": "ipe", "render.march": False}
+  config.model.encoding = "hash"
+  assert auto.cone_effects(config)["model.hash.antialias"]
+  config.model.encoding = "tensorf"
+  assert auto.cone_effects(config) == {}
+  assert "no anti-aliased form" in auto.cone_summary(config)
 
 
 def test_per_photo_gains_call_for_appearance_codes():

@@ -94,14 +94,14 @@ def weigh_levels(h, level_weights):
 
 
 def antialiased(level_features, std, cells):
-  """Zip-NeRF's features of a frustum from those of its six multisamples: each level's features
+  """Zip-NeRF's features of a frustum from those of its M multisamples: each level's features
   weighted by scale_weights.level_weights of the sample's scale against the level's cell size,
-  then averaged over the six.
+  then averaged over the M (6, or 1: the frustum's mean).
 
-  level_features: float [..., 6, L, F]. std: float32 [..., 6], each multisample's scale.
+  level_features: float [..., M, L, F]. std: float32 [..., M], each multisample's scale.
   cells: float32 [L], each level's cell size in std's units. Returns float [..., L·F].
   """
-  weights = scale_weights.level_weights(std, cells).astype(level_features.dtype)  # [..., 6, L]
+  weights = scale_weights.level_weights(std, cells).astype(level_features.dtype)  # [..., M, L]
   features = jnp.mean(level_features * weights[..., None], axis=-3)  # [..., L, F]
   return features.reshape(*features.shape[:-2], -1)
 
@@ -162,6 +162,7 @@ class Settings:
   colour_hash_resolution: int = 0  # with density_resolutions: a hashed finer colour level
   colour_hash_log2_size: int = 20  # log2 of the hashed colour level's rows
   antialias: bool = False  # Zip-NeRF: 6 points per frustum, levels weighted by its scale
+  multisample: bool = True  # with antialias: the 6 points (False: the frustum's mean alone)
 
   def __post_init__(self):
     if self.antialias and self.density_resolutions:
@@ -191,8 +192,8 @@ class DenseGrid:
   def features(self, module, points, weights=None, multisamples=None):
     """float32 [..., levels·features] at world positions float32 [..., 3] (clamped to the box
     outside it), level l scaled by weights[l]; the grids are `module`'s parameters.
-    multisamples: None, or Zip-NeRF's (points float32 [..., 6, 3], std float32 [..., 6]) of
-    each frustum (settings.antialias): their features, `antialiased`, instead of points'."""
+    multisamples: None, or Zip-NeRF's (points float32 [..., M, 3], std float32 [..., M]) of
+    each frustum (settings.antialias; M = 6, or 1 without multisample): their features, `antialiased`, instead of points'."""
     init = draws.normal_init(1e-2)
     grids = [module.param(f"grid_{r}", init, (*self.space.shape(r), self.settings.features))
              for r in self.settings.resolutions]
@@ -200,7 +201,7 @@ class DenseGrid:
       return weigh_levels(multires_features(grids, self.space.unit(points)), weights)
     six, std = multisamples
     unit = self.space.unit(six)
-    levels = jnp.stack([trilinear(g, unit) for g in grids], axis=-2)  # [..., 6, L, F]
+    levels = jnp.stack([trilinear(g, unit) for g in grids], axis=-2)  # [..., M, L, F]
     cells = self.space.cell_sizes(self.settings.resolutions)
     return weigh_levels(antialiased(levels, std, cells), weights)
 
@@ -220,7 +221,7 @@ def build(settings, shared):
 def lattice_signature(settings):
   """The dense levels' entries of a checkpoint signature (every lattice encoding records them:
   registry.Encoding.records_grid_section)."""
-  return components.signature(settings, "grid_", exclude=_SPLIT + ("antialias",))
+  return components.signature(settings, "grid_", exclude=_SPLIT + ("antialias", "multisample"))
 
 
 _SPLIT = ("density_resolutions", "density_hash_resolution", "density_hash_log2_size",
@@ -232,7 +233,7 @@ def signature(settings):
   levels, only when set (so checkpoints saved before they existed stay valid)."""
   entries = {"encoding": "grid"}
   if settings.antialias:  # only when on: checkpoints saved before it keep restoring
-    entries["grid_antialias"] = True
+    entries["grid_antialias"] = True if settings.multisample else "scales"
   if settings.density_resolutions:
     entries["grid_density_resolutions"] = list(settings.density_resolutions)
     for part in ("density", "colour"):
@@ -249,7 +250,15 @@ def _network(settings):
 
 # Lattice tables (loss.total_variation): the feature grids and the density levels, 3 spatial axes.
 def _cones(settings):
-  return "multisamples" if settings.antialias else ""
+  return cone_kind(settings)
+
+
+def cone_kind(settings):
+  """What a lattice with `settings.antialias` and `settings.multisample` reads of each frustum
+  (registry.Encoding.cones): '', 'multisamples' or 'scales'."""
+  if not settings.antialias:
+    return ""
+  return "multisamples" if settings.multisample else "scales"
 
 
 ENCODING = registry.Encoding("grid", Settings, build, _network, signature,

@@ -167,6 +167,7 @@ class Settings:
   max_resolution: int = 2048  # lattice points per side of the finest level
   gather_dtype: str = "float32"  # dtype of the gathered rows (the table stays float32)
   antialias: bool = False  # Zip-NeRF: 6 points per frustum, levels weighted by its scale
+  multisample: bool = True  # with antialias: the 6 points (False: the frustum's mean alone)
 
   def __post_init__(self):
     level_rows(self.resolutions, self.log2_size)  # ValueErrors naming the fields
@@ -199,8 +200,8 @@ class HashGrid:
   def features(self, module, points, weights=None, multisamples=None):
     """float32 [..., levels·features] at world positions float32 [..., 3] (clamped to the box
     outside it), level l scaled by weights[l]; the table is `module`'s parameter.
-    multisamples: None, or Zip-NeRF's (points float32 [..., 6, 3], std float32 [..., 6]) of
-    each frustum (settings.antialias): their features, grid.antialiased, instead of points'."""
+    multisamples: None, or Zip-NeRF's (points float32 [..., M, 3], std float32 [..., M]) of
+    each frustum (settings.antialias; M = 6, or 1 without multisample): their features, grid.antialiased, instead of points'."""
     s = self.settings
     rows = sum(level_rows(s.resolutions, s.log2_size))
     init = lambda key, shape: draws.uniform(key, shape, jnp.float32, -1e-4, 1e-4)
@@ -210,7 +211,7 @@ class HashGrid:
       return grid.weigh_levels(h, weights)
     six, std = multisamples
     h = encode(table, self.space.unit(six), s.resolutions, s.log2_size, s.gather_dtype)
-    levels = h.reshape(*h.shape[:-1], s.levels, s.features)  # [..., 6, L, F]
+    levels = h.reshape(*h.shape[:-1], s.levels, s.features)  # [..., M, L, F]
     cells = self.space.cell_sizes(s.resolutions)
     return grid.weigh_levels(grid.antialiased(levels, std, cells), weights)
 
@@ -230,12 +231,12 @@ def build(settings, shared):
 def signature(settings):
   """The table's shape and the meaning of its rows (the gathered dtype changes neither)."""
   entries = {"encoding": "hash",
-             **components.signature(settings, "hash_", exclude=("gather_dtype", "antialias"))}
+             **components.signature(settings, "hash_", exclude=("gather_dtype", "antialias", "multisample"))}
   if settings.antialias:  # only when on: checkpoints saved before it keep restoring
-    entries["hash_antialias"] = True
+    entries["hash_antialias"] = True if settings.multisample else "scales"
   return entries
 
 
 ENCODING = registry.Encoding("hash", Settings, build, "lattice", signature,
                              records_grid_section=True,
-                             cones=lambda settings: "multisamples" if settings.antialias else "")
+                             cones=grid.cone_kind)
