@@ -93,6 +93,9 @@ SCENES = {
     # balance, and training poses off by 1° and 2% of the scene's size.
     "exposure": Scene("exposure", _objects(pedestal=False), Effects(appearance=True)),
     "perturbed": Scene("perturbed", _objects(pedestal=False), Effects(pose_error=True)),
+    # `exposure` with passers-by (scenes/occluders.py): in 60% of the training photos one to
+    # three opaque balls, boxes or people stand between the camera and the subject.
+    "crowd": Scene("crowd", _objects(pedestal=False), Effects(appearance=True, transients=True)),
 }
 
 

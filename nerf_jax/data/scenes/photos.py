@@ -1,7 +1,8 @@
 """What a photographer's capture adds to the simulator's exact views: each photo's own exposure
-and white balance, and camera poses that structure from motion got slightly wrong.
+and white balance, camera poses that structure from motion got slightly wrong, and passers-by
+in some photos (occluders.py).
 
-Both apply to the training views of a built-in scene that declares them (`Effects.appearance`,
+They apply to the training views of a built-in scene that declares them (`Effects.appearance`,
 `Effects.pose_error`; data/loaders.py): the held-out views keep the neutral look (gain 1) and
 their true poses, so a test score measures the model, not the test photo's own exposure or
 pose error. `held_out_with_own_looks` gives the held-out views looks of their own instead, as a
@@ -12,6 +13,8 @@ known, so what a model recovers can be measured.
 import dataclasses
 
 import numpy as np
+
+from nerf_jax.data.scenes import occluders
 
 # Each draw has a stream of its own: default_rng(seed) alone would repeat the stream the
 # cameras were drawn from (scenes.random_poses), tying a photo's gain to where it stands.
@@ -65,8 +68,11 @@ def perturbed(poses, degrees=POSE_DEGREES, translation=POSE_TRANSLATION, seed=0)
 
 def photographed(train, effects, seed=0):
   """The training views `train` (a Dataset) as the capture declaring `effects` took them:
-  per-photo gains (appearance), poses off by a known amount (pose_error; the true ones kept in
-  `Dataset.true_poses`)."""
+  passers-by in front of the subject in some photos (transients, occluders.py), per-photo
+  gains over the whole photo (appearance), poses off by a known amount (pose_error; the true
+  ones kept in `Dataset.true_poses`)."""
+  if effects.transients:
+    train = occluders.with_crowd(train, seed=seed)[0]
   if effects.appearance:
     train = dataclasses.replace(train, images=with_gains(train.images, gains(len(train), seed)))
   if effects.pose_error:

@@ -3,9 +3,9 @@
 A scene is plain, frozen data; `scenes.simulator` renders it. The `effects` declaration
 is checked against the content (`Scene.__post_init__`) and decides what the simulator computes:
 an effect that is not declared is never evaluated. (`unbounded` asks nothing more of the
-simulator; it tells a renderer that the content reaches beyond a bounded box. `appearance` and
-`pose_error` are the capture's, not the content's: scenes/photos.py applies them to the
-training views.)
+simulator; it tells a renderer that the content reaches beyond a bounded box. `appearance`,
+`pose_error` and `transients` are the capture's, not the content's: scenes/photos.py applies
+them to the training views.)
 """
 
 import dataclasses
@@ -67,6 +67,7 @@ class Effects:
   unbounded: bool = False  # content beyond the cube [-INNER_EXTENT, INNER_EXTENT]^3
   appearance: bool = False  # training photos differ in exposure and white balance (photos.py)
   pose_error: bool = False  # the training cameras' poses are off by a known amount (photos.py)
+  transients: bool = False  # some training photos have passers-by in front (occluders.py)
 
   def names(self):
     """The declared effects: frozenset of field names."""
