@@ -11,7 +11,7 @@ from nerf_jax.fields import protocol
 from nerf_jax.fields.encodings import grid, hashgrid, posenc, tensorf
 from nerf_jax.fields.networks import mlp
 from nerf_jax.samplers import occupancy, proposal
-from nerf_jax.train.losses import colour, distortion, pose_prior, total_variation
+from nerf_jax.train.losses import colour, distortion, pose_prior, robust, total_variation
 
 
 def _section(term):
@@ -91,11 +91,12 @@ def get_config():
   # The loss terms (nerf_jax/train/losses/, docs/extending.md): each has its section
   # config.loss.<name>, whose fields, defaults and comments are its module's Settings.
   config.loss = loss = ml_collections.ConfigDict()
-  loss.terms = ("colour", "distortion", "pose_prior", "total_variation")  # added in this order
+  loss.terms = ("colour", "distortion", "pose_prior", "total_variation", "robust")  # this order
   loss.colour = _section(colour)  # photometric loss (always on): coarse_weight, huber_delta
   loss.distortion = _section(distortion)  # mip-NeRF 360's distortion loss: weight (0 = off)
   loss.pose_prior = _section(pose_prior)  # pose refinement: pull toward no correction: weight
   loss.total_variation = _section(total_variation)  # lattice tables' smoothness: weight
+  loss.robust = _section(robust)  # RobustNeRF's trimmed loss on patches: weight (0 = off), ...
 
   config.train = train = ml_collections.ConfigDict()
   train.max_steps = 0  # step budget (0 = fitted to max_seconds if set, else default_steps)
@@ -103,9 +104,10 @@ def get_config():
   train.default_steps = 2500  # step budget when neither max_steps nor max_seconds is set
   train.batch_rays = 512  # rays per step (random rays over all training images)
   train.sample_budget = 0  # occupancy: samples a step queries (valid ones, compacted); 0 = all
-  train.batching = "rays"  # 'rays' (random rays) or 'images' (whole images, as the reference)
+  train.batching = "rays"  # 'rays' (random rays), 'images' (whole, as the reference), 'patches'
   train.images_per_step = 5  # whole images per step when batching == 'images'
   train.image_order = "random"  # 'images' batching: 'random' draws per step, 'epochs' shuffles
+  train.patch_size = 16  # 'patches' batching: batch_rays // patch_size² square patches a step
   train.lr = 5e-3  # initial Adam learning rate
   train.lr_final = 1e-4  # learning rate at max_steps (exponential decay)
   train.warmup_steps = 50  # linear warm-up from 0

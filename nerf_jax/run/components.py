@@ -235,8 +235,9 @@ def loss_terms(config, ray_renderer):
   if "colour" not in names:
     raise ValueError(f"config.loss.terms={names}: must include 'colour' (the photometric "
                      "loss is always on)")
+  patches = config.train.patch_size if config.train.batching == "patches" else 0
   context = losses.Context(ray_renderer, tuple(encoding_family(config)[0].table_axes.items()),
-                           config.train.pose_refinement)
+                           config.train.pose_refinement, patches)
   terms, seen = [], set()
   for name in names:
     record = losses.REGISTRY.lookup(name)

@@ -8,6 +8,10 @@ Images of one camera are rows of P pixels each. Images with cameras of their own
 intrinsics that differ, `Dataset.image_cameras`) are one flat run of every pixel, image after
 image: a drawn pixel's image is found from `offsets` and its ray is made through that image's
 camera (`cameras`); only random rays can be drawn from them (batching='rays').
+
+With batching='patches' a batch is square patches of P x P neighbouring pixels, each from one
+image, patch after patch, each row-major (RobustNeRF's patches: a loss term can look at a
+pixel's neighbours, train/losses/robust.py).
 """
 
 import dataclasses
@@ -25,14 +29,25 @@ from nerf_jax.cameras.rays import Rays, pixel_rays
 class BatchSettings:
   """How each step's rays are drawn (the config's train section).
 
-  batching: 'rays' (batch_rays random pixels of all images) or 'images' (images_per_step whole
-  images). image_order: with 'images', 'random' (drawn each step) or 'epochs' (every image once
-  per epoch, in an order drawn from the epoch number).
+  batching: 'rays' (batch_rays random pixels of all images), 'images' (images_per_step whole
+  images) or 'patches' (batch_rays // patch_size² random patch_size x patch_size patches, each
+  in one image, at least one). image_order: with 'images', 'random' (drawn each step) or
+  'epochs' (every image once per epoch, in an order drawn from the epoch number).
   """
   batching: str = "rays"
   batch_rays: int = 1024
   images_per_step: int = 1
   image_order: str = "random"
+  patch_size: int = 16
+
+  def __post_init__(self):
+    if self.batching == "patches" and self.patch_size < 1:
+      raise ValueError(f"config.train.patch_size={self.patch_size}: a patch has at least one "
+                       "pixel a side (RobustNeRF: 16)")
+
+  def num_patches(self):
+    """Patches per step with batching 'patches': batch_rays // patch_size², at least one."""
+    return max(self.batch_rays // self.patch_size ** 2, 1)
 
 
 @flax.struct.dataclass
@@ -168,6 +183,10 @@ def draw_batch(data, settings, key, step=0, run_key=None):
     take = lambda a: a[images].reshape(-1, *a.shape[2:])
     image = jnp.repeat(images, num_pixels)
     pixel = jnp.tile(jnp.arange(num_pixels), per_step)
+  elif settings.batching == "patches":
+    image, pixel = _draw_patches(data.camera, num_images, settings, key)
+    idx = image * num_pixels + pixel
+    take = lambda a: a.reshape(-1, *a.shape[2:])[idx]
   else:
     idx = jax.random.randint(key, (settings.batch_rays,), 0, num_images * num_pixels)
     take = lambda a: a.reshape(-1, *a.shape[2:])[idx]
@@ -177,6 +196,28 @@ def draw_batch(data, settings, key, step=0, run_key=None):
   return TrainData(rays=rays, rgb=take(data.rgb), acc=take(data.acc),
                    image=image.astype(jnp.int32), pixel=pixel.astype(jnp.int32),
                    weight=None if data.lossmult is None else data.lossmult[image])
+
+
+def _draw_patches(camera, num_images, settings, key):
+  """(image, pixel), each int32 [n · P · P]: n = settings.num_patches() patches of P x P
+  pixels (P = settings.patch_size), each in an image drawn uniformly at a corner drawn
+  uniformly among those that keep it inside; patch after patch, each row-major. camera: the
+  TrainData's (height, width first)."""
+  if camera is None:
+    raise ValueError("config.train.batching='patches' draws from images of one camera")
+  height, width = camera[:2]
+  size = settings.patch_size
+  if size > min(height, width):
+    raise ValueError(f"config.train.patch_size={size}: larger than the {height} x {width} "
+                     "training images")
+  count = settings.num_patches()
+  image_key, row_key, col_key = jax.random.split(key, 3)
+  images = jax.random.randint(image_key, (count,), 0, num_images)
+  rows = jax.random.randint(row_key, (count, 1, 1), 0, height - size + 1)
+  cols = jax.random.randint(col_key, (count, 1, 1), 0, width - size + 1)
+  dy, dx = jnp.meshgrid(jnp.arange(size), jnp.arange(size), indexing="ij")
+  pixel = ((rows + dy) * width + cols + dx).reshape(-1)
+  return jnp.repeat(images, size * size), pixel
 
 
 def _draw_flat(data, settings, key):
@@ -195,7 +236,9 @@ def _draw_flat(data, settings, key):
 
 def rays_per_step(settings, height, width):
   """Rays in one train step of BatchSettings `settings` on images of height x width: a batch
-  of random rays, or whole images."""
+  of random rays, whole images, or whole patches."""
   if settings.batching == "images":
     return settings.images_per_step * height * width
+  if settings.batching == "patches":
+    return settings.num_patches() * settings.patch_size ** 2
   return settings.batch_rays

@@ -7,7 +7,7 @@ from nerf_jax.run import config_lib
 from nerf_jax.run import train_lib
 from tests.helpers import small_config
 
-SCENES = ["diffuse", "glossy", "fog", "white", "forward"]
+SCENES = ["diffuse", "glossy", "fog", "white", "forward", "crowd"]
 
 
 # configs/scenes/<name>.py shrunk to 3 steps (at most 8 fine samples: see the test).
@@ -23,6 +23,9 @@ def test_components_match_the_scene():
   assert load("fog").num_fine_samples > 0
   assert load("white").data.background == "white"
   assert load("forward").data.ndc
+  crowd = load("crowd")
+  assert crowd.loss.robust.weight > 0 and crowd.loss.colour.weight == 0
+  assert crowd.train.batching == "patches" and crowd.model.appearance_dims > 0
 
 
 @pytest.mark.parametrize("name", SCENES)

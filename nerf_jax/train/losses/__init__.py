@@ -7,7 +7,8 @@ terms' losses in their order (`total`) and logs every stat as '<name>/<stat>' (t
 
 A term is one module defining `LOSS = losses.Loss(name, Settings, build)` (a `Loss` record):
 `config.loss.terms` lists the run's terms, in the order they are added, by their registered
-name (`REGISTRY`: colour, distortion, pose_prior, total_variation, the modules of this package)
+name (`REGISTRY`: colour, distortion, pose_prior, total_variation, robust, the modules of this
+package)
 or the dotted path of any importable module; each term's settings are its own section,
 `config.loss.<name>` (docs/extending.md, "Adding a loss term"). The entry layer builds them
 (run/components.loss_terms) and appends the sampler's own terms (its `loss_terms()`).
@@ -52,10 +53,13 @@ class Context:
   table_axes: ((parameter-name prefix, spatial axes), ...) of the field's lattice tables (the
     encoding family's, fields/registry.py).
   pose_refinement: whether the run refines the cameras (params['poses'] exists).
+  patch_size: the side P of the batch's patches with config.train.batching='patches' (a batch
+    is patches of P x P pixels, each row-major, train_batches.py); 0 = the rays are no patches.
   """
   ray_renderer: Any
   table_axes: tuple = ()
   pose_refinement: bool = False
+  patch_size: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,6 +92,7 @@ REGISTRY = components.Registry("loss term", "config.loss.terms", "LOSS", {
     "distortion": "nerf_jax.train.losses.distortion",
     "pose_prior": "nerf_jax.train.losses.pose_prior",
     "total_variation": "nerf_jax.train.losses.total_variation",
+    "robust": "nerf_jax.train.losses.robust",
 })
 
 

@@ -14,10 +14,12 @@ from nerf_jax.train import losses
 @dataclasses.dataclass(frozen=True)
 class Settings:
   """config.loss.colour."""
+  weight: float = 1.0  # weight of the loss (0: only its PSNR, another term replaces it: robust)
   coarse_weight: float = 1.0  # weight of the coarse pass's loss when a fine pass exists
   huber_delta: float = 0.0  # Huber's loss, quadratic below this error (0 = squared error)
 
   def __post_init__(self):
+    losses.check_weight(self.weight, "colour", "1.0")
     if self.huber_delta < 0:
       raise ValueError(f"config.loss.colour.huber_delta={self.huber_delta}: use 0 (squared "
                        "error) or the colour error below which Huber's loss is quadratic "
@@ -60,13 +62,15 @@ class Colour:
   """The photometric loss: the mean squared error of the final pass, plus coarse_weight times
   the coarse pass's when there is a fine pass; with huber_delta > 0 the mean `huber` loss of
   each channel's error instead. With a sample budget only whole rays count. With per-ray
-  weights (LossInputs.weight, the data's lossmult) every mean is the weighted mean.
+  weights (LossInputs.weight, the data's lossmult) every mean is the weighted mean. All of it
+  times `weight` (0: another term, e.g. robust.py's, is the photometric loss; the stats stay).
   Stats: psnr of the final pass (from its squared error, whatever the loss); with a sample
   budget, rays_in_loss (the rays it held whole) and samples_wanted (the valid samples of every
   drawn ray: above the budget, rays were drawn in vain; below it, budget slots went empty)."""
   name: ClassVar[str] = "colour"
   coarse_weight: float = 1.0
   huber_delta: float = 0.0
+  weight: float = 1.0
 
   def _pass_loss(self, rgb, target, complete, weight):
     if self.huber_delta <= 0:
@@ -88,13 +92,13 @@ class Colour:
     if complete is not None:  # how many rays the budget held whole, and what all asked of it
       stats["rays_in_loss"] = jnp.sum(complete, dtype=jnp.int32)
       stats["samples_wanted"] = jnp.sum(outs["coarse"]["valid_samples"], dtype=jnp.int32)
-    return loss, stats
+    return self.weight * loss, stats
 
 
 def build(settings, context):
   """The term of `settings` (always on; context unused)."""
   del context
-  return Colour(settings.coarse_weight, settings.huber_delta)
+  return Colour(settings.coarse_weight, settings.huber_delta, settings.weight)
 
 
 LOSS = losses.Loss(Colour.name, Settings, build)

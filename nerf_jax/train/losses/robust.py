@@ -1,0 +1,123 @@
+"""RobustNeRF's trimmed photometric loss (Sabour et al. 2023; config.loss.robust, off at weight
+0): the pixels whose colour the static scene cannot explain (a passer-by, a car) are left out
+of the loss, so that they neither pull the field nor leave floaters.
+
+A pixel's residual is its squared colour error, averaged over the channels. On a batch of
+patches (config.train.batching='patches': n patches of P x P pixels, patch after patch, each
+row-major) a pixel is kept (an inlier, weight 1) when any of these holds, else left out:
+  * its residual is below the `inlier_quantile` of the batch's residuals;
+  * more than `neighbour_share` of the filter_size x filter_size box around it (zeros beyond the
+    patch's edge) are such pixels: a lone outlier among inliers is fine detail, not an object;
+  * it lies in the middle inner_size x inner_size square of a patch of which more than
+    `patch_share` of the pixels are such pixels.
+What is left out is a cluster of large residuals, the shape of an object. The mask is not
+differentiated (the threshold and the weights are constants of the step, as in RobustNeRF).
+The loss is the mean residual over the kept pixels (their trimmed mean), of every render pass
+added; with per-ray weights (LossInputs.weight) the weighted mean. With it on, the plain colour
+loss is off (config.loss.colour.weight = 0) and reports the PSNR only.
+"""
+
+import dataclasses
+from typing import ClassVar
+
+import jax
+import jax.numpy as jnp
+
+from nerf_jax.train import losses
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+  """config.loss.robust."""
+  weight: float = 0.0  # weight of the trimmed loss (0 = off); on: set loss.colour.weight = 0
+  inlier_quantile: float = 0.8  # inliers: below this quantile of the batch's residuals
+  filter_size: int = 3  # side of the box around a pixel whose inliers can keep it
+  neighbour_share: float = 0.5  # kept: more than this share of its box is inliers
+  inner_size: int = 8  # side of each patch's middle square, kept whole for an inlier patch
+  patch_share: float = 0.6  # an inlier patch: more than this share of its pixels is inliers
+
+  def __post_init__(self):
+    losses.check_weight(self.weight, "robust", "1.0")
+    if not 0 < self.inlier_quantile <= 1:
+      raise ValueError(f"config.loss.robust.inlier_quantile={self.inlier_quantile}: use a "
+                       "share in (0, 1] (RobustNeRF: 0.8)")
+    if self.filter_size < 1 or self.filter_size % 2 == 0:
+      raise ValueError(f"config.loss.robust.filter_size={self.filter_size}: use an odd side "
+                       "(RobustNeRF: 3)")
+
+
+def box_mean(x, size):
+  """The mean of x float32 [n, P, P] over the size x size box (odd size) centred on each pixel,
+  zeros beyond each patch's edge (RobustNeRF's 'SAME' convolution): float32 [n, P, P]."""
+  window = jax.lax.reduce_window(x, 0.0, jax.lax.add, (1, size, size), (1, 1, 1), "SAME")
+  return window / (size * size)
+
+
+def inner_square(patch, inner):
+  """bool [P, P]: the middle inner x inner square of a P x P patch (all of it when inner >=
+  P), placed as RobustNeRF does (the lower margin (P - inner) // 2)."""
+  inner = min(inner, patch)
+  lower = (patch - inner) // 2
+  index = jnp.arange(patch)
+  side = (index >= lower) & (index < lower + inner)
+  return side[:, None] & side[None, :]
+
+
+def inlier_mask(residual, settings):
+  """RobustNeRF's inlier mask of residual float32 [n, P, P] (each pixel's squared error,
+  averaged over channels) under `settings` (Settings): (mask bool [n, P, P], threshold
+  float32 [], the batch's inlier_quantile of the residuals)."""
+  threshold = jnp.quantile(residual, settings.inlier_quantile)
+  inlier = residual < threshold
+  if settings.inlier_quantile >= 1:  # the largest residual is below no quantile: keep all
+    inlier = jnp.ones_like(inlier)
+  neighbours = box_mean(inlier.astype(jnp.float32), settings.filter_size)
+  near_inliers = neighbours > settings.neighbour_share
+  patch_inlier = jnp.mean(inlier, axis=(1, 2), keepdims=True) > settings.patch_share
+  middle = inner_square(residual.shape[-1], settings.inner_size)[None] & patch_inlier
+  return inlier | near_inliers | middle, threshold
+
+
+@dataclasses.dataclass(frozen=True)
+class Robust:
+  """The trimmed loss of a batch of n patches of patch_size² pixels (`inlier_mask`), times
+  `weight`. Stats: inliers (the share of pixels kept, final pass), threshold (the residual
+  quantile, final pass)."""
+  name: ClassVar[str] = "robust"
+  weight: float
+  patch_size: int
+  settings: Settings
+
+  def _pass_loss(self, rgb, target, ray_weight):
+    residual = jnp.mean((rgb - target) ** 2, axis=-1)  # [B]
+    patches = jax.lax.stop_gradient(residual).reshape(-1, self.patch_size, self.patch_size)
+    mask, threshold = inlier_mask(patches, self.settings)
+    keep = mask.reshape(-1).astype(jnp.float32)
+    if ray_weight is not None:
+      keep = keep * ray_weight
+    # max(.., 1e-12): a batch whose pixels all have weight 0 keeps the loss finite (0).
+    loss = jnp.sum(keep * residual) / jnp.maximum(jnp.sum(keep), 1e-12)
+    return loss, jnp.mean(mask.astype(jnp.float32)), threshold
+
+  def __call__(self, inputs):
+    outs = inputs.outputs
+    names = [name for name in losses.PASSES if name in outs]
+    total, share, threshold = 0.0, None, None
+    for name in names:
+      loss, share, threshold = self._pass_loss(outs[name]["rgb"], inputs.target, inputs.weight)
+      total = total + loss
+    return self.weight * total, {"inliers": share, "threshold": threshold}
+
+
+def build(settings, context):
+  """The term on the run's patches (context.patch_size); None at weight 0. ValueError unless
+  the batches are patches."""
+  if settings.weight <= 0:
+    return None
+  if not context.patch_size:
+    raise ValueError("config.loss.robust.weight > 0 needs patches of pixels: set "
+                     "config.train.batching='patches' (and config.train.patch_size, e.g. 16)")
+  return Robust(settings.weight, context.patch_size, settings)
+
+
+LOSS = losses.Loss(Robust.name, Settings, build)
