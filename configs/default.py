@@ -92,7 +92,7 @@ def get_config():
   # config.loss.<name>, whose fields, defaults and comments are its module's Settings.
   config.loss = loss = ml_collections.ConfigDict()
   loss.terms = ("colour", "distortion", "pose_prior", "total_variation", "robust")  # this order
-  loss.colour = _section(colour)  # photometric loss (always on): coarse_weight, huber_delta
+  loss.colour = _section(colour)  # photometric loss (always on): weight, coarse_weight, huber_delta
   loss.distortion = _section(distortion)  # mip-NeRF 360's distortion loss: weight (0 = off)
   loss.pose_prior = _section(pose_prior)  # pose refinement: pull toward no correction: weight
   loss.total_variation = _section(total_variation)  # lattice tables' smoothness: weight

@@ -8,8 +8,7 @@ terms' losses in their order (`total`) and logs every stat as '<name>/<stat>' (t
 A term is one module defining `LOSS = losses.Loss(name, Settings, build)` (a `Loss` record):
 `config.loss.terms` lists the run's terms, in the order they are added, by their registered
 name (`REGISTRY`: colour, distortion, pose_prior, total_variation, robust, the modules of this
-package)
-or the dotted path of any importable module; each term's settings are its own section,
+package) or the dotted path of any importable module; each term's settings are its own section,
 `config.loss.<name>` (docs/extending.md, "Adding a loss term"). The entry layer builds them
 (run/components.loss_terms) and appends the sampler's own terms (its `loss_terms()`).
 """

@@ -13,8 +13,9 @@ row-major) a pixel is kept (an inlier, weight 1) when any of these holds, else l
 What is left out is a cluster of large residuals, the shape of an object. The mask is not
 differentiated (the threshold and the weights are constants of the step, as in RobustNeRF).
 The loss is the mean residual over the kept pixels (their trimmed mean), of every render pass
-added; with per-ray weights (LossInputs.weight) the weighted mean. With it on, the plain colour
-loss is off (config.loss.colour.weight = 0) and reports the PSNR only.
+added; with per-ray weights (LossInputs.weight) the weighted mean (a sample budget's incomplete
+rays are not left out: use it without one). With it on, the plain colour loss is off
+(config.loss.colour.weight = 0) and reports the PSNR only.
 """
 
 import dataclasses
