@@ -7,6 +7,7 @@
 import ml_collections
 
 from nerf_jax.backend import components
+from nerf_jax.evaluate import evaluation
 from nerf_jax.fields import protocol
 from nerf_jax.fields.encodings import grid, hashgrid, posenc, tensorf
 from nerf_jax.fields.networks import mlp
@@ -146,7 +147,11 @@ def get_config():
   render.orbit_phi = -30.0  # orbit elevation in degrees
   render.orbit_radius = 4.0  # orbit distance from the origin
   render.after_training = True  # train.py renders test views and the video when done
-  render.appearance_protocol = "mean"  # test views' codes: 'mean', or 'left_half' (NeRF-W's)
+
+  # How held-out views are scored: `appearance` ('mean' | 'left_half': NeRF-W's code fitted on
+  # each test image's left half, scored on its right half) and the fit's steps, rays and step
+  # size; each field with its comment in the Settings dataclass of nerf_jax/evaluate/evaluation.py.
+  config.eval = ml_collections.ConfigDict(components.section(evaluation.Settings))
 
   config.viewer = viewer = ml_collections.ConfigDict()
   viewer.enabled = False  # serve the live viewer (viser) while training: pip install -e ".[viewer]"

@@ -286,10 +286,10 @@ def make_train_data(exp):
 
 
 def eval_settings(config):
-  """evaluation.EvalSettings of `config` (data.background, render.appearance_protocol)."""
+  """evaluation.EvalSettings of `config` (data.background; config.eval: evaluation.Settings)."""
   return evaluation.EvalSettings(
       background=tuple(float(v) for v in background.parse(config.data.background)),
-      appearance_protocol=config.render.appearance_protocol)
+      held_out=components.settings_from(evaluation.Settings, dict(config.eval), "eval"))
 
 
 def make_evaluator(exp):
