@@ -57,6 +57,7 @@ def get_config():
   data.visual_hull = False  # data with opacity: carve the masks' hull; grids and samples fit it
   data.contraction = ""  # unbounded scene: 'linf' or 'l2' contracts the space beyond the box
   data.inner_fraction = 0.5  # unbounded scene: share of samples inside the box (the rest beyond)
+  data.focus = False  # move the world so that the point the cameras look at is the origin
 
   config.model = model = ml_collections.ConfigDict()
   model.encoding = "posenc"  # positions: 'posenc' (bands), 'grid' (fast.py), 'hash', 'tensorf'
