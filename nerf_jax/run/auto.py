@@ -78,8 +78,8 @@ def box_effects(result, dataset, user):
     share = from_data.cut_share(dataset, bound, near, far, pixel_center)
     if share is not None:
       cut = share > from_data.CUT_SHARE
-      measured = (f"{100 * share:.0f}% of the training rays leave the box ±{bound:.3g} ({why}) "
-                  f"before their far bound {far:.3g} ({'>' if cut else '<='} "
+      measured = (f"{100 * share:.0f}% of the training rays leave the box ±{bound:.3g} from "
+                  f"{why} before their far bound {far:.3g} ({'>' if cut else '<='} "
                   f"{100 * from_data.CUT_SHARE:.0f}%)")
       if cut:
         contraction = effects["data.contraction"] = CONTRACTION

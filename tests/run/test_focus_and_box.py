@@ -122,7 +122,7 @@ def test_auto_keeps_the_box_where_the_rays_stay_in_it(tmp_path, capsys):
   assert not exp.config.data.contraction and not exp.config.data.focus
   assert "leave the scene box" not in out
   assert any(re.fullmatch(r"no contraction: [0-9]% of the training rays leave the box ±5.12 "
-                          r"\(the cameras' box\) before their far bound 4.5 \(<= 25%\)", l)
+                          r"from the cameras' box before their far bound 4.5 \(<= 25%\)", l)
              for l in exp.config.auto_decisions), exp.config.auto_decisions
 
 
