@@ -10,7 +10,8 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from nerf_jax.data import export, loaders, masks, nerfstudio, process, scenes
+from nerf_jax.data import export, loaders, masks, nerfstudio, process, scenes, sfm
+from nerf_jax.data.scenes import capture as capture_scene
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.data.llff import export_llff, load_llff
 from tests.helpers import assert_data_error
@@ -144,19 +145,30 @@ def test_nerfstudio_write_round_trips_mask_paths(tmp_path, scene):
 
 
 def test_nerf_process_passes_masks_through(tmp_path):
+  """The masks folder beside the photos becomes OUT's masks and each frame's mask_path (what
+  process.process does after structure from motion, here with a made-up reconstruction)."""
   photos = tmp_path / "capture" / "photos"
   photos.mkdir(parents=True)
   (tmp_path / "capture" / "masks").mkdir()
-  want = _random_masks(2, SIZE, SIZE, seed=4)
-  for k in range(2):
-    iio.imwrite(photos / f"p{k}.jpg", np.full((SIZE, SIZE, 3), 90, np.uint8))
-    iio.imwrite(tmp_path / "capture" / "masks" / f"p{k}.png", (want[k] * 255).astype(np.uint8))
+  (tmp_path / "out" / "images").mkdir(parents=True)
+  want = _random_masks(3, SIZE, SIZE, seed=4)
+  names = [f"p{k}.jpg" for k in range(3)]
+  for k, name in enumerate(names):
+    for folder in (photos, tmp_path / "out" / "images"):
+      iio.imwrite(folder / name, np.full((SIZE, SIZE, 3), 90, np.uint8))
+    iio.imwrite(tmp_path / "capture" / "masks" / name, (want[k] * 255).astype(np.uint8))
   out = tmp_path / "out"
-  paths = process.pass_masks(str(photos), ["p0.jpg", "p1.jpg"], str(out))
-  assert paths == {"p0.jpg": "masks/p0.png", "p1.jpg": "masks/p1.png"}
-  for k in range(2):
-    np.testing.assert_array_equal(masks.read(str(out / paths[f"p{k}.jpg"]), "nonzero", ""),
-                                  want[k])
+  paths = process.pass_masks(str(photos), names, str(out))
+  assert paths == {name: f"masks/p{k}.png" for k, name in enumerate(names)}
+  poses = capture_scene.ring_poses(3)
+  rec = sfm.Reconstruction(
+      names=names, poses=np.asarray(poses, np.float64),
+      intrinsics=np.tile([10.0, 10.0, SIZE / 2, SIZE / 2], (3, 1)), dist=np.zeros((3, 4)),
+      camera_ids=np.zeros(3, int), size=(SIZE, SIZE),
+      points=np.random.default_rng(0).uniform(-1, 1, (50, 3)),
+      colors=np.zeros((50, 3), np.uint8), point_errors=np.zeros(50), mean_error=0.0, colmap=None)
+  process.write_dataset(str(out), rec, mask_paths=paths)
+  np.testing.assert_array_equal(nerfstudio.load(str(out))[0].masks, want)
   assert process.pass_masks(str(tmp_path / "bare" / "photos"), ["p0.jpg"], str(out)) is None
 
 
