@@ -124,6 +124,7 @@ def make_evaluator(exp, settings):
     if test_ds.labels is not None:
       result.update(scores_by_scale(per_view))
     if test_ds.masks is not None:
+      result.setdefault("ssim", float("nan"))  # no view had a kept window centre
       result["masks"] = MASK_RULE
       result["masked_pixels"] = 1.0 - masks_lib.kept_share(
           [scored(test_ds.mask(i)) for i in range(count)])
