@@ -1,6 +1,6 @@
 """The visual hull: projection inverts the camera rays; carving a sphere's masks keeps every cell
-the sphere touches and removes what no view covers; masks never carve; grids over a tighter, non-cubic box
-interpolate as brute force; a run with data.visual_hull samples only inside the hull."""
+the sphere touches and removes what no view covers; transient masks never carve; grids over a
+tighter, non-cubic box interpolate as brute force; a run with data.visual_hull samples only inside the hull."""
 
 import jax
 import jax.numpy as jnp
