@@ -107,14 +107,12 @@ def make_train_data(ds, camera, rgb_background, with_radii=False):
 
 
 def _with_masks(data, ds):
-  """`data` with the masks of `ds` (module docstring): masked colours zeroed, `kept` and `mask`
-  set; `data` itself when ds has no masks."""
+  """`data` with the `kept` and `mask` of the masks of `ds` (module docstring; `_targets` has
+  zeroed the masked colours); `data` itself when ds has no masks."""
   if ds.masks is None:
     return data
   mask = np.concatenate([np.reshape(m, -1) for m in ds.masks]).astype(np.float32)
-  rgb = np.where(mask[:, None] > 0, np.reshape(np.asarray(data.rgb), (-1, 3)), 0.0)
-  return data.replace(rgb=jnp.asarray(rgb.reshape(data.rgb.shape), jnp.float32),
-                      kept=jnp.asarray(np.flatnonzero(mask), jnp.int32),
+  return data.replace(kept=jnp.asarray(np.flatnonzero(mask), jnp.int32),
                       mask=jnp.asarray(mask.reshape(data.rgb.shape[:-1]), jnp.float32))
 
 
@@ -161,8 +159,16 @@ def pixel_rays_of(data, image, pixel, poses=None):
 
 def _targets(ds, rgb_background):
   """(acc float32 [N, H, W], rgb float32 [N, H, W, 3]): the images of `ds` (a Dataset) on
-  `rgb_background` (float32 [3]; see background.images_on_background)."""
-  return background.images_on_background(ds, rgb_background)
+  `rgb_background` (float32 [3]; see background.images_on_background), lists with mixed sizes;
+  masked pixels (ds.masks) black, so that their colours never reach the device."""
+  acc, rgb = background.images_on_background(ds, rgb_background)
+  if ds.masks is None:
+    return acc, rgb
+  # A new array, image by image: `rgb` may be ds.images itself, which must stay as it is.
+  zeroed = [None] * len(rgb) if isinstance(rgb, list) else np.empty(np.shape(rgb), np.float32)
+  for k, (m, image) in enumerate(zip(ds.masks, rgb)):
+    zeroed[k] = np.where(np.asarray(m)[..., None] > 0, image, 0.0).astype(np.float32)
+  return acc, zeroed
 
 
 def draw_batch(data, settings, key, step=0, run_key=None):
