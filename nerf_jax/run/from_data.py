@@ -128,7 +128,7 @@ def with_visual_hull(config, dataset):
   bound = config.data.scene_bound if occupied else config.model.grid_bound
   resolution = config.occupancy.resolution if occupied else HULL_RESOLUTION
   hull = visual_hull.carve(dataset.accs, dataset.poses, dataset.intrinsics, bound, resolution,
-                           pixel_center(config, dataset))
+                           pixel_center(config, dataset), masks=dataset.masks)
   box = visual_hull.bounding_box(hull, bound)
   config = ml_collections.ConfigDict(config.to_dict())
   config.model.grid_box = tuple(round(float(v), 4) for v in box.reshape(-1))

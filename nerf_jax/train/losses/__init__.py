@@ -31,7 +31,9 @@ class LossInputs:
   target: float32 [B, 3], the colours the rays should render. rays: the rays rendered (those of
   the corrected cameras with pose refinement). params: the trained parameters.
   weight: float32 [B] or None, each ray's weight in the colour loss (its image's
-  Dataset.lossmult: mip-NeRF's area weighting); None = every ray alike.
+  Dataset.lossmult: mip-NeRF's area weighting; times its pixel's mask in whole-image batches
+  of masked data, 0 = a masked pixel: a term that reads `target` must weight by it); None =
+  every ray alike.
   """
   outputs: dict
   target: jnp.ndarray

@@ -77,7 +77,7 @@ class Colour:
     outs = inputs.outputs
     complete = outs["coarse"].get("complete")  # a sample budget: only whole rays count
     names = [name for name in losses.PASSES if name in outs]
-    weight = inputs.weight  # per-ray lossmult, where the data has it
+    weight = inputs.weight  # per-ray lossmult and masks (0: masked), where the data has them
     per_pass = {name: self._pass_loss(outs[name]["rgb"], inputs.target, complete, weight)
                 for name in names}
     loss = per_pass["coarse"] if "fine" not in per_pass else (
