@@ -94,7 +94,8 @@ def get_config():
   # The loss terms (nerf_jax/train/losses/, docs/extending.md): each has its section
   # config.loss.<name>, whose fields, defaults and comments are its module's Settings.
   config.loss = loss = ml_collections.ConfigDict()
-  loss.terms = ("colour", "distortion", "pose_prior", "total_variation")  # added in this order
+  loss.terms = ("colour", "distortion", "pose_prior", "total_variation",
+                "transient")  # added in this order
   loss.colour = _section(colour)  # photometric loss (always on): coarse_weight, huber_delta
   loss.distortion = _section(distortion)  # mip-NeRF 360's distortion loss: weight (0 = off)
   loss.pose_prior = _section(pose_prior)  # pose refinement: pull toward no correction: weight

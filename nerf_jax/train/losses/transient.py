@@ -1,7 +1,8 @@
 """NeRF-W's loss of the pass that carries the transient head (config.loss.transient; NeRF-W
 eq. 13): each ray's colour error scaled by its rendered uncertainty, the uncertainty's log, and
-the transient density's mean. On whenever config.model.transient.dims > 0 (the entry layer adds
-it to config.loss.terms then); the colour term leaves that pass to it (losses/colour.py).
+the transient density's mean. In config.loss.terms by default and on whenever
+config.model.transient.dims > 0 (the entry layer adds it to a list that lacks it); the colour
+term leaves that pass to it (losses/colour.py).
 
 Per ray, with C the target and Ĉ, beta the pass's rgb and beta (render/compositing.
 composite_with_transient) and sigma_tau its transient density at the ray's S samples:
