@@ -7,10 +7,9 @@ the renderer, the optimiser, the loss terms (train/losses/), `StepSettings` and 
 hooks, all built once by the entry layer (run/components.train_step_args).
 
 With appearance codes each ray is rendered with its training image's code (and with the
-transient head, its image's transient embedding); with pose refinement
-each ray is made from its camera's corrected pose (cameras/pose_refinement.py), so the
-corrections params['poses'] take a gradient, and the positional encoding's bands open coarse to
-fine.
+transient head, its image's transient embedding); with pose refinement each ray is made from its
+camera's corrected pose (cameras/pose_refinement.py), so the corrections params['poses'] take a
+gradient, and the positional encoding's bands open coarse to fine.
 
 With several devices each batch is split over them (see parallel.py); the parameters are
 replicated.
