@@ -11,8 +11,9 @@ from nerf_jax.evaluate import evaluation
 from nerf_jax.fields import protocol
 from nerf_jax.fields.encodings import grid, hashgrid, posenc, tensorf
 from nerf_jax.fields.networks import mlp
+from nerf_jax.fields.networks import transient as transient_head
 from nerf_jax.samplers import occupancy, proposal
-from nerf_jax.train.losses import colour, distortion, pose_prior, total_variation
+from nerf_jax.train.losses import colour, distortion, pose_prior, total_variation, transient
 
 
 def _section(term):
@@ -80,6 +81,8 @@ def get_config():
   model.dtype = "float32"  # matmul dtype: float32, bfloat16 or float16
   model.matmul_precision = "default"  # networks' f32 matmuls: default (TF32 on GPUs), high, highest
   model.appearance_dims = 0  # per-training-image appearance code (GLO) for colour; 0 = off
+  # NeRF-W's transient head (dims 0 = off): its Settings, networks/transient.py
+  model.transient = ml_collections.ConfigDict(components.section(transient_head.Settings))
 
   # The occupancy grid: `enabled`, then its Settings (samplers/occupancy.OccupancySettings).
   config.occupancy = occ = ml_collections.ConfigDict()
@@ -93,11 +96,13 @@ def get_config():
   # The loss terms (nerf_jax/train/losses/, docs/extending.md): each has its section
   # config.loss.<name>, whose fields, defaults and comments are its module's Settings.
   config.loss = loss = ml_collections.ConfigDict()
-  loss.terms = ("colour", "distortion", "pose_prior", "total_variation")  # added in this order
+  loss.terms = ("colour", "distortion", "pose_prior", "total_variation",
+                "transient")  # added in this order
   loss.colour = _section(colour)  # photometric loss (always on): coarse_weight, huber_delta
   loss.distortion = _section(distortion)  # mip-NeRF 360's distortion loss: weight (0 = off)
   loss.pose_prior = _section(pose_prior)  # pose refinement: pull toward no correction: weight
   loss.total_variation = _section(total_variation)  # lattice tables' smoothness: weight
+  loss.transient = _section(transient)  # NeRF-W's uncertainty loss (on with model.transient.dims)
 
   config.train = train = ml_collections.ConfigDict()
   train.max_steps = 0  # step budget (0 = fitted to max_seconds if set, else default_steps)

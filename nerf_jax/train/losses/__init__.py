@@ -7,10 +7,11 @@ terms' losses in their order (`total`) and logs every stat as '<name>/<stat>' (t
 
 A term is one module defining `LOSS = losses.Loss(name, Settings, build)` (a `Loss` record):
 `config.loss.terms` lists the run's terms, in the order they are added, by their registered
-name (`REGISTRY`: colour, distortion, pose_prior, total_variation, the modules of this package)
-or the dotted path of any importable module; each term's settings are its own section,
-`config.loss.<name>` (docs/extending.md, "Adding a loss term"). The entry layer builds them
-(run/components.loss_terms) and appends the sampler's own terms (its `loss_terms()`).
+name (`REGISTRY`: colour, distortion, pose_prior, total_variation, transient, the modules of
+this package) or the dotted path of any importable module; each term's settings are its own
+section, `config.loss.<name>` (docs/extending.md, "Adding a loss term"). The entry layer builds
+them (run/components.loss_terms), adds 'transient' where the field has a transient head, and
+appends the sampler's own terms (its `loss_terms()`).
 """
 
 import dataclasses
@@ -90,6 +91,7 @@ REGISTRY = components.Registry("loss term", "config.loss.terms", "LOSS", {
     "distortion": "nerf_jax.train.losses.distortion",
     "pose_prior": "nerf_jax.train.losses.pose_prior",
     "total_variation": "nerf_jax.train.losses.total_variation",
+    "transient": "nerf_jax.train.losses.transient",
 })
 
 

@@ -63,7 +63,8 @@ class Colour:
   weights (LossInputs.weight, the data's lossmult) every mean is the weighted mean.
   Stats: psnr of the final pass (from its squared error, whatever the loss); with a sample
   budget, rays_in_loss (the rays it held whole) and samples_wanted (the valid samples of every
-  drawn ray: above the budget, rays were drawn in vain; below it, budget slots went empty)."""
+  drawn ray: above the budget, rays were drawn in vain; below it, budget slots went empty).
+  A pass with the transient head (its output has 'beta') is left to losses/transient.py."""
   name: ClassVar[str] = "colour"
   coarse_weight: float = 1.0
   huber_delta: float = 0.0
@@ -82,6 +83,9 @@ class Colour:
                 for name in names}
     loss = per_pass["coarse"] if "fine" not in per_pass else (
         per_pass["fine"] + self.coarse_weight * per_pass["coarse"])
+    if "beta" in outs[names[-1]]:  # the transient head's pass: losses/transient.py scores it
+      loss = (self.coarse_weight * per_pass["coarse"] if "fine" in per_pass
+              else jnp.zeros((), jnp.float32))
     final_mse = per_pass[names[-1]] if self.huber_delta <= 0 else mse(
         outs[names[-1]]["rgb"], inputs.target, complete, weight)
     stats = {"psnr": metrics.mse_to_psnr(final_mse)}
