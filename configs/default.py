@@ -7,11 +7,14 @@
 import ml_collections
 
 from nerf_jax.backend import components
+from nerf_jax.evaluate import evaluation
 from nerf_jax.fields import protocol
 from nerf_jax.fields.encodings import grid, hashgrid, posenc, tensorf
 from nerf_jax.fields.networks import mlp
+from nerf_jax.fields.networks import transient as transient_head
 from nerf_jax.samplers import occupancy, proposal
-from nerf_jax.train.losses import colour, distortion, pose_prior, robust, total_variation
+from nerf_jax.train.losses import (colour, distortion, pose_prior, robust, total_variation,
+                                    transient)
 
 
 def _section(term):
@@ -56,6 +59,7 @@ def get_config():
   data.visual_hull = False  # data with opacity: carve the masks' hull; grids and samples fit it
   data.contraction = ""  # unbounded scene: 'linf' or 'l2' contracts the space beyond the box
   data.inner_fraction = 0.5  # unbounded scene: share of samples inside the box (the rest beyond)
+  data.focus = False  # move the world so that the point the cameras look at is the origin
 
   config.model = model = ml_collections.ConfigDict()
   model.encoding = "posenc"  # positions: 'posenc' (bands), 'grid' (fast.py), 'hash', 'tensorf'
@@ -78,6 +82,8 @@ def get_config():
   model.dtype = "float32"  # matmul dtype: float32, bfloat16 or float16
   model.matmul_precision = "default"  # networks' f32 matmuls: default (TF32 on GPUs), high, highest
   model.appearance_dims = 0  # per-training-image appearance code (GLO) for colour; 0 = off
+  # NeRF-W's transient head (dims 0 = off): its Settings, networks/transient.py
+  model.transient = ml_collections.ConfigDict(components.section(transient_head.Settings))
 
   # The occupancy grid: `enabled`, then its Settings (samplers/occupancy.OccupancySettings).
   config.occupancy = occ = ml_collections.ConfigDict()
@@ -91,11 +97,13 @@ def get_config():
   # The loss terms (nerf_jax/train/losses/, docs/extending.md): each has its section
   # config.loss.<name>, whose fields, defaults and comments are its module's Settings.
   config.loss = loss = ml_collections.ConfigDict()
-  loss.terms = ("colour", "distortion", "pose_prior", "total_variation", "robust")  # this order
+  loss.terms = ("colour", "distortion", "pose_prior", "total_variation", "transient",
+                "robust")  # added in this order
   loss.colour = _section(colour)  # photometric loss (always on): weight, coarse_weight, huber_delta
   loss.distortion = _section(distortion)  # mip-NeRF 360's distortion loss: weight (0 = off)
   loss.pose_prior = _section(pose_prior)  # pose refinement: pull toward no correction: weight
   loss.total_variation = _section(total_variation)  # lattice tables' smoothness: weight
+  loss.transient = _section(transient)  # NeRF-W's uncertainty loss (on with model.transient.dims)
   loss.robust = _section(robust)  # RobustNeRF's trimmed loss on patches: weight (0 = off), ...
 
   config.train = train = ml_collections.ConfigDict()
@@ -148,7 +156,11 @@ def get_config():
   render.orbit_phi = -30.0  # orbit elevation in degrees
   render.orbit_radius = 4.0  # orbit distance from the origin
   render.after_training = True  # train.py renders test views and the video when done
-  render.appearance_protocol = "mean"  # test views' codes: 'mean', or 'left_half' (NeRF-W's)
+
+  # How held-out views are scored: `appearance` ('mean' | 'left_half': NeRF-W's code fitted on
+  # each test image's left half, scored on its right half) and the fit's steps, rays and step
+  # size; each field with its comment in the Settings dataclass of nerf_jax/evaluate/evaluation.py.
+  config.eval = ml_collections.ConfigDict(components.section(evaluation.Settings))
 
   config.viewer = viewer = ml_collections.ConfigDict()
   viewer.enabled = False  # serve the live viewer (viser) while training: pip install -e ".[viewer]"

@@ -284,7 +284,8 @@ OLD_SPELLINGS = {"model.grid_resolutions": (8, 16), "model.grid_features": 2,
                  "model.hash_base_resolution": 4, "model.hash_max_resolution": 64,
                  "model.hash_dtype": "float16", "train.coarse_loss_weight": 0.5,
                  "train.huber_delta": 0.05, "train.distortion_weight": 0.01,
-                 "train.pose_prior": 1.5, "train.tv_weight": 0.02}
+                 "train.pose_prior": 1.5, "train.tv_weight": 0.02,
+                 "render.appearance_protocol": "left_half"}
 
 
 def _parent(tree, field):
@@ -320,11 +321,11 @@ def test_renamed_fields_on_the_command_line_give_the_new_names_config(capsys):
 def test_renamed_fields_in_a_saved_config_or_a_config_file_give_the_new_names_config(tmp_path,
                                                                                      capsys):
   """A config.json of a run from before the rename (flat model.grid_*/hash_* and train.*
-  loss fields, no model.grid, model.hash or loss section) restores as the config with the new
-  names; so does a config file setting the old names (config_lib.upgrade, one line per old
-  name)."""
+  loss fields, render.appearance_protocol; no model.grid, model.hash, loss or eval section)
+  restores as the config with the new names; so does a config file setting the old names
+  (config_lib.upgrade, one line per old name)."""
   saved = small_config(TWO_STEPS).to_dict()
-  del saved["model"]["grid"], saved["model"]["hash"], saved["loss"]
+  del saved["model"]["grid"], saved["model"]["hash"], saved["loss"], saved["eval"]
   for old, value in OLD_SPELLINGS.items():
     section, name = _parent(saved, old)
     section[name] = list(value) if isinstance(value, tuple) else value

@@ -27,7 +27,7 @@ class Entry(NamedTuple):
 _NO_SKIP = {"model.skip_layers": ()}  # a 4-layer MLP has no layer 4 to skip after
 _VIEW = {"model.view_dependent": True}  # the view branch (glossy parts)
 # Held-out photos with their own looks, scored on right halves, codes fitted on left halves.
-_OWN_LOOKS = {"data.held_out_looks": "own", "render.appearance_protocol": "left_half"}
+_OWN_LOOKS = {"data.held_out_looks": "own", "eval.appearance": "left_half"}
 
 SWEEPS = {
     "quick": [

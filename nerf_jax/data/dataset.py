@@ -50,6 +50,9 @@ class Dataset:
     the sparse points' box): the inner region of an unbounded scene. None when unknown.
   true_poses: float32 [N, 4, 4] or None, the poses the images were really taken from where they
     differ from `poses` and the data knows them (a simulated pose error, scenes/photos.py).
+  masks: float32 [N, H, W] or None (a list of [H_i, W_i] with mixed sizes, as `images`): 1 where
+    a pixel shows the scene (kept), 0 where it must be ignored (a passer-by, a car): a masked
+    pixel is neither trained on nor scored (data/masks.py, docs/masks.md). None = keep all.
   """
   images: np.ndarray
   poses: np.ndarray
@@ -68,6 +71,7 @@ class Dataset:
   image_cameras: Optional[Cameras] = None
   lossmult: Optional[np.ndarray] = None
   labels: Optional[np.ndarray] = None
+  masks: Optional[np.ndarray] = None
 
   def __post_init__(self):
     if self.image_cameras is not None and self.image_cameras.is_shared() and not isinstance(
@@ -81,6 +85,24 @@ class Dataset:
       self.labels = np.asarray([str(v) for v in self.labels])
     if self.lossmult is not None:
       self.lossmult = np.asarray(self.lossmult, np.float32).reshape(-1)
+    if self.masks is not None:
+      self.masks = self._checked_masks(self.masks)
+
+  def _checked_masks(self, masks):
+    """`masks` as float32 of 0 and 1 (an array, or a list with mixed sizes); DataError for NaN,
+    values other than 0 and 1, a size unlike its image's or an image with every pixel masked."""
+    as_mask = lambda m: np.asarray(m, np.float32)
+    masks = [as_mask(m) for m in masks] if isinstance(masks, list) else as_mask(masks)
+    if len(masks) != len(self.images):
+      raise DataError(f"{self.name}: {len(masks)} masks for {len(self.images)} images")
+    for k, (mask, image) in enumerate(zip(masks, self.images)):
+      if mask.shape != image.shape[:2]:
+        raise DataError(f"{self.name}: mask {k} is {mask.shape}, its image {image.shape[:2]}")
+      if not np.all((mask == 0) | (mask == 1)):  # NaN fails both
+        raise DataError(f"{self.name}: mask {k} holds values other than 0 and 1 (or NaN)")
+      if not mask.any():
+        raise DataError(f"{self.name}: mask {k} ignores every pixel of its image")
+    return masks
 
   @property
   def cameras(self):
@@ -101,6 +123,10 @@ class Dataset:
   def acc(self, index):
     """float32 [H_i, W_i] or None, the opacity of image `index`."""
     return None if self.accs is None else self.accs[index]
+
+  def mask(self, index):
+    """float32 [H_i, W_i] or None, the mask of image `index` (1 keep, 0 ignore)."""
+    return None if self.masks is None else self.masks[index]
 
   @property
   def height(self):
@@ -138,7 +164,8 @@ class Dataset:
                                        for k in range(len(self))]))
     stack = lambda a: a if a is None or not isinstance(a, list) else np.stack(a)
     return dataclasses.replace(part, images=stack(part.images), accs=stack(part.accs),
-                               depths=stack(part.depths), image_cameras=None)
+                               depths=stack(part.depths), masks=stack(part.masks),
+                               image_cameras=None)
 
   def __len__(self):
     return len(self.images)
@@ -151,7 +178,7 @@ class Dataset:
                                poses=self.poses[indices], depths=take(self.depths),
                                accs=take(self.accs), true_poses=take(self.true_poses),
                                image_cameras=cameras, lossmult=take(self.lossmult),
-                               labels=take(self.labels))
+                               labels=take(self.labels), masks=take(self.masks))
 
   def split(self, holdout_from=-1):
     """(train, test): views [:holdout_from] and [holdout_from:].

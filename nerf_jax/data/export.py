@@ -9,6 +9,8 @@ data with cameras of their own in one line).
 
 PNG alpha: by default every pixel is opaque (alpha = 255) and holds the composited image, so that
 `load_blender` returns the same images (to 8-bit quantisation, 1/255) with any `background`.
+Masks (`Dataset.masks`) travel in every format: the npz's `masks` array, Blender's
+frames[].mask_path (`{split}/r_{k}_mask.png`, 255 keep, 0 ignore), LLFF's masks/ folder.
 With `background` given (and ground-truth `accs`), alpha = opacity and the colour is the
 unpremultiplied emission, as in the original NeRF data: loading with that background gives the
 images back to within 1/255, and another background re-composites the scene.
@@ -23,7 +25,7 @@ import sys
 import imageio.v3 as iio
 import numpy as np
 
-from nerf_jax.data import multicam, scenes
+from nerf_jax.data import masks as masks_lib, multicam, scenes
 from nerf_jax.data.dataset import DataError
 from nerf_jax.data.llff import export_llff
 
@@ -37,7 +39,7 @@ def export_npz(dataset, path, rgb_only=False):
   if not rgb_only:
     arrays.update(near=dataset.near, far=dataset.far, background=np.asarray(dataset.background),
                   pixel_center=dataset.pixel_center,
-                  **{k: getattr(dataset, k) for k in ("depths", "accs")
+                  **{k: getattr(dataset, k) for k in ("depths", "accs", "masks")
                      if getattr(dataset, k) is not None})
   np.savez(path, **arrays)
 
@@ -70,6 +72,9 @@ def export_blender(dataset, dirpath, split_at=None, background=None):
       iio.imwrite(os.path.join(dirpath, split, f"r_{k}.png"), rgba)
       frames.append({"file_path": f"./{split}/r_{k}",
                      "transform_matrix": part.poses[k].astype(np.float64).tolist()})
+      if part.masks is not None:
+        frames[-1]["mask_path"] = f"./{split}/r_{k}_mask.png"
+        masks_lib.write(os.path.join(dirpath, split, f"r_{k}_mask.png"), part.mask(k))
     meta = {"camera_angle_x": angle, "near": dataset.near, "far": dataset.far, "frames": frames}
     for name in (split, "val") if split == "test" else (split,):
       with open(os.path.join(dirpath, f"transforms_{name}.json"), "w") as f:

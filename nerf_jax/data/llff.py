@@ -8,6 +8,9 @@ NeRF's order (`nerf_jax.cameras.rays`) is [right, up, backwards], so on the colu
   nerf = [llff_1, -llff_0, llff_2]      and back      llff = [-nerf_1, nerf_0, nerf_2].
 images/: one image per view, matched to the rows in the order of their sorted file names.
 images_{factor}/: the same downsampled by `factor`, as LLFF's tools write them.
+masks/ (optional): one mask per image, the same file name (or with '.png' added or in place of
+  its extension), white = keep (`nerf_jax.data.masks`); a full-size mask is min-pooled by
+  `factor` to its image's size.
 """
 
 import os
@@ -15,7 +18,7 @@ import os
 import imageio.v3 as iio
 import numpy as np
 
-from nerf_jax.data import validate
+from nerf_jax.data import masks as masks_lib, validate
 from nerf_jax.data.dataset import DataError, Dataset
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -23,7 +26,8 @@ _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 def export_llff(dataset, dirpath):
   """Write `poses_bounds.npy` (every view with the bounds dataset.near, dataset.far) and
-  `images/000.png`, ... (8-bit RGB) under `dirpath`; DataError unless a centred pinhole."""
+  `images/000.png`, ... (8-bit RGB) under `dirpath`, and `masks/000.png`, ... where the
+  dataset has masks; DataError unless a centred pinhole."""
   focal = dataset.pinhole_focal()
   c2w = dataset.poses[:, :3, :4].astype(np.float64)
   num = len(dataset)
@@ -37,6 +41,9 @@ def export_llff(dataset, dirpath):
   for k, image in enumerate(dataset.images):
     iio.imwrite(os.path.join(dirpath, "images", f"{k:0{digits}d}.png"),
                 np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8))
+    if dataset.masks is not None:
+      masks_lib.write(os.path.join(dirpath, masks_lib.MASKS_DIR, f"{k:0{digits}d}.png"),
+                      dataset.mask(k))
 
 
 def _downsample(images, factor):
@@ -49,7 +56,8 @@ def _downsample(images, factor):
 
 
 def _read_images(path, num_views, factor):
-  """float32 [N, H, W, 3] from `images_{factor}/`, or `images/` block-averaged by `factor`."""
+  """(float32 [N, H, W, 3] from `images_{factor}/`, or `images/` block-averaged by `factor`;
+  the masks float32 [N, H, W] from masks/, or None)."""
   folder = os.path.join(path, f"images_{factor}")
   reduce = factor > 1 and not os.path.isdir(folder)
   if factor == 1 or reduce:
@@ -64,7 +72,22 @@ def _read_images(path, num_views, factor):
   shapes = {im.shape[:2] for im in images}
   if len(shapes) > 1:
     raise DataError(f"{folder}: images have different sizes {sorted(shapes)}")
-  return _downsample(np.stack(images), factor) if reduce else np.stack(images)
+  images = _downsample(np.stack(images), factor) if reduce else np.stack(images)
+  return images, _read_masks(path, names, images.shape[1:3], factor)
+
+
+def _read_masks(path, names, size, factor):
+  """float32 [N, H, W] of masks/ beside images/ (module docstring) at the images' `size`, or
+  None without masks/; DataError naming a missing, wrong-sized or all-ignoring mask."""
+  masks = masks_lib.folder_masks(path, names)
+  if masks is None:
+    return None
+  out = []
+  for name, mask in zip(names, masks):
+    scaled = mask if mask.shape == tuple(size) else masks_lib.downscale(mask, factor)
+    out.append(masks_lib.check(scaled if scaled.shape == tuple(size) else mask, size,
+                               os.path.join(path, masks_lib.MASKS_DIR, name)))
+  return np.stack(out)
 
 
 def _recenter(c2w):
@@ -119,7 +142,7 @@ def load_llff(path, factor=1, bd_factor=None, recenter=False):
   if int(factor) != factor or factor < 1:
     raise DataError(f"{path}: factor={factor} must be an integer >= 1")
 
-  images = _read_images(path, len(table), int(factor))
+  images, masks = _read_images(path, len(table), int(factor))
   height, width = images.shape[1:3]
   scale = width / hwf[0, 1]  # images_{factor} may round, so take the scale from the width
   if abs(height - scale * hwf[0, 0]) > 1.0:
@@ -137,4 +160,4 @@ def load_llff(path, factor=1, bd_factor=None, recenter=False):
   return Dataset(images.astype(np.float32), validate.poses(c2w, table_path),
                  (float(focal), float(focal), width * 0.5, height * 0.5),
                  near=float(bounds[:, 0].min()), far=float(bounds[:, 1].max()), name=path,
-                 forward_facing=True)
+                 forward_facing=True, masks=masks)

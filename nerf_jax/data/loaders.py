@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from nerf_jax.data import scenes
-from nerf_jax.data import multicam, nerfstudio, validate
+from nerf_jax.data import masks as masks_lib, multicam, nerfstudio, validate
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.data.llff import load_llff
 from nerf_jax.data.validate import composite, parse_background
@@ -24,7 +24,8 @@ from nerf_jax.data.validate import composite, parse_background
 def load_npz(path, background=(0.0, 0.0, 0.0)):
   """The tiny_nerf format: `images` [N, H, W, 3|4], `poses` [N, 4|3, 4], `focal`; optional
   `near`, `far` (default 2, 6), `pixel_center` (default 0: pixel corners, as the Keras reference
-  reads tiny_nerf_data.npz), ground-truth `depths`, `accs` and the RGB `background` of RGB
+  reads tiny_nerf_data.npz), `masks` [N, H, W] (1 keep, 0 ignore: Dataset.masks),
+  ground-truth `depths`, `accs` and the RGB `background` of RGB
   images (default unknown: (0, 0, 0)). RGBA is composited on `background` (see
   `parse_background`) and its alpha becomes `accs`. Returns a Dataset."""
   if not os.path.isfile(path):
@@ -45,8 +46,11 @@ def load_npz(path, background=(0.0, 0.0, 0.0)):
     raise DataError(f"{path}: 'images' has {len(images)} views but 'poses' has {len(poses)}")
   focal = validate.scalar(data["focal"], f"{path}: 'focal'")
   num, height, width = images.shape[:3]
-  extra = {k: data[k].astype(np.float32) for k in ("depths", "accs")
+  extra = {k: data[k].astype(np.float32) for k in ("depths", "accs", "masks")
            if k in data and data[k].shape == (num, height, width)}
+  if "masks" in data and "masks" not in extra:
+    raise DataError(f"{path}: 'masks' has shape {data['masks'].shape}; expected "
+                    f"{(num, height, width)}")
   if images.shape[-1] == 4:
     bg = parse_background(background)
     extra["accs"] = images[..., 3].astype(np.float32)
@@ -66,16 +70,36 @@ def _field(obj, key, where):
   return obj[key]
 
 
-def _read_frame(root, meta_path, k, frame):
-  """One frame's (float64 [H, W, 3|4] image, float32 [4, 4] pose)."""
+def _frame_image_path(root, meta_path, k, frame):
+  """The path of one frame's image (file_path, with or without '.png')."""
   where = f"{meta_path}: frames[{k}]"
   image_path = os.path.join(root, _field(frame, "file_path", where))
   if not os.path.isfile(image_path) and os.path.isfile(image_path + ".png"):
     image_path += ".png"
   if not os.path.isfile(image_path):
     raise DataError(f"{where}.file_path: image {image_path} not found")
+  return image_path
+
+
+def _read_frame(root, meta_path, k, frame):
+  """One frame's (float64 [H, W, 3|4] image, float32 [4, 4] pose)."""
+  where = f"{meta_path}: frames[{k}]"
+  image_path = _frame_image_path(root, meta_path, k, frame)
   pose = np.asarray(_field(frame, "transform_matrix", where), np.float64)[None]
   return validate.read_image(image_path), validate.poses(pose, f"{where}.transform_matrix")[0]
+
+
+def _read_frame_mask(root, meta_path, k, frame, image_path):
+  """One frame's mask float32 [H, W] (data/masks.py) or None: frames[].mask_path (nerfstudio's,
+  0 = ignore), else instant-ngp's dynamic_mask_<stem>.png beside the image."""
+  where = f"{meta_path}: frames[{k}]"
+  if frame.get("mask_path"):
+    path = os.path.join(root, frame["mask_path"])
+    if not os.path.isfile(path) and os.path.isfile(path + ".png"):
+      path += ".png"
+    return masks_lib.read(path, "nonzero", f"{where}.mask_path")
+  path = masks_lib.dynamic_mask_path(image_path)
+  return None if path is None else masks_lib.read(path, "dynamic", path)
 
 
 def _half_res(rgba):
@@ -93,7 +117,8 @@ def load_blender(path, background=(0.0, 0.0, 0.0), half_res=False, split="train"
   """A NeRF-synthetic folder: `transforms_{split}.json` with `camera_angle_x` and `frames`
   (`file_path` relative to `path`, with or without '.png'; `transform_matrix` 4x4), optional
   `near`/`far` (default 2, 6). RGBA PNGs are composited on `background`; `accs` is their alpha
-  (1 for RGB PNGs). Rendered images: pixel_center 0.5. Returns a Dataset."""
+  (1 for RGB PNGs). Rendered images: pixel_center 0.5. Masks (data/masks.py): frames[].mask_path
+  or instant-ngp's dynamic_mask_<stem>.png, min-pooled with half_res. Returns a Dataset."""
   meta_path = os.path.join(path, f"transforms_{split}.json")
   meta = validate.read_json(meta_path)
   angle = validate.scalar(_field(meta, "camera_angle_x", meta_path),
@@ -102,7 +127,7 @@ def load_blender(path, background=(0.0, 0.0, 0.0), half_res=False, split="train"
   if not isinstance(frames, list) or not frames:
     raise DataError(f"{meta_path}: 'frames' must be a non-empty list")
   bg = parse_background(background)
-  poses, size = [], None
+  poses, size, masks = [], None, []
   # One frame at a time into float32 arrays: the float64 copies of a frame live only while it
   # is converted, so 100 frames of 800 x 800 need ~1 GB, not several.
   for k, frame in enumerate(frames):
@@ -121,11 +146,19 @@ def load_blender(path, background=(0.0, 0.0, 0.0), half_res=False, split="train"
       accs = np.empty((len(frames), *rgba.shape[:2]), np.float32)
     images[k], accs[k] = composite(rgba, bg), rgba[..., 3]
     poses.append(pose)
+    mask = _read_frame_mask(path, meta_path, k, frame, _frame_image_path(path, meta_path, k,
+                                                                          frame))
+    if mask is not None:
+      mask = masks_lib.check(masks_lib.downscale(mask, 2) if half_res else mask,
+                             rgba.shape, f"{meta_path}: frames[{k}]")
+    masks.append(mask)
   height, width = images.shape[1:3]
   return Dataset(images, np.stack(poses), (focal, focal, width * 0.5, height * 0.5),
                  near=validate.scalar(meta.get("near", 2.0), f"{meta_path}: 'near'"),
                  far=validate.scalar(meta.get("far", 6.0), f"{meta_path}: 'far'"), name=path,
-                 accs=accs, background=tuple(bg.tolist()))
+                 accs=accs, background=tuple(bg.tolist()),
+                 masks=None if all(m is None for m in masks) else np.stack(
+                     [np.ones((height, width), np.float32) if m is None else m for m in masks]))
 
 
 @dataclasses.dataclass(frozen=True)

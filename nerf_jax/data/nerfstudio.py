@@ -14,8 +14,11 @@ Fields read (top level for one camera, or per frame for several; a frame's own v
   ply_file_path (optional sparse points, used to centre and scale, and for `Dataset.aabb`);
   aabb_scale, scale, offset (optional, instant-ngp's scene box, `ngp_box`);
   near, far, nerf_jax_normalized (written by `nerf-process`).
+  frames[].mask_path (optional, nerfstudio's masks: 0 = ignore the pixel), else instant-ngp's
+    dynamic_mask_<image stem>.png beside the image (non-zero = dynamic: ignore); see
+    `nerf_jax.data.masks`; a full-size mask is made smaller with its image (a min pool).
 Ignored: applied_transform (nerfstudio's record of the rotation it already applied to the poses
-and to the points of ply_file_path), frames[].mask_path.
+and to the points of ply_file_path).
 
 Frames whose image is missing are skipped, with one printed line, as instant-ngp does; more than
 half missing is an error (the wrong folder or factor).
@@ -37,7 +40,7 @@ import os
 import numpy as np
 
 from nerf_jax.cameras.cameras import Cameras
-from nerf_jax.data import lens, orient, pointcloud, validate
+from nerf_jax.data import lens, masks as masks_lib, orient, pointcloud, validate
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.data.validate import composite, parse_background
 
@@ -49,16 +52,19 @@ NGP_SCALE, NGP_OFFSET = 0.33, 0.5  # instant-ngp's default world -> ngp-space ma
 _LISTED = 5  # missing file names printed before "…"
 
 
-def write(out_dir, frames, camera, extra):
+def write(out_dir, frames, camera, extra, mask_paths=None):
   """Write OUT/transforms.json.
 
   frames: list of (file_path str, pose float [4, 4]). camera: dict of the shared camera's
   fl_x, fl_y, cx, cy, w, h, k1, k2, p1, p2 (top level), or a list of such dicts, one per frame.
-  extra: dict of further top-level fields.
+  extra: dict of further top-level fields. mask_paths: None, or each frame's mask_path (str, or
+  None for a frame without a mask).
   """
   shared = isinstance(camera, dict)
+  mask_paths = [None] * len(frames) if mask_paths is None else mask_paths
   meta = {"camera_model": "OPENCV", **(camera if shared else {})}
   meta["frames"] = [{"file_path": path, "transform_matrix": np.asarray(pose).tolist(),
+                     **({} if mask_paths[k] is None else {"mask_path": mask_paths[k]}),
                      **({} if shared else camera[k])} for k, (path, pose) in enumerate(frames)]
   meta.update(extra)
   with open(os.path.join(out_dir, FILENAME), "w") as f:
@@ -252,18 +258,19 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
       raise DataError(f"{where}: missing key 'transform_matrix'")
   found = _found_frames(root, meta_path, [(k, meta["frames"][k]) for k in order], factor)
   found = _drop_blurry(found, min_sharpness, meta_path)
-  images, poses, cameras, names = [], [], [], []
+  images, poses, cameras, names, masks = [], [], [], [], []
   for k, frame, image_path, prescaled in found:
     where = f"{meta_path}: frames[{k}]"
     image = validate.read_image(image_path)
     full_size = tuple(n * (factor if prescaled else 1) for n in image.shape[:2])
     image = image if prescaled else _downscale(image, factor)
+    masks.append(_mask(root, frame, factor, full_size, image.shape, where))
     poses.append(validate.poses(np.asarray(frame["transform_matrix"], np.float64)[None],
                                 f"{where}.transform_matrix")[0])
     cameras.append(_camera(frame, meta, image.shape[:2], full_size, where))
     images.append(image.astype(np.float32))  # float64 for all frames would be 2x the memory
     names.append(frame["file_path"])
-  images, intrinsics = _undistort(images, cameras)
+  images, intrinsics, masks = _undistort(images, cameras, masks)
   poses = np.stack(poses)
   near, far = meta.get("near"), meta.get("far")
   points, transform = _points(root, meta, meta_path), np.eye(4)
@@ -297,8 +304,38 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
                     background=tuple(bg.tolist()),
                     pixel_center=0.0,  # the intrinsics hold cx - 0.5: rays through centres
                     aabb=None if aabb is None else aabb.astype(np.float32),
-                    core=None if core is None else core.astype(np.float32))
+                    core=None if core is None else core.astype(np.float32),
+                    masks=_stack_masks(masks, sizes, one_size))
   return dataset, names, _test_names(meta, names)
+
+
+def _mask(root, frame, factor, full_size, image_shape, where):
+  """The frame's mask (masks module docstring) as float32 [H, W] at its image's size, or None:
+  frames[].mask_path (its images_{factor}/ copy where nerfstudio wrote one), else instant-ngp's
+  dynamic_mask_<stem>.png. A mask of the full photo's size is min-pooled by `factor`."""
+  if frame.get("mask_path"):
+    path, _ = _image_path(root, frame["mask_path"], factor)
+    if path is None:
+      raise DataError(f"{where}.mask_path: mask {os.path.join(root, frame['mask_path'])} "
+                      "not found")
+    mask = masks_lib.read(path, "nonzero", f"{where}.mask_path")
+  else:
+    path = masks_lib.dynamic_mask_path(os.path.join(root, frame["file_path"]))
+    if path is None:
+      return None
+    mask = masks_lib.read(path, "dynamic", path)
+  if mask.shape == tuple(full_size) and factor > 1:
+    mask = masks_lib.downscale(mask, factor)
+  return masks_lib.check(mask, image_shape, f"{where}: {path}")
+
+
+def _stack_masks(masks, sizes, one_size):
+  """Dataset.masks of the frames' masks (None entries: keep every pixel): None when no frame has
+  one, else float32 [N, H, W] (one size) or a list."""
+  if all(m is None for m in masks):
+    return None
+  masks = [np.ones(size, np.float32) if m is None else m for m, size in zip(masks, sizes)]
+  return np.stack(masks) if one_size else masks
 
 
 def _points(root, meta, meta_path):
@@ -311,20 +348,23 @@ def _points(root, meta, meta_path):
   return pointcloud.read_ply(ply)[0]
 
 
-def _undistort(images, cameras):
+def _undistort(images, cameras, masks):
   """Images with their lens distortion removed (module docstring): (list of float32 [H_i, W_i,
-  C], COLMAP-convention intrinsics): one (fx, fy, cx, cy) tuple, the shared pinhole, for frames
-  of one camera; a list of each frame's own for frames of several."""
+  C], COLMAP-convention intrinsics, masks): one (fx, fy, cx, cy) tuple, the shared pinhole, for
+  frames of one camera; a list of each frame's own for frames of several. masks: each frame's
+  float32 [H_i, W_i] or None, resampled with its image (`masks.resample`)."""
   mean = tuple(float(v) for v in np.mean([c[0] for c in cameras], axis=0))
   one = (len({im.shape[:2] for im in images}) == 1 and len({c[1] for c in cameras}) == 1 and
          all(np.allclose(c[0], mean, rtol=0, atol=1e-6) for c in cameras))
   targets = [mean if one else tuple(float(v) for v in c[0]) for c in cameras]
-  out = []
-  for image, (intrinsics, dist), target in zip(images, cameras, targets):
+  out, out_masks = [], []
+  for image, (intrinsics, dist), target, mask in zip(images, cameras, targets, masks):
     exact = not any(dist) and np.allclose(intrinsics, target, rtol=0, atol=1e-6)
     out.append(image if exact else lens.resample(image, intrinsics, dist, target,
                                                  image.shape[:2]).astype(np.float32))
-  return out, (mean if one else targets)
+    out_masks.append(mask if exact or mask is None else masks_lib.resample(
+        mask, intrinsics, dist, target, image.shape[:2]))
+  return out, (mean if one else targets), out_masks
 
 
 def _test_names(meta, names):

@@ -5,7 +5,9 @@
 
 Writes OUT/images/ (the photos, or the sampled video frames), OUT/transforms.json (nerfstudio
 format, `nerf_jax.data.nerfstudio`), OUT/sparse_pc.ply (the sparse points) and OUT/colmap/
-(COLMAP's database, every model in models/, the one used in sparse/0). The scene is re-oriented
+(COLMAP's database, every model in models/, the one used in sparse/0). Masks: a masks/ folder
+beside the photos' folder (`nerf_jax.data.masks`: same names, white = keep) is passed through as
+OUT/masks/<image stem>.png (255 keep, 0 ignore) and each frame's mask_path. The scene is re-oriented
 (z up) and scaled into the box [-1, 1]^3 (`nerf_jax.data.orient`); near and far are stored in
 the file. Needs the `capture` extra (pycolmap): pip install -e ".[capture]".
 """
@@ -16,7 +18,7 @@ import time
 
 import numpy as np
 
-from nerf_jax.data import nerfstudio, orient, pointcloud, sfm, validate
+from nerf_jax.data import masks as masks_lib, nerfstudio, orient, pointcloud, sfm, validate
 from nerf_jax.data.dataset import DataError
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png")
@@ -74,8 +76,9 @@ def _camera_fields(intrinsics, dist, size):
           "k1": k1, "k2": k2, "p1": p1, "p2": p2}
 
 
-def write_dataset(out_dir, rec, image_subdir="images"):
+def write_dataset(out_dir, rec, image_subdir="images", mask_paths=None):
   """Normalise `rec` (sfm.Reconstruction) and write transforms.json and sparse_pc.ply.
+  mask_paths: None, or {image name: mask_path relative to out_dir} (`pass_masks`).
 
   Returns {'transform': float64 [4, 4] (COLMAP world -> ours), 'near', 'far', 'orbit_radius',
   'orbit_phi'}.
@@ -91,7 +94,8 @@ def write_dataset(out_dir, rec, image_subdir="images"):
   extra = {"applied_transform": transform[:3].tolist(), "ply_file_path": "sparse_pc.ply",
            "near": near, "far": far, "nerf_jax_normalized": True,
            "orbit_radius": radius, "orbit_phi": phi}
-  nerfstudio.write(out_dir, frames, cameras[0] if shared else cameras, extra)
+  nerfstudio.write(out_dir, frames, cameras[0] if shared else cameras, extra,
+                   None if mask_paths is None else [mask_paths.get(n) for n in rec.names])
   return {"transform": transform, "near": near, "far": far, "orbit_radius": radius,
           "orbit_phi": phi}
 
@@ -118,6 +122,25 @@ def _gather(image_dir, images, video, num_frames, log):
   return names
 
 
+def pass_masks(images, names, out_dir):
+  """The masks/ folder beside the photos' folder `images` (for the photos `names`) written as
+  OUT/masks/<stem>.png; returns {name: mask_path relative to out_dir}, or None without masks/.
+  DataError naming the photo whose mask is missing, of the wrong size or ignores every pixel."""
+  source = os.path.dirname(os.path.normpath(images))
+  found = masks_lib.folder_masks(source, names)
+  if found is None:
+    return None
+  for name, mask in zip(names, found):
+    size = validate.read_image(os.path.join(images, name)).shape
+    masks_lib.check(mask, size, os.path.join(source, masks_lib.MASKS_DIR, name))
+  _fresh(os.path.join(out_dir, masks_lib.MASKS_DIR))  # after reading: it may be the source
+  paths = {}
+  for name, mask in zip(names, found):
+    paths[name] = f"{masks_lib.MASKS_DIR}/{os.path.splitext(name)[0]}.png"
+    masks_lib.write(os.path.join(out_dir, paths[name]), mask)
+  return paths
+
+
 def process(out_dir, images="", video="", num_frames=100, matcher="auto",
             camera_model="SIMPLE_RADIAL", single_camera=True, min_registered=0.5, log=print,
             num_threads=-1):
@@ -140,6 +163,10 @@ def process(out_dir, images="", video="", num_frames=100, matcher="auto",
       os.remove(os.path.join(out_dir, stale))
   image_dir = os.path.join(out_dir, "images")
   names = _gather(image_dir, images, video, num_frames, log)
+  mask_paths = None if video else pass_masks(images, names, out_dir)
+  if mask_paths is not None:
+    log(f"      {len(mask_paths)} masks passed through to "
+        f"{os.path.join(out_dir, masks_lib.MASKS_DIR)}")
   work_dir = os.path.join(out_dir, "colmap")
   _fresh(work_dir)  # a stale database would mix in old images
   os.makedirs(os.path.join(work_dir, "models"))
@@ -154,7 +181,7 @@ def process(out_dir, images="", video="", num_frames=100, matcher="auto",
         "photos with more overlap (each area in 3+ photos), avoid blur and blank walls, or try "
         f"--matcher={'exhaustive' if matcher == 'sequential' else 'sequential'}")
   log("[3/4] re-orienting and scaling into the scene box")
-  written = write_dataset(out_dir, rec)
+  written = write_dataset(out_dir, rec, mask_paths=mask_paths)
   seconds["total"] = time.perf_counter() - start
   summary = {"num_images": len(names), "num_registered": registered,
              "mean_error": rec.mean_error, "num_points": len(rec.points), "seconds": seconds,

@@ -82,6 +82,24 @@ def read_image(path):
   return unit_images(image, path)
 
 
+def read_grey(path):
+  """A grey image file (a mask) -> float64 [H, W] in [0, 1]; an RGB(A) file gives its first
+  channel."""
+  try:
+    image = np.asarray(iio.imread(path))
+  except Exception as e:  # imageio raises many types for unreadable files
+    lines = str(e).strip().splitlines() or [type(e).__name__]
+    raise DataError(f"{path}: cannot read image ({lines[0]})") from None
+  image = image if image.ndim == 2 else image[..., 0]
+  if np.issubdtype(image.dtype, np.bool_):
+    return image.astype(np.float64)
+  if np.issubdtype(image.dtype, np.integer):
+    return image / float(np.iinfo(image.dtype).max)
+  if not np.all(np.isfinite(image)):
+    raise DataError(f"{path}: contains NaN or inf")
+  return image.astype(np.float64)
+
+
 def read_json(path):
   """The JSON document in the file `path`; DataError naming the file for a missing file or a
   malformed document (its line and column)."""

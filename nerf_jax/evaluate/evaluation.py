@@ -14,6 +14,7 @@ import numpy as np
 import optax
 
 from nerf_jax.cameras import pose_refinement
+from nerf_jax.data import masks as masks_lib
 from nerf_jax.evaluate import lpips, metrics, visuals
 from nerf_jax.render import background, image_renderer, renderer
 
@@ -24,16 +25,28 @@ APPEARANCE_PROTOCOLS = {
                   "every score over its right half (NeRF-W)")}
 NO_CODE_HALF = ("right half: no appearance codes to fit, every score over each test image's "
                 "right half (to compare with left_half runs)")
-FIT_STEPS, FIT_RAYS, FIT_LR = 100, 1024, 1e-2  # left_half: Adam steps, rays a step, step size
+# What metrics.json says (its "masks") when the test views have masks (Dataset.masks).
+MASK_RULE = ("masked pixels not scored: PSNR over the kept pixels, SSIM the mean of its map over "
+             "windows centred on kept pixels, LPIPS the masked mean of its distance map")
 POSE_PROTOCOL = ("similarity: the given test poses moved by the similarity (Umeyama) that takes "
                  "the given training cameras (centres and axes) to the refined ones")
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+  """config.eval: the held-out views' appearance codes. The fit's defaults are nerfbaselines'
+  "nerfw" protocol as NeRF-W runs it (Adam on the left half, the field frozen)."""
+  appearance: str = "mean"  # held-out codes: 'mean' (training codes' mean), 'left_half' (NeRF-W)
+  fit_steps: int = 100  # left_half: Adam steps fitting each test image's code on its left half
+  fit_rays: int = 1024  # left_half: rays drawn (with replacement) from the left half each step
+  fit_lr: float = 1e-2  # left_half: Adam's step size for the code
 
 
 @dataclasses.dataclass(frozen=True)
 class EvalSettings:
   """How the test views are rendered and scored (run/components.eval_settings builds them)."""
   background: tuple  # (r, g, b) in [0, 1]: the colour rendered and scored on (data.background)
-  appearance_protocol: str  # the held-out views' codes: a key of APPEARANCE_PROTOCOLS
+  held_out: Settings  # the held-out views' codes (config.eval)
 
 
 def make_evaluator(exp, settings):
@@ -56,17 +69,22 @@ def make_evaluator(exp, settings):
   Every test view is rendered through its own camera (`Dataset.cameras`); where the test data
   has scale labels (`Dataset.labels`, mip-NeRF's multiscale data) the result also holds
   `scores_by_scale`'s 'by_scale' and 'mean_over_scales', and each per_view entry its 'label'.
+
+  Where the test views have masks (`Dataset.masks`) no masked pixel is scored (MASK_RULE, the
+  metrics' mask argument; left_half fits the codes on kept pixels alone) and the result holds
+  'masks' (MASK_RULE) and 'masked_pixels', the share of the scored pixels that were masked; a
+  view whose windows are all centred on masked pixels has no 'ssim'.
   """
   make_draw = image_renderer.make_image_renderer(exp.renderer, exp.image)
   bg = np.asarray(settings.background, np.float32)
-  protocol = settings.appearance_protocol
+  protocol = settings.held_out.appearance
   test_ds = exp.test_ds
   shared = (test_ds.height, test_ds.width, test_ds.intrinsics)
   camera = lambda i: shared if test_ds.image_cameras is None else test_ds.cameras.camera(i)
   truths = background.images_on_background(test_ds, bg)[1]
   half = appearance_protocol(protocol, exp.renderer.field.uses_images) == "left_half"
-  scored = (lambda a: a[:, a.shape[1] // 2:]) if protocol == "left_half" else (lambda a: a)
-  fit_code = make_code_fitter(exp.renderer) if half else None
+  scored = right_half if protocol == "left_half" else (lambda a: a)
+  fit_code = make_code_fitter(exp.renderer, settings.held_out) if half else None
   lpips_reasons = {}  # (height, scored width) -> lpips.unavailable_reason
 
   def lpips_reason(truth):
@@ -82,19 +100,21 @@ def make_evaluator(exp, settings):
     poses = held_out_poses(exp, variables)
     for i in range(count):
       rays = exp.rays(poses[i], camera(i))
-      truth = truths[i]
+      truth, mask = truths[i], test_ds.mask(i)
       if fit_code is not None:  # this view's own code, from its left half
-        cut = truth.shape[1] // 2
-        left = jax.tree_util.tree_map(lambda a: a[:, :cut].reshape(-1, *a.shape[2:]), rays)
-        target = jnp.asarray(truth[:, :cut].reshape(-1, 3))
-        draw = make_draw(fit_code(variables, left, target, jnp.asarray(bg, jnp.float32)))
+        weight = None if mask is None else jnp.asarray(left_half_mask(mask))
+        draw = make_draw(fit_code(variables, *left_half(rays, truth), jnp.asarray(bg, jnp.float32),
+                                  weight))
       out = draw(rays, bg)
-      view = {"view": i, "psnr": float(metrics.psnr(scored(out["rgb"]), scored(truth))),
-              "ssim": float(metrics.ssim(scored(out["rgb"]), scored(truth))),
+      kept = None if mask is None else scored(mask)
+      view = {"view": i, "psnr": float(metrics.psnr(scored(out["rgb"]), scored(truth), kept)),
               **geometry_errors(out, test_ds, i)}
+      ssim = float(metrics.ssim(scored(out["rgb"]), scored(truth), kept))
+      if np.isfinite(ssim):  # NaN: every window centred on a masked pixel
+        view["ssim"] = ssim
       skipped = lpips_reason(truth)
       if skipped is None:
-        view["lpips"] = float(lpips.lpips(scored(out["rgb"]), scored(truth)))
+        view["lpips"] = float(lpips.lpips(scored(out["rgb"]), scored(truth), kept))
       lpips_skipped = lpips_skipped or skipped
       if test_ds.labels is not None:
         view["label"] = str(test_ds.labels[i])
@@ -109,6 +129,11 @@ def make_evaluator(exp, settings):
       result["lpips_skipped"] = lpips_skipped
     if test_ds.labels is not None:
       result.update(scores_by_scale(per_view))
+    if test_ds.masks is not None:
+      result.setdefault("ssim", float("nan"))  # no view had a kept window centre
+      result["masks"] = MASK_RULE
+      result["masked_pixels"] = 1.0 - masks_lib.kept_share(
+          [scored(test_ds.mask(i)) for i in range(count)])
     result.update(protocols(exp, variables, protocol))
     result.update(pose_scores(exp, variables))
     result["per_view"] = per_view
@@ -139,11 +164,31 @@ def scores_by_scale(per_view):
   return {"by_scale": by_scale, "mean_over_scales": means}
 
 
+def left_half(rays, truth):
+  """(rays [P], target float32 [P, 3]): the pixels of the left half (columns < W // 2) of a
+  view's rays (Rays [H, W]) and its true image `truth` (float32 [H, W, 3]), flattened; what
+  left_half fits the code on."""
+  cut = truth.shape[1] // 2
+  left = jax.tree_util.tree_map(lambda a: a[:, :cut].reshape(-1, *a.shape[2:]), rays)
+  return left, jnp.asarray(truth[:, :cut].reshape(-1, 3), jnp.float32)
+
+
+def left_half_mask(mask):
+  """float32 [P]: the pixels' mask (float32 [H, W]) of the left half, flattened as left_half's."""
+  return mask[:, :mask.shape[1] // 2].reshape(-1)
+
+
+def right_half(image):
+  """float [H, W - W // 2, ...]: the columns of `image` (float [H, W, ...]) that left_half
+  scores, those it did not fit on."""
+  return image[:, image.shape[1] // 2:]
+
+
 def appearance_protocol(protocol, uses_images):
-  """`protocol` (render.appearance_protocol) where the field has appearance codes (`uses_images`),
-  else None; ValueError naming the field for an unknown protocol."""
+  """`protocol` (eval.appearance) where the field has appearance codes (`uses_images`), else
+  None; ValueError naming the field for an unknown protocol."""
   if protocol not in APPEARANCE_PROTOCOLS:
-    raise ValueError(f"config.render.appearance_protocol={protocol!r}: use "
+    raise ValueError(f"config.eval.appearance={protocol!r}: use "
                      f"{' or '.join(map(repr, APPEARANCE_PROTOCOLS))}")
   return protocol if uses_images else None
 
@@ -158,21 +203,28 @@ def with_codes(variables, codes):
   return {**variables, "params": params}
 
 
-def make_code_fitter(ray_renderer):
-  """fn(variables, rays: Rays [P], target float32 [P, 3], background float32 [3]) -> variables
-  showing the codes (one per network) fitted to `target` from the training codes' mean: FIT_STEPS
-  Adam steps on FIT_RAYS rays drawn from the P each step, the field frozen (NeRF-W's protocol
-  for held-out views; jitted once for every view of one size)."""
-  tx = optax.adam(FIT_LR)
+def make_code_fitter(ray_renderer, settings):
+  """fn(variables, rays: Rays [P], target float32 [P, 3], background float32 [3], weight=None)
+  -> variables showing the codes (one per network) fitted to `target` from the training codes'
+  mean by least squares: settings.fit_steps Adam steps (settings: Settings) of step size fit_lr
+  on fit_rays rays drawn from the P each step, the field frozen (NeRF-W's protocol for held-out
+  views; jitted once for every view of one size). weight: float32 [P] or None, each pixel's
+  mask (0: never fitted on, nor drawn). `ray_renderer` needs `render(variables, rays,
+  background=)` returning {'coarse': {'rgb'}, ...} (RayRenderer's)."""
+  tx = optax.adam(settings.fit_lr)
 
   @jax.jit
-  def fit(variables, rays, target, bg):
+  def fit(variables, rays, target, bg, weight=None):
     codes = {name: jnp.mean(p["appearance"], axis=0)
              for name, p in variables["params"].items() if isinstance(p, dict) and
              "appearance" in p}
 
     def loss(codes, key):
-      pick = jax.random.randint(key, (FIT_RAYS,), 0, target.shape[0])
+      if weight is None:
+        pick = jax.random.randint(key, (settings.fit_rays,), 0, target.shape[0])
+      else:  # kept pixels alone: drawn with probability proportional to their weight
+        pick = jax.random.choice(key, target.shape[0], (settings.fit_rays,),
+                                 p=weight / jnp.sum(weight))
       batch = jax.tree_util.tree_map(lambda a: a[pick], rays)
       out = renderer.final(ray_renderer.render(with_codes(variables, codes), batch,
                                                background=bg))
@@ -183,7 +235,7 @@ def make_code_fitter(ray_renderer):
       updates, opt = tx.update(jax.grad(loss)(codes, key), opt)
       return (optax.apply_updates(codes, updates), opt), None
 
-    keys = jax.random.split(jax.random.PRNGKey(0), FIT_STEPS)
+    keys = jax.random.split(jax.random.PRNGKey(0), settings.fit_steps)
     (codes, _), _ = jax.lax.scan(step, (codes, tx.init(codes)), keys)
     return with_codes(variables, codes)
   return fit
@@ -258,17 +310,19 @@ def geometry_errors(out, dataset, index):
   depth_error: median |depth - true depth| over pixels the truth covers (opacity > OPAQUE), in
   scene units (needs `dataset.depths`). empty_opacity: the mean rendered opacity over pixels
   the truth leaves empty (opacity < EMPTY); floaters: the fraction of those that render with
-  opacity > FLOATER_ACC (need `dataset.accs`). out: the render's numpy dict (depth, acc [H, W]).
+  opacity > FLOATER_ACC (need `dataset.accs`). Masked pixels (dataset.masks) are left out.
+  out: the render's numpy dict (depth, acc [H, W]).
   """
   scores = {}
   if dataset.accs is None:
     return scores
   true_acc = dataset.accs[index]
-  empty = true_acc < EMPTY
+  kept = np.ones(true_acc.shape, bool) if dataset.masks is None else dataset.mask(index) > 0
+  empty = (true_acc < EMPTY) & kept
   if np.any(empty):
     scores["empty_opacity"] = float(np.mean(out["acc"][empty]))
     scores["floaters"] = float(np.mean(out["acc"][empty] > FLOATER_ACC))
-  opaque = true_acc > OPAQUE
+  opaque = (true_acc > OPAQUE) & kept
   if dataset.depths is not None and np.any(opaque):
     scores["depth_error"] = float(np.median(np.abs(out["depth"] - dataset.depths[index])[opaque]))
   return scores

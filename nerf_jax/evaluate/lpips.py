@@ -10,6 +10,16 @@ Names and axes (channels last):
   x: float32 [H, W, 3] (or [B, H, W, 3]), an image scaled to [-1, 1] as the reference expects.
   features: the five ReLU outputs of AlexNet (relu1..relu5), float32 [B, h_l, w_l, c_l] with
     c_l = 64, 192, 384, 256, 256.
+  mask: float32 [H, W], 1 where a pixel is scored, 0 where not (Dataset.masks).
+
+The distance is the sum over layers of each layer's map (the lin-weighted squared unit-feature
+gap, float32 [h_l, w_l]) averaged over its cells. With a mask each layer's map is averaged with
+each cell weighted by the share of kept pixels among the pixels that nearest-neighbour
+upsampling of the map to [H, W] gives it (the reference's spatial map, upsampled by nearest
+instead of bilinear): the masked mean of the distance map, which is the plain LPIPS when every
+pixel is kept. A kept cell still sees masked pixels through AlexNet's receptive field (up to
+195 px at relu5): the mask removes masked cells from the score, not masked content from the
+features.
 """
 
 import functools
@@ -137,16 +147,51 @@ def _unit_normalize(f):
   return f / (norm + 1e-10)  # as the reference; avoids 0/0 where every ReLU of a pixel is off
 
 
-def layer_distances(x_a, x_b, params):
-  """Per-layer LPIPS terms of two images in [-1, 1] (float32 [H, W, 3]): float32 [5]; their sum
-  is the distance. Each is the spatial mean of the lin-weighted squared unit-feature gap."""
-  terms = []
+def layer_maps(x_a, x_b, params):
+  """Per-layer LPIPS maps of two images in [-1, 1] (float32 [H, W, 3]): a list of 5 float32
+  [h_l, w_l], the lin-weighted squared unit-feature gap of each cell."""
+  maps = []
   # Both images in one batch: equal images give bitwise-equal features. (The distance is then
   # ~1e-16, not exactly 0: XLA may order the channel sums of the two halves differently.)
   for f, w in zip(features(jnp.stack([x_a, x_b]), params), params["lins"]):
     unit = _unit_normalize(f)
     gap = (unit[0] - unit[1]) ** 2
-    terms.append(jnp.mean(jnp.sum(gap * w, axis=-1)))
+    maps.append(jnp.sum(gap * w, axis=-1))
+  return maps
+
+
+def layer_distances(x_a, x_b, params):
+  """Per-layer LPIPS terms of two images in [-1, 1] (float32 [H, W, 3]): float32 [5]; their sum
+  is the distance. Each is the spatial mean of its `layer_maps` map."""
+  return jnp.stack([jnp.mean(m) for m in layer_maps(x_a, x_b, params)])
+
+
+def nearest_cells(size, cells):
+  """float32 [cells, size]: row c is 1 at the pixels that nearest-neighbour upsampling of
+  `cells` cells to `size` pixels gives cell c (pixel y -> cell floor(y · cells / size)), over
+  their count (so that rows average)."""
+  owner = np.floor(np.arange(size) * cells / size).astype(int)
+  table = (owner[None, :] == np.arange(cells)[:, None]).astype(np.float32)
+  return table / table.sum(1, keepdims=True)  # cells <= size: every row owns a pixel
+
+
+def cell_shares(mask, height, width):
+  """float32 [height, width]: the share of kept pixels of mask float32 [H, W] among each cell's
+  pixels (`nearest_cells` along both axes)."""
+  rows = jnp.asarray(nearest_cells(mask.shape[0], height))
+  cols = jnp.asarray(nearest_cells(mask.shape[1], width))
+  return precision.matmul(precision.matmul(rows, mask), cols.T)
+
+
+def masked_layer_distances(x_a, x_b, mask, params):
+  """`layer_distances` over the kept pixels of mask float32 [H, W] (module docstring): each
+  layer's map averaged with its cells weighted by `cell_shares`; NaN where nothing is kept."""
+  terms = []
+  for m in layer_maps(x_a, x_b, params):
+    share = cell_shares(mask, *m.shape)
+    total = jnp.sum(share)
+    # max: no 0/0 where nothing is kept (the result is then NaN, as documented)
+    terms.append(jnp.where(total > 0, jnp.sum(share * m) / jnp.maximum(total, 1e-12), jnp.nan))
   return jnp.stack(terms)
 
 
@@ -158,9 +203,18 @@ def _lpips_batch(images_a, images_b, params):
   return jax.lax.map(one, (images_a, images_b))
 
 
-def lpips(image_a, image_b):
+@jax.jit
+def _masked_lpips_batch(images_a, images_b, masks, params):
+  """_lpips_batch over the kept pixels of masks float32 [N, H, W]."""
+  one = lambda abm: jnp.sum(masked_layer_distances(2 * abm[0] - 1, 2 * abm[1] - 1, abm[2],
+                                                   params))
+  return jax.lax.map(one, (images_a, images_b, masks))
+
+
+def lpips(image_a, image_b, mask=None):
   """LPIPS distance (~0 for identical images, larger is further) of images float32 [..., H, W, 3]
-  in [0, 1]: float32 [...], e.g. [] for one pair of [H, W, 3] or [N] for [N, H, W, 3]."""
+  in [0, 1]: float32 [...], e.g. [] for one pair of [H, W, 3] or [N] for [N, H, W, 3]. mask:
+  float32 [..., H, W] or None: the masked mean of the distance map (module docstring)."""
   image_a = jnp.asarray(image_a, jnp.float32)
   image_b = jnp.asarray(image_b, jnp.float32)
   if image_a.shape != image_b.shape or image_a.ndim < 3 or image_a.shape[-1] != 3:
@@ -171,6 +225,10 @@ def lpips(image_a, image_b):
     raise ValueError(f"lpips: images of {height}x{width} are smaller than {MIN_SIZE} px a side")
   batch = image_a.shape[:-3]
   flat = lambda a: a.reshape(-1, height, width, 3)
+  if mask is not None:
+    mask = jnp.broadcast_to(jnp.asarray(mask, jnp.float32), image_a.shape[:-1])
+    return _masked_lpips_batch(flat(image_a), flat(image_b), mask.reshape(-1, height, width),
+                               load_params()).reshape(batch)
   return _lpips_batch(flat(image_a), flat(image_b), load_params()).reshape(batch)
 
 

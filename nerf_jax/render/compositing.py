@@ -76,3 +76,34 @@ def _safe_expected_depth(weights, acc, mids, far):
 def disparity(depth):
   """Inverse depth, float32 [...] from depth float32 [...] > 0 (finite: depth >= near > 0)."""
   return 1.0 / jnp.maximum(depth, 1e-10)
+
+
+def composite_with_transient(rgb, sigma, rgb_t, sigma_t, beta, t, background=None,
+                             beta_min=0.03):
+  """`composite` of a static and a transient field together (NeRF-W, eq. 10), with the
+  transient field's uncertainty rendered by its own weights.
+
+  rgb, sigma: the static field's float [..., S, 3] and [..., S] (densities >= 0). rgb_t,
+  sigma_t, beta: the transient field's colour float [..., S, 3], density float [..., S] >= 0 and
+  uncertainty float [..., S] >= 0. t: float32 [..., S + 1]. background: as in `composite`.
+  beta_min: float > 0, added to the rendered uncertainty.
+  Returns `composite`'s dict, where rgb is sum_i T_i·(alpha_i·c_i + alpha_t_i·c_t_i) (+ the
+  background by the transmittance left, exp(-sum of both optical depths)), acc is 1 minus that
+  transmittance, depth is that of both weights and weights the static ones; and besides them
+  transient_weights float32 [..., S] and beta float32 [...] = sum_i w_t_i·beta_i + beta_min.
+  With sigma_t = 0 rgb, depth, acc and weights equal `composite`'s bit for bit.
+  """
+  t = t.astype(jnp.float32)
+  weights, weights_t, total = quadrature.two_part_weights(sigma, sigma_t, t)
+  acc = quadrature.one_minus_exp_neg(total)
+  colour = precision.einsum("...s,...sc->...c", weights, rgb.astype(jnp.float32))
+  colour = colour + precision.einsum("...s,...sc->...c", weights_t, rgb_t.astype(jnp.float32))
+  if background is not None:
+    bg_weight = jnp.maximum(0.0, 1.0 - acc)  # as in `composite`
+    colour = colour + bg_weight[..., None] * jnp.asarray(background, jnp.float32)
+  mids = 0.5 * (t[..., 1:] + t[..., :-1])
+  depth = _safe_expected_depth(weights + weights_t, acc, mids, t[..., -1])
+  depth = jnp.clip(depth, t[..., 0], t[..., -1])
+  rendered_beta = jnp.sum(weights_t * beta.astype(jnp.float32), axis=-1) + beta_min
+  return {"rgb": colour, "depth": depth, "acc": acc, "weights": weights,
+          "transient_weights": weights_t, "beta": rendered_beta}

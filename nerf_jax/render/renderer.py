@@ -18,6 +18,7 @@ Rendering whole images in fixed-size chunks is image_renderer.py.
 
 import dataclasses
 import math
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -30,6 +31,8 @@ from nerf_jax.samplers.placement import Sampler
 
 # fold_in(key, SAMPLER_KEY) is the key of a sampler's parameters in `RayRenderer.init`.
 SAMPLER_KEY = 0x5A4D
+# fold_in(key, TRANSIENT_KEY) is the key of the transient head's parameters.
+TRANSIENT_KEY = 0x7A11
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,6 +51,12 @@ class RayRenderer:
     the colour budget is then a share of the budget. out['valid_samples'] counts each ray's
     valid samples, fitted or not (what the rays asked of the budget: train/losses/colour.py
     logs their sum, so a run shows whether its rays fill it). 0 = every slot of every ray.
+  transient: a fields/transient.TransientField (NeRF-W's transient head) or None. With one,
+    the final pass of rays that carry their training image (rays.image: training batches)
+    composites it with the static field (compositing.composite_with_transient: its outputs
+    add transient_weights, beta and transient_density, the head's sigma float32 [..., S] per
+    unit of world length); rays without an image (held-out views, renders) see the static
+    field alone. Its parameters are variables['params']['transient'].
   """
   field: Field
   sampler: Sampler
@@ -55,6 +64,12 @@ class RayRenderer:
   shared_fine: bool = False
   colour_fraction: float = 0.0
   sample_budget: int = 0
+  transient: Any = None
+
+  @property
+  def uses_images(self):
+    """Whether rays take their training image: for appearance codes or the transient head."""
+    return self.field.uses_images or self.transient is not None
 
   @property
   def networks(self):
@@ -76,6 +91,9 @@ class RayRenderer:
       raise ValueError(f"the sampler's parameter groups {sorted(clash)} clash with the "
                        "field's networks or the poses: name them apart")
     variables["params"].update(own)
+    if self.transient is not None:  # fold_in, not a split: the networks' keys stay as they were
+      variables["params"]["transient"] = self.transient.init(
+          jax.random.fold_in(key, TRANSIENT_KEY))
     if self.sampler.occupancy is not None:
       variables["occupancy"] = self.sampler.occupancy.empty_grid()
     return variables
@@ -84,8 +102,10 @@ class RayRenderer:
     """The parameters of the network that renders the final pass."""
     return variables["params"][self.networks[-1]]
 
-  def _shade(self, params, rays, samples, background, key, remat_chunk=0, bands=None):
-    """One pass over `samples` (placement.Samples) with one network's `params`."""
+  def _shade(self, params, rays, samples, background, key, remat_chunk=0, bands=None,
+             transient_params=None):
+    """One pass over `samples` (placement.Samples) with one network's `params`, and the
+    transient head's `transient_params` (None: the static field alone)."""
     budget = self.sample_budget if samples.gapped and rays.near.ndim == 1 else 0
     distances = samples.distances
     if samples.gapped and not budget:  # not recomputed in every reader (occupancy.computed_once)
@@ -97,6 +117,9 @@ class RayRenderer:
         raise ValueError("a field of cones ('ipe', or a lattice's antialias) does not work with "
                          "config.train.sample_budget or config.model.colour_fraction yet")
       points, per_sample = self.field.cone_inputs(rays, *sample_intervals(samples))
+    if transient_params is not None and (budget or self.colour_fraction > 0):
+      raise ValueError("config.model.transient does not work with config.train.sample_budget "
+                       "or config.model.colour_fraction yet: set them to 0")
     if budget:
       slots, complete = budgeted_slots(samples.valid, budget)
     if self.colour_fraction > 0 and self.field.splits_density:
@@ -113,12 +136,32 @@ class RayRenderer:
       else:
         rgb, sigma = self.field.query_in_chunks(params, points, rays.viewdirs, key,
                                                 remat_chunk, rays.image, bands, per_sample)
+      if transient_params is not None:
+        return self._shade_with_transient(transient_params, rays, samples, points, rgb, sigma,
+                                          background)
       rgb, sigma = samples.intervals(rgb, placement.per_unit_t(sigma, rays))
       out = compositing.composite(rgb, sigma, samples.t, background)
       out["t"] = samples.t
     if budget:
       out["complete"] = complete
       out["valid_samples"] = jnp.sum(samples.valid, axis=-1, dtype=jnp.int32)
+    return out
+
+  def _shade_with_transient(self, params, rays, samples, points, rgb, sigma, background):
+    """The pass's output of the static field's rgb float32 [R, S, 3] and sigma float32 [R, S]
+    at points float32 [R, S, 3] composited with the transient head's (params: its parameters)
+    at the same points, for the rays' images (NeRF-W, eq. 10)."""
+    rgb_t, sigma_t, beta = self.transient.query(params, self.field.network_points(points),
+                                                rays.image)
+    rgb, sigma = samples.intervals(rgb, placement.per_unit_t(sigma, rays))
+    # Colour and uncertainty travel together through the gaps' interleaving.
+    both, sigma_t_e = samples.intervals(jnp.concatenate([rgb_t, beta[..., None]], axis=-1),
+                                        placement.per_unit_t(sigma_t, rays))
+    out = compositing.composite_with_transient(rgb, sigma, both[..., :3], sigma_t_e,
+                                               both[..., 3], samples.t, background,
+                                               self.transient.beta_min)
+    out["t"] = samples.t
+    out["transient_density"] = jnp.where(samples.valid, sigma_t, 0.0)
     return out
 
   def _query_at_slots(self, params, rays, points, slots, key, bands):
@@ -186,15 +229,19 @@ class RayRenderer:
     samples, extras = self.sampler.generate(rays, keys[0], variables)
     if samples.gapped:  # occupancy-placed slots: few per ray, no chunks needed
       remat_chunk = 0
+    # The transient head joins the final pass of rays that carry their training image.
+    transient = (params["transient"] if self.transient is not None and rays.image is not None
+                 else None)
+    has_fine = self.num_fine_samples > 0
     outputs = {"coarse": self._shade(params["coarse"], rays, samples, background, keys[1],
-                                     remat_chunk, bands)}
+                                     remat_chunk, bands, None if has_fine else transient)}
     if self.num_fine_samples > 0:
       t = samples.t
       extra = spacing.sample_pdf(t, outputs["coarse"]["weights"], self.num_fine_samples,
                                   keys[2])
       fine = placement.on_edges(spacing.merge_edges(t, extra))
       outputs["fine"] = self._shade(self.final_params(variables), rays, fine, background,
-                                    keys[3], remat_chunk, bands)
+                                    keys[3], remat_chunk, bands, transient)
     if self.sampler.scene_bound > 0:
       for out in outputs.values():
         out["depth"] = empty_depth_is_far(out, rays.far)

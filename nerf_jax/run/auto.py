@@ -5,9 +5,10 @@ user's flags, which win over the decisions.
 import jax
 import ml_collections
 
-from nerf_jax.run import characterise, config_lib
+from nerf_jax.run import characterise, config_lib, from_data
 
 APPEARANCE_DIMS = 8  # the appearance codes' length auto switches on (NeRF-W: 48, nerfacto: 32)
+CONTRACTION = "linf"  # where the rays leave the box: nerfacto's contraction (docs/real_captures.md)
 LARGE_IMAGES = 400  # auto: object captures from this many pixels a side use configs/detail.py
 # Zip-NeRF's multisampling with its level weights, or the weights alone (multisample False):
 # on the multiscale lego at 10 CPU-minutes the weights alone score best (docs/multiscale.md).
@@ -53,6 +54,50 @@ def cone_summary(config):
   return ", ".join(f"{k}={v!r}" for k, v in effects.items())
 
 
+def box_effects(result, dataset, user):
+  """({field: value}, [lines]): the box of an unbounded capture. Where `result` (the chosen
+  config) takes the box from the data without contracting, the share of training rays that
+  leave that box (from_data.cut_share, the share the run's warning reads; on the user's
+  data.scene_bound if `user`, {field: value} of their flags, sets one) decides: above
+  from_data.CUT_SHARE the space beyond is contracted (data.contraction=CONTRACTION), so the
+  warning never contradicts auto (a data.contraction in `user` is theirs: not measured). Where the space beyond is contracted and the cameras look at
+  one point (characterise.focus), the world is centred there (data.focus), the inner region
+  sized from the sparse points' box where the data has one, else from the cameras' distances
+  (from_data.scene_box). `dataset`: the training views of one camera."""
+  effects, lines = {}, []
+  contraction = user.get("data.contraction", result.data.contraction)
+  bound = user.get("data.scene_bound", result.data.scene_bound)
+  if not contraction and "data.contraction" not in user and (bound == -1 or bound > 0):
+    if bound == -1:
+      bound, why = from_data.scene_box("", dataset)
+    else:
+      why = "data.scene_bound"
+    near, far = (user.get(f"data.{k}", 0.0) or getattr(dataset, k) for k in ("near", "far"))
+    pixel_center = user.get("data.pixel_center", -1.0)
+    pixel_center = dataset.pixel_center if pixel_center == -1 else pixel_center
+    share = from_data.cut_share(dataset, bound, near, far, pixel_center)
+    if share is not None:
+      cut = share > from_data.CUT_SHARE
+      measured = (f"{100 * share:.0f}% of the training rays leave the box ±{bound:.3g} from "
+                  f"{why} before their far bound {far:.3g} ({'>' if cut else '<='} "
+                  f"{100 * from_data.CUT_SHARE:.0f}%)")
+      if cut:
+        contraction = effects["data.contraction"] = CONTRACTION
+        lines.append(f"the space beyond the box contracted (data.contraction="
+                     f"{CONTRACTION!r}): {measured}")
+      else:
+        lines.append(f"no contraction: {measured}")
+  if contraction:
+    focus = characterise.focus(dataset.poses)
+    effects["data.focus"] = focus.found
+    size = ("the sparse points' box (core)" if dataset.core is not None else
+            "the cameras' distances from it")
+    lines.append(f"the inner region centred where the cameras look (data.focus), sized from "
+                 f"{size}: {focus.reason}" if focus.found else
+                 f"the inner region centred on the data's origin: {focus.reason}")
+  return effects, lines
+
+
 def _flat(config):
   """{dotted name: value} of every leaf field of a ConfigDict."""
   out = {}
@@ -73,9 +118,11 @@ def auto_config(config, dataset, backend=None):
   configs/llff.py (grids in NDC) for a forward-facing one, capture.py otherwise or
   when there are too few cameras; on a 'gpu' `backend` (default jax.default_backend()) its
   configs/gpu/ counterpart, `for_backend`) and the effects it calls for (view dependence only
-  where it is measured: the views need depth; else the representation's setting stands). A
-  field the user set (named in config.auto_flags by the command line, or differing from
-  configs/auto.py's) wins over the decision, with one line saying so. Prints one line per
+  where it is measured: the views need depth; else the representation's setting stands;
+  appearance codes with held-out photos scored the NeRF-W way; an unbounded capture's box,
+  contraction and centre: `box_effects`). A field the user set (named in config.auto_flags by
+  the command line, or differing from configs/auto.py's) wins over the decision, with one line
+  saying so. Prints one line per
   decision with its reason, and one naming the backend and the config it chose; the lines go
   to config.auto_decisions (config.json), and auto is off in the result (a restored run keeps
   what was decided)."""
@@ -108,11 +155,17 @@ def auto_config(config, dataset, backend=None):
   result = config_lib.load(chosen)
   if decisions is not None and found["scales"].found:
     effects.update(cone_effects(result))
+  box_lines = []
+  if decisions is not None and found["unbounded"].found:
+    box, box_lines = box_effects(result, dataset, user)
+    effects.update(box)
   if decisions is not None:
     bg = tuple(float(c) for c in dataset.background)
     effects["data.background"] = ("white" if bg == (1.0, 1.0, 1.0) else
                                   "black" if bg == (0.0, 0.0, 0.0) else bg)
     effects["model.appearance_dims"] = APPEARANCE_DIMS if found["appearance"].found else 0
+    if found["appearance"].found:  # held-out photos scored as NeRF-W scores them
+      effects["eval.appearance"] = "left_half"
     if found["view_dependence"].found is not None:  # else the representation's own setting
       effects["model.view_dependent"] = found["view_dependence"].found
     settings = {"background": "an object on a background: a box, random backgrounds while "
@@ -120,7 +173,8 @@ def auto_config(config, dataset, backend=None):
                 "forward": "forward-facing: NDC rays (data.ndc)",
                 "unbounded": "unbounded: the scene box from the data (data.scene_bound=-1)",
                 "appearance": f"per-photo appearance codes (model.appearance_dims="
-                              f"{APPEARANCE_DIMS})",
+                              f"{APPEARANCE_DIMS}), held-out photos scored with a code fitted "
+                              "on their left half (eval.appearance='left_half')",
                 "view_dependence": "view dependence: colour from the viewing direction too "
                                    "(model.view_dependent)",
                 "scales": "cameras at several scales: cones, " + cone_summary(result)}
@@ -131,6 +185,7 @@ def auto_config(config, dataset, backend=None):
       else:
         absent = "one scale" if d.name == "scales" else "no " + d.name.replace("_", " ")
         lines.append(f"{settings[d.name] if d.found else absent}: {d.reason}")
+    lines += box_lines
     lines.append("pose refinement: off (nothing in the photos measures a pose error; "
                  "train.pose_refinement=True switches it on)")
   lines.append(backend_line)

@@ -21,6 +21,9 @@ found (True / False), and the measured reason, one line:
               than from most. It needs the views' depth (the built-in scenes, RGB-D data) to
               match points and to tell a highlight from an occluder; without depth it is not
               measured (found None) and the representation's config decides.
+  focus       (`focus`, read where auto contracts the space beyond the box) the optical axes
+              meet at one point that the median camera sees within asin(FOCUS_SINE) of its
+              axis: the cameras look at one subject, and the box is centred on it.
 
 Camera axes are those of rays.py: a camera looks down its -z axis.
 """
@@ -45,11 +48,13 @@ OPAQUE = 0.99  # surface points come from pixels at least this opaque (where opa
 HIGHLIGHT_VIEWS, HIGHLIGHT_POINTS = 16, 800  # reference views, and the points picked in each
 FOOTPRINT_SPREAD = 2.0  # cones when the cameras' pixel footprints at the centre differ 2x or more
 PARALLEL_AXES = 0.05  # focus_point: axes this close to parallel (mean sin^2) meet nowhere
+FOCUS_SINE = 0.25  # the cameras look at one point: the median sees it within 14.5° of its axis
 
 
 @dataclasses.dataclass(frozen=True)
 class Decision:
-  name: str  # 'background', 'forward', 'unbounded', 'appearance', 'view_dependence', 'scales'
+  name: str  # 'background', 'forward', 'unbounded', 'appearance', 'view_dependence', 'scales',
+  #   'focus' (`focus`, asked for by auto where the space beyond the box is contracted)
   found: Optional[bool]  # whether the capture calls for it; None: the data cannot tell
   reason: str  # one line: what was measured
 
@@ -70,26 +75,67 @@ def cone_degrees(poses):
   return float(np.degrees(np.arccos(np.clip(dirs @ (mean / norm), -1.0, 1.0))).max())
 
 
-def focus_point(poses, near, far):
-  """float64 [3]: the point nearest every camera's optical axis (least squares), where the
-  cameras look. Axes too close to parallel to meet (mean sin^2 of their angle to the least
-  determined direction below PARALLEL_AXES: a forward-facing capture), or meeting behind most
-  cameras (looking outwards), give the point at depth sqrt(near·far) ahead of the cameras'
-  mean centre along their mean direction instead.
-
-  poses: float [N, 4, 4] camera-to-world. near, far: float > 0, the scene's z-depth bounds.
-  """
+def axes_meet(poses):
+  """float64 [3] or None: the point nearest every camera's optical axis (least squares), or
+  None where the axes are too close to parallel to meet (mean sin^2 of their angle to the least
+  determined direction below PARALLEL_AXES: a forward-facing capture) or meet behind most
+  cameras (looking outwards). poses: float [N, 4, 4] camera-to-world."""
   poses = np.asarray(poses, np.float64)
   centres, dirs = poses[:, :3, 3], view_directions(poses)
   projectors = np.eye(3) - dirs[:, :, None] * dirs[:, None, :]  # onto each axis' normal plane
   a = projectors.mean(0)
   b = np.einsum("nij,nj->i", projectors, centres) / len(poses)
-  if np.linalg.eigvalsh(a)[0] >= PARALLEL_AXES:
-    point = np.linalg.solve(a, b)
-    if np.mean(np.einsum("ni,ni->n", point - centres, dirs) > 0) > 0.5:
-      return point
+  if np.linalg.eigvalsh(a)[0] < PARALLEL_AXES:
+    return None
+  point = np.linalg.solve(a, b)  # a's eigenvalues >= PARALLEL_AXES > 0: well conditioned
+  ahead = np.mean(np.einsum("ni,ni->n", point - centres, dirs) > 0) > 0.5
+  return point if ahead else None
+
+
+def focus_point(poses, near, far):
+  """float64 [3]: where the cameras look: `axes_meet`'s point, or where the axes meet nowhere
+  the point at depth sqrt(near·far) ahead of the cameras' mean centre along their mean
+  direction.
+
+  poses: float [N, 4, 4] camera-to-world. near, far: float > 0, the scene's z-depth bounds.
+  """
+  point = axes_meet(poses)
+  if point is not None:
+    return point
+  poses = np.asarray(poses, np.float64)
+  dirs = view_directions(poses)
   mean_dir = dirs.mean(0) / max(np.linalg.norm(dirs.mean(0)), 1e-9)
-  return centres.mean(0) + np.sqrt(near * far) * mean_dir
+  return poses[:, :3, 3].mean(0) + np.sqrt(near * far) * mean_dir
+
+
+def off_axis_sines(poses, point):
+  """float64 [N]: for each camera, the distance of its optical axis from `point` (float [3])
+  over its own distance from it, the sine of the angle at which it sees the point off its axis
+  (1 for a point beside or behind it)."""
+  poses = np.asarray(poses, np.float64)
+  to_point = np.asarray(point, np.float64) - poses[:, :3, 3]
+  distance = np.linalg.norm(to_point, axis=1)
+  along = np.einsum("ni,ni->n", to_point, view_directions(poses))
+  # A camera at the point (distance 0) sees it on no axis: sine 1, and no division by 0.
+  sine = np.sqrt(np.maximum(distance ** 2 - along ** 2, 0.0)) / np.maximum(distance, 1e-12)
+  return np.where((along > 0) & (distance > 1e-12), sine, 1.0)
+
+
+def focus(poses):
+  """Decision 'focus': the cameras all look at one point (nerfstudio's 'focus' centring): their
+  axes meet (`axes_meet`) and the median camera sees the point within asin(FOCUS_SINE) of its
+  axis (`off_axis_sines`)."""
+  point = axes_meet(poses)
+  if point is None:
+    return Decision("focus", False, "the optical axes meet nowhere ahead of the cameras "
+                                    "(parallel or looking outwards)")
+  sine = float(np.median(off_axis_sines(poses, point)))
+  found = sine <= FOCUS_SINE
+  where = ", ".join(f"{v:.3g}" for v in point)
+  return Decision("focus", found,
+                  f"the optical axes meet at ({where}), {np.degrees(np.arcsin(sine)):.1f}° off "
+                  f"the median camera's axis ({'<=' if found else '>'} "
+                  f"{np.degrees(np.arcsin(FOCUS_SINE)):.1f}°)")
 
 
 def pixel_footprints(dataset):

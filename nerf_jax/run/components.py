@@ -9,6 +9,8 @@ import functools
 
 from nerf_jax.backend import components, precision
 from nerf_jax.fields import protocol, registry
+from nerf_jax.fields import transient as transient_field
+from nerf_jax.fields.networks import transient as transient_head
 from nerf_jax.run import config_lib
 from nerf_jax.samplers import occupancy
 from nerf_jax.samplers import registry as sampler_registry
@@ -163,7 +165,29 @@ def make_ray_renderer(config, num_images=1):
                      "is spent on the samples the occupancy grid places (0 = off)")
   return RayRenderer(make_field(config, num_images), make_sampler(config),
                      config.num_fine_samples, config.model.shared_fine,
-                     config.model.colour_fraction)
+                     config.model.colour_fraction, transient=make_transient(config, num_images))
+
+
+def transient_settings(config):
+  """networks/transient.Settings of config.model.transient (ValueError naming a wrong field)."""
+  return components.settings_from(transient_head.Settings, dict(config.model.transient),
+                                  "model.transient")
+
+
+def make_transient(config, num_images=1):
+  """NeRF-W's transient field (fields/transient.TransientField) of config.model.transient, one
+  embedding per training image, or None when its dims is 0; ValueError naming the fields it
+  does not work with yet."""
+  settings = transient_settings(config)
+  if not settings.dims:
+    return None
+  if config.train.sample_budget or config.model.colour_fraction:
+    raise ValueError("config.model.transient.dims > 0 does not work with "
+                     "config.train.sample_budget or config.model.colour_fraction yet: set them "
+                     "to 0")
+  head = transient_head.build(settings, num_images, config.model.dtype,
+                              config.model.matmul_precision)
+  return transient_field.TransientField(head, settings.beta_min, settings.density_shift)
 
 
 def training_renderer(exp):
@@ -230,8 +254,11 @@ def loss_terms(config, ray_renderer):
   registered name or a module path, losses.REGISTRY) built from its section config.loss.<name>
   (None from its build: off), then the sampler's own, in the order they are added. ValueError
   naming the field for a term that is unknown, listed twice or without its section, or for
-  'colour' missing (the photometric loss is always on)."""
+  'colour' missing (the photometric loss is always on). With a transient head
+  (config.model.transient.dims > 0) 'transient' is added when the list lacks it."""
   names = tuple(config.loss.terms)
+  if ray_renderer.transient is not None and "transient" not in names:
+    names += ("transient",)  # the transient pass's loss (the colour term leaves that pass)
   if "colour" not in names:
     raise ValueError(f"config.loss.terms={names}: must include 'colour' (the photometric "
                      "loss is always on)")
@@ -287,10 +314,10 @@ def make_train_data(exp):
 
 
 def eval_settings(config):
-  """evaluation.EvalSettings of `config` (data.background, render.appearance_protocol)."""
+  """evaluation.EvalSettings of `config` (data.background; config.eval: evaluation.Settings)."""
   return evaluation.EvalSettings(
       background=tuple(float(v) for v in background.parse(config.data.background)),
-      appearance_protocol=config.render.appearance_protocol)
+      held_out=components.settings_from(evaluation.Settings, dict(config.eval), "eval"))
 
 
 def make_evaluator(exp):

@@ -94,6 +94,7 @@ RENAMED = {
     "train.distortion_weight": "loss.distortion.weight",
     "train.pose_prior": "loss.pose_prior.weight",
     "train.tv_weight": "loss.total_variation.weight",
+    "render.appearance_protocol": "eval.appearance",
 }
 
 

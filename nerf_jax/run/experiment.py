@@ -85,6 +85,7 @@ def setup(config):
     config = auto.auto_config(config, train_ds)
   from_data.pixel_center(config, train_ds)  # a bad value fails here, naming the field
   near, far = from_data.bounds(config, train_ds)
+  train_ds, test_ds = from_data.with_focus(config, train_ds, test_ds)
   config = from_data.with_scene_extent(config, train_ds)
   config = from_data.with_ndc_box(config, train_ds, near, far)
   config, hull = from_data.with_visual_hull(config, train_ds)

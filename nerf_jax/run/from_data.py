@@ -1,36 +1,77 @@
-"""The config completed from the data, once, before anything is built: the scene's extent
-(data.scene_bound = -1), the grids' box in NDC and from the visual hull, the ray bounds and
-pixel centres; and the one line that warns when the scene box cuts the training rays.
+"""The config completed from the data, once, before anything is built: the world centred on
+what the cameras look at (data.focus), the scene's extent (data.scene_bound = -1), the grids'
+box in NDC and from the visual hull, the ray bounds and pixel centres; and the one line that
+warns when the scene box cuts the training rays (`cut_share`, which auto reads too).
 """
 
+import dataclasses
 
 import jax.numpy as jnp
 import ml_collections
 import numpy as np
 
 from nerf_jax.samplers import visual_hull
-from nerf_jax.cameras.rays import pixel_rays
+from nerf_jax.cameras.rays import pixel_rays, ray_box_bounds
+from nerf_jax.run import characterise
+
+
+def with_focus(config, train_ds, test_ds):
+  """(train_ds, test_ds) moved with data.focus so that the training cameras' focus point
+  (characterise.focus_point: the point nearest their optical axes) is the origin, where the
+  scene box (and a contraction's inner region) is centred: nerfstudio's 'focus' centring. The
+  world moves, nothing turns or scales: poses, the data's boxes (aabb, core) and true poses
+  move alike; depths and the near/far bounds (z-depths) stay. One line says where the point
+  was; the datasets as they are without data.focus or in NDC (the frame is the cameras')."""
+  if not config.data.focus or config.data.ndc:
+    return train_ds, test_ds
+  point = characterise.focus_point(train_ds.poses, train_ds.near, train_ds.far)
+  print(f"focus: the cameras look at ({', '.join(f'{v:.3g}' for v in point)}); the world is "
+        "moved to put it at the origin, the centre of the scene box (data.focus)", flush=True)
+  return translated(train_ds, -point), translated(test_ds, -point)
+
+
+def translated(dataset, offset):
+  """`dataset` (a Dataset) with everything in world units moved by `offset` (float [3]): the
+  poses' centres, true poses and the aabb and core boxes."""
+  offset = np.asarray(offset, np.float32)
+  def move_poses(poses):
+    if poses is None:
+      return None
+    poses = np.array(poses, np.float32)
+    poses[:, :3, 3] += offset
+    return poses
+  move_box = lambda box: None if box is None else np.asarray(box, np.float32) + offset
+  return dataclasses.replace(dataset, poses=move_poses(dataset.poses),
+                             true_poses=move_poses(dataset.true_poses),
+                             aabb=move_box(dataset.aabb), core=move_box(dataset.core))
+
+
+def scene_box(contraction, dataset):
+  """(bound, why): the half-size of the scene box centred on the origin that data.scene_bound
+  = -1 resolves to, and the phrase saying where it came from. With `contraction` (an unbounded
+  scene) the inner box is the subject's (Dataset.core: instant-ngp's unit cube, or the sparse
+  points' box), else the cameras'; in a bounded one it is the data's whole box (Dataset.aabb:
+  instant-ngp's aabb_scale or the sparse points), else the cameras'."""
+  box = dataset.core if contraction else dataset.aabb
+  if box is None:
+    return float(np.max(np.abs(dataset.poses[:, :3, 3]))), "the cameras' box"
+  why = "the subject's box (core)" if contraction else "the data's box (aabb)"
+  return float(np.max(np.abs(box))), why
 
 
 def with_scene_extent(config, dataset):
-  """`config` with data.scene_bound = -1 (auto) resolved from the data, one line saying how:
-  in an unbounded scene (data.contraction) the inner box is the subject's (Dataset.core:
-  instant-ngp's unit cube, or the sparse points' box), else the cameras'; in a bounded one it
-  is the data's whole box (Dataset.aabb: instant-ngp's aabb_scale or the sparse points), else
-  the cameras'. The value (and the grids' box, model.grid_bound) is recorded in config.json."""
+  """`config` with data.scene_bound = -1 (auto) resolved from the data (`scene_box`), one line
+  saying how. The value (and the grids' box, model.grid_bound) is recorded in config.json."""
   if config.data.scene_bound != -1:
     return config
-  box = dataset.core if config.data.contraction else dataset.aabb
-  if box is None:
-    bound, why = float(np.max(np.abs(dataset.poses[:, :3, 3]))), "the cameras' box"
-  else:
-    bound = float(np.max(np.abs(box)))
-    why = "the subject's box (core)" if config.data.contraction else "the data's box (aabb)"
+  bound, why = scene_box(config.data.contraction, dataset)
   config = ml_collections.ConfigDict(config.to_dict())
   config.data.scene_bound = round(bound, 4)
   config.model.grid_bound = round(bound, 4)  # a bounded scene's grids cover the box found
   beyond = f", contracted ({config.data.contraction}) beyond" if config.data.contraction else ""
-  print(f"scene extent: box ±{bound:.3g} from {why}{beyond} (data.scene_bound)", flush=True)
+  centre = " about the cameras' focus (data.focus)" if config.data.focus else ""
+  print(f"scene extent: box ±{bound:.3g} from {why}{centre}{beyond} (data.scene_bound)",
+        flush=True)
   return config
 
 
@@ -87,7 +128,7 @@ def with_visual_hull(config, dataset):
   bound = config.data.scene_bound if occupied else config.model.grid_bound
   resolution = config.occupancy.resolution if occupied else HULL_RESOLUTION
   hull = visual_hull.carve(dataset.accs, dataset.poses, dataset.intrinsics, bound, resolution,
-                           pixel_center(config, dataset))
+                           pixel_center(config, dataset), masks=dataset.masks)
   box = visual_hull.bounding_box(hull, bound)
   config = ml_collections.ConfigDict(config.to_dict())
   config.model.grid_box = tuple(round(float(v), 4) for v in box.reshape(-1))
@@ -101,24 +142,42 @@ def with_visual_hull(config, dataset):
 CUT_SHARE = 0.25  # a run warns when more training rays than this leave the box before far
 
 
-VIEWS_CHECKED, RAYS_PER_SIDE = 8, 16  # warn_if_cut looks at 16 x 16 rays of ~8 views
+VIEWS_CHECKED, RAYS_PER_SIDE = 8, 16  # cut_share looks at 16 x 16 rays of ~8 views
+
+
+def cut_share(dataset, bound, near, far, pixel_center):
+  """The share of training rays that leave the box [-bound, bound]^3 before 0.95 of their far
+  bound (RAYS_PER_SIDE^2 rays evenly over each of ~VIEWS_CHECKED views); None where the data has
+  opacity (RGBA files, the built-in scenes): it says where the scene is empty, so nothing is cut.
+
+  dataset: the training Dataset. bound: float > 0. near, far: float, the rays' z-depth bounds.
+  pixel_center: float, where in its pixel each ray passes (`pixel_center`).
+  """
+  if dataset.accs is not None:
+    return None
+  poses = dataset.poses
+  cut = []
+  for k in range(0, len(poses), max(1, len(poses) // VIEWS_CHECKED)):
+    height, width, intrinsics = dataset.cameras.camera(k)
+    i, j = np.meshgrid(np.linspace(0, width - 1, RAYS_PER_SIDE, dtype=np.float32),
+                       np.linspace(0, height - 1, RAYS_PER_SIDE, dtype=np.float32))
+    rays = pixel_rays(jnp.asarray(i), jnp.asarray(j), height, width, intrinsics, poses[k], near,
+                      far, pixel_center)
+    t_far = ray_box_bounds(rays.origins, rays.directions, bound, rays.near, rays.far)[1]
+    cut.append(np.mean(np.asarray(t_far) < 0.95 * np.asarray(rays.far)))
+  return float(np.mean(cut))
 
 
 def warn_if_cut(exp):
-  """One line when many training rays leave the scene box before their far bound: what lies
-  beyond is cut from the model (a bounded box on a real capture). Data with opacity (RGBA,
-  built-in scenes) says where the scene is empty, so nothing is cut there: no line."""
+  """One line when more than CUT_SHARE of the training rays leave the scene box before their
+  far bound (`cut_share`): what lies beyond is cut from the model (a bounded box on a real
+  capture). --config=auto reads the same share and contracts the space beyond the box instead
+  (auto.box_effects), so it never gets this line on its own choice."""
   sampler = exp.renderer.sampler
-  if (sampler.scene_bound <= 0 or sampler.contraction or exp.config.data.ndc
-      or exp.train_ds.accs is not None):
+  if sampler.scene_bound <= 0 or sampler.contraction or exp.config.data.ndc:
     return
-  poses = exp.train_ds.poses
-  views = poses[::max(1, len(poses) // VIEWS_CHECKED)]
-  camera = exp.camera(RAYS_PER_SIDE / max(exp.train_ds.height, exp.train_ds.width))
-  cut = [np.mean(np.asarray(sampler.bounds(rays)[1]) < 0.95 * np.asarray(rays.far))
-         for rays in (exp.rays(pose, camera) for pose in views)]
-  share = float(np.mean(cut))
-  if share > CUT_SHARE:
+  share = cut_share(exp.train_ds, sampler.scene_bound, exp.near, exp.far, exp.pixel_center)
+  if share is not None and share > CUT_SHARE:
     print(f"note: {100 * share:.0f}% of training rays leave the scene box "
           f"(±{sampler.scene_bound:g}) before their far bound ({exp.far:.3g}): what lies "
           "beyond is not modelled; for a garden or a street set data.contraction='linf' "

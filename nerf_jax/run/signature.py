@@ -13,7 +13,7 @@ from nerf_jax.fields import registry
 from nerf_jax.fields.encodings import grid
 from nerf_jax.train.state import TrainState
 from nerf_jax.run.components import (encoding_family, make_ray_renderer, make_sampler,
-                                     network_name, section_settings)
+                                     network_name, section_settings, transient_settings)
 
 
 def model_signature(config):
@@ -48,6 +48,10 @@ def model_signature(config):
     signature.update(dir_encoding=config.dir_encoding)
   if m.appearance_dims:
     signature.update(appearance_dims=m.appearance_dims)
+  transient = transient_settings(config)
+  if transient.dims:  # only then, so the signatures of runs without the head stay as they were
+    signature.update(components.signature(transient, "transient_",
+                                          exclude=("beta_min", "density_shift")))
   if config.train.pose_refinement:
     signature.update(pose_refinement=True)
   if config.train.ema_decay > 0:  # the state holds the weights' moving average

@@ -7,6 +7,9 @@ never need a sample (VaxNeRF). Names:
   accs:  float32 [N, H, W]  opacity of each pixel of the N training views
   poses: float32 [N, 4, 4]  camera-to-world (nerf_jax.cameras.rays conventions: the camera looks down -z)
   hull:  float32 [R, R, R]  1 where a cell may hold the scene, 0 where the masks rule it out
+  masks: float32 [N, H, W] or None, the data's transient masks (Dataset.masks: 0 = ignore the
+         pixel): a masked pixel says "unknown", not "empty", so it counts as covered and never
+         carves a cell
 The carving is conservative: each mask is dilated by the largest radius in pixels that a cell
 projects to, so a cell that any structure touches (however thin) is never carved away.
 """
@@ -55,13 +58,16 @@ def dilation_radius(poses, intrinsics, bound, resolution):
   return int(math.ceil(0.5 * math.sqrt(3) * cell * focal / nearest)) + 1
 
 
-def carve(accs, poses, intrinsics, bound, resolution, pixel_center=0.5):
+def carve(accs, poses, intrinsics, bound, resolution, pixel_center=0.5, masks=None):
   """The visual hull on the R^3 cells of the box [-bound, bound]^3 (module docstring).
 
   A cell is carved when some view sees its centre inside the image and the mask, dilated by
-  `dilation_radius`, is empty there. Cells no view sees are kept. Returns float32 [R, R, R]
-  (all ones when no conservative dilation exists, see `dilation_radius`).
+  `dilation_radius`, is empty there. Cells no view sees are kept; so are cells a view sees
+  through a pixel its transient mask ignores (`masks`: such a pixel counts as opaque). Returns
+  float32 [R, R, R] (all ones when no conservative dilation exists, see `dilation_radius`).
   """
+  if masks is not None:
+    accs = np.where(np.asarray(masks) > 0, np.asarray(accs), 1.0)  # unknown is not empty
   radius = dilation_radius(poses, intrinsics, bound, resolution)
   if radius is None:
     return jnp.ones((resolution,) * 3, jnp.float32)

@@ -12,6 +12,11 @@ camera (`cameras`); only random rays can be drawn from them (batching='rays').
 With batching='patches' a batch is square patches of P x P neighbouring pixels, each from one
 image, patch after patch, each row-major (RobustNeRF's patches: a loss term can look at a
 pixel's neighbours, train/losses/robust.py).
+
+Masks (`Dataset.masks`): a masked pixel is never trained on. Its colour is zeroed before it
+reaches the device; random rays are drawn from the kept pixels alone (`TrainData.kept`); whole
+images and patches carry it with weight exactly 0 (`TrainData.mask`), so every weighted loss
+ignores it.
 """
 
 import dataclasses
@@ -72,6 +77,10 @@ class TrainData:
   weight: float32 [B] or None, in a drawn batch each ray's loss weight (its image's lossmult).
   with_radii: static, the rays made per step carry their radii (pixel_rays' with_radii), each
     from its own image's camera.
+  kept: int32 [K] or None: with masks, the flat index (into rgb's [N * P] or [T] pixels) of each
+    kept pixel; random rays are drawn from these alone.
+  mask: float32 [N, P] (or [T]) or None: with masks, 1 for a kept pixel, 0 for a masked one;
+    whole-image batches weight each ray by it.
   """
   rays: Rays
   rgb: jnp.ndarray
@@ -85,6 +94,8 @@ class TrainData:
   lossmult: jnp.ndarray = None
   weight: jnp.ndarray = None
   with_radii: bool = flax.struct.field(pytree_node=False, default=False)
+  kept: jnp.ndarray = None
+  mask: jnp.ndarray = None
 
 
 def make_train_data(ds, camera, rgb_background, with_radii=False):
@@ -97,16 +108,28 @@ def make_train_data(ds, camera, rgb_background, with_radii=False):
   height, width, intrinsics, near, far, pixel_center, use_ndc = camera
   lossmult = None if ds.lossmult is None else jnp.asarray(ds.lossmult, jnp.float32)
   if ds.image_cameras is not None:
-    return _flat_train_data(ds, (None, None, None, float(near), float(far),
+    data = _flat_train_data(ds, (None, None, None, float(near), float(far),
                                  float(pixel_center), bool(use_ndc)), rgb_background, lossmult,
                             with_radii)
+    return _with_masks(data, ds)
   camera = (height, width, tuple(float(v) for v in intrinsics), float(near), float(far),
             float(pixel_center), bool(use_ndc))
   acc, rgb = _targets(ds, rgb_background)
-  return TrainData(rays=None, rgb=jnp.asarray(rgb, jnp.float32).reshape(len(ds), -1, 3),
+  data = TrainData(rays=None, rgb=jnp.asarray(rgb, jnp.float32).reshape(len(ds), -1, 3),
                    acc=jnp.asarray(acc, jnp.float32).reshape(len(ds), -1),
                    poses=jnp.asarray(ds.poses, jnp.float32), camera=camera, lossmult=lossmult,
                    with_radii=bool(with_radii))
+  return _with_masks(data, ds)
+
+
+def _with_masks(data, ds):
+  """`data` with the `kept` and `mask` of the masks of `ds` (module docstring; `_targets` has
+  zeroed the masked colours); `data` itself when ds has no masks."""
+  if ds.masks is None:
+    return data
+  mask = np.concatenate([np.reshape(m, -1) for m in ds.masks]).astype(np.float32)
+  return data.replace(kept=jnp.asarray(np.flatnonzero(mask), jnp.int32),
+                      mask=jnp.asarray(mask.reshape(data.rgb.shape[:-1]), jnp.float32))
 
 
 def _flat_train_data(ds, camera, rgb_background, lossmult, with_radii):
@@ -152,8 +175,16 @@ def pixel_rays_of(data, image, pixel, poses=None):
 
 def _targets(ds, rgb_background):
   """(acc float32 [N, H, W], rgb float32 [N, H, W, 3]): the images of `ds` (a Dataset) on
-  `rgb_background` (float32 [3]; see background.images_on_background)."""
-  return background.images_on_background(ds, rgb_background)
+  `rgb_background` (float32 [3]; see background.images_on_background), lists with mixed sizes;
+  masked pixels (ds.masks) black, so that their colours never reach the device."""
+  acc, rgb = background.images_on_background(ds, rgb_background)
+  if ds.masks is None:
+    return acc, rgb
+  # A new array, image by image: `rgb` may be ds.images itself, which must stay as it is.
+  zeroed = [None] * len(rgb) if isinstance(rgb, list) else np.empty(np.shape(rgb), np.float32)
+  for k, (m, image) in enumerate(zip(ds.masks, rgb)):
+    zeroed[k] = np.where(np.asarray(m)[..., None] > 0, image, 0.0).astype(np.float32)
+  return acc, zeroed
 
 
 def draw_batch(data, settings, key, step=0, run_key=None):
@@ -183,19 +214,39 @@ def draw_batch(data, settings, key, step=0, run_key=None):
     take = lambda a: a[images].reshape(-1, *a.shape[2:])
     image = jnp.repeat(images, num_pixels)
     pixel = jnp.tile(jnp.arange(num_pixels), per_step)
+    masked = None if data.mask is None else take(data.mask)  # whole images: weight 0
   elif settings.batching == "patches":
     image, pixel = _draw_patches(data.camera, num_images, settings, key)
     idx = image * num_pixels + pixel
     take = lambda a: a.reshape(-1, *a.shape[2:])[idx]
+    masked = None if data.mask is None else take(data.mask)  # patches: weight 0
   else:
-    idx = jax.random.randint(key, (settings.batch_rays,), 0, num_images * num_pixels)
+    idx = _random_pixels(data, key, settings.batch_rays, num_images * num_pixels)
     take = lambda a: a.reshape(-1, *a.shape[2:])[idx]
     image, pixel = idx // num_pixels, idx % num_pixels
+    masked = None  # drawn from the kept pixels alone
   rays = (jax.tree_util.tree_map(take, data.rays) if data.rays is not None else
           pixel_rays_of(data, image, pixel))
   return TrainData(rays=rays, rgb=take(data.rgb), acc=take(data.acc),
                    image=image.astype(jnp.int32), pixel=pixel.astype(jnp.int32),
-                   weight=None if data.lossmult is None else data.lossmult[image])
+                   weight=_ray_weight(data, image, masked))
+
+
+def _random_pixels(data, key, count, total):
+  """int32 [count] flat pixel indices drawn uniformly from the `total` pixels, or from the kept
+  ones alone where the data has masks (`TrainData.kept`)."""
+  if data.kept is None:
+    return jax.random.randint(key, (count,), 0, total)
+  return data.kept[jax.random.randint(key, (count,), 0, data.kept.shape[0])]
+
+
+def _ray_weight(data, image, masked):
+  """float32 [B] or None, each drawn ray's loss weight: its image's lossmult times `masked`
+  (float32 [B] or None, the drawn pixels' masks); None when neither exists."""
+  weight = None if data.lossmult is None else data.lossmult[image]
+  if masked is None:
+    return weight
+  return masked if weight is None else weight * masked
 
 
 def _draw_patches(camera, num_images, settings, key):
@@ -226,12 +277,12 @@ def _draw_flat(data, settings, key):
     raise ValueError(f"config.train.batching={settings.batching!r}: images with cameras of "
                      "their own (sizes or intrinsics that differ) train on random rays: use "
                      "'rays'")
-  idx = jax.random.randint(key, (settings.batch_rays,), 0, data.rgb.shape[0])
+  idx = _random_pixels(data, key, settings.batch_rays, data.rgb.shape[0])
   image = (jnp.searchsorted(data.offsets, idx, side="right") - 1).astype(jnp.int32)
   pixel = (idx - data.offsets[image]).astype(jnp.int32)
   return TrainData(rays=pixel_rays_of(data, image, pixel), rgb=data.rgb[idx],
                    acc=data.acc[idx], image=image, pixel=pixel,
-                   weight=None if data.lossmult is None else data.lossmult[image])
+                   weight=_ray_weight(data, image, None))
 
 
 def rays_per_step(settings, height, width):

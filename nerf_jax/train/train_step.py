@@ -6,10 +6,10 @@ The step never sees a config: `make_train_step(ray_renderer, tx, terms, settings
 the renderer, the optimiser, the loss terms (train/losses/), `StepSettings` and the buffer
 hooks, all built once by the entry layer (run/components.train_step_args).
 
-With appearance codes each ray is rendered with its training image's code; with pose refinement
-each ray is made from its camera's corrected pose (cameras/pose_refinement.py), so the
-corrections params['poses'] take a gradient, and the positional encoding's bands open coarse to
-fine.
+With appearance codes each ray is rendered with its training image's code (and with the
+transient head, its image's transient embedding); with pose refinement each ray is made from its
+camera's corrected pose (cameras/pose_refinement.py), so the corrections params['poses'] take a
+gradient, and the positional encoding's bands open coarse to fine.
 
 With several devices each batch is split over them (see parallel.py); the parameters are
 replicated.
@@ -165,7 +165,7 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
     if refine:  # the rays of the corrected cameras: the corrections take a gradient
       rays = train_batches.pixel_rays_of(
           data, batch.image, batch.pixel, pose_refinement.corrected(data.poses, params["poses"]))
-    if ray_renderer.field.uses_images:  # each ray's appearance code: its training image
+    if ray_renderer.uses_images:  # each ray's image: its appearance code, its transient head
       rays = rays.replace(image=batch.image)
     render = lambda rays, key, bg: ray_renderer.render(
         {"params": params, **buffers}, rays, key, bg, settings.remat_chunk, bands)

@@ -77,3 +77,27 @@ def weights(sigma, t, exact_derivative=True):
   of t float32 [..., S + 1] (`weights_and_optical_depth`'s first part; exact_derivative as
   there)."""
   return weights_and_optical_depth(sigma, t, exact_derivative)[0]
+
+
+def two_part_weights(sigma, sigma_t, t):
+  """NeRF-W's weights of a static and a transient field along the same intervals (eq. 10):
+  both are attenuated by the transmittance of their summed densities, T_i = exp(-sum_{j<i}
+  (sigma_j + sigma_t_j)·delta_j), and each is weighted by its own alpha: w_i = T_i·alpha(
+  sigma_i·delta_i), w_t_i = T_i·alpha(sigma_t_i·delta_i).
+
+  sigma, sigma_t: float [..., S] densities >= 0 (per unit of t). t: float32 [..., S + 1].
+  Returns (weights, transient_weights) float32 [..., S] and the total optical depth float32
+  [...] of the summed densities. With sigma_t = 0 they are `weights_and_optical_depth`'s, bit
+  for bit (the same operations, tau + 0 = tau), and transient_weights are 0. Both densities are
+  clamped at MAX_DENSITY, as there."""
+  sigma = jnp.minimum(sigma.astype(jnp.float32), MAX_DENSITY)
+  sigma_t = jnp.minimum(sigma_t.astype(jnp.float32), MAX_DENSITY)
+  t = t.astype(jnp.float32)
+  delta = jnp.maximum(t[..., 1:] - t[..., :-1], 0.0)  # unsorted edges give empty intervals
+  tau, tau_t = sigma * delta, sigma_t * delta
+  tau_sum = tau + tau_t  # finite: each term is at most MAX_DENSITY·delta
+  optical_depth = exclusive_cumsum(tau_sum)
+  transmittance = jnp.exp(-optical_depth)  # exactly 0 behind an opaque sample of either field
+  weights = one_minus_exp_neg(tau) * transmittance
+  transient_weights = one_minus_exp_neg(tau_t) * transmittance
+  return weights, transient_weights, optical_depth[..., -1] + tau_sum[..., -1]

@@ -16,7 +16,8 @@ CPU_CHOICE = {"diffuse": "fast", "forward": "llff", "garden": "capture"}
 GPU_CHOICE = {"diffuse": "gpu/lego", "forward": "gpu/llff", "garden": "gpu/capture"}
 # What auto sets from the data (its effects) and what _decide sets as the user: not the config's.
 NOT_THE_CONFIGS = {"data.background", "model.appearance_dims", "model.view_dependent",
-                   "data.ndc", "data.lindisp", "train.random_background", "data.scene",
+                   "data.ndc", "data.lindisp", "train.random_background", "eval.appearance",
+                   "data.contraction", "data.focus", "data.scene",
                    "data.image_size", "data.num_views", "auto", "auto_decisions", "auto_flags"}
 
 

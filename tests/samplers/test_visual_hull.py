@@ -1,6 +1,6 @@
 """The visual hull: projection inverts the camera rays; carving a sphere's masks keeps every cell
-the sphere touches and removes what no view covers; grids over a tighter, non-cubic box
-interpolate as brute force; a run with data.visual_hull samples only inside the hull."""
+the sphere touches and removes what no view covers; transient masks never carve; grids over a
+tighter, non-cubic box interpolate as brute force; a run with data.visual_hull samples only inside the hull."""
 
 import jax
 import jax.numpy as jnp
@@ -71,6 +71,24 @@ def test_carving_a_sphere_keeps_what_it_touches_and_removes_the_rest():
   assert hull[touched].min() == 1.0  # conservative: no cell the sphere enters is carved
   assert hull[nearest > 0.8].max() == 0.0  # 30 views rule out everything well outside
   assert 0.05 < hull.mean() < 0.3  # the sphere fills 6.5% of the box
+
+
+def test_masks_never_carve():
+  """A transient mask means unknown, not empty: a view masked whole carves as if absent, and
+  masked blobs only ever keep more cells."""
+  size, focal, ball, bound, res = 32, 40.0, 0.5, 1.0, 16
+  poses = _views(12)
+  accs = _sphere_masks(poses, size, focal, ball)
+  intrinsics = (focal, focal, size / 2, size / 2)
+  masks = np.ones_like(accs)
+  masks[0] = 0.0
+  without_view_0 = visual_hull.carve(accs[1:], poses[1:], intrinsics, bound, res)
+  np.testing.assert_array_equal(
+      visual_hull.carve(accs, poses, intrinsics, bound, res, masks=masks), without_view_0)
+  blobs = (np.random.default_rng(0).random(accs.shape) > 0.9).astype(np.float32)
+  plain = np.asarray(visual_hull.carve(accs, poses, intrinsics, bound, res))
+  masked = np.asarray(visual_hull.carve(accs, poses, intrinsics, bound, res, masks=1 - blobs))
+  assert (masked >= plain).all() and masked.sum() > plain.sum()
 
 
 def test_carving_keeps_everything_when_a_camera_is_inside_the_box():

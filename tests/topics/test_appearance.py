@@ -76,17 +76,21 @@ def test_the_exposure_capture_has_the_stated_gains_on_training_views_only():
     load_data({**data, "held_out_looks": "mine"})
 
 
-def test_left_half_without_codes_scores_the_right_half_and_says_so():
-  """A codeless model under render.appearance_protocol='left_half' has no code to fit; its
-  scores are over the right halves, as the coded runs' are, so the two compare."""
+@pytest.mark.parametrize("dims", [0, 2])
+def test_left_half_scores_the_right_half_and_says_so(dims):
+  """Under eval.appearance='left_half' the scores are over the right halves, with a code fitted
+  on each left half (dims 2) or with no code to fit (dims 0), so the two compare; metrics.json's
+  'appearance' says which."""
   config = small_config({"data.scene": "exposure", "data.num_views": 6, "data.holdout_from": 4,
-                         "data.image_size": 16, "render.appearance_protocol": "left_half"})
+                         "data.image_size": 16, "eval.appearance": "left_half",
+                         "eval.fit_steps": 5, "model.appearance_dims": dims})
   exp = experiment.setup(config)
   variables = {"params": init_state(exp).params}
   rendered = {}
   result = components.make_evaluator(exp)(variables, on_view=lambda i, out, truth: rendered.update(
       {i: (out["rgb"], truth)}))
-  assert result["appearance"] == evaluation.NO_CODE_HALF
+  assert result["appearance"] == (evaluation.APPEARANCE_PROTOCOLS["left_half"] if dims else
+                                  evaluation.NO_CODE_HALF)
   for view in result["per_view"]:
     rgb, truth = rendered[view["view"]]
     assert view["psnr"] == pytest.approx(float(metrics.psnr(rgb[:, 8:], truth[:, 8:])), abs=1e-4)
@@ -117,7 +121,7 @@ def _train_view_scores(workdir, config):
 def test_codes_absorb_known_per_photo_gains(tmp_path, monkeypatch):
   """The exposure capture at 16 px with exposures spread over ±1.2 stops, a small grid model,
   150 steps: with codes the training views are explained better, and the brightness each code
-  renders follows that photo's gain. Then render.appearance_protocol='left_half' (a code fitted
+  renders follows that photo's gain. Then eval.appearance='left_half' (a code fitted
   on each test image's left half, scores over the right half): with the held-out views
   brightened 1.5x (a gain no training code has) the fitted code scores better on the right half
   than the mean code it starts from."""
@@ -141,15 +145,15 @@ def test_codes_absorb_known_per_photo_gains(tmp_path, monkeypatch):
   corr = np.corrcoef(rank(brightness), rank(gains))[0, 1]  # Spearman's: clipping bends it
   assert corr > 0.8, (corr, brightness, gains)
 
-  config.render.appearance_protocol = "left_half"
+  config.eval.appearance = "left_half"
   exp = experiment.setup(config)
   exp.test_ds.images[:] = np.clip(1.5 * exp.test_ds.images, 0, 1)
   variables = restored_variables(workdir)
   fitted = components.make_evaluator(exp)(variables)
-  monkeypatch.setattr(evaluation, "FIT_STEPS", 0)  # the code stays the mean: the same half
+  exp.config.eval.fit_steps = 0  # the code stays the mean: the same half
   unfitted = components.make_evaluator(exp)(variables)
   assert fitted["appearance"].startswith("left half")
   assert fitted["psnr"] > unfitted["psnr"] + 0.5, (fitted["psnr"], unfitted["psnr"])
-  config.render.appearance_protocol = "whole"
-  with pytest.raises(ValueError, match="appearance_protocol='whole'"):
+  config.eval.appearance = "whole"
+  with pytest.raises(ValueError, match="eval.appearance='whole'"):
     components.make_evaluator(experiment.setup(config))

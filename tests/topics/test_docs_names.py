@@ -208,6 +208,8 @@ def _dotted_problem(name):
           return None
         return f"{path.relative_to(ROOT)} defines no {'.'.join(parts[cut:])}"
     return f"no module {'.'.join(parts[:2])}"
+  if name in config_lib.RENAMED:
+    return None  # an old spelling of a config field, still read (config_lib.upgrade)
   sections = config_sections()
   if parts[0] in sections and (len(parts) < 2 or parts[1] in sections[parts[0]]):
     return None  # a config field (occupancy.enabled), not a module's name

@@ -168,3 +168,17 @@ def test_patch_batches_are_whole_patches_of_one_image():
     train_batches.draw_batch(data, train_batches.BatchSettings(batching="patches",
                                                                patch_size=11),
                              jax.random.PRNGKey(0))
+
+
+def test_a_patchs_masked_pixels_weigh_nothing():
+  num, height, width, size = 2, 8, 8, 4
+  mask = np.random.default_rng(1).uniform(size=(num, height * width)) > 0.3
+  data = train_batches.TrainData(
+      rays=None, rgb=jnp.zeros((num, height * width, 3)), acc=jnp.ones((num, height * width)),
+      poses=jnp.tile(jnp.eye(4), (num, 1, 1)),
+      camera=(height, width, (8.0, 8.0, 4.0, 4.0), 2.0, 6.0, 0.5, False),
+      mask=jnp.asarray(mask, jnp.float32))
+  settings = train_batches.BatchSettings(batching="patches", batch_rays=32, patch_size=size)
+  batch = train_batches.draw_batch(data, settings, jax.random.PRNGKey(3))
+  want = mask[np.asarray(batch.image), np.asarray(batch.pixel)]
+  np.testing.assert_array_equal(np.asarray(batch.weight), want.astype(np.float32))

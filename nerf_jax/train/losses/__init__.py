@@ -7,10 +7,11 @@ terms' losses in their order (`total`) and logs every stat as '<name>/<stat>' (t
 
 A term is one module defining `LOSS = losses.Loss(name, Settings, build)` (a `Loss` record):
 `config.loss.terms` lists the run's terms, in the order they are added, by their registered
-name (`REGISTRY`: colour, distortion, pose_prior, total_variation, robust, the modules of this
-package) or the dotted path of any importable module; each term's settings are its own section,
-`config.loss.<name>` (docs/extending.md, "Adding a loss term"). The entry layer builds them
-(run/components.loss_terms) and appends the sampler's own terms (its `loss_terms()`).
+name (`REGISTRY`: colour, distortion, pose_prior, total_variation, transient, robust, the
+modules of this package) or the dotted path of any importable module; each term's settings are
+its own section, `config.loss.<name>` (docs/extending.md, "Adding a loss term"). The entry layer
+builds them (run/components.loss_terms), adds 'transient' where the field has a transient head,
+and appends the sampler's own terms (its `loss_terms()`).
 """
 
 import dataclasses
@@ -31,7 +32,9 @@ class LossInputs:
   target: float32 [B, 3], the colours the rays should render. rays: the rays rendered (those of
   the corrected cameras with pose refinement). params: the trained parameters.
   weight: float32 [B] or None, each ray's weight in the colour loss (its image's
-  Dataset.lossmult: mip-NeRF's area weighting); None = every ray alike.
+  Dataset.lossmult: mip-NeRF's area weighting; times its pixel's mask in whole-image batches
+  of masked data, 0 = a masked pixel: a term that reads `target` must weight by it); None =
+  every ray alike.
   """
   outputs: dict
   target: jnp.ndarray
@@ -91,6 +94,7 @@ REGISTRY = components.Registry("loss term", "config.loss.terms", "LOSS", {
     "distortion": "nerf_jax.train.losses.distortion",
     "pose_prior": "nerf_jax.train.losses.pose_prior",
     "total_variation": "nerf_jax.train.losses.total_variation",
+    "transient": "nerf_jax.train.losses.transient",
     "robust": "nerf_jax.train.losses.robust",
 })
 

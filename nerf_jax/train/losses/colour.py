@@ -66,7 +66,8 @@ class Colour:
   times `weight` (0: another term, e.g. robust.py's, is the photometric loss; the stats stay).
   Stats: psnr of the final pass (from its squared error, whatever the loss); with a sample
   budget, rays_in_loss (the rays it held whole) and samples_wanted (the valid samples of every
-  drawn ray: above the budget, rays were drawn in vain; below it, budget slots went empty)."""
+  drawn ray: above the budget, rays were drawn in vain; below it, budget slots went empty).
+  A pass with the transient head (its output has 'beta') is left to losses/transient.py."""
   name: ClassVar[str] = "colour"
   coarse_weight: float = 1.0
   huber_delta: float = 0.0
@@ -81,11 +82,14 @@ class Colour:
     outs = inputs.outputs
     complete = outs["coarse"].get("complete")  # a sample budget: only whole rays count
     names = [name for name in losses.PASSES if name in outs]
-    weight = inputs.weight  # per-ray lossmult, where the data has it
+    weight = inputs.weight  # per-ray lossmult and masks (0: masked), where the data has them
     per_pass = {name: self._pass_loss(outs[name]["rgb"], inputs.target, complete, weight)
                 for name in names}
     loss = per_pass["coarse"] if "fine" not in per_pass else (
         per_pass["fine"] + self.coarse_weight * per_pass["coarse"])
+    if "beta" in outs[names[-1]]:  # the transient head's pass: losses/transient.py scores it
+      loss = (self.coarse_weight * per_pass["coarse"] if "fine" in per_pass
+              else jnp.zeros((), jnp.float32))
     final_mse = per_pass[names[-1]] if self.huber_delta <= 0 else mse(
         outs[names[-1]]["rgb"], inputs.target, complete, weight)
     stats = {"psnr": metrics.mse_to_psnr(final_mse)}
