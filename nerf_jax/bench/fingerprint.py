@@ -51,7 +51,9 @@ def fingerprint(name):
   digest = hashlib.sha256()
   for leaf in jax.tree_util.tree_leaves(state.variables):
     digest.update(np.ascontiguousarray(np.asarray(leaf)).tobytes())
-  digest.update(repr(result["per_view"]).encode())  # the rendered test views, through PSNR
+  # The rendered test views, through their scores; sorted, so the order of a view's keys is not
+  # a difference.
+  digest.update(repr([sorted(view.items()) for view in result["per_view"]]).encode())
   return digest.hexdigest()[:16], float(result["psnr"])
 
 
