@@ -5,7 +5,7 @@ user's flags, which win over the decisions.
 import jax
 import ml_collections
 
-from nerf_jax.run import characterise, config_lib, from_data
+from nerf_jax.run import characterise, config_lib, from_data, transients, warm_up
 
 APPEARANCE_DIMS = 8  # the appearance codes' length auto switches on (NeRF-W: 48, nerfacto: 32)
 CONTRACTION = "linf"  # where the rays leave the box: nerfacto's contraction (docs/real_captures.md)
@@ -13,6 +13,10 @@ LARGE_IMAGES = 400  # auto: object captures from this many pixels a side use con
 # Zip-NeRF's multisampling with its level weights, or the weights alone (multisample False):
 # on the multiscale lego at 10 CPU-minutes the weights alone score best (docs/multiscale.md).
 ANTIALIAS_MULTISAMPLE = False
+# Transients (passers-by): RobustNeRF's loss above this share of clustered outliers after the
+# warm-up; crowd 0.027, the clean built-in scenes <= 0.0033 at 48 px (docs/photo_collections.md).
+TRANSIENT_SHARE = 0.01
+ROBUST_PATCH = 16  # RobustNeRF's patch side (configs/scenes/crowd.py)
 _OWN = ("auto", "auto_decisions", "auto_flags")  # auto's own fields, set by auto_config itself
 # On a GPU backend, the config of configs/gpu/ that takes each CPU choice's place (docs/gpu.md:
 # chosen for a GPU, unmeasured there until a GPU session measures them).
@@ -44,6 +48,28 @@ def cone_effects(config):
     return {f"model.{encoding}.antialias": True,
             f"model.{encoding}.multisample": ANTIALIAS_MULTISAMPLE, "render.march": False}
   return {}
+
+
+def transient_effects(dataset, collection):
+  """({field: value}, one line): RobustNeRF's trimmed loss on patches when a warm-up on the
+  photos of `dataset` (one camera) leaves more than TRANSIENT_SHARE of their pixels clustered
+  outliers that some photos hold (transients.transient_share: passers-by). Measured only for a
+  photo collection (`collection`: the photos have their own looks, the appearance rule), as the
+  warm-up costs half a minute on a CPU."""
+  if not collection:
+    return {}, ("no transients: not measured (the photos share one look: not a collection "
+                "taken by many)")
+  share = transients.transient_share(*warm_up.photos_and_renders(dataset))[0]
+  reason = (f"{100 * share:.1f}% of the training pixels are clustered outliers specific to "
+            f"some photos after a {warm_up.WARM_UP_STEPS}-step warm-up "
+            f"({'>' if share > TRANSIENT_SHARE else '<='} {100 * TRANSIENT_SHARE:g}%)")
+  if share <= TRANSIENT_SHARE:
+    return {}, f"no transients: {reason}"
+  patch = int(min(ROBUST_PATCH, dataset.height, dataset.width))
+  return ({"train.batching": "patches", "train.patch_size": patch, "loss.colour.weight": 0.0,
+           "loss.robust.weight": 1.0},
+          f"transients left out: RobustNeRF's trimmed loss on {patch} x {patch} patches "
+          f"(loss.robust): {reason}")
 
 
 def cone_summary(config):
@@ -186,6 +212,9 @@ def auto_config(config, dataset, backend=None):
         absent = "one scale" if d.name == "scales" else "no " + d.name.replace("_", " ")
         lines.append(f"{settings[d.name] if d.found else absent}: {d.reason}")
     lines += box_lines
+    transient, transient_line = transient_effects(dataset, found["appearance"].found)
+    effects.update(transient)
+    lines.append(transient_line)
     lines.append("pose refinement: off (nothing in the photos measures a pose error; "
                  "train.pose_refinement=True switches it on)")
   lines.append(backend_line)

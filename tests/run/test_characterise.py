@@ -236,9 +236,25 @@ def test_auto_picks_what_the_scene_config_switches_on(scene):
   hand = config_lib.load(f"scenes/{scene}")
   auto = _auto(scene)
   expressed = lambda c: (c.data.ndc, c.data.background, c.data.scene_bound == -1,
-                         c.model.appearance_dims > 0, c.model.view_dependent)
+                         c.model.appearance_dims > 0, c.model.view_dependent,
+                         c.loss.robust.weight > 0)
   assert expressed(auto) == expressed(hand)
   assert auto.auto_decisions and not auto.auto
+
+
+def test_auto_leaves_the_passers_by_of_crowd_out(capsys):
+  # At 48 px (the warm-up's size; at 24 px the passers-by are a few pixels) auto measures the
+  # transients after its warm-up and switches the trimmed loss on, as configs/scenes/crowd.py.
+  hand = config_lib.load("scenes/crowd")
+  decided = _auto("crowd", data__image_size=48)
+  for field in ("train.batching", "train.patch_size", "loss.colour.weight", "loss.robust.weight"):
+    section, name = field.split(".", 1)
+    assert decided[section][name] == hand[section][name], field
+  assert decided.model.appearance_dims > 0 and decided.eval.appearance == "left_half"
+  line = next(l for l in capsys.readouterr().out.splitlines() if "transients" in l)
+  assert line.startswith("auto: transients left out: RobustNeRF's trimmed loss on 16 x 16")
+  share = float(line.split(": ")[-1].split("%")[0]) / 100
+  assert share > auto.TRANSIENT_SHARE
 
 
 def test_the_command_line_names_the_fields_it_sets():
