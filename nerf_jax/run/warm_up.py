@@ -56,7 +56,7 @@ def warm_up_config(seed=0):
 def photos_and_renders(dataset, seed=0):
   """(photos, renders), float32 [N, h, w, 3] each: the training photos of `dataset` (one
   camera), shrunk (`box_shrunk`), on a black background, and the warm-up's renders of their
-  cameras."""
+  cameras (the photo itself at masked pixels)."""
   from nerf_jax.run import experiment  # pylint: disable=import-outside-toplevel
   # (imported here: experiment imports auto, which imports this module)
   train = box_shrunk(dataset, WARM_UP_SIZE)
@@ -79,4 +79,6 @@ def photos_and_renders(dataset, seed=0):
   black = np.zeros(3, np.float32)
   photos = background.images_on_background(train, black)[1]
   renders = np.stack([np.asarray(draw(exp.rays(p), black)["rgb"]) for p in train.poses])
+  if train.masks is not None:  # masked pixels are not the scene's to explain: no residual
+    renders = np.where(np.asarray(train.masks)[..., None] > 0, renders, photos)
   return np.asarray(photos), renders

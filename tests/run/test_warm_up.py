@@ -25,3 +25,20 @@ def test_box_shrunk_is_the_box_mean_of_the_cropped_photos():
   np.testing.assert_array_equal(small.masks, want)
   assert small.intrinsics == (8.0 / 3, 3.0, 3.5 / 3, 5.0 / 3)
   assert warm_up.box_shrunk(data, 10).images.shape == images.shape  # already small enough
+
+
+def test_masked_pixels_leave_no_residual(monkeypatch):
+  # A masked pixel was never trained on: the warm-up's render there is the photo itself, so
+  # transients.transient_share sees no residual in it (a user's mask is not a passer-by).
+  monkeypatch.setattr(warm_up, "WARM_UP_STEPS", 2)
+  rng = np.random.default_rng(1)
+  images = rng.uniform(size=(4, 12, 12, 3)).astype(np.float32)
+  poses = np.tile(np.eye(4, dtype=np.float32), (4, 1, 1))
+  poses[:, 2, 3] = np.arange(4.0, 8.0)
+  masks = np.ones((4, 12, 12), np.float32)
+  masks[:, :5, :5] = 0.0
+  data = Dataset(images, poses, (12.0, 12.0, 6.0, 6.0), masks=masks)
+  photos, renders = warm_up.photos_and_renders(data)
+  assert photos.shape == renders.shape == (4, 12, 12, 3)
+  np.testing.assert_array_equal(renders[:, :5, :5], photos[:, :5, :5])
+  assert np.abs(renders - photos)[:, 6:, 6:].max() > 0  # elsewhere the field's own render
