@@ -163,21 +163,21 @@ def load_blender(path, background=(0.0, 0.0, 0.0), half_res=False, split="train"
 
 @dataclasses.dataclass(frozen=True)
 class DataSettings:
-  """What `load_dataset` loads: the config's data section, completed with configs/default.py's
-  values (which document each field) by run/components.data_settings."""
-  path: str  # .npz file, Blender, LLFF or transforms.json folder; '' = the built-in `scene`
-  scene: str  # built-in scene name (data/scenes)
-  num_views: int  # built-in scene: views rendered
-  image_size: int  # built-in scene: height = width in pixels
-  pixel_center: float  # built-in scene: where in its pixel each ray passes; -1 = 0.5 (centres)
-  held_out_looks: str  # built-in scene with per-photo looks: test views 'neutral' or 'own'
-  holdout_from: int  # views[holdout_from:] are the test views; -1 = the format's own split
-  background: Any  # 'black', 'white' or an RGB triple in [0, 1]: what RGBA is composited on
-  half_res: bool  # Blender: load at half resolution
-  factor: int  # LLFF and transforms.json: downscale the images by this integer (0 = 1)
-  bd_factor: float  # LLFF: scale so the nearest bound is 1/bd_factor (0 = the file's units)
-  recenter: bool  # LLFF: move the mean camera pose to the origin
-  min_sharpness: float  # transforms.json: drop frames < this x neighbours' sharpness (0 = off)
+  """What `load_dataset` loads: config.data's fields of the images and cameras (the rest of
+  config.data, how rays see the scene, is run/settings.SceneSettings)."""
+  path: str = ""  # dataset: .npz, Blender, LLFF or transforms.json folder; empty = built-in scene
+  scene: str = "diffuse"  # built-in scene name (data/scenes)
+  num_views: int = 100  # built-in scene: number of rendered views
+  image_size: int = 100  # built-in scene: height = width in pixels
+  holdout_from: int = -1  # views[holdout_from:] are test views; -1 = the format's own split
+  held_out_looks: str = "neutral"  # per-photo-look scenes: test views 'neutral' or 'own' looks
+  pixel_center: float = -1.0  # -1 = the data's own (0.5 centres; 0 corners for tiny_nerf .npz)
+  background: Any = "black"  # 'black', 'white' or an RGB triple: rendered and scored on
+  half_res: bool = False  # Blender data: load at half resolution
+  factor: int = 1  # LLFF and transforms.json data: downsample images by this integer factor
+  bd_factor: float = 0.75  # LLFF data: scale so the nearest bound is 1/bd_factor (0 = keep units)
+  recenter: bool = True  # LLFF data: move the mean camera pose to the origin
+  min_sharpness: float = 0.0  # transforms.json: drop frames < this x neighbours' sharpness (0 = off)
 
 
 def load_dataset(settings):

@@ -32,6 +32,12 @@ from nerf_jax.fields.encodings import posenc
 
 
 @dataclasses.dataclass(frozen=True)
+class Settings:
+  """config.model's fields of the Field itself (its parts' are theirs)."""
+  density_noise: float = 0.0  # std of noise added to raw density while training (paper: 1)
+
+
+@dataclasses.dataclass(frozen=True)
 class Field:
   """A network and how its inputs and outputs are treated.
 

@@ -36,6 +36,8 @@ encoding is called by the Field with module None (it has no parameters).
 import dataclasses
 from typing import Any, Protocol, Sequence, runtime_checkable
 
+from nerf_jax.backend import components
+
 
 class Encoding(Protocol):
   """A position or direction encoding (see the module docstring)."""
@@ -96,20 +98,21 @@ class DirectionSettings:
 
 @dataclasses.dataclass(frozen=True)
 class NetworkSettings:
-  """What every encoding and network may take besides its own section (config.model's shared
-  fields), built once by run/components.network_settings. Each uses the ones that apply to it."""
-  view_dependent: bool = False  # colour takes the encoded viewing direction
-  view_width: int = 128  # width of the colour branch's layers after the direction joins
-  view_depth: int = 1  # how many such layers
-  hidden: int = 256  # width of the hidden layers (the MLP's, or the lattice head's)
-  dtype: str = "float32"  # matmul dtype of the layers (parameters stay float32)
-  matmul_precision: str = "default"  # backend.precision.NETWORK_PRECISIONS
-  appearance_images: int = 1  # rows of the appearance codes' table (training images)
-  appearance_dims: int = 0  # length of each image's appearance code (0 = none)
-  density_activation: str = "relu"  # the Field's density activation (activations.py)
-  bound: float = 1.5  # a lattice encoding covers [-bound, bound]^3 ...
-  box: Sequence[float] = ()  # ... or this (min x, y, z, max x, y, z) box when set
-  cell_aspect: Sequence[float] = (1.0, 1.0, 1.0)  # relative x, y, z sides of a lattice cell
+  """What every encoding and network may take besides its own section: config.model's shared
+  fields, built once by run/components.network_settings. Each uses the ones that apply to it."""
+  view_dependent: bool = False  # colour depends on the viewing direction (paper's 5D input)
+  view_width: int = 32  # width of the view-dependent colour layer
+  view_depth: int = 1  # colour layers of view_width after the direction joins (instant-ngp: 2)
+  width: int = 64  # units per hidden layer (MLP: reference 64, paper 256; the lattice head's)
+  dtype: str = "float32"  # matmul dtype: float32, bfloat16 or float16
+  matmul_precision: str = "default"  # networks' f32 matmuls: default (TF32 on GPUs), high, highest
+  appearance_dims: int = 0  # per-training-image appearance code (GLO) for colour; 0 = off
+  density_activation: str = "relu"  # 'relu' (reference), 'softplus' (shifted) or 'exp'
+  grid_bound: float = 1.5  # grid and hash encodings: the grids cover [-bound, bound]^3
+  grid_box: Sequence[float] = ()  # grid encodings: (min x, y, z, max x, y, z) of a tighter box; () = cube
+  grid_cell_aspect: Sequence[float] = (1.0, 1.0, 1.0)  # grid and tensorf: relative x, y, z sides of a cell
+  # Rows of the appearance codes' table: the training images (from the data).
+  appearance_images: int = components.derived(1)
 
   @property
   def head(self):

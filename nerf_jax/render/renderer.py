@@ -36,6 +36,19 @@ TRANSIENT_KEY = 0x7A11
 
 
 @dataclasses.dataclass(frozen=True)
+class FineSettings:
+  """config's top-level field of the fine pass."""
+  num_fine_samples: int = 0  # extra samples drawn from the coarse weights (0 = no hierarchy)
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+  """config.model's fields of how the renderer uses the field."""
+  colour_fraction: float = 0.0  # density grid: colour only for this share of samples (top weights)
+  shared_fine: bool = False  # one network for coarse and fine passes instead of two
+
+
+@dataclasses.dataclass(frozen=True)
 class RayRenderer:
   """A field, how its first pass is sampled, and the optional fine pass.
 

@@ -8,13 +8,14 @@ import functools
 
 
 from nerf_jax.backend import components, precision
+from nerf_jax.fields import field as field_lib
 from nerf_jax.fields import protocol, registry
 from nerf_jax.fields import transient as transient_field
 from nerf_jax.fields.networks import transient as transient_head
 from nerf_jax.run import config_lib
 from nerf_jax.samplers import occupancy
 from nerf_jax.samplers import registry as sampler_registry
-from nerf_jax.render import background
+from nerf_jax.render import background, renderer
 from nerf_jax.train import losses, optimizer, train_batches, train_step
 from nerf_jax.data import loaders
 from nerf_jax.evaluate import evaluation
@@ -27,25 +28,44 @@ from nerf_jax.samplers.placement import Sampler
 
 def data_settings(data):
   """loaders.DataSettings of a `data` section (config.data: a ConfigDict or dict; the fields it
-  lacks take configs/default.py's values, old spellings are moved: config_lib.complete)."""
+  lacks take their defaults, old spellings are moved: config_lib.complete)."""
   saved = data.to_dict() if hasattr(data, "to_dict") else dict(data)
   data = config_lib.complete({"data": saved}).data
-  names = (f.name for f in dataclasses.fields(loaders.DataSettings))
-  return loaders.DataSettings(**{name: data[name] for name in names})
+  return components.settings_from(loaders.DataSettings, data.to_dict(), "data", strict=False)
 
 
-def section_settings(record, config):
-  """The settings dataclass of a field part's record (registry.Encoding / registry.Network)
-  built from its config section (record.section_path; a shared one gives only the fields it
-  declares); ValueError naming the field if the section is missing or a setting is wrong."""
-  path = record.section_path
+def shared_settings(settings_class, config, path, **derived):
+  """settings_class built from the shared section of `config` at dotted `path` (the fields it
+  declares; `check_config` has refused the keys nobody declares) and the `derived` fields."""
   section = config
-  for part in path.split(".") if path else ():
-    if part not in section:
-      raise ValueError(f"config.{path} is missing: the settings of {record.name!r}")
+  for part in filter(None, path.split(".")):
     section = section[part]
-  return components.settings_from(record.settings, dict(section), path or "<top level>",
-                                  strict=not record.shared_section)
+  return components.settings_from(settings_class, section.to_dict(), path, strict=False,
+                                  **derived)
+
+
+def own_settings(reg, record, config):
+  """`record`'s settings (reg: its components.Registry) built from its section of `config`
+  (Registry.section_path); None if it has none; ValueError naming the field if wrong."""
+  path, values = reg.section_path(record), config
+  for part in filter(None, path.split(".")):
+    values = values[part] if part in values else None
+    if values is None:
+      break
+  return reg.settings(record, None if values is None else values.to_dict())
+
+
+def check_config(config):
+  """ValueError naming the first key of `config` that no settings dataclass declares: a
+  misspelt setting (configs/default.SECTIONS for the shared sections; each component's own
+  section is read strictly when it is built)."""
+  sections = config_lib.SECTIONS
+  for path, classes in sections.items():
+    values = config
+    for part in filter(None, path.split(".")):
+      values = values[part] if part in values else {}
+    nested = [k for k, v in values.items() if isinstance(v, dict) or hasattr(v, "to_dict")]
+    components.check_section(values, path, classes, subsections=nested)
 
 
 def encoding_family(config):
@@ -53,20 +73,17 @@ def encoding_family(config):
   built from its own section (config.model.<name>); ValueError naming the field if either is
   wrong."""
   record = registry.ENCODINGS.lookup(config.model.encoding)
-  return record, section_settings(record, config)
+  return record, own_settings(registry.ENCODINGS, record, config)
 
 
 def network_settings(config, num_images=1):
   """fields.protocol.NetworkSettings of config.model (num_images: see `make_field`)."""
-  m = config.model
-  # In an unbounded scene the grids cover the whole contracted space, twice the inner box.
-  bound = 2.0 * config.data.scene_bound if config.data.contraction else m.grid_bound
-  return NetworkSettings(
-      view_dependent=m.view_dependent, view_width=m.view_width, view_depth=m.view_depth,
-      hidden=m.width, dtype=m.dtype,
-      matmul_precision=m.matmul_precision, appearance_images=max(int(num_images), 1),
-      appearance_dims=m.appearance_dims, density_activation=m.density_activation, bound=bound,
-      box=tuple(m.grid_box), cell_aspect=tuple(m.grid_cell_aspect))
+  settings = shared_settings(NetworkSettings, config, "model",
+                             appearance_images=max(int(num_images), 1))
+  if config.data.contraction:
+    # In an unbounded scene the grids cover the whole contracted space, twice the inner box.
+    settings = dataclasses.replace(settings, grid_bound=2.0 * config.data.scene_bound)
+  return settings
 
 
 def network_name(config):
@@ -76,12 +93,20 @@ def network_name(config):
   return config.model.network or record.natural_network(settings)
 
 
+def network_family(config):
+  """The network (registry.Network) that reads the encoding (`network_name`), and its settings
+  built from its section (None if it has none); ValueError naming the field if wrong."""
+  record = registry.NETWORKS.lookup(network_name(config))
+  return record, own_settings(registry.NETWORKS, record, config)
+
+
 def make_field(config, num_images=1):
   """The Field of `config.model` (and the top-level encoding fields): the position encoding
   `model.encoding` names (fields/registry.py), built from its own section (model.grid,
   model.hash, ...), read by the network `model.network` names (or the encoding's own), and the
   direction encoding `dir_encoding` names. num_images: training images, the rows of the
   appearance codes' table (model.appearance_dims > 0)."""
+  check_config(config)
   m = config.model
   record, settings = encoding_family(config)
   if m.appearance_dims < 0:
@@ -89,17 +114,16 @@ def make_field(config, num_images=1):
                      "length of each training image's appearance code (e.g. 8)")
   precision.network_precision(m.matmul_precision)  # ValueError naming the field if unknown
   shared = network_settings(config, num_images)
-  net_record = registry.NETWORKS.lookup(network_name(config))
-  net_settings = None
-  if net_record.settings is not None:
-    net_settings = section_settings(net_record, config)
+  net_record, net_settings = network_family(config)
   network = net_record.build(record.build(settings, shared), net_settings, shared)
   if not isinstance(network, protocol.Network):
     raise TypeError(f"network {net_record.name!r}: {type(network).__name__} lacks "
                     "coarse_to_fine_stages, band_weights or splits_density (fields/protocol.py)")
-  dir_record = registry.DIRECTION_ENCODINGS.lookup(config.dir_encoding)
-  directions = dir_record.build(section_settings(dir_record, config), shared)
-  return Field(network, directions, m.view_dependent, m.density_activation, m.density_noise,
+  dirs = registry.DIRECTION_ENCODINGS
+  dir_record = dirs.lookup(config.dir_encoding)
+  directions = dir_record.build(own_settings(dirs, dir_record, config), shared)
+  noise = shared_settings(field_lib.Settings, config, "model").density_noise
+  return Field(network, directions, m.view_dependent, m.density_activation, noise,
                config.data.contraction, max(config.data.scene_bound, 1e-6), m.appearance_dims,
                cones=record.cone_kind(settings))
 
@@ -123,8 +147,7 @@ def make_sampler(config):
       raise ValueError("config.occupancy.enabled with config.data.ndc needs "
                        "config.data.scene_bound = 0: the grid covers the training rays' NDC "
                        "box (model.grid_box)")
-  settings = components.settings_from(occupancy.OccupancySettings,
-                                      {k: v for k, v in oc.items() if k != "enabled"}, "occupancy")
+  settings = shared_settings(occupancy.OccupancySettings, config, "occupancy")
   if config.data.contraction:
     if config.data.scene_bound <= 0 and config.data.scene_bound != -1:
       raise ValueError("config.data.contraction needs config.data.scene_bound > 0 or -1 "
@@ -135,12 +158,12 @@ def make_sampler(config):
   base = Sampler(config.num_samples, config.data.scene_bound, config.data.lindisp,
                  settings if oc.enabled else None, config.data.contraction,
                  config.data.inner_fraction, occupancy_box(config))
-  name = sampler_registry.section_name(config.sampler)
-  if name != sampler_registry.BUILTIN and (config.num_fine_samples > 0 or config.data.ndc):
+  record = sampler_registry.record(config.sampler)
+  if record.name != sampler_registry.BUILTIN and (config.num_fine_samples > 0
+                                                  or config.data.ndc):
     raise ValueError(f"config.sampler={config.sampler!r} places the samples itself: set "
                      "config.num_fine_samples=0 (and it does not work with config.data.ndc)")
-  section = config[name].to_dict() if name in config else {}
-  return sampler_registry.build(config.sampler, base, section)
+  return record.build(own_settings(sampler_registry.REGISTRY, record, config), base)
 
 
 # NDC's nominal box: the reference camera's frustum, before the data gives the real one.
@@ -163,9 +186,10 @@ def make_ray_renderer(config, num_images=1):
   if config.train.sample_budget and not config.occupancy.enabled:
     raise ValueError("config.train.sample_budget needs config.occupancy.enabled: the budget "
                      "is spent on the samples the occupancy grid places (0 = off)")
+  use = shared_settings(renderer.Settings, config, "model")
   return RayRenderer(make_field(config, num_images), make_sampler(config),
-                     config.num_fine_samples, config.model.shared_fine,
-                     config.model.colour_fraction, transient=make_transient(config, num_images))
+                     config.num_fine_samples, use.shared_fine, use.colour_fraction,
+                     transient=make_transient(config, num_images))
 
 
 def transient_settings(config):
@@ -198,20 +222,16 @@ def training_renderer(exp):
 def image_settings(config):
   """ImageSettings of `config.render` (no marching in NDC: the skip grid is in world space);
   ValueError naming the field for a negative sample count."""
-  rc = config.render
-  if rc.num_samples < 0:
-    raise ValueError(f"config.render.num_samples={rc.num_samples}: use 0 (training's "
+  settings = shared_settings(ImageSettings, config, "render")
+  if settings.num_samples < 0:
+    raise ValueError(f"config.render.num_samples={settings.num_samples}: use 0 (training's "
                      "num_samples) or a positive count of samples per ray")
-  return ImageSettings(chunk=rc.chunk, march=rc.march and not config.data.ndc,
-                       march_grid=rc.march_grid, march_threshold=rc.march_threshold,
-                       march_probes=rc.march_probes, march_group=rc.march_group,
-                       min_transmittance=rc.min_transmittance, num_samples=rc.num_samples)
+  return dataclasses.replace(settings, march=settings.march and not config.data.ndc)
 
 
 def batch_settings(config):
   """train_batches.BatchSettings of `config.train`."""
-  fields = (f.name for f in dataclasses.fields(train_batches.BatchSettings))
-  return train_batches.BatchSettings(**{name: config.train[name] for name in fields})
+  return shared_settings(train_batches.BatchSettings, config, "train")
 
 
 def rays_per_step(config, dataset):
@@ -226,11 +246,10 @@ def schedule_steps(train_config):
 
 def optimizer_settings(config):
   """optimizer.OptimizerSettings of config.train (appearance codes: model.appearance_dims)."""
-  tc = config.train
-  names = {f.name for f in dataclasses.fields(optimizer.OptimizerSettings)}
-  shared = {name: tc[name] for name in names if name in tc}
-  return optimizer.OptimizerSettings(planned_steps=schedule_steps(tc),
-                                     appearance_codes=config.model.appearance_dims > 0, **shared)
+  return shared_settings(optimizer.OptimizerSettings, config, "train",
+                         planned_steps=schedule_steps(config.train),
+                         pose_refinement=config.train.pose_refinement,
+                         appearance_codes=config.model.appearance_dims > 0)
 
 
 def step_settings(exp):
@@ -239,14 +258,12 @@ def step_settings(exp):
   if not 0 <= tc.ema_decay < 1:
     raise ValueError(f"config.train.ema_decay={tc.ema_decay}: use 0 (off) or a decay in "
                      "(0, 1), e.g. instant-ngp's 0.95")
-  return train_step.StepSettings(
-      batch=batch_settings(exp.config),
+  settings = shared_settings(
+      train_step.StepSettings, exp.config, "train", batch=batch_settings(exp.config),
       background=tuple(float(v) for v in background.parse(exp.config.data.background)),
-      random_background=background.trains_on_random(tc.random_background,
-                                                    exp.train_ds.accs is not None),
-      planned_steps=schedule_steps(tc), remat_chunk=tc.remat_chunk,
-      pose_refinement=tc.pose_refinement, pose_coarse_to_fine=tuple(tc.pose_coarse_to_fine),
-      pose_ray_share=tc.pose_ray_share, ema_decay=tc.ema_decay)
+      planned_steps=schedule_steps(tc))
+  return dataclasses.replace(settings, random_background=background.trains_on_random(
+      tc.random_background, exp.train_ds.accs is not None))
 
 
 def loss_terms(config, ray_renderer):
@@ -271,12 +288,7 @@ def loss_terms(config, ray_renderer):
     if record.name in seen:
       raise ValueError(f"config.loss.terms={names}: term {record.name!r} is listed twice")
     seen.add(record.name)
-    if record.name not in config.loss:
-      raise ValueError(f"config.loss.{record.name} is missing: the settings of loss term "
-                       f"{name!r}")
-    settings = components.settings_from(record.settings, dict(config.loss[record.name]),
-                                        f"loss.{record.name}")
-    term = record.build(settings, context)
+    term = record.build(own_settings(losses.REGISTRY, record, config), context)
     if term is not None:
       terms.append(term)
   return terms + ray_renderer.sampler.loss_terms()  # a sampler brings its own (proposal.py)
@@ -323,3 +335,17 @@ def eval_settings(config):
 def make_evaluator(exp):
   """The evaluator of exp's test views (evaluation.make_evaluator) under `eval_settings`."""
   return evaluation.make_evaluator(exp, eval_settings(exp.config))
+
+
+def portable(config):
+  """A copy of `config` in which every component named by a name added with `register` is
+  named by its module path instead, so that restoring the run (config.json, in a process that
+  never ran the registering code) finds it again; built-in names stay as they are."""
+  config = config.copy_and_resolve_references()
+  for field, reg in (("model.encoding", registry.ENCODINGS), ("model.network", registry.NETWORKS),
+                     ("dir_encoding", registry.DIRECTION_ENCODINGS),
+                     ("sampler", sampler_registry.REGISTRY)):
+    value = config_lib.get_field(config, field)
+    config_lib.set_field(config, field, reg.added().get(value, value))
+  config.loss.terms = tuple(losses.REGISTRY.added().get(n, n) for n in config.loss.terms)
+  return config

@@ -78,6 +78,12 @@ def default():
   return _default.get_config()
 
 
+# Every section of the config (dotted path, '' = the top level) -> the settings dataclasses
+# that declare its keys: the shared ones (configs/default.SECTIONS) and the built-in
+# components' own.
+SECTIONS = {**_default.SECTIONS, **_default.component_sections()}
+
+
 # Fields that moved: old dotted name -> new one. A config, override or config.json using the
 # old name keeps working (`upgrade` moves it, with one deprecation line).
 RENAMED = {
@@ -195,6 +201,14 @@ def load_saved(workdir):
   except (OSError, ValueError) as e:
     raise ConfigError(f"{path}: cannot read the saved config ({e})") from None
   return complete(saved)
+
+
+def get_field(config, field):
+  """The value of the dotted `field` of `config` (a ConfigDict)."""
+  node = config
+  for part in field.split("."):
+    node = node[part]
+  return node
 
 
 def set_field(config, field, value):

@@ -13,7 +13,7 @@ from nerf_jax.fields import registry
 from nerf_jax.fields.encodings import grid
 from nerf_jax.train.state import TrainState
 from nerf_jax.run.components import (encoding_family, make_ray_renderer, make_sampler,
-                                     network_name, section_settings, transient_settings)
+                                     network_family, own_settings, transient_settings)
 
 
 def model_signature(config):
@@ -27,19 +27,25 @@ def model_signature(config):
   (components.signature).
   """
   m = config.model
-  posenc, mlp = registry.ENCODINGS.lookup("posenc"), registry.NETWORKS.lookup("mlp")
-  signature = {**components.signature(section_settings(posenc, config), ""),
+  encodings, networks = registry.ENCODINGS, registry.NETWORKS
+  posenc, mlp = encodings.lookup("posenc"), networks.lookup("mlp")
+  mlp_settings = own_settings(networks, mlp, config)
+  signature = {**components.signature(own_settings(encodings, posenc, config), ""),
                "dir_encode_dims": config.dir_encode_dims,
-               **components.signature(section_settings(mlp, config), ""),
+               "depth": mlp_settings.depth, "width": m.width,
+               "skip_layers": list(mlp_settings.skip_layers),
                "view_dependent": m.view_dependent, "view_width": m.view_width,
                "networks": list(make_ray_renderer(config).networks)}
   family, settings = encoding_family(config)
   if family.records_grid_section:
-    grid_settings = section_settings(registry.ENCODINGS.lookup("grid"), config)
+    grid_settings = own_settings(encodings, encodings.lookup("grid"), config)
     signature.update(grid.lattice_signature(grid_settings))
-  signature.update(family.signature(settings))
+  signature.update(family.entries(settings))
+  network, network_settings = network_family(config)
   if config.model.network and config.model.network != family.natural_network(settings):
-    signature.update(network=network_name(config))  # another network than the encoding's own
+    signature.update(network=network.name)  # another network than the encoding's own
+  if network.name != "mlp":  # the MLP's settings are among the shared fields above
+    signature.update(network.entries(network_settings))
   if config.occupancy.enabled:
     signature.update(occupancy_resolution=config.occupancy.resolution)
   if m.view_depth != 1:

@@ -76,8 +76,9 @@ def train_and_evaluate(config, workdir, hooks=()):
     train_step = functools.partial(train_step, planned_steps=jnp.int32(config.train.max_steps))
     last_step = sys.maxsize  # the clock ends the run
   if main:  # with the schedule the run uses
+    # Registered names as their module paths: a restore in a new process finds them again.
     checkpoints.atomic_write(os.path.join(workdir, "config.json"),
-                             config.to_json(indent=2).encode())
+                             components.portable(config).to_json(indent=2).encode())
   state = parallel.replicate(state, mesh)
   writer = summary.Writer(workdir, enabled=main and config.train.tensorboard)
   evaluate = components.make_evaluator(exp)

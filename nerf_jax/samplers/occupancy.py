@@ -33,6 +33,7 @@ from nerf_jax.backend import draws
 @dataclasses.dataclass(frozen=True)
 class OccupancySettings:
   """An occupancy grid over the scene box and how training keeps it (module docstring)."""
+  enabled: bool = False  # sample only in occupied cells of a grid over data.scene_bound's box
   resolution: int = 32  # occupancy cells per side of the box
   candidates: int = 256  # candidate intervals per ray; the occupied ones share num_samples samples
   update_every: int = 16  # train steps between probing the density field again

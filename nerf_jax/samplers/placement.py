@@ -21,7 +21,7 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 
-from nerf_jax.backend import draws
+from nerf_jax.backend import components, draws
 from nerf_jax.fields import contraction
 from nerf_jax.samplers import occupancy, registry, spacing
 from nerf_jax.samplers.occupancy import OccupancySettings
@@ -224,12 +224,12 @@ class Sampler:
                    starts + (ends - starts) * u, valid, gapped=True)
 
 
-def build(base, section):
+def build(settings, base):
   """The built-in placement's builder (samplers/registry.py): `base` itself, whose settings are
   the config's num_samples, data.* and occupancy.* (run/components.make_sampler); `section` is
-  empty."""
-  del section
+  None."""
+  del settings
   return base
 
 
-SAMPLER = registry.SamplerKind(build)  # config.sampler = '' or 'placement'
+SAMPLER = components.Component(registry.BUILTIN, None, build)  # config.sampler '' or 'placement'

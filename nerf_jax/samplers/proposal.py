@@ -36,7 +36,7 @@ import jax.numpy as jnp
 
 from nerf_jax.backend import components
 from nerf_jax.fields import density_field
-from nerf_jax.samplers import placement, registry, spacing
+from nerf_jax.samplers import placement, spacing
 from nerf_jax.volume import quadrature
 
 # The loss divides by w + _EPS. Any eps > 0 keeps it finite: the denominator is positive where
@@ -291,11 +291,10 @@ class Interlevel:
     return self.weight * total, {"unweighted": total}
 
 
-def build(base, section):
-  """The sampler's builder (samplers/registry.py): a ProposalSampler with the built-in
-  Sampler `base`'s samples, box and spacing and config.proposal's `section` (a mapping);
-  ValueError naming the field for a setting that cannot work."""
-  settings = settings_from(section)
+def build(settings, base):
+  """The sampler's builder (samplers/registry.py): a ProposalSampler with config.proposal's
+  `settings` (Settings) and the built-in Sampler `base`'s samples, box and spacing; ValueError
+  naming the field for a setting that cannot work."""
   if base.occupancy is not None:
     raise ValueError("config.sampler='proposal' places the samples itself: set "
                      "config.occupancy.enabled=False")
@@ -320,4 +319,5 @@ def _network(settings, max_resolution, bound):
   return density_field.HashDensity(log2_size=settings.log2_size, **shared)
 
 
-SAMPLER = registry.SamplerKind(build)  # config.sampler = 'proposal' (samplers/registry.py)
+# config.sampler = 'proposal' (samplers/registry.py); signature: the sampler's own `signature`.
+SAMPLER = components.Component("proposal", Settings, build, signature=lambda settings: {})

@@ -10,36 +10,29 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from nerf_jax.backend import components
+
 
 @dataclasses.dataclass(frozen=True)
 class OptimizerSettings:
-  """The optimiser's settings (config.train's fields of the same names, documented in
-  configs/default.py).
-
-  planned_steps: the steps the schedule spans (train.max_steps, else train.default_steps).
-  lr, lr_final: the learning rate after warm-up and at planned_steps (exponential decay).
-  warmup_steps: linear warm-up from 0 over these steps (0 = none).
-  adam_b2, adam_eps: Adam's second-moment decay and denominator floor.
-  grad_clip: clip the gradients to this global norm (0 = off).
-  pose_refinement, pose_lr: the camera corrections' own Adam, at pose_lr.
-  appearance_codes, appearance_lr: the run has appearance codes (model.appearance_dims > 0),
-    trained by an Adam of their own at appearance_lr (unless it is lr).
-  network_lr: the MLP's layers at this rate (0 or lr = the field's Adam).
-  network_l2: coupled L2 on the networks' weight matrices (0 = off).
-  """
-  planned_steps: int
-  lr: float
-  lr_final: float
-  warmup_steps: int = 0
-  adam_b2: float = 0.999
-  adam_eps: float = 1e-8
-  grad_clip: float = 0.0
-  pose_refinement: bool = False
-  pose_lr: float = 3e-4
-  appearance_codes: bool = False
-  appearance_lr: float = 3e-4
-  network_lr: float = 0.0
-  network_l2: float = 0.0
+  """The optimiser's settings: config.train's fields of the optimiser, and three the entry
+  layer derives (run/components.optimizer_settings): planned_steps (train.max_steps, else
+  train.default_steps), pose_refinement (train.pose_refinement: the corrections get their own
+  Adam at pose_lr) and appearance_codes (model.appearance_dims > 0: the codes get their own
+  Adam at appearance_lr, unless it is lr)."""
+  planned_steps: int = components.derived()
+  lr: float = 5e-3  # initial Adam learning rate
+  lr_final: float = 1e-4  # learning rate at max_steps (exponential decay)
+  warmup_steps: int = 50  # linear warm-up from 0
+  grad_clip: float = 0.0  # clip gradients to this global norm (0 = off)
+  adam_b2: float = 0.999  # Adam's second-moment decay (instant-ngp uses 0.99 for its tables)
+  adam_eps: float = 1e-8  # Adam's denominator floor, sqrt(v) + eps (instant-ngp: 1e-15)
+  network_l2: float = 0.0  # L2 on the networks' weight matrices, in their gradient (0 = off)
+  network_lr: float = 0.0  # the MLP's Adam learning rate on the same schedule (0 = train.lr)
+  appearance_lr: float = 3e-4  # appearance codes: Adam learning rate (the field's schedule)
+  pose_lr: float = 3e-4  # pose refinement: Adam learning rate of the corrections (same decay)
+  pose_refinement: bool = components.derived(False)
+  appearance_codes: bool = components.derived(False)
 
   def __post_init__(self):
     if self.network_l2 < 0:

@@ -39,11 +39,11 @@ class BatchSettings:
   in one image, at least one). image_order: with 'images', 'random' (drawn each step) or
   'epochs' (every image once per epoch, in an order drawn from the epoch number).
   """
-  batching: str = "rays"
-  batch_rays: int = 1024
-  images_per_step: int = 1
-  image_order: str = "random"
-  patch_size: int = 16
+  batch_rays: int = 512  # rays per step (random rays over all training images)
+  batching: str = "rays"  # 'rays' (random rays), 'images' (whole, as the reference), 'patches'
+  images_per_step: int = 5  # whole images per step when batching == 'images'
+  image_order: str = "random"  # 'images' batching: 'random' draws per step, 'epochs' shuffles
+  patch_size: int = 16  # 'patches' batching: batch_rays // patch_size² square patches a step
 
   def __post_init__(self):
     if self.batching == "patches" and self.patch_size < 1:

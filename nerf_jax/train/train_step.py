@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from nerf_jax.backend import draws
+from nerf_jax.backend import components, draws
 from nerf_jax.cameras import pose_refinement
 from nerf_jax.render import background as background_lib
 from nerf_jax.samplers import occupancy
@@ -33,30 +33,23 @@ from nerf_jax.train.state import TrainState
 
 @dataclasses.dataclass(frozen=True)
 class StepSettings:
-  """What a train step does besides rendering and the loss terms.
-
-  batch: train_batches.BatchSettings, how each step's rays are drawn.
-  background: float32 (r, g, b), the background the targets are composited on.
-  random_background: a fresh random background per ray (targets recomposited on it).
-  planned_steps: the steps the learning-rate schedule spans (BARF's coarse-to-fine share is of
-    these when the step is not given a fitted length).
-  remat_chunk: rays per rematerialised chunk of the field's queries (0 = one call).
-  pose_refinement: rays are made from the corrected cameras (params['poses']).
-  pose_coarse_to_fine: (start, end) shares of the planned steps over which the positional
-    encoding's bands (or grid levels) open while poses are refined.
-  pose_ray_share: share of each batch's rays whose gradient reaches the poses.
-  ema_decay: the decay of the weights' moving average (`moving_average`), when the state keeps
-    one.
+  """What a train step does besides rendering and the loss terms: config.train's fields of
+  the step, and three the entry layer derives (run/components.step_settings): batch
+  (train_batches.BatchSettings, how each step's rays are drawn), background (float32 (r, g, b),
+  what the targets are composited on: data.background) and planned_steps (the steps the
+  learning-rate schedule spans; BARF's coarse-to-fine share is of these when the step is not
+  given a fitted length). ema_decay > 0: the state keeps the weights' moving average
+  (`moving_average`).
   """
-  batch: train_batches.BatchSettings
-  background: Tuple[float, float, float] = (0.0, 0.0, 0.0)
-  random_background: bool = False
-  planned_steps: int = 1
-  remat_chunk: int = 0
-  pose_refinement: bool = False
-  pose_coarse_to_fine: Tuple[float, float] = (0.0, 0.0)
-  pose_ray_share: float = 1.0
-  ema_decay: float = 0.0
+  batch: train_batches.BatchSettings = components.derived()
+  background: Tuple[float, float, float] = components.derived((0.0, 0.0, 0.0))
+  planned_steps: int = components.derived(1)
+  remat_chunk: int = 128  # rays per cache-sized, recomputed field chunk in a step (0 = off)
+  random_background: bool = False  # data with opacity: composite on random colours (no floaters)
+  pose_refinement: bool = False  # learn an SE(3) correction of each training camera (BARF)
+  pose_coarse_to_fine: Tuple[float, float] = (0.1, 0.5)  # bands (grid levels) open between these shares of steps
+  pose_ray_share: float = 1.0  # pose refinement: share of a batch's rays that move the poses
+  ema_decay: float = 0.0  # score and render the weights' moving average of this decay (0 = off)
 
 
 def _render_split(render, rays, key, background, posed):

@@ -26,14 +26,14 @@ class Settings:
 def registry(monkeypatch):
   """A registry of one built-in ('thing', a module made here) and the name of that module."""
   module = types.ModuleType("thing_module_for_test")
-  module.RECORD = ("the record", Settings)
+  module.RECORD = components.Component("thing", Settings, lambda settings, context: settings)
   monkeypatch.setitem(sys.modules, module.__name__, module)
-  return components.Registry("thing", "config.model.thing", "RECORD",
+  return components.Registry("thing", "config.model.thing", "RECORD", "model",
                              {"thing": module.__name__})
 
 
 def test_lookup_by_name_and_by_module_path(registry):
-  assert registry.lookup("thing") == ("the record", Settings)
+  assert registry.lookup("thing").settings is Settings
   registry.register("alias", "thing_module_for_test")
   assert registry.names() == ("thing", "alias")  # built-in first
   assert registry.lookup("alias") is registry.lookup("thing")
@@ -43,10 +43,10 @@ def test_lookup_by_name_and_by_module_path(registry):
 
 def test_a_dotted_path_needs_no_registration(registry, monkeypatch):
   module = types.ModuleType("pkg_for_test.other")
-  module.RECORD = "other"
+  module.RECORD = components.Component("other", None, lambda settings, context: None)
   monkeypatch.setitem(sys.modules, "pkg_for_test", types.ModuleType("pkg_for_test"))
   monkeypatch.setitem(sys.modules, "pkg_for_test.other", module)
-  assert registry.lookup("pkg_for_test.other") == "other"
+  assert registry.lookup("pkg_for_test.other") is module.RECORD
 
 
 def test_errors_name_the_config_field(registry):

@@ -46,7 +46,7 @@ def test_every_built_in_encoding_has_a_section_built_from_its_settings():
     record, settings = components.encoding_family(config)
     assert record.name == name and isinstance(settings, record.settings)
     section = config
-    for part in filter(None, record.section_path.split(".")):
+    for part in filter(None, registry.ENCODINGS.section_path(record).split(".")):
       section = section[part]
     for field in dataclasses.fields(settings):  # each setting is its section's value
       value = section[field.name]
@@ -54,7 +54,7 @@ def test_every_built_in_encoding_has_a_section_built_from_its_settings():
                                                else value)
     # The config's defaults are the dataclass's own (configs/default.py: components.section).
     defaults = small_config(base="default")
-    for part in filter(None, record.section_path.split(".")):
+    for part in filter(None, registry.ENCODINGS.section_path(record).split(".")):
       defaults = defaults[part]
     assert {f: defaults[f] for f in backend_components.section(record.settings)} == (
         backend_components.section(record.settings))
@@ -86,15 +86,16 @@ def test_network_settings_are_config_models_shared_fields():
                               "model.view_dependent": True, "model.appearance_dims": 4})
   shared = components.network_settings(config, num_images=7)
   m = config.model
-  assert (shared.hidden, shared.view_width, shared.view_depth) == (m.width, m.view_width,
+  assert (shared.width, shared.view_width, shared.view_depth) == (m.width, m.view_width,
                                                                     m.view_depth)
   assert shared.view_dependent and shared.appearance_dims == 4
   assert shared.appearance_images == 7
   assert components.network_settings(config, 0).appearance_images == 1
-  assert shared.box == (-1.0, -2.0, -3.0, 1.0, 2.0, 3.0) and shared.bound == m.grid_bound
+  assert shared.grid_box == (-1.0, -2.0, -3.0, 1.0, 2.0, 3.0)
+  assert shared.grid_bound == m.grid_bound
   # An unbounded scene: the lattices cover all of contracted space, twice the inner box.
   config = _config("grid", **{"data.contraction": "linf", "data.scene_bound": 2.5})
-  assert components.network_settings(config).bound == 5.0
+  assert components.network_settings(config).grid_bound == 5.0
 
 
 @pytest.mark.parametrize("name", sorted(ENCODINGS))

@@ -124,7 +124,7 @@ class Space:
   @classmethod
   def of(cls, shared):
     """The Space of protocol.NetworkSettings `shared`."""
-    return cls(shared.bound, tuple(shared.box), tuple(shared.cell_aspect))
+    return cls(shared.grid_bound, tuple(shared.grid_box), tuple(shared.grid_cell_aspect))
 
   def unit(self, points):
     """World positions float32 [..., 3] in the box's unit cube, float32 [..., 3]."""
@@ -261,6 +261,6 @@ def cone_kind(settings):
   return "multisamples" if settings.multisample else "scales"
 
 
-ENCODING = registry.Encoding("grid", Settings, build, _network, signature,
+ENCODING = registry.Encoding("grid", Settings, build, signature, network=_network,
                              table_axes={"grid_": 3, "density_": 3}, records_grid_section=True,
                              cones=_cones)

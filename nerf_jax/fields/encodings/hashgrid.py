@@ -237,6 +237,6 @@ def signature(settings):
   return entries
 
 
-ENCODING = registry.Encoding("hash", Settings, build, "lattice", signature,
+ENCODING = registry.Encoding("hash", Settings, build, signature, network="lattice",
                              records_grid_section=True,
                              cones=grid.cone_kind)

@@ -115,6 +115,8 @@ def build_directions(settings, shared):
 
 # The bands' count is a top-level field (config.pos_encode_dims), recorded with the shared
 # fields by run/signature.model_signature, as it always was: nothing of its own here.
-ENCODING = registry.Encoding("posenc", Settings, build, network="mlp", section="")
+# Its bands are recorded among the signature's shared fields (run/signature.py), so none here.
+ENCODING = registry.Encoding("posenc", Settings, build, lambda settings: {}, section="",
+                             network="mlp")
 DIRECTION_ENCODING = registry.Encoding("frequency", protocol.DirectionSettings, build_directions,
                                       section="")

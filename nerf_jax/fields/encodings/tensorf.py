@@ -123,5 +123,5 @@ def signature(settings):
 
 
 # Lattice tables (loss.total_variation): the planes (2 spatial axes) and lines (1).
-ENCODING = registry.Encoding("tensorf", Settings, build, "lattice", signature,
+ENCODING = registry.Encoding("tensorf", Settings, build, signature, network="lattice",
                              table_axes={"plane_": 2, "line_": 1}, records_grid_section=True)

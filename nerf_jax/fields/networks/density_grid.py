@@ -111,7 +111,7 @@ def build(encoding, settings, shared):
                      "yet: set config.model.appearance_dims=0 or density_resolutions=()")
   head = {k: v for k, v in shared.head.items() if k not in ("appearance_images",
                                                             "appearance_dims")}
-  return DensityGridNeRF(encoding, hidden=shared.hidden, **head)
+  return DensityGridNeRF(encoding, hidden=shared.width, **head)
 
 
-NETWORK = registry.Network("density_grid", build)
+NETWORK = registry.Network("density_grid", None, build)

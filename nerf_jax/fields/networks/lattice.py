@@ -72,7 +72,7 @@ class LatticeHead(nn.Module):
 def build(encoding, settings, shared):
   """The LatticeHead over `encoding`, config.model.width wide (protocol.NetworkSettings)."""
   del settings  # none of its own
-  return LatticeHead(encoding, hidden=shared.hidden, **shared.head)
+  return LatticeHead(encoding, hidden=shared.width, **shared.head)
 
 
-NETWORK = registry.Network("lattice", build)
+NETWORK = registry.Network("lattice", None, build)

@@ -93,17 +93,19 @@ class NerfMLP(nn.Module):
 
 @dataclasses.dataclass(frozen=True)
 class Settings:
-  """config.model's fields of the MLP."""
+  """config.model's fields of the MLP (its width is the shared model.width,
+  protocol.NetworkSettings)."""
   depth: int = 8  # hidden layers
-  width: int = 64  # units per hidden layer (reference 64, paper 256; the lattice head's too)
   skip_layers: Sequence[int] = (4,)  # re-inject the input after these layers (0-based)
 
 
 def build(encoding, settings, shared):
   """The NerfMLP over `encoding` of `settings` and the shared settings
   (protocol.NetworkSettings)."""
-  return NerfMLP(depth=settings.depth, width=settings.width,
+  return NerfMLP(depth=settings.depth, width=shared.width,
                  skip_layers=tuple(settings.skip_layers), encoding=encoding, **shared.head)
 
 
-NETWORK = registry.Network("mlp", build, Settings)
+# Its section is config.model, shared with the other networks' common settings (as it always
+# was: model.depth, model.skip_layers).
+NETWORK = registry.Network("mlp", Settings, build, section="model")

@@ -15,7 +15,7 @@ and appends the sampler's own terms (its `loss_terms()`).
 """
 
 import dataclasses
-from typing import Any, Callable
+from typing import Any, Callable, Tuple
 
 import flax.struct
 import jax.numpy as jnp
@@ -65,8 +65,8 @@ class Context:
 
 
 @dataclasses.dataclass(frozen=True)
-class Loss:
-  """A loss term's record, a term module's `LOSS`.
+class Loss(components.Component):
+  """A loss term's record, a term module's `LOSS` (components.Component).
 
   name: its config section (config.loss.<name>) and the namespace of its stats; the term it
     builds has the same `name`.
@@ -74,10 +74,16 @@ class Loss:
     and validation (__post_init__, a ValueError naming the config field).
   build: (settings, Context) -> the term (a callable on LossInputs with a `name`), or None when
     the settings turn it off (a weight of 0).
+  signature: a term changes no parameter, so none by default.
   """
-  name: str
-  settings: type
-  build: Callable
+  signature: Callable[[Any], dict] = lambda settings: {}
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+  """config.loss's own field (each term's settings are its section, config.loss.<name>)."""
+  terms: Tuple[str, ...] = ("colour", "distortion", "pose_prior", "total_variation", "transient",
+                            "robust")  # added in this order
 
 
 def check_weight(weight, term, example):
@@ -89,7 +95,7 @@ def check_weight(weight, term, example):
 
 
 # The built-in terms, by the name config.loss.terms gives them.
-REGISTRY = components.Registry("loss term", "config.loss.terms", "LOSS", {
+REGISTRY = components.Registry("loss term", "config.loss.terms", "LOSS", "loss", {
     "colour": "nerf_jax.train.losses.colour",
     "distortion": "nerf_jax.train.losses.distortion",
     "pose_prior": "nerf_jax.train.losses.pose_prior",
