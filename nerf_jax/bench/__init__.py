@@ -4,13 +4,14 @@
   python -m nerf_jax.bench.render --workdir=runs/fast   # render speed and memory of a model
   python -m nerf_jax.bench.profile --config=fast        # where a train step's time goes
 
-cli.py        the three command lines (absl flags, --config and --config.FIELD overrides)
-sweeps.py     the sweeps as data; a command's Request -> the configs it runs
-runner.py     a sweep: each run in its own subprocess, records into results.jsonl
-timed_run.py  one run: the library's train step under the bench's clock, probes, its record
-measure.py    the instruments: pausable clock, timed compiles and calls, matmul peak, FLOPs, RSS
-report.py     results.md and the plots (matplotlib: the `bench` extra)
-render.py     frame, video and big-frame memory of a trained workdir
-profile.py    each stage of a train step timed alone
+command_line.py  how a command line runs (absl flags, --config and --config.FIELD overrides)
+cli.py           the sweep's command line (render.py and profile.py hold their own)
+sweeps.py        the sweeps as data; a command's Request -> the configs it runs
+runner.py        a sweep: each run in its own subprocess, records into results.jsonl
+timed_run.py     one run: the library's train step under the bench's clock, probes, its record
+measure.py       the instruments: pausable clock, timed compiles and calls, matmul peak, FLOPs, RSS
+report.py        results.md and the plots (matplotlib: the `bench` extra)
+render.py        frame, video and big-frame memory of a trained workdir
+profile.py       each stage of a train step timed alone
 docs/benchmark.md explains every number.
 """

@@ -1,35 +1,17 @@
-"""The benchmark's command lines, with train.py's conventions: absl flags, one --config flag
-(a path or a name under configs/) with typed --config.FIELD=VALUE overrides, and errors the user
-can fix printed as one line with exit status 1 (nerf_jax.cli).
+"""The sweep's command line, `python -m nerf_jax.bench` (its flags and what it runs); the
+commands run as command_line.py says, beside those of render.py and profile.py.
 
   python -m nerf_jax.bench --quick                                  # sweep_main
   python -m nerf_jax.bench --sweep=samples --config=mlp64 --config.train.batch_rays=2048
-  python -m nerf_jax.bench.render --workdir=runs/fast_diffuse       # render_speed_main
-  python -m nerf_jax.bench.profile --config=fast                    # profile_main
-
-Each command is `define_*_flags(flag_values, argv)` and a function of the parsed flag values, so
-tests parse and run it on a private FlagValues; `*_main` runs it under absl's app.run.
 """
 
-import json
 import os
 import shlex
 import sys
 
-import jax
-import numpy as np
-from absl import app, flags
-from ml_collections import config_flags
+from absl import flags
 
-from nerf_jax import cli
-from nerf_jax.backend import errors
-from nerf_jax.run import config_lib
-from nerf_jax.bench import profile, render, report, runner, sweeps, timed_run
-
-
-def _define_config(values, argv, help_text):
-  config_flags.DEFINE_config_file("config", config_lib.resolve("default"), help_text,
-                                  flag_values=values, lock_config=True, sys_argv=argv)
+from nerf_jax.bench import command_line, report, runner, sweeps, timed_run
 
 
 def _fail(message):
@@ -37,31 +19,12 @@ def _fail(message):
   sys.exit(1)
 
 
-def _main(define, command, argv, with_config):
-  """Parse `argv` (default sys.argv) into the global flags defined by `define` and run
-  command(flags.FLAGS, config spec, argv as given) under cli.run_main; exit status 0."""
-  given = list(sys.argv if argv is None else argv)
-  argv, spec = cli.resolve_config_argv(given) if with_config else (given, "")
-  before = set(flags.FLAGS)
-  define(flags.FLAGS, argv)
-  for name in sorted(set(flags.FLAGS) - before):  # --help lists them as the command's own flags
-    flags.FLAGS.register_key_flag_for_module(sys.argv[0], flags.FLAGS[name])
-
-  def run(_):
-    cli.run_main(lambda: command(flags.FLAGS, spec, given))  # app.run exits with what run returns
-
-  app.run(run, argv=argv, flags_parser=errors.parse_flags)
-
-
-# ---------------------------------------------------------------- python -m nerf_jax.bench
-
-
 def define_sweep_flags(values, argv):
   """The flags of `python -m nerf_jax.bench` on the FlagValues `values`. argv: the command line
   after cli.resolve_config_argv, where the config flag finds its --config.FIELD overrides."""
-  _define_config(values, argv, "Base config of the sweeps' entries based on configs/default.py "
-                 "(a path or a name under configs/); --config.FIELD=VALUE overrides apply to "
-                 "every run.")
+  command_line.define_config(values, argv, "Base config of the sweeps' entries based on "
+                             "configs/default.py (a path or a name under configs/); "
+                             "--config.FIELD=VALUE overrides apply to every run.")
   names = ", ".join(sweeps.SWEEPS)
   flags.DEFINE_string("sweep", "all", f"Comma list of sweeps ({names}) or 'all' (every sweep "
                       "but quick, default_tuning, detail and the frontiers).", flag_values=values)
@@ -126,91 +89,4 @@ def sweep(values, spec, argv):
 
 def sweep_main(argv=None):
   """`python -m nerf_jax.bench`."""
-  _main(define_sweep_flags, sweep, argv, with_config=True)
-
-
-# ---------------------------------------------------------------- python -m nerf_jax.bench.render
-
-
-def define_render_flags(values, argv=None):
-  """The flags of `python -m nerf_jax.bench.render` on the FlagValues `values`."""
-  del argv  # no config flag: the workdir's saved config is the config
-  flags.DEFINE_string("workdir", None, "A training run with a checkpoint.", flag_values=values,
-                      required=True)
-  flags.DEFINE_integer("frame_size", 100, "Longer side of the timed frame, pixels.",
-                       flag_values=values, lower_bound=1)
-  flags.DEFINE_integer("repeats", 10, "Timed frame renders.", flag_values=values, lower_bound=1)
-  flags.DEFINE_integer("frames", 120, "Frames of the timed video.", flag_values=values,
-                       lower_bound=1)
-  flags.DEFINE_list("sizes", ["800"], "Big-frame sides whose peak RSS to measure.",
-                    flag_values=values)
-  flags.DEFINE_string("out", "", "JSON output (default <workdir>/bench_render.json).",
-                      flag_values=values)
-  flags.DEFINE_integer("worker_size", 0, "Internal: render one frame of this side in this "
-                       "process and print its RSS record.", flag_values=values)
-
-
-def render_speed(values, spec="", argv=None):
-  """Measure the parsed flags' workdir, write the record and print its lines."""
-  del spec, argv
-  if not os.path.isdir(values.workdir):
-    raise FileNotFoundError(f"--workdir={values.workdir}: no such directory")
-  if values.worker_size:
-    print(json.dumps(render.big_frame_rss(values.workdir, values.worker_size)))
-    return None
-  try:
-    sizes = [int(s) for s in values.sizes]
-  except ValueError:
-    raise ValueError(f"--sizes={','.join(values.sizes)}: expected a comma list of "
-                     "pixels") from None
-  record = render.measure_workdir(values.workdir, values.frame_size, values.repeats,
-                                  values.frames, sizes)
-  out = values.out or os.path.join(values.workdir, "bench_render.json")
-  with open(out, "w") as f:
-    json.dump(record, f, indent=2)
-  print("\n".join(render.summary_lines(record, values.repeats) + [f"-> {out}"]))
-  return record
-
-
-def render_speed_main(argv=None):
-  """`python -m nerf_jax.bench.render`."""
-  _main(define_render_flags, render_speed, argv, with_config=False)
-
-
-# ---------------------------------------------------------------- python -m nerf_jax.bench.profile
-
-
-def define_profile_flags(values, argv):
-  """The flags of `python -m nerf_jax.bench.profile` on the FlagValues `values`."""
-  _define_config(values, argv, "The config whose train step to profile (a path or a name under "
-                 "configs/), with --config.FIELD=VALUE overrides.")
-  flags.DEFINE_integer("repeats", 10, "Timed calls per stage.", flag_values=values,
-                       lower_bound=1)
-  flags.DEFINE_integer("ops", 0, "Also list this many of the step's costliest kinds of XLA "
-                       "operation, from a profiler trace (0 = no trace).", flag_values=values,
-                       lower_bound=0)
-  flags.DEFINE_integer("warm_steps", 0, "Train this many steps before timing, so that an "
-                       "occupancy grid has found the empty space (0 = time the first state).",
-                       flag_values=values, lower_bound=0)
-
-
-def profile_table(values, spec, argv=None):
-  """Print the stage table of the parsed flags' config."""
-  del argv
-  print(f"{spec}: {jax.devices()[0].device_kind}, jax {jax.__version__}")
-  print("| stage | median ms | note |\n|---|---|---|")
-  rows = profile.profile(values.config, values.repeats, values.warm_steps)
-  for stage, ms, note in rows:
-    print(f"| {stage} | {'' if np.isnan(ms) else f'{ms:.1f}'} | {note} |")
-  if values.ops:
-    kinds = profile.op_kinds(values.config, values.repeats, values.warm_steps)
-    print("\n| XLA operation kind | ms per step (all threads) |\n|---|---|")
-    for kind, ms in kinds[:values.ops]:
-      print(f"| {kind} | {ms:.2f} |")
-    print(f"| all | {sum(ms for _, ms in kinds):.1f} |")
-  return rows
-
-
-def profile_main(argv=None):
-  """`python -m nerf_jax.bench.profile`."""
-  _main(define_profile_flags, profile_table, argv, with_config=True)
+  command_line.run_command(define_sweep_flags, sweep, argv, with_config=True)

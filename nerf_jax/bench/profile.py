@@ -11,7 +11,7 @@ compositing forward + backward; and plain matmuls with the MLP's shapes, [rays·
 [in, out], forward only. The stages do not add up exactly (XLA fuses across them in the real
 step), but they show which one dominates and how far the MLP (fwd + bwd ≈ 3 × the forward FLOPs)
 is from the matmul speed of its own shapes and from the large-square matmul peak. The flags are
-in bench/cli.py.
+at the end of this module (define_profile_flags).
 
 With --ops=N it also lists the N costliest kinds of XLA operation in the whole step (a profiler
 trace of --repeats steps: fusions named by their root op, e.g. every gather fusion together),
@@ -30,13 +30,14 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from absl import flags
 
 from nerf_jax.render import compositing
 from nerf_jax.run import components, experiment
 from nerf_jax.run.signature import init_state
 from nerf_jax.samplers import placement
 from nerf_jax.train import train_batches
-from nerf_jax.bench import measure
+from nerf_jax.bench import command_line, measure
 
 
 def median_ms(fn, *args, repeats=10):
@@ -153,6 +154,44 @@ def op_kinds(config, repeats=10, warm_steps=0):
   return totals.most_common()
 
 
+# ---------------------------------------------------------------- python -m nerf_jax.bench.profile
+
+
+def define_profile_flags(values, argv):
+  """The flags of `python -m nerf_jax.bench.profile` on the FlagValues `values`."""
+  command_line.define_config(values, argv, "The config whose train step to profile (a path or "
+                             "a name under configs/), with --config.FIELD=VALUE overrides.")
+  flags.DEFINE_integer("repeats", 10, "Timed calls per stage.", flag_values=values,
+                       lower_bound=1)
+  flags.DEFINE_integer("ops", 0, "Also list this many of the step's costliest kinds of XLA "
+                       "operation, from a profiler trace (0 = no trace).", flag_values=values,
+                       lower_bound=0)
+  flags.DEFINE_integer("warm_steps", 0, "Train this many steps before timing, so that an "
+                       "occupancy grid has found the empty space (0 = time the first state).",
+                       flag_values=values, lower_bound=0)
+
+
+def profile_table(values, spec, argv=None):
+  """Print the stage table of the parsed flags' config."""
+  del argv
+  print(f"{spec}: {jax.devices()[0].device_kind}, jax {jax.__version__}")
+  print("| stage | median ms | note |\n|---|---|---|")
+  rows = profile(values.config, values.repeats, values.warm_steps)
+  for stage, ms, note in rows:
+    print(f"| {stage} | {'' if np.isnan(ms) else f'{ms:.1f}'} | {note} |")
+  if values.ops:
+    kinds = op_kinds(values.config, values.repeats, values.warm_steps)
+    print("\n| XLA operation kind | ms per step (all threads) |\n|---|---|")
+    for kind, ms in kinds[:values.ops]:
+      print(f"| {kind} | {ms:.2f} |")
+    print(f"| all | {sum(ms for _, ms in kinds):.1f} |")
+  return rows
+
+
+def profile_main(argv=None):
+  """`python -m nerf_jax.bench.profile`."""
+  command_line.run_command(define_profile_flags, profile_table, argv, with_config=True)
+
+
 if __name__ == "__main__":
-  from nerf_jax.bench import cli  # pylint: disable=import-outside-toplevel
-  cli.profile_main()
+  profile_main()

@@ -14,21 +14,23 @@ Measured, for the newest checkpoint of --workdir (experiment.restore), in one ru
     one frame of that size; its peak RSS (getrusage) and its RSS after restoring, before
     rendering, show what the frame adds (chunked rendering keeps that to the output arrays).
 Writes --out (default <workdir>/bench_render.json) and prints one line per figure. The flags
-are in bench/cli.py.
+are at the end of this module (define_render_flags).
 """
 
 import dataclasses
 import json
+import os
 import subprocess
 import sys
 import tempfile
 import time
 
 import numpy as np
+from absl import flags
 
 from nerf_jax.render import background, image_renderer
 from nerf_jax.run import experiment, outputs
-from nerf_jax.bench import measure
+from nerf_jax.bench import command_line, measure
 
 
 def frame_renderer(exp, variables, size, march=None):
@@ -103,6 +105,54 @@ def summary_lines(record, repeats):
   return lines
 
 
+# ---------------------------------------------------------------- python -m nerf_jax.bench.render
+
+
+def define_render_flags(values, argv=None):
+  """The flags of `python -m nerf_jax.bench.render` on the FlagValues `values`."""
+  del argv  # no config flag: the workdir's saved config is the config
+  flags.DEFINE_string("workdir", None, "A training run with a checkpoint.", flag_values=values,
+                      required=True)
+  flags.DEFINE_integer("frame_size", 100, "Longer side of the timed frame, pixels.",
+                       flag_values=values, lower_bound=1)
+  flags.DEFINE_integer("repeats", 10, "Timed frame renders.", flag_values=values, lower_bound=1)
+  flags.DEFINE_integer("frames", 120, "Frames of the timed video.", flag_values=values,
+                       lower_bound=1)
+  flags.DEFINE_list("sizes", ["800"], "Big-frame sides whose peak RSS to measure.",
+                    flag_values=values)
+  flags.DEFINE_string("out", "", "JSON output (default <workdir>/bench_render.json).",
+                      flag_values=values)
+  flags.DEFINE_integer("worker_size", 0, "Internal: render one frame of this side in this "
+                       "process and print its RSS record.", flag_values=values)
+
+
+def render_speed(values, spec="", argv=None):
+  """Measure the parsed flags' workdir, write the record and print its lines."""
+  del spec, argv
+  if not os.path.isdir(values.workdir):
+    raise FileNotFoundError(f"--workdir={values.workdir}: no such directory")
+  if values.worker_size:
+    print(json.dumps(big_frame_rss(values.workdir, values.worker_size)))
+    return None
+  try:
+    sizes = [int(s) for s in values.sizes]
+  except ValueError:
+    raise ValueError(f"--sizes={','.join(values.sizes)}: expected a comma list of "
+                     "pixels") from None
+  record = measure_workdir(values.workdir, values.frame_size, values.repeats, values.frames,
+                           sizes)
+  out = values.out or os.path.join(values.workdir, "bench_render.json")
+  with open(out, "w") as f:
+    json.dump(record, f, indent=2)
+  print("\n".join(summary_lines(record, values.repeats) + [f"-> {out}"]))
+  return record
+
+
+def render_speed_main(argv=None):
+  """`python -m nerf_jax.bench.render`."""
+  command_line.run_command(define_render_flags, render_speed, argv,
+                           with_config=False)
+
+
 if __name__ == "__main__":
-  from nerf_jax.bench import cli  # pylint: disable=import-outside-toplevel
-  cli.render_speed_main()
+  render_speed_main()

@@ -13,7 +13,7 @@ points along t is then proportional to t^2 (the cross-section's area), whatever 
 
 Names and axes:
   origins, directions: float32 [..., 3]   the rays (world space)
-  radii:               float32 [...]      base radius: the cone's radius at t = 1 (`base_radius`)
+  radii:               float32 [...]      base radius: the cone's radius at t = 1 (rays.base_radius)
   t0, t1:              float32 [..., S]   the S intervals of each ray, 0 <= t0 <= t1
   mean:                float32 [..., S, 3]
   cov:                 float32 [..., S, 3, 3] (full) or var: float32 [..., S, 3] (its diagonal)
@@ -27,10 +27,6 @@ import numpy as np
 
 from nerf_jax.cameras.rays import safe_normalize
 
-# A uniform square pixel of side dx has per-axis variance dx^2/12; a uniform disc of radius r
-# has r^2/4. The disc with the pixel's variance has r = dx·2/sqrt(12) (mip-NeRF, section 3.1).
-PIXEL_TO_RADIUS = 2.0 / math.sqrt(12.0)
-
 # Squared lengths below this (lengths below ~1e-9) are treated as 0 before dividing by them:
 # the division's gradient has 1/x^2, which overflows float32 for x < ~1e-19.
 TINY_SQUARE = 1e-18
@@ -41,22 +37,6 @@ TINY_SQUARE = 1e-18
 HEXAGON = np.array([0, 2, 4, 3, 5, 1]) * (np.pi / 3)
 # The six points' t as mean + std·HEX_T: j = 0..5 evenly spaced, scaled to mean 0, variance 1.
 HEX_T = (np.arange(6) * 0.4 - 1.0) * np.sqrt(15.0 / 7.0)
-
-
-def base_radius(fx, fy):
-  """The base radius of every ray of a pinhole camera: its pixels' footprint at t = 1.
-
-  fx, fy: float or float32 [...] (e.g. one per image), focal lengths in pixels, > 0.
-  Returns float32 [...]: PIXEL_TO_RADIUS · sqrt(dx·dy), dx = 1/fx and dy = 1/fy the distances
-  between neighbouring pixels' directions (they lie in the plane z = -1, so the distance is the
-  same for every pixel). mip-NeRF uses one neighbour's distance (dx, for its square pixels);
-  for non-square pixels the geometric mean keeps the footprint's area (the disc's variance
-  matches the pixel's in area, i.e. in the determinant of the covariance). Equal to mip-NeRF's
-  for fx = fy.
-  """
-  fx, fy = jnp.asarray(fx, jnp.float32), jnp.asarray(fy, jnp.float32)
-  # sqrt(fx)·sqrt(fy) rather than sqrt(fx·fy): no overflow for any positive float32 focal.
-  return PIXEL_TO_RADIUS / (jnp.sqrt(fx) * jnp.sqrt(fy))
 
 
 def frustum_moments(t0, t1):

@@ -22,6 +22,11 @@ from nerf_jax.backend import precision
 from nerf_jax.cameras import ndc
 
 
+# A uniform square pixel of side dx has per-axis variance dx^2/12; a uniform disc of radius r
+# has r^2/4. The disc with the pixel's variance has r = dx·2/sqrt(12) (mip-NeRF, section 3.1).
+PIXEL_TO_RADIUS = 2.0 / math.sqrt(12.0)
+
+
 @flax.struct.dataclass
 class Rays:
   """A batch of rays: everything the renderer needs per ray (a pytree; leading shape `...`).
@@ -140,13 +145,29 @@ def camera_rays(height, width, intrinsics, c2w, near, far, pixel_center=0.5, use
                     with_radii)
 
 
+def base_radius(fx, fy):
+  """The base radius of every ray of a pinhole camera: its pixels' footprint at t = 1.
+
+  fx, fy: float or float32 [...] (e.g. one per image), focal lengths in pixels, > 0.
+  Returns float32 [...]: PIXEL_TO_RADIUS · sqrt(dx·dy), dx = 1/fx and dy = 1/fy the distances
+  between neighbouring pixels' directions (they lie in the plane z = -1, so the distance is the
+  same for every pixel). mip-NeRF uses one neighbour's distance (dx, for its square pixels);
+  for non-square pixels the geometric mean keeps the footprint's area (the disc's variance
+  matches the pixel's in area, i.e. in the determinant of the covariance). Equal to mip-NeRF's
+  for fx = fy.
+  """
+  fx, fy = jnp.asarray(fx, jnp.float32), jnp.asarray(fy, jnp.float32)
+  # sqrt(fx)·sqrt(fy) rather than sqrt(fx·fy): no overflow for any positive float32 focal.
+  return PIXEL_TO_RADIUS / (jnp.sqrt(fx) * jnp.sqrt(fy))
+
+
 def pixel_rays(i, j, height, width, intrinsics, c2w, near, far, pixel_center=0.5,
                use_ndc=False, with_radii=False):
   """`camera_rays` of the pixels at column i, row j (float32 [...]) of a height×width camera.
 
   The batch shape is that of i and j, not the image's, so a jitted caller working through an
   image in fixed-size pieces compiles once for every image size. height, width: int (NDC only).
-  with_radii: fill Rays.radii, each pixel's base radius: cones.base_radius(fx, fy) (the same for
+  with_radii: fill Rays.radii, each pixel's base radius: base_radius(fx, fy) (the same for
   every pixel of a pinhole camera); in NDC mip-NeRF's, PIXEL_TO_RADIUS times the distance
   between the NDC directions of the pixel and of the one below it (row j + 1; mip-NeRF takes
   the row above for its last row).
@@ -162,11 +183,10 @@ def pixel_rays(i, j, height, width, intrinsics, c2w, near, far, pixel_center=0.5
   rays = Rays.create(origins, directions, near, far, viewdirs)
   if not with_radii:
     return rays
-  from nerf_jax.cameras import cones  # cones imports this module
   if use_ndc:
-    radii = cones.PIXEL_TO_RADIUS * jnp.sqrt(jnp.sum((below - directions) ** 2, axis=-1))
+    radii = PIXEL_TO_RADIUS * jnp.sqrt(jnp.sum((below - directions) ** 2, axis=-1))
   else:
-    radii = jnp.broadcast_to(cones.base_radius(fx, fy), rays.shape)
+    radii = jnp.broadcast_to(base_radius(fx, fy), rays.shape)
   return rays.replace(radii=radii)
 
 

@@ -59,12 +59,12 @@ def make_evaluator(exp, settings):
   With appearance codes or refined poses the result also holds the protocol used for the test
   views (`protocols`) and, where the data knows the true poses, `pose_scores`.
 
-  Evaluates the test views of `exp` (an experiment.Experiment) as `settings` (EvalSettings)
-  say. With `out_dir`, writes per view a PNG of [prediction | depth | ground truth] and depth
-  `.npy`. on_view(index, out, truth) is called for every view with the rendered numpy dict
-  (rgb [H, W, 3], depth [H, W], acc [H, W]) and the true image float32 [H, W, 3] on
-  settings.background (see `background.images_on_background`; the trainer sends the first one
-  to TensorBoard).
+  Evaluates the test views of `exp` (an experiment_parts.Experiment) as `settings`
+  (EvalSettings) say. With `out_dir`, writes per view a PNG of [prediction | depth | ground
+  truth] and depth `.npy`. on_view(index, out, truth) is called for every view with the
+  rendered numpy dict (rgb [H, W, 3], depth [H, W], acc [H, W]) and the true image float32
+  [H, W, 3] on settings.background (see `background.images_on_background`; the trainer sends
+  the first one to TensorBoard).
 
   Every test view is rendered through its own camera (`Dataset.cameras`); where the test data
   has scale labels (`Dataset.labels`, mip-NeRF's multiscale data) the result also holds

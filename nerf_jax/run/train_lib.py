@@ -41,8 +41,8 @@ def train_and_evaluate(config, workdir, hooks=()):
   KeyboardInterrupt.
 
   hooks: step hooks, each given as a factory fn(exp, workdir, main) -> hook (exp: the run's
-  experiment.Experiment; main: whether this is process 0), called once the run is set up; a
-  hook has after_step(step, variables_fn), called after every step (variables_fn() -> the
+  experiment_parts.Experiment; main: whether this is process 0), called once the run is set
+  up; a hook has after_step(step, variables_fn), called after every step (variables_fn() -> the
   current variables on one device), and close(), called after the last step. nerf-train passes
   the live viewer's (viewer/training.start).
   """

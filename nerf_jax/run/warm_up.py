@@ -14,9 +14,8 @@ import jax
 import numpy as np
 
 from nerf_jax.render import background, image_renderer
-from nerf_jax.run import components, config_lib, from_data
+from nerf_jax.run import components, config_lib, experiment_parts, from_data
 from nerf_jax.run.signature import init_state
-from nerf_jax.train import optimizer
 from nerf_jax.train import train_step as train_step_lib
 
 WARM_UP_SIZE = 48  # the photos' larger side during the warm-up (docs/photo_collections.md)
@@ -57,18 +56,12 @@ def photos_and_renders(dataset, seed=0):
   """(photos, renders), float32 [N, h, w, 3] each: the training photos of `dataset` (one
   camera), shrunk (`box_shrunk`), on a black background, and the warm-up's renders of their
   cameras (the photo itself at masked pixels)."""
-  from nerf_jax.run import experiment  # pylint: disable=import-outside-toplevel
-  # (imported here: experiment imports auto, which imports this module)
   train = box_shrunk(dataset, WARM_UP_SIZE)
   config = warm_up_config(seed)
   config.data.background = "black"
   near, far = from_data.bounds(config, train)
   config = from_data.with_scene_extent(config, train)
-  exp = experiment.Experiment(
-      config, components.make_ray_renderer(config, len(train)),
-      components.image_settings(config),
-      optimizer.make_optimizer(components.optimizer_settings(config)), train, train, near,
-      far, None)
+  exp = experiment_parts.assemble(config, train, train, near, far)
   state = init_state(exp)
   data = components.make_train_data(exp)
   step = train_step_lib.make_train_step(**components.train_step_args(exp))

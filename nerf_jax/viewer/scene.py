@@ -91,7 +91,7 @@ class Scene:
 
 
 def from_run(exp):
-  """The Scene of a model being trained (or restored): an experiment.Experiment."""
+  """The Scene of a model being trained (or restored): an experiment_parts.Experiment."""
   config = exp.config
   return Scene(config=config, make_draw=image_renderer.make_image_renderer(exp.renderer, exp.image),
                dataset=exp.train_ds, near=float(exp.near), far=float(exp.far),

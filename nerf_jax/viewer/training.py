@@ -42,9 +42,9 @@ class LiveViewer:
 
 
 def start(exp, workdir, enabled=True):
-  """The hook for a run of `exp` (experiment.Experiment) in `workdir`: a LiveViewer serving
-  `config.viewer.port` where config.viewer.enabled and `enabled` (train_lib passes whether this
-  is process 0), or one doing nothing."""
+  """The hook for a run of `exp` (experiment_parts.Experiment) in `workdir`: a LiveViewer
+  serving `config.viewer.port` where config.viewer.enabled and `enabled` (train_lib passes
+  whether this is process 0), or one doing nothing."""
   config = exp.config
   if not (enabled and config.viewer.enabled):
     return _Off()

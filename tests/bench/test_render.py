@@ -14,7 +14,6 @@ from nerf_jax.backend import errors
 from nerf_jax.render import renderer
 from nerf_jax.run import experiment
 from nerf_jax.run import train_lib
-from nerf_jax.bench import cli as bench_cli
 from nerf_jax.bench import render
 from nerf_jax.cameras.rays import Rays, get_rays
 from tests.helpers import PATHS_RTOL, jitted, requires_ffmpeg, small_config
@@ -36,9 +35,9 @@ def test_render_bench_writes_frame_video_and_big_frame_figures(tmp_path, capsys)
   argv = ["nerf_jax.bench.render", f"--workdir={workdir}", "--frame_size=24", "--repeats=2",
           "--frames=2", "--sizes=40", f"--out={out}"]
   values = flags.FlagValues()  # private: absl's global flags hold each name once per process
-  bench_cli.define_render_flags(values)
+  render.define_render_flags(values)
   errors.parse_flags(argv, values)
-  bench_cli.render_speed(values)
+  render.render_speed(values)
   assert capsys.readouterr().out.strip().splitlines()[-1] == f"-> {out}"
   record = json.loads(out.read_text())
   assert len(record["frame_ms"]) == 2 and record["frame_ms_median"] > 0

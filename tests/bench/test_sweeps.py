@@ -24,6 +24,7 @@ from nerf_jax.backend import errors
 from nerf_jax.data import scenes
 from nerf_jax.run import config_lib
 from nerf_jax.bench import cli as bench_cli
+from nerf_jax.bench import render as bench_render
 from nerf_jax.bench import measure, profile, report, runner, sweeps, timed_run
 
 from tests.helpers import ROOT
@@ -219,9 +220,9 @@ def test_every_documented_command_parses(tmp_path, monkeypatch, capsys):
       if module == "nerf_jax.bench":
         assert _sweep(*args, "--dry_run") == [], (page, args)
       elif module == "nerf_jax.bench.render":
-        _parse(bench_cli.define_render_flags, module, *args, with_config=False)
+        _parse(bench_render.define_render_flags, module, *args, with_config=False)
       else:
-        _parse(bench_cli.define_profile_flags, module, *args)
+        _parse(profile.define_profile_flags, module, *args)
     except SystemExit as e:
       pytest.fail(f"{page}: python -m {module} {shlex.join(args)}: "
                   f"{capsys.readouterr().err.strip()} (exit {e.code})")
@@ -341,12 +342,12 @@ def profiled():
   --repeats=1 --ops=4`, in this process: (the stage rows it returned, what it printed). Both
   profile tests read it (the stage table is printed with or without --ops; each profile
   compiles every stage of the step, about a minute on a loaded 2-core CPU)."""
-  values, spec, given = _parse(bench_cli.define_profile_flags, "nerf_jax.bench.profile",
+  values, spec, given = _parse(profile.define_profile_flags, "nerf_jax.bench.profile",
                                "--config=debug", "--config.train.batch_rays=32", "--repeats=1",
                                "--ops=4")
   printed = io.StringIO()
   with contextlib.redirect_stdout(printed):
-    rows = bench_cli.profile_table(values, spec, given)
+    rows = profile.profile_table(values, spec, given)
   return rows, printed.getvalue()
 
 

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax.cameras import cones, rays
+from nerf_jax.cameras import cones
 
 pytestmark = pytest.mark.usefixtures("debug_nans")  # conftest.py: NaNs raise in this module
 
@@ -109,23 +109,6 @@ def test_degenerate_intervals_are_finite_with_finite_gradients():
   np.testing.assert_array_equal(t_var[:3], 0.0)  # a disc has no extent along the ray
   np.testing.assert_allclose(t_mean[:3], t0[:3])
   np.testing.assert_allclose(r_var[:3], t0[:3] ** 2 / 4, rtol=1e-6)
-
-
-def test_base_radius_from_neighbouring_pixel_directions():
-  """Brute force: distances between neighbouring pixels' directions of `rays.pixel_directions`
-  (x: along a row, y: along a column), their geometric mean times 2/sqrt(12)."""
-  for fx, fy in ((100.0, 100.0), (555.5, 420.0), (30.0, 60.0)):
-    dirs = np.asarray(rays.pixel_directions(7, 9, fx, fy, 4.5, 3.5, 0.5), np.float64)
-    dx = np.linalg.norm(dirs[:, 1:] - dirs[:, :-1], axis=-1)
-    dy = np.linalg.norm(dirs[1:] - dirs[:-1], axis=-1)
-    expected = np.sqrt(dx.mean() * dy.mean()) * 2 / np.sqrt(12)
-    np.testing.assert_allclose(cones.base_radius(fx, fy), expected, rtol=1e-5)
-    if fx == fy:  # mip-NeRF's dx·2/sqrt(12)
-      np.testing.assert_allclose(cones.base_radius(fx, fy), dx.mean() * 2 / np.sqrt(12),
-                                 rtol=1e-5)
-  per_image = cones.base_radius(np.float32([100.0, 50.0]), np.float32([100.0, 50.0]))
-  np.testing.assert_allclose(per_image, [0.01 / np.sqrt(3), 0.02 / np.sqrt(3)],
-                             rtol=1e-6)
 
 
 def test_perpendicular_basis_is_orthonormal():

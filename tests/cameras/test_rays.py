@@ -174,6 +174,23 @@ def _ndc_direction_reference(i, j, fx, fy, cx, cy, c2w, width, height, near=1.0)
   return at_infinity - at_near
 
 
+def test_base_radius_from_neighbouring_pixel_directions():
+  """Brute force: distances between neighbouring pixels' directions of `rays.pixel_directions`
+  (x: along a row, y: along a column), their geometric mean times 2/sqrt(12)."""
+  for fx, fy in ((100.0, 100.0), (555.5, 420.0), (30.0, 60.0)):
+    dirs = np.asarray(rays.pixel_directions(7, 9, fx, fy, 4.5, 3.5, 0.5), np.float64)
+    dx = np.linalg.norm(dirs[:, 1:] - dirs[:, :-1], axis=-1)
+    dy = np.linalg.norm(dirs[1:] - dirs[:-1], axis=-1)
+    expected = np.sqrt(dx.mean() * dy.mean()) * 2 / np.sqrt(12)
+    np.testing.assert_allclose(rays.base_radius(fx, fy), expected, rtol=1e-5)
+    if fx == fy:  # mip-NeRF's dx·2/sqrt(12)
+      np.testing.assert_allclose(rays.base_radius(fx, fy), dx.mean() * 2 / np.sqrt(12),
+                                 rtol=1e-5)
+  per_image = rays.base_radius(np.float32([100.0, 50.0]), np.float32([100.0, 50.0]))
+  np.testing.assert_allclose(per_image, [0.01 / np.sqrt(3), 0.02 / np.sqrt(3)],
+                             rtol=1e-6)
+
+
 def test_rays_have_no_radii_unless_asked():
   kwargs = dict(height=4, width=5, intrinsics=(6.0, 7.0, 2.5, 2.0), c2w=np.eye(4), near=0.0,
                 far=1.0)

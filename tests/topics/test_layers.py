@@ -2,6 +2,8 @@
 
 1. Imports run down the layers (LAYERS, lowest first): a module imports from its own folder and
    the folders below it, never above; UPWARD lists the arrows that still run up (none now).
+   No module reaches itself through imports either (imports inside functions included): no
+   import circles, within a folder or across folders.
 2. No ConfigDict is read below the entry layer. Outside the entry modules (ENTRY: cli.py,
    run/, bench/, viewer/; the old-path aliases at the top of nerf_jax/ are checked,
    and read none) no function takes a `config` / `*_config` argument, no code reads a
@@ -108,3 +110,72 @@ def test_imports_run_down_the_layers():
         upward.add((rel, module))
   assert upward <= UPWARD, sorted(upward - UPWARD)
   assert UPWARD <= upward, f"gone, remove from UPWARD: {sorted(UPWARD - upward)}"
+
+
+def _module_name(path):
+  """'nerf_jax.cameras.rays' of .../nerf_jax/cameras/rays.py; a package's __init__.py is the
+  package."""
+  parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+  return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def module_imports(source, modules):
+  """The modules of the set `modules` that `source` imports anywhere (inside functions too):
+  `from a.b import c` is a.b.c where that is a module, else a.b."""
+  found = set()
+  for node in ast.walk(ast.parse(source)):
+    if isinstance(node, ast.ImportFrom) and node.module and not node.level:
+      found |= {f"{node.module}.{a.name}" if f"{node.module}.{a.name}" in modules
+                else node.module for a in node.names}
+    elif isinstance(node, ast.Import):
+      found |= {a.name for a in node.names}
+  return found & modules
+
+
+def import_graph():
+  """{module: the nerf_jax modules it imports} over every module of nerf_jax/."""
+  paths = {_module_name(p): p for p in PACKAGE.rglob("*.py")}
+  return {m: module_imports(p.read_text(), set(paths)) for m, p in paths.items()}
+
+
+def find_cycle(graph):
+  """A list [a, b, ..., a] of modules each importing the next, or None when there is none."""
+  done, path = set(), []
+
+  def visit(module):
+    if module in path:
+      return path[path.index(module):] + [module]
+    if module in done:
+      return None
+    path.append(module)
+    for target in sorted(graph.get(module, ())):
+      cycle = visit(target)
+      if cycle:
+        return cycle
+    path.pop()
+    done.add(module)
+    return None
+
+  for module in sorted(graph):
+    cycle = visit(module)
+    if cycle:
+      return cycle
+  return None
+
+
+def test_the_import_graph_is_read_as_python_resolves_it():
+  modules = {"p", "p.a", "p.b", "p.c"}
+  source = ("from p import a\nfrom p.b import thing\nimport p.c\nimport numpy\n"
+            "def f():\n  from p.c import other\n")
+  assert module_imports(source, modules) == {"p.a", "p.b", "p.c"}
+  assert find_cycle({"a": {"b"}, "b": {"c"}, "c": set()}) is None
+  assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"b"}}) == ["b", "c", "b"]
+  assert find_cycle({"a": {"a"}}) == ["a", "a"]
+  graph = import_graph()
+  assert "nerf_jax.cameras.rays" in graph["nerf_jax.cameras.cones"]
+  assert "nerf_jax.backend.gpu_atomics" in graph["nerf_jax"]  # a package's __init__ counts
+
+
+def test_no_import_circles():
+  cycle = find_cycle(import_graph())
+  assert cycle is None, "import circle: " + " -> ".join(cycle)
