@@ -89,8 +89,8 @@ def override_names(argv):
   return tuple(a[len("--config."):].split("=", 1)[0] for a in argv if a.startswith("--config."))
 
 
-# The step hooks of nerf-train: the live viewer (config.viewer.enabled), viewer/training.py.
-TRAIN_HOOKS = (live_viewer.start,)
+# What watches a nerf-train run: the live viewer (config.viewer.enabled), viewer/training.py.
+TRAIN_WATCHERS = (live_viewer.start,)
 
 
 def prepare(config, workdir, config_spec="", overrides=()):
@@ -108,9 +108,9 @@ def prepare(config, workdir, config_spec="", overrides=()):
 
 def train(config, workdir, config_spec="", overrides=()):
   """Train `config` into `workdir` as nerf-train does (`prepare`, then
-  train_lib.train_and_evaluate with TRAIN_HOOKS); returns the final metrics."""
+  train_lib.train_and_evaluate with TRAIN_WATCHERS); returns the final metrics."""
   workdir = prepare(config, workdir, config_spec, overrides)
-  return train_lib.train_and_evaluate(config, workdir, hooks=TRAIN_HOOKS)
+  return train_lib.train_and_evaluate(config, workdir, watchers=TRAIN_WATCHERS)
 
 
 def train_main(argv=None):
@@ -124,7 +124,7 @@ def train_main(argv=None):
   def main(_):
     with errors.one_line_errors(USER_ERRORS):  # no wrapper between here and the step's jit
       run_dir = prepare(config.value, workdir.value, spec, override_names(argv))
-      train_lib.train_and_evaluate(config.value, run_dir, hooks=TRAIN_HOOKS)
+      train_lib.train_and_evaluate(config.value, run_dir, watchers=TRAIN_WATCHERS)
 
   app.run(main, argv=argv, flags_parser=errors.parse_flags)
 

@@ -297,16 +297,16 @@ def loss_terms(config, ray_renderer):
 def train_step_args(exp, mesh=None):
   """The arguments of train_step.make_train_step for the run `exp` describes (mesh: see
   there): the training renderer, the optimiser and its settings for a fitted schedule, the
-  loss terms, the StepSettings and the buffer hooks (the occupancy grid's refresh)."""
+  loss terms, the StepSettings and the buffer updates (the occupancy grid's refresh)."""
   ray_renderer = training_renderer(exp)
-  hooks = ()
+  updates = ()
   if ray_renderer.sampler.occupancy is not None:
-    hooks = (train_step.OccupancyRefresh(ray_renderer),)
+    updates = (train_step.OccupancyRefresh(ray_renderer),)
   return dict(ray_renderer=ray_renderer, tx=exp.tx,
               terms=loss_terms(exp.config, ray_renderer), settings=step_settings(exp),
               optimizer_for=functools.partial(optimizer.make_optimizer,
                                               optimizer_settings(exp.config)),
-              mesh=mesh, buffer_hooks=hooks)
+              mesh=mesh, buffer_updates=updates)
 
 
 def make_train_step(exp, mesh=None):

@@ -30,7 +30,7 @@ from nerf_jax.train.state import upgrade_state_dict
 _STEPS = collections.OrderedDict()  # the few most recent train steps (see `train_and_evaluate`)
 
 
-def train_and_evaluate(config, workdir, hooks=()):
+def train_and_evaluate(config, workdir, watchers=()):
   """Train on `config.data`, checkpoint into `workdir`, evaluate the test views at the end.
 
   Resumes from the newest checkpoint in `workdir`. Returns the final metrics dict (also written to
@@ -40,11 +40,12 @@ def train_and_evaluate(config, workdir, hooks=()):
   config.json holds the schedule it used. SIGINT or SIGTERM saves a checkpoint, then raises
   KeyboardInterrupt.
 
-  hooks: step hooks, each given as a factory fn(exp, workdir, main) -> hook (exp: the run's
-  experiment_parts.Experiment; main: whether this is process 0), called once the run is set
-  up; a hook has after_step(step, variables_fn), called after every step (variables_fn() -> the
-  current variables on one device), and close(), called after the last step. nerf-train passes
-  the live viewer's (viewer/training.start).
+  watchers: what watches the run from outside the loop, each given as a factory fn(exp,
+  workdir, main) -> watcher (exp: the run's experiment_parts.Experiment; main: whether this is
+  process 0), called once the run is set up; a watcher has after_step(step, variables_fn),
+  called after every step (variables_fn() -> the current variables on one device), and
+  close(), called after the last step; the loop runs each through a hooks.Watch hook.
+  nerf-train passes the live viewer's (viewer/training.start).
   """
   config = config_lib.upgrade(config)
   if config.train.deterministic:
@@ -84,8 +85,8 @@ def train_and_evaluate(config, workdir, hooks=()):
   evaluate = components.make_evaluator(exp)
   loop_hooks = _loop_hooks(exp, config, workdir, signature, evaluate, writer, mesh,
                           int(state.step), last_step, elapsed)
-  loop_hooks = [hooks_lib.EveryStep(make_hook(exp, workdir, main), _variables_on(mesh))
-                for make_hook in hooks] + loop_hooks  # the caller's, after every step
+  loop_hooks = [hooks_lib.Watch(make_watcher(exp, workdir, main), _variables_on(mesh))
+                for make_watcher in watchers] + loop_hooks  # the caller's, after every step
   out_of_time = lambda: 0 < config.train.max_seconds <= elapsed()
   state, step, signum = loop.run(state, lambda s: train_step(s, data, key), loop_hooks,
                                  int(state.step), last_step, out_of_time)

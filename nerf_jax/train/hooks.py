@@ -1,6 +1,6 @@
 """The training loop's hooks (train/loop.py), each small and doing one thing when it is due:
 
-  EveryStep   a step hook of the caller's (the live viewer): after every step
+  Watch       a watcher of the caller's (the live viewer): after every step
   Record      a log step's record (loss, PSNR, rays/s, the loss terms' stats): every log_every
               steps and at the final step
   Evaluate    the test views' PSNR into the record and their first view into TensorBoard:
@@ -40,21 +40,22 @@ def every(step, steps):
   return bool(steps) and step % steps == 0
 
 
-class EveryStep(Hook):
-  """A step hook with after_step(step, variables_fn) and close() (viewer/training.py), called
-  after every step; variables(state) -> the state's variables on one device."""
+class Watch(Hook):
+  """Runs a watcher (an object with after_step(step, variables_fn) and close(): the live
+  viewer, viewer/training.py) after every step; variables(state) -> the state's variables on
+  one device."""
 
-  def __init__(self, hook, variables):
-    self.hook, self.variables = hook, variables
+  def __init__(self, watcher, variables):
+    self.watcher, self.variables = watcher, variables
 
   def due(self, end):
     return True
 
   def __call__(self, end):
-    self.hook.after_step(end.step, lambda: self.variables(end.state))
+    self.watcher.after_step(end.step, lambda: self.variables(end.state))
 
   def close(self):
-    self.hook.close()
+    self.watcher.close()
 
 
 class Record(Hook):

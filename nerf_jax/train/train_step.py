@@ -73,7 +73,7 @@ def _render_split(render, rays, key, background, posed):
 
 @dataclasses.dataclass(frozen=True)
 class OccupancyRefresh:
-  """A buffer hook: every `update_every` steps, probe the renderer's density field at jittered
+  """A buffer update: every `update_every` steps, probe the renderer's density field at jittered
   positions (drawn from the step: a resumed run probes where the uninterrupted one did) and
   accumulate them into buffers['occupancy'] with decay (occupancy.accumulate); cells that
   buffers['hull'] (the visual hull, when carved) rules out stay empty.
@@ -108,7 +108,7 @@ def moving_average(ema, params, decay):
 
 
 def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=None,
-                    buffer_hooks=()):
+                    buffer_updates=()):
   """The jitted train step: (state, data, key[, planned_steps]) -> (state, stats). `state` is
   donated.
 
@@ -120,8 +120,8 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
   step for any length); None when the step is always called without planned_steps.
   mesh: a `parallel.make_mesh` Mesh to split each batch over its devices (data and state
   replicated on it), or None for one device.
-  buffer_hooks: (state, run_key) -> buffers, each called in order at the start of a step on
-  the state with the previous hook's buffers (e.g. `OccupancyRefresh`); the step renders with
+  buffer_updates: (state, run_key) -> buffers, each called in order at the start of a step on
+  the state with the previous update's buffers (e.g. `OccupancyRefresh`); the step renders with
   the buffers they return.
   """
   fixed_background = jnp.asarray(settings.background)
@@ -170,8 +170,8 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
     return losses.total(terms, losses.LossInputs(outs, target, rays, params, batch.weight))
 
   def update_buffers(state, run_key):
-    for hook in buffer_hooks:
-      state = state.replace(buffers=hook(state, run_key))
+    for update in buffer_updates:
+      state = state.replace(buffers=update(state, run_key))
     return state.buffers
 
   def step(state, data, run_key, planned_steps=None):

@@ -183,7 +183,7 @@ def training_overhead(pairs=2, steps=60):
       config.train.tensorboard, config.train.eval_views = False, 0
       config.viewer.enabled, config.viewer.port = enabled, 7060
       with tempfile.TemporaryDirectory() as workdir:
-        train_lib.train_and_evaluate(config, workdir, hooks=(training.start,))
+        train_lib.train_and_evaluate(config, workdir, watchers=(training.start,))
         with open(f"{workdir}/metrics.jsonl") as f:
           records = [json.loads(l) for l in f if "rays_per_second" in l]
       rates[enabled] += [r["rays_per_second"] for r in records[1:]]

@@ -1,5 +1,5 @@
-"""The live viewer during training (`--config.viewer.enabled=True`): a step hook, which nerf-train
-passes to train_lib.train_and_evaluate as `hooks=(start,)`.
+"""The live viewer during training (`--config.viewer.enabled=True`): a watcher, which nerf-train
+passes to train_lib.train_and_evaluate as `watchers=(start,)`.
 
 Nobody watching costs one call and one boolean test per step. With a browser connected, every
 `refresh_s` seconds the step's parameters are copied (they are donated to the next step) and
@@ -13,7 +13,7 @@ import jax.numpy as jnp
 
 
 class _Off:
-  """The hook when the viewer is off."""
+  """The watcher when the viewer is off."""
 
   def after_step(self, step, get_params):
     pass
@@ -42,7 +42,7 @@ class LiveViewer:
 
 
 def start(exp, workdir, enabled=True):
-  """The hook for a run of `exp` (experiment_parts.Experiment) in `workdir`: a LiveViewer
+  """The watcher of a run of `exp` (experiment_parts.Experiment) in `workdir`: a LiveViewer
   serving `config.viewer.port` where config.viewer.enabled and `enabled` (train_lib passes
   whether this is process 0), or one doing nothing."""
   config = exp.config
