@@ -1,7 +1,7 @@
 """The numbers of each shipped config, as one hash each: a refactor that changes none of them
 changes no behaviour (the same seeds give bit-identical parameters and images).
 
-  python -m nerf_jax.bench.fingerprint                 # every config, a line each
+  python -m nerf_jax.bench.fingerprint                 # every shipped config, a line each
   python -m nerf_jax.bench.fingerprint fast llff       # some of them
 
 Each config trains a few steps on a shrunken built-in scene (the configs that need a folder get
@@ -17,10 +17,10 @@ import tempfile
 import jax
 import numpy as np
 
+from nerf_jax.run import config_lib, experiment, train_lib
+
 # The built-in scene each config trains on here (configs that read a folder get one of its kind).
 SCENES = {"llff": "forward", "capture": "garden", "detail": "detail", "auto": "garden"}
-CONFIGS = ("default", "fast", "detail", "hash", "llff", "capture", "tiny_nerf", "scenes/glossy",
-           "scenes/fog", "scenes/garden", "scenes/exposure", "scenes/perturbed")
 SHRINK = {"data.num_views": 6, "data.image_size": 16, "data.holdout_from": 5,
           "train.max_steps": 6, "train.max_seconds": 0.0, "train.batch_rays": 128,
           "train.log_every": 6, "train.eval_every": 0, "train.checkpoint_every": 6,
@@ -29,7 +29,6 @@ SHRINK = {"data.num_views": 6, "data.image_size": 16, "data.holdout_from": 5,
 
 def shrunk_config(name):
   """configs/<name>.py, on a small built-in scene, for a few steps."""
-  from nerf_jax.run import config_lib  # pylint: disable=import-outside-toplevel
   config = config_lib.load(name)
   fields = dict(SHRINK)
   if name in SCENES:
@@ -43,8 +42,6 @@ def shrunk_config(name):
 
 def fingerprint(name):
   """(sha256 hex of the trained variables and one rendered test view, that view's PSNR)."""
-  from nerf_jax.run import experiment
-  from nerf_jax.run import train_lib  # pylint: disable=import-outside-toplevel
   with tempfile.TemporaryDirectory() as workdir:
     result = train_lib.train_and_evaluate(shrunk_config(name), workdir)
     state = experiment.restore(workdir)[1]
@@ -58,7 +55,7 @@ def fingerprint(name):
 
 
 def main(argv):
-  names = argv[1:] or CONFIGS
+  names = argv[1:] or config_lib.available()
   for name in names:
     digest, psnr = fingerprint(name)
     print(f"{name:18s} {digest} {psnr:.4f}", flush=True)
