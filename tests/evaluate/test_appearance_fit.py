@@ -31,19 +31,22 @@ def _view(seed):
   return rays, np.asarray(truth), {"params": {"field": {"appearance": table}}}
 
 
-def _fit(rays, truth, variables, steps=1500):
+def _fit(rays, truth, variables, steps=1500, mask=None):
+  """The code fitted on the left half; mask: float32 [H, W] or None, as evaluate passes it."""
   settings = evaluation.Settings(appearance="left_half", fit_steps=steps, fit_rays=4096,
                                  fit_lr=1e-2)
   fit = evaluation.make_code_fitter(LinearField(), settings)
-  fitted = fit(variables, *evaluation.left_half(rays, truth), jnp.zeros(3))
+  weight = None if mask is None else jnp.asarray(evaluation.left_half_mask(mask))
+  fitted = fit(variables, *evaluation.left_half(rays, truth), jnp.zeros(3), weight)
   return np.asarray(fitted["params"]["field"]["appearance"][0])
 
 
-def _least_squares(rays, truth):
+def _least_squares(rays, truth, kept=None):
   """The code minimising the squared error over the left half's pixels (columns < W // 2),
-  by the normal equations, in float64."""
-  a = np.asarray(rays["a"], np.float64)[:, :W // 2].reshape(-1, D)  # [P * 3, D]
-  r = (truth - np.asarray(rays["base"]))[:, :W // 2].reshape(-1)
+  by the normal equations, in float64; kept: bool [H, W] or None, the pixels that count."""
+  kept = np.ones((H, W), bool) if kept is None else kept
+  a = np.asarray(rays["a"], np.float64)[:, :W // 2][kept[:, :W // 2]].reshape(-1, D)
+  r = (truth - np.asarray(rays["base"]))[:, :W // 2][kept[:, :W // 2]].reshape(-1)
   return np.linalg.solve(a.T @ a, a.T @ r)
 
 
@@ -55,6 +58,24 @@ def test_the_fitted_code_is_the_left_halfs_least_squares_optimum():
   # Rays drawn with replacement weigh the pixels unevenly each step; Adam's steps of 1e-2
   # settle within a thousandth of the optimum (100 steps: 0.33 away).
   np.testing.assert_allclose(_fit(rays, truth, variables), optimum, atol=0.005)
+
+
+def test_a_masked_fit_is_the_kept_pixels_optimum_not_all_pixels():
+  """Masked pixels of the left half painted with a colour that a code 2 away in every entry
+  explains: fitted with the mask (as evaluate passes it, evaluation.left_half_mask), the code
+  is the least-squares optimum over the kept pixels alone, far from the one over every pixel."""
+  rays, truth, variables = _view(3)
+  rng = np.random.default_rng(3)
+  kept = rng.uniform(size=(H, W)) > 0.3
+  kept[:, W // 2:] = True  # the right half: scored, never fitted on
+  optimum = _least_squares(rays, truth, kept)
+  pulled = np.asarray(rays["base"]) + np.einsum("hwcd,d->hwc", np.asarray(rays["a"]),
+                                                optimum + 2.0)
+  truth = np.where(kept[..., None], truth, pulled).astype(np.float32)
+  every_pixel = _least_squares(rays, truth)
+  assert np.abs(every_pixel - optimum).max() > 0.1  # the masked pixels would pull the fit
+  got = _fit(rays, truth, variables, mask=kept.astype(np.float32))
+  np.testing.assert_allclose(got, optimum, atol=0.005)
 
 
 def test_the_right_half_never_reaches_the_fit_and_is_what_is_scored():
