@@ -2,11 +2,16 @@
 is the least-squares optimum, found in closed form here for a field whose colour is linear in
 the code; the right half's pixels never reach the fit, and are what is scored."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from nerf_jax.evaluate import evaluation
+from nerf_jax.render import image_renderer
+from nerf_jax.run import components, experiment
+from tests.helpers import small_config
 
 H, W, D = 8, 12, 3  # image height, width; code length
 
@@ -94,3 +99,37 @@ def test_the_left_half_is_the_columns_before_the_middle():
   left, target = evaluation.left_half(rays, truth)
   np.testing.assert_array_equal(target, truth[:, :W // 2].reshape(-1, 3))
   np.testing.assert_array_equal(left["a"], np.asarray(rays["a"])[:, :W // 2].reshape(-1, 3, D))
+
+
+def _grey(rays, background=None):
+  """A stand-in image renderer's draw: grey rgb, so no NeRF needs compiling."""
+  del background
+  shape = rays.shape
+  return {"rgb": np.full(shape + (3,), 0.5, np.float32), "depth": np.zeros(shape, np.float32),
+          "acc": np.zeros(shape, np.float32)}
+
+
+def test_the_evaluator_fits_each_view_on_its_left_halfs_kept_pixels(monkeypatch):
+  """evaluate hands the fitter each test view's left-half pixels and, with Dataset.masks, the
+  left half of that view's mask as the weight, pixel for pixel (the fitter itself: above)."""
+  calls = []
+
+  def recording_fitter(ray_renderer, settings):
+    def fit(variables, rays, target, bg, weight=None):
+      calls.append((np.asarray(target), None if weight is None else np.asarray(weight)))
+      return variables
+    return fit
+  monkeypatch.setattr(image_renderer, "make_image_renderer", lambda *a: lambda p: _grey)
+  monkeypatch.setattr(evaluation, "make_code_fitter", recording_fitter)
+  config = small_config({"data.image_size": 24, "model.appearance_dims": 4,  # SSIM: >= 11 wide
+                         "eval.appearance": "left_half"})
+  exp = experiment.setup(config)
+  test = exp.test_ds
+  masks = (np.random.default_rng(4).random(test.images.shape[:3]) > 0.3).astype(np.float32)
+  exp = dataclasses.replace(exp, test_ds=dataclasses.replace(test, masks=masks))
+  components.make_evaluator(exp)({"params": {}}, max_views=2)
+  assert len(calls) == 2
+  for k, (target, weight) in enumerate(calls):
+    left = slice(0, test.images.shape[2] // 2)
+    np.testing.assert_array_equal(target, test.images[k][:, left].reshape(-1, 3))
+    np.testing.assert_array_equal(weight, masks[k][:, left].reshape(-1))
