@@ -1,6 +1,8 @@
 """Tests of nerf_jax.data.multiscale (the converter to mip-NeRF's multiscale format) and
 nerf_jax.data.multicam (its reader and writer): the levels against a box filter written here,
-the metadata, the loader round trip, and the exporters' refusal of per-image cameras."""
+the metadata, the loader round trip, and the exporters' refusal of per-image cameras; on
+non-square images with per-split and per-view near and far, each level's size, focal and
+principal point, the bounds, and the rays of known pixels against a projection written here."""
 
 import json
 import math
@@ -9,8 +11,10 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
+from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.data import export, multicam, multiscale, scenes
 from nerf_jax.data.dataset import DataError
+from nerf_jax.train import train_batches
 from tests.helpers import assert_data_error, load_data
 
 LEVELS = 3
@@ -131,3 +135,158 @@ def test_metadata_that_disagree_with_the_images_are_named(folders, tmp_path):
   assert_data_error(["'lossmult' must be a list of 9"], multicam.load, str(tmp_path))
   with pytest.raises(DataError, match="no transforms"):
     multiscale.convert(str(tmp_path), str(tmp_path / "x"))
+
+
+# Non-square images (rows ≠ columns at every level) and near/far that differ between splits
+# and between views: a swapped height and width, a cy taken from the width or a wrong near/far
+# fail here, where the square images above with one near and far cannot tell.
+
+ROWS, COLS = 12, 20  # level 0; levels 1 and 2 are 6×10 and 3×5 (no odd row or column dropped)
+ANGLE_X = 0.9  # camera_angle_x: focal_0 = 0.5·COLS / tan(0.45)
+
+
+def _rotation(seed):
+  """float64 [3, 3], a random rotation (det +1)."""
+  q, r = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))
+  q = q * np.sign(np.diag(r))
+  return q if np.linalg.det(q) > 0 else -q
+
+
+def _pose(seed):
+  """float64 [4, 4], a camera-to-world matrix: a random rotation, a random position."""
+  pose = np.eye(4)
+  pose[:3, :3], pose[:3, 3] = _rotation(seed), np.random.default_rng(seed + 50).normal(size=3)
+  return pose
+
+
+def _non_square_blender(root):
+  """A Blender folder of ROWS×COLS RGBA views with their own near and far per split (train:
+  2 views, near 1.25, far 5.5; test: 1 view, near 2.5, far 7.0); returns {split: (poses,
+  images float64 [H, W, 4] as written, near, far)}."""
+  splits = {"train": (2, 1.25, 5.5), "test": (1, 2.5, 7.0)}
+  written = {}
+  for s, (split, (count, near, far)) in enumerate(splits.items()):
+    frames, poses, images = [], [], []
+    for v in range(count):
+      rng = np.random.default_rng(10 * s + v)
+      rgba = rng.integers(0, 256, (ROWS, COLS, 4)).astype(np.uint8)
+      rgba[..., 3] = rng.integers(128, 256, (ROWS, COLS))  # partly opaque everywhere
+      iio.imwrite(root / f"{split}_{v}.png", rgba)
+      poses.append(_pose(10 * s + v))
+      images.append(rgba.astype(np.float64) / 255)
+      frames.append({"file_path": f"./{split}_{v}", "transform_matrix": poses[-1].tolist()})
+    (root / f"transforms_{split}.json").write_text(json.dumps(
+        {"camera_angle_x": ANGLE_X, "near": near, "far": far, "frames": frames}))
+    written[split] = (poses, images, near, far)
+  return written
+
+
+def _expected_camera(level):
+  """(height, width, focal, cx, cy) of `level` of the ROWS×COLS views, written out: each level
+  halves the rows and the columns; the focal halves; the principal point is the centre."""
+  height, width = ROWS // 2 ** level, COLS // 2 ** level
+  focal = 0.5 * COLS / math.tan(0.5 * ANGLE_X) / 2 ** level
+  return height, width, focal, width / 2.0, height / 2.0
+
+
+@pytest.fixture(scope="module")
+def non_square(tmp_path_factory):
+  """(what the Blender folder holds, the multiscale folder converted from it at 3 levels)."""
+  root = tmp_path_factory.mktemp("non_square")
+  (root / "blender").mkdir()
+  written = _non_square_blender(root / "blender")
+  multiscale.convert(str(root / "blender"), str(root / "ms"), levels=3)
+  return written, str(root / "ms")
+
+
+def test_non_square_levels_have_their_own_height_width_focal_and_pix2cam(non_square):
+  written, out = non_square
+  meta = json.load(open(f"{out}/metadata.json"))
+  for split, (poses, images, near, far) in written.items():
+    m = meta[split]
+    for v in range(len(poses)):
+      for j in range(3):
+        k = 3 * v + j
+        height, width, f, cx, cy = _expected_camera(j)
+        assert (m["height"][k], m["width"][k]) == (height, width)
+        np.testing.assert_allclose(m["focal"][k], f, rtol=1e-12)
+        # mip-NeRF's pix2cam: (x + 0.5, y + 0.5, 1) -> ((x + 0.5 - cx)/f, -(y + 0.5 - cy)/f, -1)
+        np.testing.assert_allclose(m["pix2cam"][k], [[1 / f, 0, -cx / f], [0, -1 / f, cy / f],
+                                                     [0, 0, -1]], rtol=1e-12)
+        assert (m["near"][k], m["far"][k]) == (near, far)  # the split's own, not 2 and 6
+        got = iio.imread(f"{out}/{m['file_path'][k]}")
+        assert got.shape == (height, width, 4)
+
+
+@pytest.mark.parametrize("with_pix2cam", [True, False])
+def test_non_square_loader_cameras_images_and_bounds(non_square, tmp_path, with_pix2cam):
+  """Each image's (height, width, fx, fy, cx, cy) and pixels, and the split's near and far,
+  from the pix2cam matrices or (without them) from focal, width and height."""
+  written, out = non_square
+  if not with_pix2cam:  # the same folder, its metadata without the pix2cam column
+    meta = json.load(open(f"{out}/metadata.json"))
+    for split in meta.values():
+      del split["pix2cam"]
+    (tmp_path / "metadata.json").write_text(json.dumps(meta))
+    for split in ("train", "test"):
+      (tmp_path / f"images_{split}").symlink_to(f"{out}/images_{split}")
+    out = str(tmp_path)
+  for split, (poses, images, near, far) in written.items():
+    ds = multicam.load(out, split=split)
+    assert (ds.near, ds.far) == (near, far)
+    for v, rgba in enumerate(images):
+      for j, level in enumerate(_box_levels(rgba)):
+        k = 3 * v + j
+        height, width, f, cx, cy = _expected_camera(j)
+        got_h, got_w, intrinsics = ds.cameras.camera(k)
+        assert (got_h, got_w) == (height, width)
+        np.testing.assert_allclose(intrinsics, (f, f, cx, cy), rtol=1e-12)
+        assert ds.image(k).shape == (height, width, 3)
+        # Composited on black: colour times alpha, the box mean's, within 8-bit rounding.
+        np.testing.assert_allclose(ds.image(k), level[..., :3] * level[..., 3:],
+                                   atol=1.5 / 255)
+        np.testing.assert_array_equal(ds.poses[k], np.float32(poses[v]))
+
+
+def test_per_view_near_and_far_give_the_smallest_near_and_the_largest_far(tmp_path):
+  rgba = np.full((ROWS, COLS, 4), 0.5)
+  nears, fars = (3.0, 1.5, 2.2), (4.0, 6.5, 5.0)  # neither bound is the first view's
+  entries = [{"rgba": rgba, "cam2world": np.eye(4), "focal": 9.0, "label": 0, "near": n,
+              "far": f, "lossmult": 1.0} for n, f in zip(nears, fars)]
+  multicam.write(str(tmp_path), {"train": entries})
+  meta = json.load(open(tmp_path / "metadata.json"))["train"]
+  assert (meta["near"], meta["far"]) == (list(nears), list(fars))
+  ds = multicam.load(str(tmp_path))
+  assert (ds.near, ds.far) == (1.5, 6.5)
+
+
+def test_a_ray_through_a_pixel_of_any_level_meets_the_point_it_images(non_square):
+  """The ray of pixel (x, y) at level j, as training draws it (train_batches.pixel_rays_of over
+  every image's own camera) and as evaluation draws it (camera_rays of the image's camera),
+  against a projection written here: a point along it projects, by the level-0 pinhole of
+  the Blender convention (camera looks down -z, +y up, rows down), to level-0 coordinates
+  (2^j (x + 0.5), 2^j (y + 0.5))."""
+  written, out = non_square
+  ds = multicam.load(out, split="train")
+  poses = written["train"][0]
+  data = train_batches.make_train_data(ds, (None, None, None, ds.near, ds.far, 0.5, False),
+                                       np.zeros(3, np.float32))
+  _, _, f0, cx0, cy0 = _expected_camera(0)
+  picks = [(k, x, y) for k in range(len(ds)) for x, y in ((0, 0), (1, 2), (4, 1))
+           if x < ds.cameras.width[k] and y < ds.cameras.height[k]]
+  image = np.array([k for k, _, _ in picks], np.int32)
+  pixel = np.array([y * ds.cameras.width[k] + x for k, x, y in picks], np.int32)
+  trained = train_batches.pixel_rays_of(data, image, pixel)
+  for n, (k, x, y) in enumerate(picks):
+    height, width, intrinsics = ds.cameras.camera(k)
+    evaluated = rays_lib.camera_rays(height, width, intrinsics, ds.poses[k], ds.near, ds.far)
+    pose, scale = poses[k // 3], 2.0 ** (k % 3)
+    for origin, direction in ((trained.origins[n], trained.directions[n]),
+                              (evaluated.origins[y, x], evaluated.directions[y, x])):
+      np.testing.assert_allclose(origin, pose[:3, 3], atol=1e-6)
+      point = pose[:3, :3].T @ (np.float64(origin) + 3.0 * np.float64(direction) - pose[:3, 3])
+      depth = -point[2]
+      assert depth > 0  # in front of the camera
+      u, v = cx0 + f0 * point[0] / depth, cy0 - f0 * point[1] / depth
+      np.testing.assert_allclose([u, v], [scale * (x + 0.5), scale * (y + 0.5)], atol=1e-4,
+                                 err_msg=f"image {k}, pixel ({x}, {y})")

@@ -2,11 +2,16 @@
 is the least-squares optimum, found in closed form here for a field whose colour is linear in
 the code; the right half's pixels never reach the fit, and are what is scored."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from nerf_jax.evaluate import evaluation
+from nerf_jax.render import image_renderer
+from nerf_jax.run import components, experiment
+from tests.helpers import small_config
 
 H, W, D = 8, 12, 3  # image height, width; code length
 
@@ -31,19 +36,22 @@ def _view(seed):
   return rays, np.asarray(truth), {"params": {"field": {"appearance": table}}}
 
 
-def _fit(rays, truth, variables, steps=1500):
+def _fit(rays, truth, variables, steps=1500, mask=None):
+  """The code fitted on the left half; mask: float32 [H, W] or None, as evaluate passes it."""
   settings = evaluation.Settings(appearance="left_half", fit_steps=steps, fit_rays=4096,
                                  fit_lr=1e-2)
   fit = evaluation.make_code_fitter(LinearField(), settings)
-  fitted = fit(variables, *evaluation.left_half(rays, truth), jnp.zeros(3))
+  weight = None if mask is None else jnp.asarray(evaluation.left_half_mask(mask))
+  fitted = fit(variables, *evaluation.left_half(rays, truth), jnp.zeros(3), weight)
   return np.asarray(fitted["params"]["field"]["appearance"][0])
 
 
-def _least_squares(rays, truth):
+def _least_squares(rays, truth, kept=None):
   """The code minimising the squared error over the left half's pixels (columns < W // 2),
-  by the normal equations, in float64."""
-  a = np.asarray(rays["a"], np.float64)[:, :W // 2].reshape(-1, D)  # [P * 3, D]
-  r = (truth - np.asarray(rays["base"]))[:, :W // 2].reshape(-1)
+  by the normal equations, in float64; kept: bool [H, W] or None, the pixels that count."""
+  kept = np.ones((H, W), bool) if kept is None else kept
+  a = np.asarray(rays["a"], np.float64)[:, :W // 2][kept[:, :W // 2]].reshape(-1, D)
+  r = (truth - np.asarray(rays["base"]))[:, :W // 2][kept[:, :W // 2]].reshape(-1)
   return np.linalg.solve(a.T @ a, a.T @ r)
 
 
@@ -55,6 +63,24 @@ def test_the_fitted_code_is_the_left_halfs_least_squares_optimum():
   # Rays drawn with replacement weigh the pixels unevenly each step; Adam's steps of 1e-2
   # settle within a thousandth of the optimum (100 steps: 0.33 away).
   np.testing.assert_allclose(_fit(rays, truth, variables), optimum, atol=0.005)
+
+
+def test_a_masked_fit_is_the_kept_pixels_optimum_not_all_pixels():
+  """Masked pixels of the left half painted with a colour that a code 2 away in every entry
+  explains: fitted with the mask (as evaluate passes it, evaluation.left_half_mask), the code
+  is the least-squares optimum over the kept pixels alone, far from the one over every pixel."""
+  rays, truth, variables = _view(3)
+  rng = np.random.default_rng(3)
+  kept = rng.uniform(size=(H, W)) > 0.3
+  kept[:, W // 2:] = True  # the right half: scored, never fitted on
+  optimum = _least_squares(rays, truth, kept)
+  pulled = np.asarray(rays["base"]) + np.einsum("hwcd,d->hwc", np.asarray(rays["a"]),
+                                                optimum + 2.0)
+  truth = np.where(kept[..., None], truth, pulled).astype(np.float32)
+  every_pixel = _least_squares(rays, truth)
+  assert np.abs(every_pixel - optimum).max() > 0.1  # the masked pixels would pull the fit
+  got = _fit(rays, truth, variables, mask=kept.astype(np.float32))
+  np.testing.assert_allclose(got, optimum, atol=0.005)
 
 
 def test_the_right_half_never_reaches_the_fit_and_is_what_is_scored():
@@ -73,3 +99,37 @@ def test_the_left_half_is_the_columns_before_the_middle():
   left, target = evaluation.left_half(rays, truth)
   np.testing.assert_array_equal(target, truth[:, :W // 2].reshape(-1, 3))
   np.testing.assert_array_equal(left["a"], np.asarray(rays["a"])[:, :W // 2].reshape(-1, 3, D))
+
+
+def _grey(rays, background=None):
+  """A stand-in image renderer's draw: grey rgb, so no NeRF needs compiling."""
+  del background
+  shape = rays.shape
+  return {"rgb": np.full(shape + (3,), 0.5, np.float32), "depth": np.zeros(shape, np.float32),
+          "acc": np.zeros(shape, np.float32)}
+
+
+def test_the_evaluator_fits_each_view_on_its_left_halfs_kept_pixels(monkeypatch):
+  """evaluate hands the fitter each test view's left-half pixels and, with Dataset.masks, the
+  left half of that view's mask as the weight, pixel for pixel (the fitter itself: above)."""
+  calls = []
+
+  def recording_fitter(ray_renderer, settings):
+    def fit(variables, rays, target, bg, weight=None):
+      calls.append((np.asarray(target), None if weight is None else np.asarray(weight)))
+      return variables
+    return fit
+  monkeypatch.setattr(image_renderer, "make_image_renderer", lambda *a: lambda p: _grey)
+  monkeypatch.setattr(evaluation, "make_code_fitter", recording_fitter)
+  config = small_config({"data.image_size": 24, "model.appearance_dims": 4,  # SSIM: >= 11 wide
+                         "eval.appearance": "left_half"})
+  exp = experiment.setup(config)
+  test = exp.test_ds
+  masks = (np.random.default_rng(4).random(test.images.shape[:3]) > 0.3).astype(np.float32)
+  exp = dataclasses.replace(exp, test_ds=dataclasses.replace(test, masks=masks))
+  components.make_evaluator(exp)({"params": {}}, max_views=2)
+  assert len(calls) == 2
+  for k, (target, weight) in enumerate(calls):
+    left = slice(0, test.images.shape[2] // 2)
+    np.testing.assert_array_equal(target, test.images[k][:, left].reshape(-1, 3))
+    np.testing.assert_array_equal(weight, masks[k][:, left].reshape(-1))

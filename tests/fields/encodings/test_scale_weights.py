@@ -1,10 +1,13 @@
-"""Tests of nerf_jax.fields.encodings.scale_weights against references written here.
+"""Tests of nerf_jax.fields.encodings.scale_weights against references written here, and of
+the cell sizes the lattices weigh their levels by over a box that is not a cube (model.grid_box,
+model.grid_cell_aspect), read off the lattice's own shape here.
 
 jax_debug_nans is on for the whole module: a NaN anywhere, a backward pass included, fails.
 """
 
 import math
 
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -133,3 +136,83 @@ def test_scale_of_a_contracted_gaussian_is_the_contracted_scale(kind):
   _, contracted = contraction.contract_gaussian(means, covs, 1.0, kind)
   _, scale = contraction.contract_isotropic(means, scale_weights.isotropic_std(covs), 1.0, kind)
   np.testing.assert_allclose(scale_weights.isotropic_std(contracted), scale, rtol=2e-3)
+
+
+# A box 2 × 4 × 1 (x, y, z): the longest side is y, the first axis x is neither longest nor
+# shortest, so a cell size read along the wrong axis is off by 2 or 4.
+BOX = (-1.0, -2.0, -0.5, 1.0, 2.0, 0.5)
+
+
+class _Encode(nn.Module):
+  """A lattice encoding's features of multisamples, its parameters this module's."""
+  encoding: object
+
+  @nn.compact
+  def __call__(self, points, std):
+    """points float32 [N, M, 3], std float32 [N, M] -> float32 [N, L·F]."""
+    return self.encoding.features(self, points[:, 0], multisamples=(points, std))
+
+
+def _weights_of_constant_lattice(encoding, features):
+  """(std float32 [N, M], features float32 [N, L, F]) of `encoding` at random multisamples
+  inside BOX, with every lattice value 1: each level's features are then its scale weights
+  averaged over the M multisamples."""
+  rng = np.random.default_rng(7)
+  low, high = np.float32(BOX[:3]), np.float32(BOX[3:])
+  points = jnp.asarray(low + (high - low) * rng.uniform(0.1, 0.9, (5, 6, 3)), jnp.float32)
+  std = jnp.asarray(10.0 ** rng.uniform(-2.5, -0.3, (5, 6)), jnp.float32)
+  module = _Encode(encoding)
+  shapes = jax.eval_shape(module.init, jax.random.PRNGKey(0), points, std)
+  ones = jax.tree_util.tree_map(lambda a: jnp.ones(a.shape, a.dtype), shapes)
+  got = jax.jit(module.apply)(ones, points, std)
+  return np.asarray(std), np.asarray(got).reshape(5, -1, features)
+
+
+def _mean_erf_weights(std, cells):
+  """float64 [N, L]: Zip-NeRF's erf(h_l / (sqrt(8)·std)) averaged over the M multisamples."""
+  erf = np.vectorize(math.erf)
+  return erf(np.float64(cells) / (np.sqrt(8.0) * np.float64(std)[..., None])).mean(axis=1)
+
+
+@pytest.mark.parametrize("aspect,want_shapes,want_cells", [
+    ((1.0, 1.0, 1.0), [(5, 9, 3), (9, 17, 5)], (0.5, 0.25)),  # cubic: y's 4/8 and 4/16
+    # Cells 4× as long in y: x has the most cells (2/0.25 = 8, then 16), not the longest y.
+    ((1.0, 4.0, 1.0), [(9, 5, 5), (17, 9, 9)], (0.25, 0.125)),
+])
+def test_dense_grid_over_a_box_weighs_levels_by_the_cell_of_its_axis_with_most_cells(
+    aspect, want_shapes, want_cells):
+  """DenseGrid over BOX with resolutions (9, 17): its lattices' shapes, written here, and each
+  level's weight from the cell size along the axis with the most cells (grid.Space.cell_sizes),
+  read here off the lattice itself: side / (points - 1) on that axis. With cubic cells it is
+  every axis's cell."""
+  settings = grid.Settings(resolutions=(9, 17), features=2, antialias=True)
+  space = grid.Space(bound=1.5, box=BOX, cell_aspect=aspect)
+  dense = grid.DenseGrid(settings, space)
+  assert [space.shape(r) for r in settings.resolutions] == want_shapes
+  sides = np.float64(BOX[3:]) - np.float64(BOX[:3])
+  cells = []
+  for shape in want_shapes:
+    per_axis = sides / (np.float64(shape) - 1)  # the cell's side along x, y, z
+    if aspect == (1.0, 1.0, 1.0):
+      np.testing.assert_allclose(per_axis, per_axis[1])  # cubic
+    cells.append(per_axis[int(np.argmax(shape))])  # the axis with most cells
+  np.testing.assert_allclose(cells, want_cells)
+  np.testing.assert_allclose(space.cell_sizes(settings.resolutions), cells, rtol=1e-7)
+  std, got = _weights_of_constant_lattice(dense, settings.features)
+  want = _mean_erf_weights(std, cells)
+  np.testing.assert_allclose(got, np.repeat(want[..., None], 2, -1), rtol=1e-5, atol=1e-6)
+
+
+def test_hash_grid_over_a_box_weighs_levels_by_its_coarsest_axis():
+  """A hash grid puts R_l lattice points on every axis of BOX whatever its sides, so its cells
+  are 2/(R-1) × 4/(R-1) × 1/(R-1): the weights use the longest, y's 4/(R-1) (the axis with most
+  cells per unit of grid_cell_aspect, all equal here: Space.cell_sizes)."""
+  settings = hashgrid.Settings(levels=3, log2_size=10, features=2, base_resolution=5,
+                               max_resolution=17, antialias=True)
+  assert settings.resolutions == (5, 9, 17)
+  space = grid.Space(bound=1.5, box=BOX)
+  cells = 4.0 / (np.float64(settings.resolutions) - 1)  # y's side over R - 1 cells
+  np.testing.assert_allclose(space.cell_sizes(settings.resolutions), cells, rtol=1e-7)
+  std, got = _weights_of_constant_lattice(hashgrid.HashGrid(settings, space), settings.features)
+  want = _mean_erf_weights(std, cells)
+  np.testing.assert_allclose(got, np.repeat(want[..., None], 2, -1), rtol=1e-5, atol=1e-6)
