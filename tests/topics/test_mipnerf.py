@@ -44,7 +44,7 @@ def test_mipnerf_trains_and_restores(tmp_path):
   def keep_last(*args):
     kept.append(_LastVariables(*args))
     return kept[-1]
-  result = train_lib.train_and_evaluate(config, str(workdir), hooks=[keep_last])
+  result = train_lib.train_and_evaluate(config, str(workdir), watchers=[keep_last])
   trained = kept[0].variables
   exp, state = experiment.restore(str(workdir))
   assert exp.renderer.field.cones and exp.renderer.networks == ("coarse",)
