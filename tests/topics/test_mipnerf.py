@@ -22,7 +22,7 @@ TINY_MIPNERF = {"data.num_views": 6, "data.image_size": 16, "data.holdout_from":
 
 
 class _LastVariables:
-  """A step hook (train_and_evaluate's hooks) keeping the variables after the last step."""
+  """A watcher (train_and_evaluate's watchers) keeping the variables after the last step."""
 
   def __init__(self, exp, workdir, main):
     del exp, workdir, main
