@@ -5,7 +5,7 @@ per image: `file_path` (relative to the folder: `images_{split}/...png`), `cam2w
 camera-to-world, the Blender convention), `width`, `height`, `focal` (pixels), `label` (the
 scale level j), `near`, `far`, `lossmult` (4^j: each scale's pixels weigh as much in the loss
 as the full-size images') and `pix2cam` (3×3: pixel (x, y) + 0.5 to a camera direction, z =
--1). Rays pass through pixel centres. `multiscale.py` converts a Blender folder to it.
+-1). Rays pass through pixel centres. `convert_multiscale.py` converts a Blender folder to it.
 """
 
 import json

@@ -44,7 +44,7 @@ class Field:
   network: the Flax module (protocol.Network: a network of networks/ over its position
     encoding), applied to the points.
   directions: the encoding of the viewing directions (protocol.Encoding: encodings/posenc's
-    Frequency, encodings/spherical_harmonics'), read when view_dependent.
+    Frequency, encodings/sh'), read when view_dependent.
   view_dependent: colour takes the encoded viewing direction.
   density_activation: 'relu', 'softplus' or 'exp' (activations.py). density_noise: std of the
     noise added to raw density when a query has a key (training only).

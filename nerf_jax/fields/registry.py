@@ -78,15 +78,15 @@ class Parts:
 
 ENCODINGS = components.Registry("encoding", "config.model.encoding", "ENCODING", "model", {
     "posenc": "nerf_jax.fields.encodings.posenc",
-    "ipe": "nerf_jax.fields.encodings.integrated",
+    "ipe": "nerf_jax.fields.encodings.ipe",
     "grid": "nerf_jax.fields.encodings.grid",
     "hash": "nerf_jax.fields.encodings.hashgrid",
     "tensorf": "nerf_jax.fields.encodings.tensorf",
 })
 DIRECTION_ENCODINGS = components.Registry(
     "direction encoding", "config.dir_encoding", "DIRECTION_ENCODING", "", {
-        "frequency": "nerf_jax.fields.encodings.posenc",
-        "sh": "nerf_jax.fields.encodings.spherical_harmonics",
+        "frequency": "nerf_jax.fields.encodings.frequency",
+        "sh": "nerf_jax.fields.encodings.sh",
     })
 NETWORKS = components.Registry("network", "config.model.network", "NETWORK", "model", {
     "mlp": "nerf_jax.fields.networks.mlp",

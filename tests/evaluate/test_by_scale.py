@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from nerf_jax.data import export, multiscale, scenes
+from nerf_jax.data import export, convert_multiscale, scenes
 from nerf_jax.evaluate import evaluation
 from nerf_jax.run import train_lib
 from tests.helpers import TINY_GRID, small_config
@@ -29,7 +29,7 @@ def test_by_scale_is_each_labels_view_mean_and_their_mean():
 def test_a_run_on_converted_multiscale_data_scores_each_scale(tmp_path):
   fog = scenes.make_dataset("fog", num_views=6, height=16, width=16, focal=22.2)
   export.export_blender(fog, str(tmp_path / "blender"), split_at=4, background=fog.background)
-  multiscale.convert(str(tmp_path / "blender"), str(tmp_path / "ms"), levels=3)
+  convert_multiscale.convert(str(tmp_path / "blender"), str(tmp_path / "ms"), levels=3)
   config = small_config({**TINY_GRID, "data.path": str(tmp_path / "ms"),
                          "data.background": "white", "train.max_steps": 10}, base="fast")
   train_lib.train_and_evaluate(config, str(tmp_path / "run"))

@@ -11,7 +11,7 @@ import pytest
 
 from nerf_jax.backend import components as backend_components
 from nerf_jax.fields import registry
-from nerf_jax.fields.encodings import grid, hashgrid, posenc, spherical_harmonics, tensorf
+from nerf_jax.fields.encodings import grid, hashgrid, posenc, sh, tensorf
 from nerf_jax.fields.networks import density_grid, lattice, mlp
 from nerf_jax.run import components
 from nerf_jax.samplers import placement as sampler_lib
@@ -147,7 +147,7 @@ def test_direction_encodings_and_the_fields_one_line_errors():
   assert field.directions == posenc.Frequency(2) and field.dir_width == posenc.encoded_width(3, 2)
   config = _config(**{"dir_encoding": "sh", "dir_encode_dims": 3})
   field = components.make_field(config)
-  assert field.directions == spherical_harmonics.SphericalHarmonics(3) and field.dir_width == 9
+  assert field.directions == sh.SphericalHarmonics(3) and field.dir_width == 9
   for fields, message in (({"dir_encoding": "sh", "dir_encode_dims": 0}, "dir_encode_dims"),
                           ({"dir_encoding": "polar"}, "config.dir_encoding must be one of"),
                           ({"model.network": "nope"}, "config.model.network must be one of"),

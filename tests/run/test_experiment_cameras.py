@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from nerf_jax.data import export, multiscale, scenes
+from nerf_jax.data import export, convert_multiscale, scenes
 from nerf_jax.run import experiment
 from tests.helpers import small_config
 
@@ -10,7 +10,7 @@ from tests.helpers import small_config
 def test_an_images_camera_and_rays(tmp_path):
   fog = scenes.make_dataset("fog", num_views=5, height=16, width=16, focal=22.2)
   export.export_blender(fog, str(tmp_path / "blender"), split_at=3)
-  multiscale.convert(str(tmp_path / "blender"), str(tmp_path / "ms"), levels=2)
+  convert_multiscale.convert(str(tmp_path / "blender"), str(tmp_path / "ms"), levels=2)
   exp = experiment.setup(small_config({"data.path": str(tmp_path / "ms")}))
   focal = 22.2
   assert exp.camera()[:2] == (16, 16)  # the shared camera: training image 0's

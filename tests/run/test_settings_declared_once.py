@@ -104,3 +104,23 @@ def test_two_dataclasses_cannot_declare_one_setting():
 
   with pytest.raises(TypeError, match="'width' is declared by both"):
     backend_components.section(A, B)
+
+
+def _registries():
+  from nerf_jax.fields import registry  # pylint: disable=import-outside-toplevel
+  from nerf_jax.samplers import registry as samplers  # pylint: disable=import-outside-toplevel
+  from nerf_jax.train import losses  # pylint: disable=import-outside-toplevel
+  return (registry.ENCODINGS, registry.DIRECTION_ENCODINGS, registry.NETWORKS,
+          samplers.REGISTRY, losses.REGISTRY)
+
+
+def test_every_built_in_is_one_record_named_as_its_module():
+  for reg in _registries():
+    for name in reg.names():
+      record = reg.lookup(name)
+      assert isinstance(record, backend_components.Component), (reg.kind, name)
+      # One name: the registered one, the record's and the module's are the same.
+      assert record.name == name == reg.module_path(name).rsplit(".", 1)[-1], (reg.kind, name)
+      if record.settings is not None:
+        assert dataclasses.is_dataclass(record.settings)
+        assert isinstance(record.entries(record.settings()), dict)  # a signature for any

@@ -20,7 +20,7 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
-from nerf_jax.fields import protocol, registry
+from nerf_jax.fields import registry
 
 
 def positional_encoding(x, num_freqs, band_weights=None):
@@ -104,19 +104,7 @@ def build(settings, shared):
   return Frequency(settings.pos_encode_dims)
 
 
-def build_directions(settings, shared):
-  """The Frequency encoding of the directions (protocol.DirectionSettings; shared: unused)."""
-  del shared
-  if settings.dir_encode_dims < 0:
-    raise ValueError(f"config.dir_encode_dims={settings.dir_encode_dims}: use 0 (the directions "
-                     "alone) or more bands")
-  return Frequency(settings.dir_encode_dims)
-
-
-# The bands' count is a top-level field (config.pos_encode_dims), recorded with the shared
-# fields by run/signature.model_signature, as it always was: nothing of its own here.
-# Its bands are recorded among the signature's shared fields (run/signature.py), so none here.
+# Its bands are a top-level field (config.pos_encode_dims), recorded among the signature's
+# shared fields by run/signature.model_signature, as they always were: nothing of its own here.
 ENCODING = registry.Encoding("posenc", Settings, build, lambda settings: {}, section="",
                              network="mlp")
-DIRECTION_ENCODING = registry.Encoding("frequency", protocol.DirectionSettings, build_directions,
-                                      section="")

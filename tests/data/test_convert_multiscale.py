@@ -1,4 +1,4 @@
-"""Tests of nerf_jax.data.multiscale (the converter to mip-NeRF's multiscale format) and
+"""Tests of nerf_jax.data.convert_multiscale (the converter to mip-NeRF's multiscale format) and
 nerf_jax.data.multicam (its reader and writer): the levels against a box filter written here,
 the metadata, the loader round trip, and the exporters' refusal of per-image cameras; on
 non-square images with per-split and per-view near and far, each level's size, focal and
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.cameras import rays as rays_lib
-from nerf_jax.data import export, multicam, multiscale, scenes
+from nerf_jax.data import export, multicam, convert_multiscale, scenes
 from nerf_jax.data.dataset import DataError
 from nerf_jax.train import train_batches
 from tests.helpers import assert_data_error, load_data
@@ -29,7 +29,7 @@ def folders(tmp_path_factory):
   fog = scenes.make_dataset("fog", num_views=5, height=SIZE, width=SIZE, focal=22.2)
   blender, out = str(root / "blender"), str(root / "ms")
   export.export_blender(fog, blender, split_at=3, background=fog.background)
-  assert multiscale.main([f"--blender={blender}", f"--out={out}", f"--levels={LEVELS}"]) == 0
+  assert convert_multiscale.main([f"--blender={blender}", f"--out={out}", f"--levels={LEVELS}"]) == 0
   return blender, out
 
 
@@ -93,7 +93,7 @@ def test_the_loader_gives_back_the_images_cameras_lossmults_and_labels(folders):
 
 def test_one_level_is_one_camera(folders, tmp_path):
   blender, _ = folders
-  multiscale.convert(blender, str(tmp_path), levels=1)
+  convert_multiscale.convert(blender, str(tmp_path), levels=1)
   train = multicam.load(str(tmp_path), split="train")
   assert not train.mixed_sizes and train.image_cameras is None
   assert train.images.shape == (3, SIZE, SIZE, 3)
@@ -134,7 +134,7 @@ def test_metadata_that_disagree_with_the_images_are_named(folders, tmp_path):
   (tmp_path / "metadata.json").write_text(json.dumps(meta))
   assert_data_error(["'lossmult' must be a list of 9"], multicam.load, str(tmp_path))
   with pytest.raises(DataError, match="no transforms"):
-    multiscale.convert(str(tmp_path), str(tmp_path / "x"))
+    convert_multiscale.convert(str(tmp_path), str(tmp_path / "x"))
 
 
 # Non-square images (rows ≠ columns at every level) and near/far that differ between splits
@@ -195,7 +195,7 @@ def non_square(tmp_path_factory):
   root = tmp_path_factory.mktemp("non_square")
   (root / "blender").mkdir()
   written = _non_square_blender(root / "blender")
-  multiscale.convert(str(root / "blender"), str(root / "ms"), levels=3)
+  convert_multiscale.convert(str(root / "blender"), str(root / "ms"), levels=3)
   return written, str(root / "ms")
 
 

@@ -1,4 +1,4 @@
-"""Tests of nerf_jax.fields.encodings.integrated against references written here (float64).
+"""Tests of nerf_jax.fields.encodings.ipe against references written here (float64).
 
 jax_debug_nans is on for the whole module: a NaN anywhere, a backward pass included, fails.
 """
@@ -10,7 +10,7 @@ import pytest
 
 from nerf_jax.cameras import cones
 from nerf_jax.fields.encodings.posenc import coarse_to_fine_weights, positional_encoding
-from nerf_jax.fields.encodings.integrated import band_damping, integrated_positional_encoding
+from nerf_jax.fields.encodings.ipe import band_damping, integrated_positional_encoding
 
 pytestmark = pytest.mark.usefixtures("debug_nans")  # conftest.py: NaNs raise in this module
 

@@ -1,7 +1,7 @@
 """Convert a NeRF-synthetic (Blender) folder to mip-NeRF's multiscale format (`multicam.py`),
 as google/mipnerf's `scripts/convert_blender_data.py` does:
 
-  python -m nerf_jax.data.multiscale --blender=DIR --out=DIR [--levels=4]
+  python -m nerf_jax.data.convert_multiscale --blender=DIR --out=DIR [--levels=4]
 
 Every view is written at `levels` scales: level j + 1 is the 2×2 box mean in float of level j's
 straight (un-premultiplied) RGBA as stored (as mip-NeRF does; an odd last row or column is

@@ -1,4 +1,4 @@
-"""encodings/spherical_harmonics.py against the defining properties of the real spherical
+"""encodings/sh.py against the defining properties of the real spherical
 harmonics, each computed here independently: orthonormality over the sphere (an exact product
 quadrature), the addition theorem per band, parity, and the count per band; each feature, sign
 and order included, against a table of Cartesian polynomials written here (itself checked
@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.fields import registry
-from nerf_jax.fields.encodings import spherical_harmonics as sh
+from nerf_jax.fields.encodings import sh
 from nerf_jax.run import components, signature
 from tests.helpers import small_config
 
