@@ -104,7 +104,7 @@ def get_config():
   loss.pose_prior = _section(pose_prior)  # pose refinement: pull toward no correction: weight
   loss.total_variation = _section(total_variation)  # lattice tables' smoothness: weight
   loss.transient = _section(transient)  # NeRF-W's uncertainty loss (on with model.transient.dims)
-  loss.robust = _section(robust)  # RobustNeRF's trimmed loss on patches: weight (0 = off), ...
+  loss.robust = _section(robust)  # RobustNeRF's trimmed loss: weight > 0 switches it on (patches)
 
   config.train = train = ml_collections.ConfigDict()
   train.max_steps = 0  # step budget (0 = fitted to max_seconds if set, else default_steps)
@@ -112,10 +112,10 @@ def get_config():
   train.default_steps = 2500  # step budget when neither max_steps nor max_seconds is set
   train.batch_rays = 512  # rays per step (random rays over all training images)
   train.sample_budget = 0  # occupancy: samples a step queries (valid ones, compacted); 0 = all
-  train.batching = "rays"  # 'rays' (random rays), 'images' (whole, as the reference), 'patches'
+  train.batching = "rays"  # 'rays' (random rays), 'images' (whole), 'patches' (loss.robust: always)
   train.images_per_step = 5  # whole images per step when batching == 'images'
   train.image_order = "random"  # 'images' batching: 'random' draws per step, 'epochs' shuffles
-  train.patch_size = 16  # 'patches' batching: batch_rays // patch_size² square patches a step
+  train.patch_size = 16  # patches (loss.robust on): batch_rays // patch_size² squares a step
   train.lr = 5e-3  # initial Adam learning rate
   train.lr_final = 1e-4  # learning rate at max_steps (exponential decay)
   train.warmup_steps = 50  # linear warm-up from 0
