@@ -2,7 +2,7 @@
 with passers-by: in 60% of the training photos one to three opaque balls, boxes or people
 stand between the camera and the subject (nerf_jax/data/scenes/occluders.py); the held-out
 views show the static scene alone, with the neutral look. Appearance codes take the looks, and
-RobustNeRF's trimmed loss on 16 x 16 patches leaves the passers-by out
+RobustNeRF's trimmed loss on 16 x 16 patches (train.patch_size) leaves the passers-by out
 (docs/photo_collections.md).
 
   python train.py --config=configs/scenes/crowd.py --workdir=runs/crowd
@@ -15,8 +15,5 @@ def get_config():
   config = fast.get_config()
   config.data.scene = "crowd"  # the built-in capture with passers-by and per-photo looks
   config.model.appearance_dims = 8  # a code of 8 numbers per training photo
-  config.train.batching = "patches"  # square patches: the trimmed loss looks at neighbours
-  config.train.patch_size = 16  # RobustNeRF's 16 x 16 patches (batch_rays // 256 per step)
-  config.loss.colour.weight = 0.0  # the trimmed loss replaces the plain one (PSNR still logged)
-  config.loss.robust.weight = 1.0  # RobustNeRF's trimmed loss
+  config.loss.robust.weight = 1.0  # RobustNeRF's trimmed loss: on patches, for the colour loss
   return config

@@ -16,7 +16,6 @@ ANTIALIAS_MULTISAMPLE = False
 # Transients (passers-by): RobustNeRF's loss above this share of clustered outliers after the
 # warm-up; crowd 0.027, the clean built-in scenes <= 0.0033 at 48 px (docs/photo_collections.md).
 TRANSIENT_SHARE = 0.01
-ROBUST_PATCH = 16  # RobustNeRF's patch side (configs/scenes/crowd.py)
 _OWN = ("auto", "auto_decisions", "auto_flags")  # auto's own fields, set by auto_config itself
 # On a GPU backend, the config of configs/gpu/ that takes each CPU choice's place (docs/gpu.md:
 # chosen for a GPU, unmeasured there until a GPU session measures them).
@@ -50,12 +49,14 @@ def cone_effects(config):
   return {}
 
 
-def transient_effects(dataset, collection):
-  """({field: value}, one line): RobustNeRF's trimmed loss on patches when a warm-up on the
-  photos of `dataset` (one camera) leaves more than TRANSIENT_SHARE of their pixels clustered
-  outliers that some photos hold (transients.transient_share: passers-by). Measured only for a
-  photo collection (`collection`: the photos have their own looks, the appearance rule), as the
-  warm-up costs half a minute on a CPU."""
+def transient_effects(dataset, collection, patch_size):
+  """({field: value}, one line): RobustNeRF's trimmed loss (its switch, loss.robust.weight: the
+  patch batches follow from it) when a warm-up on the photos of `dataset` (one camera) leaves
+  more than TRANSIENT_SHARE of their pixels clustered outliers that some photos hold
+  (transients.transient_share: passers-by). The patches are patch_size a side (the run's
+  train.patch_size), train.patch_size set smaller only for photos smaller than that. Measured
+  only for a photo collection (`collection`: the photos have their own looks, the appearance
+  rule), as the warm-up costs half a minute on a CPU."""
   if not collection:
     return {}, ("no transients: not measured (the photos share one look: not a collection "
                 "taken by many)")
@@ -65,9 +66,11 @@ def transient_effects(dataset, collection):
             f"({'>' if share > TRANSIENT_SHARE else '<='} {100 * TRANSIENT_SHARE:g}%)")
   if share <= TRANSIENT_SHARE:
     return {}, f"no transients: {reason}"
-  patch = int(min(ROBUST_PATCH, dataset.height, dataset.width))
-  return ({"train.batching": "patches", "train.patch_size": patch, "loss.colour.weight": 0.0,
-           "loss.robust.weight": 1.0},
+  effects = {"loss.robust.weight": 1.0}
+  patch = int(min(patch_size, dataset.height, dataset.width))
+  if patch < patch_size:  # a patch lies in one photo
+    effects["train.patch_size"] = patch
+  return (effects,
           f"transients left out: RobustNeRF's trimmed loss on {patch} x {patch} patches "
           f"(loss.robust): {reason}")
 
@@ -212,7 +215,9 @@ def auto_config(config, dataset, backend=None):
         absent = "one scale" if d.name == "scales" else "no " + d.name.replace("_", " ")
         lines.append(f"{settings[d.name] if d.found else absent}: {d.reason}")
     lines += box_lines
-    transient, transient_line = transient_effects(dataset, found["appearance"].found)
+    transient, transient_line = transient_effects(
+        dataset, found["appearance"].found,
+        user.get("train.patch_size", result.train.patch_size))
     effects.update(transient)
     lines.append(transient_line)
     lines.append("pose refinement: off (nothing in the photos measures a pose error; "

@@ -17,6 +17,7 @@ from nerf_jax.samplers import occupancy
 from nerf_jax.samplers import registry as sampler_registry
 from nerf_jax.render import background, renderer
 from nerf_jax.train import losses, optimizer, train_batches, train_step
+from nerf_jax.train.losses import colour, robust
 from nerf_jax.data import loaders
 from nerf_jax.evaluate import evaluation
 from nerf_jax.fields.field import Field
@@ -230,8 +231,12 @@ def image_settings(config):
 
 
 def batch_settings(config):
-  """train_batches.BatchSettings of `config.train`."""
-  return shared_settings(train_batches.BatchSettings, config, "train")
+  """train_batches.BatchSettings of `config.train`; with RobustNeRF's trimmed loss on
+  (config.loss.robust.weight > 0) the batches are patches of config.train.patch_size
+  (robust.batching: ValueError naming the fields for batching='images')."""
+  settings = shared_settings(train_batches.BatchSettings, config, "train")
+  return dataclasses.replace(settings, batching=robust.batching(
+      settings.batching, config.loss.robust.weight))
 
 
 def rays_per_step(config, dataset):
@@ -272,14 +277,17 @@ def loss_terms(config, ray_renderer):
   (None from its build: off), then the sampler's own, in the order they are added. ValueError
   naming the field for a term that is unknown, listed twice or without its section, or for
   'colour' missing (the photometric loss is always on). With a transient head
-  (config.model.transient.dims > 0) 'transient' is added when the list lacks it."""
+  (config.model.transient.dims > 0) 'transient' is added when the list lacks it. Beside a term
+  that replaces the colour term (`replaces_colour`: robust, on at config.loss.robust.weight >
+  0) the colour term steps aside: built with weight 0 (its PSNR only), never added to it."""
   names = tuple(config.loss.terms)
   if ray_renderer.transient is not None and "transient" not in names:
     names += ("transient",)  # the transient pass's loss (the colour term leaves that pass)
   if "colour" not in names:
     raise ValueError(f"config.loss.terms={names}: must include 'colour' (the photometric "
                      "loss is always on)")
-  patches = config.train.patch_size if config.train.batching == "patches" else 0
+  batch = batch_settings(config)
+  patches = batch.patch_size if batch.batching == "patches" else 0
   context = losses.Context(ray_renderer, tuple(encoding_family(config)[0].table_axes.items()),
                            config.train.pose_refinement, patches)
   terms, seen = [], set()
@@ -291,6 +299,9 @@ def loss_terms(config, ray_renderer):
     term = record.build(own_settings(losses.REGISTRY, record, config), context)
     if term is not None:
       terms.append(term)
+  if any(getattr(term, "replaces_colour", False) for term in terms):
+    terms = [dataclasses.replace(term, weight=0.0) if isinstance(term, colour.Colour) else term
+             for term in terms]
   return terms + ray_renderer.sampler.loss_terms()  # a sampler brings its own (proposal.py)
 
 

@@ -40,10 +40,10 @@ class BatchSettings:
   'epochs' (every image once per epoch, in an order drawn from the epoch number).
   """
   batch_rays: int = 512  # rays per step (random rays over all training images)
-  batching: str = "rays"  # 'rays' (random rays), 'images' (whole, as the reference), 'patches'
+  batching: str = "rays"  # 'rays' (random rays), 'images' (whole), 'patches' (loss.robust: always)
   images_per_step: int = 5  # whole images per step when batching == 'images'
   image_order: str = "random"  # 'images' batching: 'random' draws per step, 'epochs' shuffles
-  patch_size: int = 16  # 'patches' batching: batch_rays // patch_size² square patches a step
+  patch_size: int = 16  # patches (loss.robust on): batch_rays // patch_size² squares a step
 
   def __post_init__(self):
     if self.batching == "patches" and self.patch_size < 1:

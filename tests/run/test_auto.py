@@ -72,3 +72,17 @@ def test_every_cpu_choice_has_a_gpu_config():
   assert set(auto.GPU_CONFIGS) == {"fast", "detail", "llff", "capture"}
   for name in auto.GPU_CONFIGS.values():
     assert config_lib.load(name).render.chunk == 0  # and each loads
+
+
+@pytest.mark.parametrize("side,effects", [
+    (100, {"loss.robust.weight": 1.0}),  # the switch alone: patches of train.patch_size follow
+    (12, {"loss.robust.weight": 1.0, "train.patch_size": 12}),  # a patch lies in one photo
+])
+def test_transients_set_the_robust_switch_alone(monkeypatch, side, effects):
+  monkeypatch.setattr(auto.warm_up, "photos_and_renders", lambda dataset: (None, None))
+  monkeypatch.setattr(auto.transients, "transient_share", lambda photos, renders: (0.05, None))
+  dataset = type("Photos", (), {"height": side, "width": side + 4})()
+  decided, line = auto.transient_effects(dataset, True, 16)
+  assert decided == effects
+  assert line.startswith(f"transients left out: RobustNeRF's trimmed loss on {min(side, 16)} x")
+  assert auto.transient_effects(dataset, False, 16)[0] == {}

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nerf_jax.run import config_lib
+from nerf_jax.run import components, config_lib
 from nerf_jax.run import train_lib
 from tests.helpers import small_config
 
@@ -23,9 +23,10 @@ def test_components_match_the_scene():
   assert load("fog").num_fine_samples > 0
   assert load("white").data.background == "white"
   assert load("forward").data.ndc
-  crowd = load("crowd")
-  assert crowd.loss.robust.weight > 0 and crowd.loss.colour.weight == 0
-  assert crowd.train.batching == "patches" and crowd.model.appearance_dims > 0
+  crowd = load("crowd")  # the switch alone: patches of 16 follow
+  batch = components.batch_settings(crowd)
+  assert crowd.loss.robust.weight > 0 and crowd.model.appearance_dims > 0
+  assert (batch.batching, batch.patch_size) == ("patches", 16)
 
 
 @pytest.mark.parametrize("name", SCENES)

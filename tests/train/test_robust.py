@@ -1,15 +1,18 @@
 """Tests of RobustNeRF's trimmed loss (train/losses/robust.py) against a brute-force mask and
-trimmed mean written here, and of the patch batches it trains on (train/train_batches.py)."""
+trimmed mean written here, of its one switch (loss.robust.weight > 0: patch batches, the colour
+term aside; run/components.py) and of the patch batches it trains on (train/train_batches.py)."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 
-from nerf_jax.run import components
-from nerf_jax.train import losses, train_batches
+from nerf_jax.run import components, experiment
+from nerf_jax.train import losses, train_batches, train_step
 from nerf_jax.train.losses import robust
-from tests.helpers import small_config
+from nerf_jax.train.state import TrainState
+from tests.helpers import TINY_GRID, small_config
 
 P = 8  # patch side
 
@@ -129,14 +132,91 @@ def _terms(**fields):
   return components.loss_terms(config, components.make_ray_renderer(config))
 
 
-def test_the_entry_layer_builds_it_on_patches_only():
+# RobustNeRF on, spelt with the switch alone and with the four settings it took before.
+SWITCH = {"loss.robust.weight": 1.0}
+FOUR = {"train.batching": "patches", "train.patch_size": 16, "loss.colour.weight": 0.0,
+        "loss.robust.weight": 1.0}
+
+
+def test_the_switch_alone_trains_on_patches_without_the_colour_loss():
   assert [t.name for t in _terms()] == ["colour"]  # off by default
-  terms = _terms(**{"loss.robust.weight": 1.0, "loss.colour.weight": 0.0,
-                    "train.batching": "patches", "train.patch_size": 4})
+  config = small_config(**SWITCH, **{"train.patch_size": 4})
+  assert config.train.batching == "rays" and config.loss.colour.weight == 1.0  # untouched
+  batch = components.batch_settings(config)
+  assert (batch.batching, batch.patch_size) == ("patches", 4)
+  terms = _terms(**SWITCH, **{"train.patch_size": 4})
   assert [t.name for t in terms] == ["colour", "robust"]
-  assert terms[0].weight == 0.0 and terms[1].patch_size == 4
-  with pytest.raises(ValueError, match="config.train.batching='patches'"):
-    _terms(**{"loss.robust.weight": 1.0})
+  assert terms[0].weight == 0.0 and terms[1].patch_size == 4  # the colour term steps aside
+  # 'patches' spelt out is the same; the four old settings give the same batches and terms.
+  assert _terms(**SWITCH, **{"train.batching": "patches", "train.patch_size": 4}) == terms
+  assert _terms(**FOUR) == _terms(**SWITCH)
+  assert (components.batch_settings(small_config(**FOUR))
+          == components.batch_settings(small_config(**SWITCH)))
+
+
+@pytest.mark.parametrize("passes", [("coarse",), ("coarse", "fine")])
+def test_the_total_is_the_trimmed_loss_alone(passes):
+  # Whatever loss.colour.weight and coarse_weight say, the colour term adds nothing: the total
+  # is the trimmed mean of each pass (the brute-force mask), the colour term's PSNR still logged.
+  terms = _terms(**SWITCH, **{"train.patch_size": P, "loss.colour.coarse_weight": 0.5,
+                              "loss.robust.inner_size": 4})
+  inputs = _inputs(passes)
+  total, stats = losses.total(terms, inputs)
+  want = 0.0
+  for name in passes:
+    residual = np.mean((np.asarray(inputs.outputs[name]["rgb"]) - np.asarray(inputs.target))
+                       ** 2, -1)
+    mask, _ = _mask_ref(residual.reshape(-1, P, P), terms[1].settings)
+    want += residual[mask.reshape(-1)].mean()
+  np.testing.assert_allclose(total, want, rtol=1e-5)
+  assert total == terms[1](inputs)[0]  # exactly the robust term's
+  plain = terms[0].__class__(weight=1.0, coarse_weight=0.5)(inputs)[0]
+  assert abs(float(plain) - want) > 0.01  # the colour loss would have shown
+  assert set(stats) == {"loss", "colour/psnr", "robust/inliers", "robust/threshold"}
+
+
+def test_whole_images_contradict_the_switch():
+  config = small_config(**SWITCH, **{"train.batching": "images"})
+  match = r"config.train.batching='images' contradicts config.loss.robust.weight=1.0"
+  with pytest.raises(ValueError, match=match):
+    components.batch_settings(config)
+  with pytest.raises(ValueError, match=match):
+    _terms(**SWITCH, **{"train.batching": "images"})
+  # Off, whole images are whole images; and a term built without patches still refuses.
+  assert components.batch_settings(small_config(**{"train.batching": "images"})).batching == (
+      "images")
+  with pytest.raises(ValueError, match="config.loss.robust.weight > 0 needs patches"):
+    robust.build(robust.Settings(weight=1.0), losses.Context(None))
+
+
+def _two_steps(fields):
+  """(stats of each step, final params) of two Adam steps of a tiny crowd run with `fields`."""
+  config = small_config(TINY_GRID, base="scenes/crowd", **{
+      "train.batch_rays": 64, "num_samples": 8, "train.remat_chunk": 0, **fields})
+  exp = experiment.setup(config)
+  ray_renderer = components.training_renderer(exp)
+  tx = optax.adam(1e-2)
+  step = train_step.make_train_step(ray_renderer, tx, components.loss_terms(config, ray_renderer),
+                                    components.step_settings(exp))
+  params = ray_renderer.init(jax.random.PRNGKey(0))["params"]
+  state = TrainState(step=jnp.int32(0), params=params, opt_state=tx.init(params),
+                     bad_step=jnp.int32(-1), buffers={}, ema={})
+  data = components.make_train_data(exp)
+  history = []
+  for _ in range(2):
+    state, stats = step(state, data, jax.random.PRNGKey(3))
+    history.append({k: np.asarray(v) for k, v in stats.items()})
+  return history, jax.tree_util.tree_map(np.asarray, state.params)
+
+
+def test_the_four_old_settings_train_bit_identically_to_the_switch():
+  old = _two_steps({**FOUR, "train.patch_size": 4})
+  new = _two_steps({"loss.robust.weight": 1.0, "train.patch_size": 4})
+  assert old[0][0].keys() == new[0][0].keys() and "robust/inliers" in new[0][0]
+  for before, after in zip(old[0], new[0]):
+    for key in before:
+      np.testing.assert_array_equal(before[key], after[key], err_msg=key)
+  jax.tree_util.tree_map(np.testing.assert_array_equal, old[1], new[1])
 
 
 def test_patch_batches_are_whole_patches_of_one_image():

@@ -11,7 +11,9 @@ name (`REGISTRY`: colour, distortion, pose_prior, total_variation, transient, ro
 modules of this package) or the dotted path of any importable module; each term's settings are
 its own section, `config.loss.<name>` (docs/extending.md, "Adding a loss term"). The entry layer
 builds them (run/components.loss_terms), adds 'transient' where the field has a transient head,
-and appends the sampler's own terms (its `loss_terms()`).
+and appends the sampler's own terms (its `loss_terms()`). A term whose class has
+`replaces_colour = True` (robust) is itself the photometric loss: beside it the entry layer
+builds the colour term with weight 0 (its PSNR only), so the two are never added.
 """
 
 import dataclasses
@@ -55,8 +57,9 @@ class Context:
   table_axes: ((parameter-name prefix, spatial axes), ...) of the field's lattice tables (the
     encoding family's, fields/registry.py).
   pose_refinement: whether the run refines the cameras (params['poses'] exists).
-  patch_size: the side P of the batch's patches with config.train.batching='patches' (a batch
-    is patches of P x P pixels, each row-major, train_batches.py); 0 = the rays are no patches.
+  patch_size: the side P of the batch's patches (config.train.batching='patches', or
+    config.loss.robust.weight > 0: run/components.batch_settings; a batch is patches of P x P
+    pixels, each row-major, train_batches.py); 0 = the rays are no patches.
   """
   ray_renderer: Any
   table_axes: tuple = ()

@@ -1,6 +1,7 @@
-"""The photometric loss (config.loss.colour; always on): the final pass's colour error, plus a
+"""The photometric loss (config.loss.colour; always built): the final pass's colour error, plus a
 weighted coarse pass's; squared error or Huber's loss; with a sample budget only whole rays
-count."""
+count. Beside a term that replaces it (`replaces_colour`: RobustNeRF's trimmed loss, on at
+config.loss.robust.weight > 0) the entry layer builds it with weight 0: its PSNR only."""
 
 import dataclasses
 from typing import ClassVar
@@ -14,7 +15,7 @@ from nerf_jax.train import losses
 @dataclasses.dataclass(frozen=True)
 class Settings:
   """config.loss.colour."""
-  weight: float = 1.0  # weight of the loss (0: only its PSNR, another term replaces it: robust)
+  weight: float = 1.0  # weight of the loss (0: its PSNR only; loss.robust on: 0 whatever it says)
   coarse_weight: float = 1.0  # weight of the coarse pass's loss when a fine pass exists
   huber_delta: float = 0.0  # Huber's loss, quadratic below this error (0 = squared error)
 
@@ -64,6 +65,8 @@ class Colour:
   each channel's error instead. With a sample budget only whole rays count. With per-ray
   weights (LossInputs.weight, the data's lossmult) every mean is the weighted mean. All of it
   times `weight` (0: another term, e.g. robust.py's, is the photometric loss; the stats stay).
+  A term that replaces it has `replaces_colour` True (run/components.loss_terms then builds
+  this one with weight 0).
   Stats: psnr of the final pass (from its squared error, whatever the loss); with a sample
   budget, rays_in_loss (the rays it held whole) and samples_wanted (the valid samples of every
   drawn ray: above the budget, rays were drawn in vain; below it, budget slots went empty).

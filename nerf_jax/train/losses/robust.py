@@ -2,9 +2,16 @@
 0): the pixels whose colour the static scene cannot explain (a passer-by, a car) are left out
 of the loss, so that they neither pull the field nor leave floaters.
 
+config.loss.robust.weight > 0 is the one switch; what it needs follows from it:
+  * the batches are patches of config.train.patch_size (`batching`): n patches of P x P
+    pixels, patch after patch, each row-major; config.train.batching='images' contradicts it
+    (a ValueError naming both fields), 'rays' (the default) or 'patches' give patches;
+  * it is the photometric loss of every ray of the batch: the colour term steps aside (the
+    entry layer builds it with weight 0, whatever config.loss.colour.weight says: it reports
+    its PSNR only), so the two are never added (`Robust.replaces_colour`).
+
 A pixel's residual is its squared colour error, averaged over the channels. On a batch of
-patches (config.train.batching='patches': n patches of P x P pixels, patch after patch, each
-row-major) a pixel is kept (an inlier, weight 1) when any of these holds, else left out:
+patches a pixel is kept (an inlier, weight 1) when any of these holds, else left out:
   * its residual is below the `inlier_quantile` of the batch's residuals;
   * more than `neighbour_share` of the filter_size x filter_size box around it (zeros beyond the
     patch's edge) are such pixels: a lone outlier among inliers is fine detail, not an object;
@@ -13,9 +20,9 @@ row-major) a pixel is kept (an inlier, weight 1) when any of these holds, else l
 What is left out is a cluster of large residuals, the shape of an object. The mask is not
 differentiated (the threshold and the weights are constants of the step, as in RobustNeRF).
 The loss is the mean residual over the kept pixels (their trimmed mean), of every render pass
-added; with per-ray weights (LossInputs.weight) the weighted mean (a sample budget's incomplete
-rays are not left out: use it without one). With it on, the plain colour loss is off
-(config.loss.colour.weight = 0) and reports the PSNR only.
+added (each pass weighs 1: the colour term's coarse_weight is not applied); with per-ray
+weights (LossInputs.weight) the weighted mean (a sample budget's incomplete rays are not left
+out: use it without one).
 """
 
 import dataclasses
@@ -30,7 +37,7 @@ from nerf_jax.train import losses
 @dataclasses.dataclass(frozen=True)
 class Settings:
   """config.loss.robust."""
-  weight: float = 0.0  # weight of the trimmed loss (0 = off); on: set loss.colour.weight = 0
+  weight: float = 0.0  # the switch (0 = off); > 0: patches of train.patch_size, no colour loss
   inlier_quantile: float = 0.8  # inliers: below this quantile of the batch's residuals
   filter_size: int = 3  # side of the box around a pixel whose inliers can keep it
   neighbour_share: float = 0.5  # kept: more than this share of its box is inliers
@@ -45,6 +52,21 @@ class Settings:
     if self.filter_size < 1 or self.filter_size % 2 == 0:
       raise ValueError(f"config.loss.robust.filter_size={self.filter_size}: use an odd side "
                        "(RobustNeRF: 3)")
+
+
+def batching(train_batching, weight):
+  """The batching of a run whose config.train.batching is `train_batching` ('rays', 'images'
+  or 'patches') and whose config.loss.robust.weight is `weight`: 'patches' when the trimmed
+  loss is on (it looks at a pixel's neighbours), else `train_batching` itself. ValueError
+  naming both fields for 'images' with the loss on (whole images are no patches)."""
+  if weight <= 0:
+    return train_batching
+  if train_batching == "images":
+    raise ValueError(f"config.train.batching={train_batching!r} contradicts "
+                     f"config.loss.robust.weight={weight}: RobustNeRF's trimmed loss trains on "
+                     "patches of config.train.patch_size; leave config.train.batching at "
+                     "'rays' (or 'patches'), or set config.loss.robust.weight=0")
+  return "patches"
 
 
 def box_mean(x, size):
@@ -83,8 +105,10 @@ def inlier_mask(residual, settings):
 class Robust:
   """The trimmed loss of a batch of n patches of patch_size² pixels (`inlier_mask`), times
   `weight`. Stats: inliers (the share of pixels kept, final pass), threshold (the residual
-  quantile, final pass)."""
+  quantile, final pass). It replaces the colour term's loss (`replaces_colour`: the entry
+  layer builds that term with weight 0 beside it)."""
   name: ClassVar[str] = "robust"
+  replaces_colour: ClassVar[bool] = True
   weight: float
   patch_size: int
   settings: Settings
@@ -111,13 +135,14 @@ class Robust:
 
 
 def build(settings, context):
-  """The term on the run's patches (context.patch_size); None at weight 0. ValueError unless
-  the batches are patches."""
+  """The term on the run's patches (context.patch_size: the entry layer draws patches whenever
+  the weight is > 0, `batching`); None at weight 0. ValueError unless the batches are
+  patches."""
   if settings.weight <= 0:
     return None
   if not context.patch_size:
-    raise ValueError("config.loss.robust.weight > 0 needs patches of pixels: set "
-                     "config.train.batching='patches' (and config.train.patch_size, e.g. 16)")
+    raise ValueError("config.loss.robust.weight > 0 needs patches of pixels (of "
+                     "config.train.patch_size, e.g. 16): the batches here are none")
   return Robust(settings.weight, context.patch_size, settings)
 
 
