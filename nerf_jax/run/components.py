@@ -286,6 +286,9 @@ def loss_terms(config, ray_renderer):
   if "colour" not in names:
     raise ValueError(f"config.loss.terms={names}: must include 'colour' (the photometric "
                      "loss is always on)")
+  if config.loss.robust.weight > 0 and "robust" not in names:
+    raise ValueError(f"config.loss.robust.weight={config.loss.robust.weight} needs 'robust' in "
+                     f"config.loss.terms={names}: add it, or set the weight to 0")
   batch = batch_settings(config)
   patches = batch.patch_size if batch.batching == "patches" else 0
   context = losses.Context(ray_renderer, tuple(encoding_family(config)[0].table_axes.items()),

@@ -189,6 +189,13 @@ def test_whole_images_contradict_the_switch():
     robust.build(robust.Settings(weight=1.0), losses.Context(None))
 
 
+def test_the_switch_without_its_term_is_one_line():
+  terms = ("colour", "distortion")  # robust left out: patches with the colour loss alone
+  with pytest.raises(ValueError, match=r"config.loss.robust.weight=1.0 needs 'robust' in "
+                                       r"config.loss.terms"):
+    _terms(**SWITCH, **{"loss.terms": terms})
+
+
 def _two_steps(fields):
   """(stats of each step, final params) of two Adam steps of a tiny crowd run with `fields`."""
   config = small_config(TINY_GRID, base="scenes/crowd", **{
