@@ -5,7 +5,7 @@ user's flags, which win over the decisions.
 import jax
 import ml_collections
 
-from nerf_jax.run import characterise, config_lib, from_data, transients, warm_up
+from nerf_jax.run import characterise, config_lib, from_data, transient_share, warm_up
 
 APPEARANCE_DIMS = 8  # the appearance codes' length auto switches on (NeRF-W: 48, nerfacto: 32)
 CONTRACTION = "linf"  # where the rays leave the box: nerfacto's contraction (docs/real_captures.md)
@@ -53,14 +53,14 @@ def transient_effects(dataset, collection, patch_size):
   """({field: value}, one line): RobustNeRF's trimmed loss (its switch, loss.robust.weight: the
   patch batches follow from it) when a warm-up on the photos of `dataset` (one camera) leaves
   more than TRANSIENT_SHARE of their pixels clustered outliers that some photos hold
-  (transients.transient_share: passers-by). The patches are patch_size a side (the run's
+  (transient_share.transient_share: passers-by). The patches are patch_size a side (the run's
   train.patch_size), train.patch_size set smaller only for photos smaller than that. Measured
   only for a photo collection (`collection`: the photos have their own looks, the appearance
   rule), as the warm-up costs half a minute on a CPU."""
   if not collection:
     return {}, ("no transients: not measured (the photos share one look: not a collection "
                 "taken by many)")
-  share = transients.transient_share(*warm_up.photos_and_renders(dataset))[0]
+  share = transient_share.transient_share(*warm_up.photos_and_renders(dataset))[0]
   reason = (f"{100 * share:.1f}% of the training pixels are clustered outliers specific to "
             f"some photos after a {warm_up.WARM_UP_STEPS}-step warm-up "
             f"({'>' if share > TRANSIENT_SHARE else '<='} {100 * TRANSIENT_SHARE:g}%)")

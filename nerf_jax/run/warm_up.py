@@ -1,6 +1,6 @@
 """A short warm-up on a capture's training photos, shrunk, for what `--config=auto` can only
 measure with a field: its renders of the training cameras against the photos
-(transients.transient_share: passers-by leave residuals that one photo holds).
+(transient_share.transient_share: passers-by leave residuals that one photo holds).
 
 The warm-up is `configs/fast.py` with the plain loss and no codes, on the photos box-averaged to
 at most WARM_UP_SIZE pixels a side, for WARM_UP_STEPS steps: after it the field shows the static

@@ -80,7 +80,7 @@ def test_every_cpu_choice_has_a_gpu_config():
 ])
 def test_transients_set_the_robust_switch_alone(monkeypatch, side, effects):
   monkeypatch.setattr(auto.warm_up, "photos_and_renders", lambda dataset: (None, None))
-  monkeypatch.setattr(auto.transients, "transient_share", lambda photos, renders: (0.05, None))
+  monkeypatch.setattr(auto.transient_share, "transient_share", lambda photos, renders: (0.05, None))
   dataset = type("Photos", (), {"height": side, "width": side + 4})()
   decided, line = auto.transient_effects(dataset, True, 16)
   assert decided == effects

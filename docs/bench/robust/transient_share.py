@@ -1,5 +1,5 @@
 """Warm up a built-in scene briefly (no transient handling, no codes; 48 px, 50 views, 1024
-rays a step), render its training views and print run/transients.transient_share (appended to
+rays a step), render its training views and print run/transient_share.transient_share (appended to
 transient_share.jsonl). docs/photo_collections.md has the numbers.
 
   PYTHONPATH=$PWD python docs/bench/robust/transient_share.py crowd fast 300
@@ -10,7 +10,7 @@ import sys
 import numpy as np
 
 from nerf_jax.render import background, image_renderer
-from nerf_jax.run import config_lib, experiment, train_lib, transients
+from nerf_jax.run import config_lib, experiment, train_lib, transient_share
 
 scene, base, steps = sys.argv[1], sys.argv[2], int(sys.argv[3])
 config = config_lib.load(base)
@@ -32,7 +32,7 @@ draw = image_renderer.make_image_renderer(exp.renderer, exp.image)(state.variabl
 bg = np.asarray(background.parse(exp.config.data.background), np.float32)
 photos = background.images_on_background(exp.train_ds, bg)[1]
 renders = np.stack([np.asarray(draw(exp.rays(p), bg)["rgb"]) for p in exp.train_ds.poses])
-share, shares = transients.transient_share(photos, renders)
+share, shares = transient_share.transient_share(photos, renders)
 out = {"scene": scene, "base": base, "steps": steps, "share": share,
        "photos_over_1pc": float(np.mean(shares > 0.01)), "max": float(shares.max())}
 print(json.dumps(out))

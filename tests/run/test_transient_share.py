@@ -1,15 +1,15 @@
-"""Tests of run/transients.py's statistic: the box shares against a loop, each photo's look
+"""Tests of run/transient_share.py's statistic: the box shares against a loop, each photo's look
 taken out exactly, and the statistic on made-up photos: near 0 for a static scene with edges,
 specks and looks, about the passers-by's share with them."""
 
 import numpy as np
 
-from nerf_jax.run import transients
+from nerf_jax.run import transient_share
 
 
 def test_box_share_counts_each_box_with_zeros_beyond_the_edge():
   mask = np.random.default_rng(0).uniform(size=(2, 7, 9)) > 0.5
-  got = transients.box_share(mask, 3)
+  got = transient_share.box_share(mask, 3)
   for n, i, j in np.ndindex(mask.shape):
     count = sum(mask[n, a, b] for a in range(i - 1, i + 2) for b in range(j - 1, j + 2)
                 if 0 <= a < 7 and 0 <= b < 9)
@@ -20,7 +20,7 @@ def test_a_photos_own_gain_is_no_residual():
   rng = np.random.default_rng(1)
   renders = rng.uniform(size=(3, 8, 8, 3))
   gains = rng.uniform(0.5, 1.5, (3, 1, 1, 3))
-  np.testing.assert_allclose(transients.residuals(gains * renders, renders), 0.0, atol=1e-20)
+  np.testing.assert_allclose(transient_share.residuals(gains * renders, renders), 0.0, atol=1e-20)
 
 
 def _photos(with_crowd, seed=0):
@@ -42,8 +42,8 @@ def _photos(with_crowd, seed=0):
 
 
 def test_the_statistic_tells_a_crowd_from_a_static_scene():
-  static, _ = transients.transient_share(*_photos(False))
-  crowd, shares = transients.transient_share(*_photos(True))
+  static, _ = transient_share.transient_share(*_photos(False))
+  crowd, shares = transient_share.transient_share(*_photos(True))
   assert static < 0.005
   assert 0.03 < crowd < 0.1  # half the photos, ~14 % each (the squares' edges blur a little)
   assert np.all(shares[1::2] < 0.005)  # the photos without passers-by
