@@ -10,7 +10,7 @@ import functools
 from nerf_jax.backend import components, precision
 from nerf_jax.fields import field as field_lib
 from nerf_jax.fields import protocol, registry
-from nerf_jax.fields import transient as transient_field
+from nerf_jax.fields import transient_field
 from nerf_jax.fields.networks import transient as transient_head
 from nerf_jax.run import config_lib
 from nerf_jax.samplers import occupancy
