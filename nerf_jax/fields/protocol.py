@@ -113,15 +113,3 @@ class NetworkSettings:
   grid_cell_aspect: Sequence[float] = (1.0, 1.0, 1.0)  # grid and tensorf: relative x, y, z sides of a cell
   # Rows of the appearance codes' table: the training images (from the data).
   appearance_images: int = components.derived(1)
-
-  @property
-  def head(self):
-    """The keyword arguments of the shared head fields of every built-in network."""
-    kwargs = dict(view_dependent=self.view_dependent, view_width=self.view_width,
-                  dtype=self.dtype, matmul_precision=self.matmul_precision)
-    if self.view_depth != 1:  # only then, so a network of its own need not know the field
-      kwargs.update(view_depth=self.view_depth)
-    if self.appearance_dims:  # only then, so the networks of runs without codes stay as they were
-      kwargs.update(appearance_images=self.appearance_images,
-                    appearance_dims=self.appearance_dims)
-    return kwargs

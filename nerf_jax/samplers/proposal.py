@@ -310,13 +310,10 @@ def build(settings, base):
 
 
 def _network(settings, max_resolution, bound):
-  """The density network of one level (fields/density_field.py) over [-bound, bound]^3."""
-  shared = dict(levels=settings.levels, features=settings.features,
-                base_resolution=settings.base_resolution, max_resolution=max_resolution,
-                hidden=settings.hidden, bound=bound)
-  if settings.field == "grid":
-    return density_field.GridDensity(**shared)
-  return density_field.HashDensity(log2_size=settings.log2_size, **shared)
+  """The density network of one level (fields/density_field.py) of `settings`, its finest
+  lattice `max_resolution` points per side, over [-bound, bound]^3."""
+  network = density_field.GridDensity if settings.field == "grid" else density_field.HashDensity
+  return network(settings, max_resolution, bound)
 
 
 # config.sampler = 'proposal' (samplers/registry.py); signature: the sampler's own `signature`.

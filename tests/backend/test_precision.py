@@ -18,7 +18,9 @@ from nerf_jax.evaluate import metrics
 from nerf_jax.render import compositing
 from nerf_jax.samplers import visual_hull
 from nerf_jax.data.scenes import builtin, tracer
+from nerf_jax.fields.networks import mlp
 from nerf_jax.fields.networks.mlp import NerfMLP
+from nerf_jax.fields.protocol import NetworkSettings
 
 EMULATING_TF32 = jax.default_backend() != "cpu" or "tf32" in precision.emulated()
 EMULATING_DIV = jax.default_backend() != "cpu" or "div" in precision.emulated()
@@ -132,7 +134,8 @@ def test_network_precision_setting():
   with pytest.raises(ValueError, match="model.matmul_precision"):
     precision.network_precision("tf32")
   # The setting reaches every Dense layer of the network.
-  net = NerfMLP(depth=2, width=8, skip_layers=(), matmul_precision="highest")
+  net = NerfMLP(mlp.Settings(depth=2, skip_layers=()),
+                NetworkSettings(width=8, matmul_precision="highest"))
   x = jnp.ones((2, 5))
   params = net.init(jax.random.PRNGKey(0), x)
   products = _products(jax.make_jaxpr(lambda p: net.apply(p, x))(params).jaxpr)

@@ -10,6 +10,7 @@ import pytest
 from nerf_jax.cameras import rays
 from nerf_jax.fields.networks import lattice
 from nerf_jax.fields.encodings import grid
+from nerf_jax.fields.protocol import NetworkSettings
 from nerf_jax.run import components, experiment
 from nerf_jax.run.signature import init_state, model_signature
 from nerf_jax.samplers import occupancy, placement, visual_hull
@@ -141,7 +142,8 @@ def test_a_grid_field_with_long_cells_along_z_has_fewer_lattice_points_there():
 
 def test_grid_field_over_a_box_is_empty_outside_it():
   space = grid.Space(box=(-0.5, -1.0, 0.0, 0.5, 1.0, 0.5))
-  net = lattice.LatticeHead(grid.DenseGrid(grid.Settings(resolutions=(8,), features=2), space))
+  encoding = grid.DenseGrid(grid.Settings(resolutions=(8,), features=2), space)
+  net = lattice.LatticeHead(encoding, NetworkSettings())
   points = jnp.array([[0.0, 0.0, 0.25], [0.6, 0.0, 0.25], [0.0, 0.0, -0.1]])
   params = net.init(jax.random.PRNGKey(0), points)
   assert params["params"]["grid_8"].shape == (5, 8, 3, 2)

@@ -552,7 +552,9 @@ def test_case11_low_precision_inputs_composite_in_float32(dtype):
 
 def _tiny_model(dtype):
   from nerf_jax.fields.networks import mlp  # pylint: disable=g-import-not-at-top
-  return mlp.NerfMLP(depth=3, width=32, skip_layers=(1,), dtype=dtype)
+  from nerf_jax.fields.protocol import NetworkSettings  # pylint: disable=g-import-not-at-top
+  return mlp.NerfMLP(mlp.Settings(depth=3, skip_layers=(1,)),
+                     NetworkSettings(width=32, dtype=dtype))
 
 
 def _numpy_init(model, inputs, seed):

@@ -11,6 +11,7 @@ import pytest
 from nerf_jax.fields import contraction
 from nerf_jax.fields.encodings import grid, posenc
 from nerf_jax.fields.networks import lattice
+from nerf_jax.fields.protocol import NetworkSettings
 from nerf_jax.run import components, experiment, from_data
 from nerf_jax.samplers import occupancy, placement, spacing
 from nerf_jax.fields.field import Field
@@ -45,7 +46,7 @@ def test_contracted_placement_is_linear_inside_and_in_disparity_beyond(kind):
 @pytest.mark.slow  # trains or renders for more than ~10 s on 2 cores
 def test_the_field_sees_contracted_positions():
   encoding = grid.DenseGrid(grid.Settings(resolutions=(4,), features=2), grid.Space(3.0))
-  network = lattice.LatticeHead(encoding, hidden=8)
+  network = lattice.LatticeHead(encoding, NetworkSettings(width=8))
   field = Field(network, posenc.Frequency(2), contraction="linf", inner_radius=1.5)
   points = jnp.array([[0.5, -0.2, 0.1], [30.0, 0.0, -2.0], [1e8, 1e8, 0.0]], jnp.float32)
   encoded = jitted(field.network_points)(points)

@@ -18,7 +18,7 @@ class DensityGridNeRF(lattice.LatticeHead):
   interpolated, then activated (by the Field), so it stays sharp inside a cell; it is the sum
   of one-channel grids at several resolutions, so coarse shapes form in few steps and fine ones
   on top. Colour comes from the feature grids (`encoding`, a grid.DenseGrid) and the tiny MLP
-  (the lattice head's fields; no appearance codes yet).
+  (the lattice head's `shared` settings, protocol.NetworkSettings; no appearance codes yet).
 
   The two halves can be evaluated alone (`part`): the density of every sample is a single
   trilinear read, and the renderer computes colour only where the weights say it matters
@@ -65,11 +65,12 @@ class DensityGridNeRF(lattice.LatticeHead):
         fine = self._hashed_level("hashed_colour", draws.normal_init(1e-2), s.features, unit,
                                   s.colour_hash_resolution, s.colour_hash_log2_size)
         h = jnp.concatenate([h, fine], axis=-1)
-      h = nn.relu(heads.dense(self, self.hidden, "hidden")(h.astype(jnp.dtype(self.dtype))))
-      if self.view_dependent:
+      shared = self.shared
+      h = nn.relu(heads.dense(shared, shared.width, "hidden")(h.astype(jnp.dtype(shared.dtype))))
+      if shared.view_dependent:
         h = jnp.concatenate([h, dir_features.astype(h.dtype)], axis=-1)
-        h = heads.colour_layers(self, h)
-      rgb = nn.sigmoid(heads.dense(self, 3, "rgb")(h).astype(jnp.float32))
+        h = heads.colour_layers(shared, h)
+      rgb = nn.sigmoid(heads.dense(shared, 3, "rgb")(h).astype(jnp.float32))
     return {"all": (rgb, raw_sigma), "density": raw_sigma, "colour": rgb}[part]
 
   coarse_to_fine_stages = 0  # its density grids take no coarse-to-fine window
@@ -109,9 +110,7 @@ def build(encoding, settings, shared):
   if shared.appearance_dims:
     raise ValueError("config.model.grid.density_resolutions does not take appearance codes "
                      "yet: set config.model.appearance_dims=0 or density_resolutions=()")
-  head = {k: v for k, v in shared.head.items() if k not in ("appearance_images",
-                                                            "appearance_dims")}
-  return DensityGridNeRF(encoding, hidden=shared.width, **head)
+  return DensityGridNeRF(encoding, shared)
 
 
 NETWORK = registry.Network("density_grid", None, build)

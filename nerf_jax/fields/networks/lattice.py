@@ -14,46 +14,43 @@ from typing import Any
 import flax.linen as nn
 import jax.numpy as jnp
 
-from nerf_jax.fields import registry
+from nerf_jax.fields import protocol, registry
 from nerf_jax.fields.networks import heads
 
 
 def head(network, h, inside, dir_features, image=None):
   """(rgb float32 [..., 3] in (0, 1), raw_sigma float32 [...]) of features h [..., F] in the
-  network's dtype: density and a feature from one hidden layer, colour from the feature (and
-  direction, and appearance code). inside: bool [...] or None, where density may be non-zero."""
-  h = nn.relu(heads.dense(network, network.hidden, "hidden")(h))
-  raw_sigma = heads.dense(network, 1, "sigma")(h)[..., 0].astype(jnp.float32)
+  dtype of `network` (a module with `shared`, protocol.NetworkSettings): density and a feature
+  from one hidden layer of shared.width, colour from the feature (and direction, and appearance
+  code). inside: bool [...] or None, where density may be non-zero."""
+  s = network.shared
+  h = nn.relu(heads.dense(s, s.width, "hidden")(h))
+  raw_sigma = heads.dense(s, 1, "sigma")(h)[..., 0].astype(jnp.float32)
   if inside is not None:
     raw_sigma = jnp.where(inside, raw_sigma, -1e5)
-  extra = [dir_features] if network.view_dependent else []
-  if network.appearance_dims:  # colour only: the code joins h after density is taken from it
-    extra.append(heads.appearance_codes(network, image, h.shape))
+  extra = [dir_features] if s.view_dependent else []
+  if s.appearance_dims:  # colour only: the code joins h after density is taken from it
+    extra.append(heads.appearance_codes(network, s, image, h.shape))
   if extra:
     h = jnp.concatenate([h, *(e.astype(h.dtype) for e in extra)], axis=-1)
-  if network.view_dependent:
-    h = heads.colour_layers(network, h)
-  rgb = heads.dense(network, 3, "rgb")(h).astype(jnp.float32)
+  if s.view_dependent:
+    h = heads.colour_layers(s, h)
+  rgb = heads.dense(s, 3, "rgb")(h).astype(jnp.float32)
   return nn.sigmoid(rgb), raw_sigma
 
 
 class LatticeHead(nn.Module):
   """An encoding's features (protocol.Encoding, applied to the points) + the tiny head.
-  level_weights: float32 or None, the encoding's coarse-to-fine window (pose refinement)."""
+  shared: the settings every network shares (protocol.NetworkSettings: its hidden width is
+  shared.width). level_weights: float32 or None, the encoding's coarse-to-fine window (pose
+  refinement)."""
   encoding: Any
-  hidden: int = 64
-  view_dependent: bool = False
-  view_width: int = 32
-  view_depth: int = 1
-  dtype: str = "float32"
-  appearance_images: int = 1
-  appearance_dims: int = 0
-  matmul_precision: str = "default"  # precision.NETWORK_PRECISIONS: 'default', 'high', 'highest'
+  shared: protocol.NetworkSettings
 
   @nn.compact
   def __call__(self, points, dir_features=None, image=None, level_weights=None, **per_sample):
     h = self.encoding.features(self, points, level_weights, **per_sample)
-    return head(self, h.astype(jnp.dtype(self.dtype)), self.encoding.inside(points),
+    return head(self, h.astype(jnp.dtype(self.shared.dtype)), self.encoding.inside(points),
                 dir_features, image)
 
   @property
@@ -72,7 +69,7 @@ class LatticeHead(nn.Module):
 def build(encoding, settings, shared):
   """The LatticeHead over `encoding`, config.model.width wide (protocol.NetworkSettings)."""
   del settings  # none of its own
-  return LatticeHead(encoding, hidden=shared.width, **shared.head)
+  return LatticeHead(encoding, shared)
 
 
 NETWORK = registry.Network("lattice", None, build)

@@ -1,6 +1,7 @@
 """NeRF's MLP (network 'mlp'): the network that reads the frequency bands ('posenc') unless
 config.model.network names another; it reads any encoding's features. Its settings are
-config.model's depth, width and skip_layers (`Settings`). See protocol.py for its call.
+config.model's depth and skip_layers (`Settings`) and the shared ones (width, view_width...:
+protocol.NetworkSettings). See protocol.py for its call.
 """
 
 import dataclasses
@@ -9,34 +10,38 @@ from typing import Any, Sequence
 import flax.linen as nn
 import jax.numpy as jnp
 
-from nerf_jax.fields import registry
+from nerf_jax.fields import protocol, registry
 from nerf_jax.fields.networks import heads
 
 
-class NerfMLP(nn.Module):
-  """NeRF's MLP: `depth` ReLU layers of `width` with the input re-injected after `skip_layers`.
+@dataclasses.dataclass(frozen=True)
+class Settings:
+  """config.model's fields of the MLP (its width is the shared model.width,
+  protocol.NetworkSettings)."""
+  depth: int = 8  # hidden layers
+  skip_layers: Sequence[int] = (4,)  # re-inject the input after these layers (0-based)
 
-  encoding: the position encoding it applies to its input points (protocol.Encoding); None: the
-  input is already features float32 [..., D] (encoded by the caller).
-  view_dependent=False is the reference's position-only model (one linear head of 4 outputs).
-  view_dependent=True is the paper's 5D model: density from position only; colour from a `width`
+
+class NerfMLP(nn.Module):
+  """NeRF's MLP: settings.depth ReLU layers of shared.width with the input re-injected after
+  settings.skip_layers.
+
+  settings: its own (`Settings`). shared: the settings every network shares
+  (protocol.NetworkSettings). encoding: the position encoding it applies to its input points
+  (protocol.Encoding); None: the input is already features float32 [..., D] (encoded by the
+  caller).
+  shared.view_dependent False is the reference's position-only model (one linear head of 4
+  outputs); True is the paper's 5D model: density from position only; colour from a `width`
   feature plus the encoded direction through `view_depth` ReLU layers of `view_width`.
-  dtype is the matmul dtype (float32, bfloat16 or float16); parameters stay float32 and the
-  outputs are cast back to float32 so compositing is always done in float32. matmul_precision
-  is the float32 matmuls' precision (nerf_jax.backend.precision: 'default' is TF32 on recent GPUs).
-  Where the encoding covers only a box (a lattice's), density outside it is raw -1e5.
+  shared.dtype is the matmul dtype (float32, bfloat16 or float16); parameters stay float32 and
+  the outputs are cast back to float32 so compositing is always done in float32;
+  shared.matmul_precision is the float32 matmuls' precision (nerf_jax.backend.precision:
+  'default' is TF32 on recent GPUs). With shared.appearance_dims > 0 a per-image code joins the
+  colour. Where the encoding covers only a box (a lattice's), density outside it is raw -1e5.
   """
-  depth: int = 8
-  width: int = 256
-  skip_layers: Sequence[int] = (4,)
-  view_dependent: bool = False
-  view_width: int = 128
-  view_depth: int = 1
-  dtype: str = "float32"
-  matmul_precision: str = "default"  # precision.NETWORK_PRECISIONS: 'default', 'high', 'highest'
-  appearance_images: int = 1
-  appearance_dims: int = 0
-  encoding: Any = None
+  settings: Settings
+  shared: protocol.NetworkSettings
+  encoding: Any = None  # None: no encoding (the caller's features)
 
   @nn.compact
   def __call__(self, points, dir_features=None, image=None, level_weights=None, **per_sample):
@@ -54,29 +59,30 @@ class NerfMLP(nn.Module):
     return self.encoding.features(self, points, level_weights, **per_sample)
 
   def _layers(self, pos_features, dir_features, image):
-    x = pos_features.astype(jnp.dtype(self.dtype))
+    s = self.shared
+    x = pos_features.astype(jnp.dtype(s.dtype))
     inputs = x
-    for i in range(self.depth):
-      x = nn.relu(heads.dense(self, self.width, f"layer_{i}")(x))
-      if i in self.skip_layers:
+    for i in range(self.settings.depth):
+      x = nn.relu(heads.dense(s, s.width, f"layer_{i}")(x))
+      if i in self.settings.skip_layers:
         x = jnp.concatenate([x, inputs], axis=-1)
-    if not self.view_dependent:
-      if not self.appearance_dims:
-        out = heads.dense(self, 4, "output")(x).astype(jnp.float32)
+    if not s.view_dependent:
+      if not s.appearance_dims:
+        out = heads.dense(s, 4, "output")(x).astype(jnp.float32)
         return nn.sigmoid(out[..., :3]), out[..., 3]
       # The reference's head split in two: density from x alone, colour from x and the code.
-      raw_sigma = heads.dense(self, 1, "sigma")(x)[..., 0].astype(jnp.float32)
-      code = heads.appearance_codes(self, image, x.shape).astype(x.dtype)
-      rgb = heads.dense(self, 3, "rgb")(jnp.concatenate([x, code], axis=-1)).astype(jnp.float32)
+      raw_sigma = heads.dense(s, 1, "sigma")(x)[..., 0].astype(jnp.float32)
+      code = heads.appearance_codes(self, s, image, x.shape).astype(x.dtype)
+      rgb = heads.dense(s, 3, "rgb")(jnp.concatenate([x, code], axis=-1)).astype(jnp.float32)
       return nn.sigmoid(rgb), raw_sigma
-    raw_sigma = heads.dense(self, 1, "sigma")(x)[..., 0].astype(jnp.float32)
-    feature = heads.dense(self, self.width, "feature")(x)
+    raw_sigma = heads.dense(s, 1, "sigma")(x)[..., 0].astype(jnp.float32)
+    feature = heads.dense(s, s.width, "feature")(x)
     extra = [dir_features]
-    if self.appearance_dims:  # the code joins the direction in the colour branch
-      extra.append(heads.appearance_codes(self, image, feature.shape))
+    if s.appearance_dims:  # the code joins the direction in the colour branch
+      extra.append(heads.appearance_codes(self, s, image, feature.shape))
     h = jnp.concatenate([feature, *(e.astype(feature.dtype) for e in extra)], axis=-1)
-    h = heads.colour_layers(self, h)
-    rgb = heads.dense(self, 3, "rgb")(h).astype(jnp.float32)
+    h = heads.colour_layers(s, h)
+    rgb = heads.dense(s, 3, "rgb")(h).astype(jnp.float32)
     return nn.sigmoid(rgb), raw_sigma
 
   @property
@@ -91,19 +97,11 @@ class NerfMLP(nn.Module):
     return False
 
 
-@dataclasses.dataclass(frozen=True)
-class Settings:
-  """config.model's fields of the MLP (its width is the shared model.width,
-  protocol.NetworkSettings)."""
-  depth: int = 8  # hidden layers
-  skip_layers: Sequence[int] = (4,)  # re-inject the input after these layers (0-based)
-
-
 def build(encoding, settings, shared):
   """The NerfMLP over `encoding` of `settings` and the shared settings
   (protocol.NetworkSettings)."""
-  return NerfMLP(depth=settings.depth, width=shared.width,
-                 skip_layers=tuple(settings.skip_layers), encoding=encoding, **shared.head)
+  settings = dataclasses.replace(settings, skip_layers=tuple(settings.skip_layers))
+  return NerfMLP(settings, shared, encoding)
 
 
 # Its section is config.model, shared with the other networks' common settings (as it always

@@ -47,34 +47,33 @@ class Settings:
 
 
 class TransientHead(nn.Module):
-  """The transient MLP: the points' `pos_bands` frequency bands and the ray's image embedding
-  through `depth` ReLU layers of `width`, then a linear output of raw density, colour and raw
-  uncertainty. The embedding table 'embedding' float32 [images, dims] starts at N(0, 1) draws
-  (as torch's Embedding of NeRF-W's code), so the images' heads differ from the first step."""
-  images: int = 1
-  dims: int = 16
-  width: int = 64
-  depth: int = 3
-  pos_bands: int = 6
-  dtype: str = "float32"
-  matmul_precision: str = "default"
+  """The transient MLP of `settings` (`Settings`): the points' pos_bands frequency bands and the
+  ray's image embedding through `depth` ReLU layers of `width`, then a linear output of raw
+  density, colour and raw uncertainty. The embedding table 'embedding' float32 [images, dims]
+  starts at N(0, 1) draws (as torch's Embedding of NeRF-W's code), so the images' heads differ
+  from the first step. images: the training images (from the data). dtype, matmul_precision:
+  the matmul dtype and float32 precision (config.model's, as the static network's)."""
+  settings: Settings
+  images: int
+  dtype: str
+  matmul_precision: str  # precision.NETWORK_PRECISIONS: 'default', 'high', 'highest'
 
   @nn.compact
   def __call__(self, points, image):
-    table = self.param("embedding", draws.normal_init(1.0), (self.images, self.dims))
-    code = jnp.broadcast_to(table[image][..., None, :], (*points.shape[:-1], self.dims))
-    x = jnp.concatenate([posenc.positional_encoding(points, self.pos_bands), code], axis=-1)
+    s = self.settings
+    table = self.param("embedding", draws.normal_init(1.0), (self.images, s.dims))
+    code = jnp.broadcast_to(table[image][..., None, :], (*points.shape[:-1], s.dims))
+    x = jnp.concatenate([posenc.positional_encoding(points, s.pos_bands), code], axis=-1)
     x = x.astype(jnp.dtype(self.dtype))
-    for i in range(self.depth):
-      x = nn.relu(heads.dense(self, self.width, f"layer_{i}")(x))
+    for i in range(s.depth):
+      x = nn.relu(heads.dense(self, s.width, f"layer_{i}")(x))
     out = heads.dense(self, 5, "output")(x).astype(jnp.float32)
     return nn.sigmoid(out[..., :3]), out[..., 3], out[..., 4]
 
 
-def build(settings, images, dtype="float32", matmul_precision="default"):
-  """The TransientHead of `settings` for `images` training images (None when dims is 0)."""
+def build(settings, images, dtype, matmul_precision):
+  """The TransientHead of `settings` for `images` training images, matmuls in `dtype` at
+  `matmul_precision` (None when settings.dims is 0)."""
   if not settings.dims:
     return None
-  return TransientHead(images=max(int(images), 1), dims=settings.dims, width=settings.width,
-                       depth=settings.depth, pos_bands=settings.pos_bands, dtype=dtype,
-                       matmul_precision=matmul_precision)
+  return TransientHead(settings, max(int(images), 1), dtype, matmul_precision)

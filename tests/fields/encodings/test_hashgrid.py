@@ -15,6 +15,7 @@ from nerf_jax.fields.encodings import grid, hashgrid
 from nerf_jax.run import components
 from nerf_jax.run.signature import model_signature
 from nerf_jax.fields.networks.lattice import LatticeHead
+from nerf_jax.fields.protocol import NetworkSettings
 from tests.helpers import grey_view_loss, ray_renderer, small_config
 
 P1, P2 = 2654435761, 805459861
@@ -130,7 +131,7 @@ def test_level_resolutions_span_base_to_max_geometrically():
 def _small_model(gather_dtype="float32"):
   settings = hashgrid.Settings(levels=4, log2_size=10, features=2, base_resolution=4,
                                max_resolution=64, gather_dtype=gather_dtype)
-  return LatticeHead(hashgrid.HashGrid(settings, grid.Space(1.0)), hidden=16)
+  return LatticeHead(hashgrid.HashGrid(settings, grid.Space(1.0)), NetworkSettings(width=16))
 
 
 def test_float16_rows_give_finite_values_and_gradients_close_to_float32():

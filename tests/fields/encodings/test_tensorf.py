@@ -10,6 +10,7 @@ from nerf_jax.fields.encodings import grid, tensorf
 from nerf_jax.run.signature import model_signature
 from nerf_jax.bench import encodings as bench_encodings
 from nerf_jax.fields.networks.lattice import LatticeHead
+from nerf_jax.fields.protocol import NetworkSettings
 from tests.helpers import grey_view_loss, jitted, ray_renderer, small_config
 from tests.helpers import trilinear_brute
 
@@ -100,7 +101,7 @@ def test_tensorf_model_shapes_box_and_one_training_step():
 def test_tensorf_box_cells_and_out_of_box_density():
   box = (-1.0, -0.5, -0.25, 1.0, 0.5, 0.25)
   encoding = tensorf.TensoRF(tensorf.Settings(resolutions=(9,), rank=2), grid.Space(box=box))
-  model = LatticeHead(encoding)
+  model = LatticeHead(encoding, NetworkSettings())
   points = jnp.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.3]])  # inside; beyond the box in z
   params = model.init(jax.random.PRNGKey(0), points)["params"]
   assert grid.axis_resolutions(9, (box[:3], box[3:])) == (9, 5, 3)

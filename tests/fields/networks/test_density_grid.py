@@ -9,6 +9,7 @@ import pytest
 
 from nerf_jax.fields.networks import density_grid
 from nerf_jax.fields.encodings import grid
+from nerf_jax.fields.protocol import NetworkSettings
 from nerf_jax.render import renderer
 from nerf_jax.run import components
 from nerf_jax.run.signature import model_signature
@@ -18,7 +19,7 @@ from tests.helpers import small_view_rays
 def _split_network(view_dependent=False, **settings):
   """A DensityGridNeRF over the grid encoding of `settings` (grid.Settings) on the 1.5 cube."""
   encoding = grid.DenseGrid(grid.Settings(**settings), grid.Space(1.5))
-  return density_grid.DensityGridNeRF(encoding, view_dependent=view_dependent)
+  return density_grid.DensityGridNeRF(encoding, NetworkSettings(view_dependent=view_dependent))
 
 
 def test_each_half_of_the_split_network_equals_the_whole():

@@ -1,12 +1,20 @@
 """The Flax MLP: shapes, the skip connection, view dependence and precision."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax.fields.networks.mlp import NerfMLP
+from nerf_jax.fields.networks import mlp
+from nerf_jax.fields.protocol import NetworkSettings
 from tests.helpers import NETWORK_RTOL, jitted
+
+
+def NerfMLP(depth, width, skip_layers=(4,), **shared):  # pylint: disable=invalid-name
+  """mlp.NerfMLP of `depth` layers of `width` (shared: further NetworkSettings fields)."""
+  return mlp.NerfMLP(mlp.Settings(depth, skip_layers), NetworkSettings(width=width, **shared))
 
 
 def _init(model, pos_dim=9, dir_dim=9, key=0):
@@ -110,8 +118,8 @@ def test_forward_pass_matches_a_numpy_reference(view_dependent, view_depth):
   np.testing.assert_allclose(sigma, ref_sigma, rtol=1e-5, atol=1e-5)
   # At the backend's default precision (TF32 on GPUs, emulated on the CPU by the tests), the
   # same network within the TF32 tolerance, stated once for every network test.
-  rgb, sigma = jitted(model.clone(matmul_precision="default").apply)({"params": params}, pos,
-                                                                     dirs)
+  default = model.clone(shared=dataclasses.replace(model.shared, matmul_precision="default"))
+  rgb, sigma = jitted(default.apply)({"params": params}, pos, dirs)
   np.testing.assert_allclose(rgb, ref_rgb, rtol=NETWORK_RTOL, atol=NETWORK_RTOL)
   np.testing.assert_allclose(sigma, ref_sigma, rtol=NETWORK_RTOL, atol=NETWORK_RTOL)
 
