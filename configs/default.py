@@ -8,7 +8,7 @@ dataclass of the part that reads it; this file builds each section from them (`S
 field here and its dataclass cannot disagree. A component's own settings are its own section
 (`COMPONENTS`: config.model.<encoding>, config.<sampler>, config.loss.<term>); other sections
 are shared by the dataclasses listed for them, and a key none of them declares is refused
-(run/components.check_config).
+(run/builders.check_config).
 """
 
 import ml_collections
@@ -19,7 +19,7 @@ from nerf_jax.evaluate import evaluation
 from nerf_jax.fields import field, protocol, registry
 from nerf_jax.fields.encodings import posenc
 from nerf_jax.fields.networks import mlp
-from nerf_jax.fields.networks import transient as transient_head
+from nerf_jax.fields.networks import transient_head
 from nerf_jax.render import image_renderer, renderer
 from nerf_jax.run import settings
 from nerf_jax.samplers import occupancy

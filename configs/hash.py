@@ -11,7 +11,7 @@ from nerf_jax.configs import fast
 
 def get_config():
   config = fast.get_config()
-  config.model.encoding = "hash"  # multiresolution hash grid (fields/encodings/hashgrid.py)
+  config.model.encoding = "hash"  # multiresolution hash grid (fields/encodings/hash.py)
   config.model.hash.levels = 16  # instant-ngp's 16 levels
   config.model.hash.log2_size = 17  # 2^17 rows per hashed level: 3.4M table parameters
   config.model.hash.features = 2  # 2 features per row: 32 inputs to the MLP

@@ -24,7 +24,7 @@ from nerf_jax.fields.networks import density_grid
 from nerf_jax.render import background
 from nerf_jax.render import renderer as renderer_lib
 from nerf_jax.samplers import proposal
-from nerf_jax.run import components, config_lib, experiment
+from nerf_jax.run import builders, config_lib, experiment
 from nerf_jax.cameras.rays import Rays, get_rays, pose_spherical
 from nerf_jax.data import DataError, loaders
 
@@ -94,9 +94,9 @@ def small_config(overrides=None, /, base="debug", **fields):
 
 def load_data(data):
   """(train, test) Datasets of a `data` section as a run loads them: loaders.load_dataset of
-  components.data_settings(data) (data: a ConfigDict or dict; the fields it lacks take
+  builders.data_settings(data) (data: a ConfigDict or dict; the fields it lacks take
   configs/default.py's values)."""
-  return loaders.load_dataset(components.data_settings(data))
+  return loaders.load_dataset(builders.data_settings(data))
 
 
 def jitted(fn, **static):
@@ -125,10 +125,10 @@ class StandInNetwork:
 
 
 def ray_renderer(config, network=None):
-  """The RayRenderer of `config` (components.make_ray_renderer); with `network`, a stand-in
+  """The RayRenderer of `config` (builders.make_ray_renderer); with `network`, a stand-in
   for the Flax module (an object with apply(variables, positions, dir_features) -> (rgb,
   sigma)) queried through the config's Field."""
-  renderer = components.make_ray_renderer(config)
+  renderer = builders.make_ray_renderer(config)
   if network is None:
     return renderer
   return dataclasses.replace(renderer, field=dataclasses.replace(renderer.field, network=network))

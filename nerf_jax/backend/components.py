@@ -35,7 +35,7 @@ class Component:
     the key that changed. None: every setting, keyed '<name>_<setting>' (`entries`).
   section: the dotted config path of its settings; None = the rule, <registry root>.<name>. A
     section named here is shared (it holds other settings too): it is read leniently and
-    checked whole against every dataclass sharing it (run/components.check_config).
+    checked whole against every dataclass sharing it (run/builders.check_config).
   """
   name: str
   settings: Any

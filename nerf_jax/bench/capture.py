@@ -135,25 +135,25 @@ def held_out(workdir, folder):
   """The held-out views of the transforms.json `folder`, loaded as the run in `workdir` loads
   its data (its factor, background, split; moved as its world was, data.focus): a Dataset."""
   # pylint: disable-next=import-outside-toplevel
-  from nerf_jax.run import components, config_lib, from_data
+  from nerf_jax.run import builders, config_lib, from_data
   from nerf_jax.data import loaders  # pylint: disable=import-outside-toplevel
   config = config_lib.load_saved(workdir)
   data = config.data.to_dict()
   data["path"] = folder
-  test_ds = loaders.load_dataset(components.data_settings(data))[1]
+  test_ds = loaders.load_dataset(builders.data_settings(data))[1]
   if config.data.focus:  # the run's world is centred on its own cameras' focus: move these too
-    train_ds = loaders.load_dataset(components.data_settings(config.data))[0]
+    train_ds = loaders.load_dataset(builders.data_settings(config.data))[0]
     test_ds = from_data.with_focus(config, train_ds, test_ds)[1]
   return test_ds
 
 
 def evaluate_at(workdir, test_ds):
   """The newest checkpoint of `workdir` scored on the views of `test_ds` (a Dataset in the run's
-  world frame, at its image size): components.make_evaluator's {'psnr', 'ssim', ...}."""
+  world frame, at its image size): builders.make_evaluator's {'psnr', 'ssim', ...}."""
   # pylint: disable-next=import-outside-toplevel
-  from nerf_jax.run import components, experiment
+  from nerf_jax.run import builders, experiment
   exp, state = experiment.restore(workdir)
-  return components.make_evaluator(dataclasses.replace(exp, test_ds=test_ds))(state.variables)
+  return builders.make_evaluator(dataclasses.replace(exp, test_ds=test_ds))(state.variables)
 
 
 def _scores(metrics):

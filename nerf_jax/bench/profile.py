@@ -33,7 +33,7 @@ import numpy as np
 from absl import flags
 
 from nerf_jax.render import compositing
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from nerf_jax.run.signature import init_state
 from nerf_jax.samplers import placement
 from nerf_jax.train import train_batches
@@ -57,9 +57,9 @@ def _warmed(config, warm_steps):
   train steps (an occupancy grid then holds what the field has found, as in a real run)."""
   exp = experiment.setup(config)
   state = init_state(exp)
-  data = components.make_train_data(exp)
+  data = builders.make_train_data(exp)
   key = jax.random.PRNGKey(0)
-  step = components.make_train_step(exp)
+  step = builders.make_train_step(exp)
   for _ in range(warm_steps):
     state, _ = step(state, data, key)
   return exp, jax.block_until_ready(state), data, key, step
@@ -68,7 +68,7 @@ def _warmed(config, warm_steps):
 def profile(config, repeats=10, warm_steps=0):
   """[(stage, ms, note)] for one train step of `config` on its dataset, after `warm_steps`."""
   exp, state, data, key, step = _warmed(config, warm_steps)
-  rays, samples = components.rays_per_step(config, exp.train_ds), config.num_samples
+  rays, samples = builders.rays_per_step(config, exp.train_ds), config.num_samples
   times = []
   for _ in range(repeats + 1):  # the first call compiles, unless the warm steps did: not counted
     start = time.perf_counter()
@@ -77,9 +77,9 @@ def profile(config, repeats=10, warm_steps=0):
     times.append(time.perf_counter() - start)
   rows = [("train step (all)", 1e3 * float(np.median(times[1:])), f"{rays} rays × {samples}")]
 
-  batch = train_batches.draw_batch(data, components.batch_settings(config), key).rays
+  batch = train_batches.draw_batch(data, builders.batch_settings(config), key).rays
   rows.append(("draw batch (gathers)", median_ms(
-      lambda k: train_batches.draw_batch(data, components.batch_settings(config), k), key,
+      lambda k: train_batches.draw_batch(data, builders.batch_settings(config), k), key,
       repeats=repeats), ""))
 
   field = exp.renderer.field

@@ -32,7 +32,7 @@ from absl import app, flags
 
 from nerf_jax.backend import gpu_atomics
 from nerf_jax.bench import measure
-from nerf_jax.fields.encodings import hashgrid
+from nerf_jax.fields.encodings import hash as hashgrid
 
 SMOKE = {"levels": 4, "log2_size": 10, "max_resolution": 64, "samples": 1024}  # a CPU's seconds
 

@@ -18,7 +18,7 @@ from absl import app, flags
 
 from nerf_jax import cli
 from nerf_jax.backend import errors
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from nerf_jax.run.signature import init_state
 from nerf_jax.bench import sweeps
 
@@ -36,8 +36,8 @@ def step_times(named_configs, steps, num_views=None):
       config.data.num_views = num_views
     exp = experiment.setup(config)
     state = init_state(exp)
-    data = components.make_train_data(exp)
-    step = components.make_train_step(exp)
+    data = builders.make_train_data(exp)
+    step = builders.make_train_step(exp)
     key = jax.random.PRNGKey(0)
     state, _ = jax.block_until_ready(step(state, data, key))  # compile + one warm-up step
     runs[name] = [step, state, data, key, [], num_params(state.params)]

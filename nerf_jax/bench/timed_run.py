@@ -23,7 +23,7 @@ import numpy as np
 
 from nerf_jax.evaluate import evaluation
 from nerf_jax.render import background, image_renderer
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from nerf_jax.train import optimizer
 from nerf_jax.run.signature import init_state
 from nerf_jax.run import train_lib
@@ -90,7 +90,7 @@ def _build(exp):
   so every loop needs a state of its own."""
   # One compiled init instead of dozens of eagerly compiled small ops: same values, less setup.
   state = jax.jit(lambda: init_state(exp))()
-  return components.make_train_step(exp), state
+  return builders.make_train_step(exp), state
 
 
 def frame_seconds(exp, variables, repeats):
@@ -109,21 +109,21 @@ def run_config(config, options):
   """Train `config` under its budget in this process and measure it. Returns the record."""
   start = time.perf_counter()
   exp = experiment.setup(config)
-  data = components.make_train_data(exp)
+  data = builders.make_train_data(exp)
   key = jax.random.PRNGKey(config.seed + 1)  # as train_lib.train_and_evaluate
   tc = config.train
-  max_steps = components.schedule_steps(tc)
+  max_steps = builders.schedule_steps(tc)
   if tc.max_seconds > 0 and options.fit_schedule:
     # The schedule spans the steps expected to fit in the budget (the benchmark's clock counts
     # the compile, not the calibration); the clock alone ends the run.
-    config = train_lib.fit_to_time(exp, components.make_train_step(exp), data, key,
+    config = train_lib.fit_to_time(exp, builders.make_train_step(exp), data, key,
                                    lambda compile_seconds: tc.max_seconds - compile_seconds)
     tc = config.train
-    tx = optimizer.make_optimizer(components.optimizer_settings(config))
+    tx = optimizer.make_optimizer(builders.optimizer_settings(config))
     exp = dataclasses.replace(exp, config=config, tx=tx)
     max_steps = sys.maxsize
   jitted, state = _build(exp)
-  evaluate = components.make_evaluator(exp)
+  evaluate = builders.make_evaluator(exp)
   clock = measure.Clock()
 
   def probe(state):
@@ -151,7 +151,7 @@ def run_config(config, options):
   eval_seconds = time.perf_counter() - start
   render_times, render_size = frame_seconds(exp, state.variables, options.render_repeats)
   step_seconds = measure.median_step_seconds(segments)
-  rays = components.rays_per_step(config, exp.train_ds)
+  rays = builders.rays_per_step(config, exp.train_ds)
   flops = measure.mlp_flops_per_step(state.params, config, rays)
   bad = int(state.bad_step)
   return {
@@ -173,7 +173,7 @@ def run_config(config, options):
       "params": int(sum(x.size for x in jax.tree_util.tree_leaves(state.params))),
       "peak_rss_mb": measure.peak_rss_mb(), "device_peak_mb": measure.device_peak_mb(),
       "eval_seconds": eval_seconds, "diverged_at_step": bad + 1 if bad >= 0 else None,
-      "schedule_steps": components.schedule_steps(tc), "config": json.loads(config.to_json()),
+      "schedule_steps": builders.schedule_steps(tc), "config": json.loads(config.to_json()),
       **setup}
 
 

@@ -44,7 +44,7 @@ class Settings:
 
 @dataclasses.dataclass(frozen=True)
 class EvalSettings:
-  """How the test views are rendered and scored (run/components.eval_settings builds them)."""
+  """How the test views are rendered and scored (run/builders.eval_settings builds them)."""
   background: tuple  # (r, g, b) in [0, 1]: the colour rendered and scored on (data.background)
   held_out: Settings  # the held-out views' codes (config.eval)
 

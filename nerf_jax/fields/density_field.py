@@ -1,7 +1,7 @@
 """Density-only fields: the small networks a proposal sampler queries (mip-NeRF 360, nerfacto).
 
 `HashDensity` is nerfacto's proposal network: a small multiresolution hash grid
-(encodings/hashgrid.py) and one hidden layer to a raw density, no colour and no viewing
+(encodings/hash.py) and one hidden layer to a raw density, no colour and no viewing
 direction. It follows the call of protocol.py so a `field.Field` wraps it (contraction, density
 activation): applied to positions float32 [..., S, 3] (world or contracted) it returns
 (rgb float32 [..., S, 3], raw_sigma float32 [..., S]) with rgb all zeros, which
@@ -17,7 +17,8 @@ import jax.numpy as jnp
 
 from nerf_jax.backend import draws
 from nerf_jax.fields import field as field_lib
-from nerf_jax.fields.encodings import grid, hashgrid
+from nerf_jax.fields.encodings import grid
+from nerf_jax.fields.encodings import hash as hashgrid
 
 
 class LatticeSettings(Protocol):
@@ -60,7 +61,7 @@ class HashDensity(_DensityOnly):
   """Raw density from a hash grid over [-bound, bound]^3 and one hidden ReLU layer.
 
   settings' levels, log2_size, features, base_resolution and max_resolution: the hash grid's
-  (hashgrid.py). Positions outside the box are clamped onto it (as the hash grid does); a
+  (hash.py). Positions outside the box are clamped onto it (as the hash grid does); a
   proposal sampler only queries inside it (the scene box, or contracted space).
   """
 

@@ -5,7 +5,7 @@ rgb float32 [..., S, 3] and density sigma float32 [..., S] (per unit of world le
 a Flax network (networks/; protocol.py: the calling convention), which applies its position
 encoding (encodings/) to the points, with the encoding of the viewing directions and the
 density activation (activations.py).
-`Field` is built once (run/components.make_field) and queried as field.query(params, points,
+`Field` is built once (run/builders.make_field) and queried as field.query(params, points,
 viewdirs, key). Two optional per-query inputs: `image`, int32 [...] the training image of each
 ray, selects its appearance code (appearance_dims > 0; None = the mean code, as for held-out
 views), and `bands`, float32 [], how many positional-encoding bands, or grid levels after the

@@ -99,7 +99,7 @@ class DirectionSettings:
 @dataclasses.dataclass(frozen=True)
 class NetworkSettings:
   """What every encoding and network may take besides its own section: config.model's shared
-  fields, built once by run/components.network_settings. Each uses the ones that apply to it."""
+  fields, built once by run/builders.network_settings. Each uses the ones that apply to it."""
   view_dependent: bool = False  # colour depends on the viewing direction (paper's 5D input)
   view_width: int = 32  # width of the view-dependent colour layer
   view_depth: int = 1  # colour layers of view_width after the direction joins (instant-ngp: 2)

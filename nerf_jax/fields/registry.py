@@ -80,7 +80,7 @@ ENCODINGS = components.Registry("encoding", "config.model.encoding", "ENCODING",
     "posenc": "nerf_jax.fields.encodings.posenc",
     "ipe": "nerf_jax.fields.encodings.ipe",
     "grid": "nerf_jax.fields.encodings.grid",
-    "hash": "nerf_jax.fields.encodings.hashgrid",
+    "hash": "nerf_jax.fields.encodings.hash",
     "tensorf": "nerf_jax.fields.encodings.tensorf",
 })
 DIRECTION_ENCODINGS = components.Registry(

@@ -1,6 +1,6 @@
 """The transient field of NeRF-W (section 4.2): what stands in one training photo and not in
 the others (people, boats, cars), with a per-sample uncertainty. It wraps the Flax head of
-networks/transient.py and activates its outputs; render/renderer.py queries it on the final pass
+networks/transient_head.py and activates its outputs; render/renderer.py queries it on the final pass
 of training rays (which carry their image) and composites it with the static field
 (render/compositing.composite_with_transient). Held-out views and renders (rays without an
 image) see the static field alone.
@@ -24,7 +24,7 @@ from nerf_jax.fields import activations
 
 @dataclasses.dataclass(frozen=True)
 class TransientField:
-  """network: the TransientHead (networks/transient.py). beta_min: the floor added to the
+  """network: the TransientHead (networks/transient_head.py). beta_min: the floor added to the
   rendered uncertainty. density_shift: added to the raw density before the softplus."""
   network: Any
   beta_min: float = 0.03

@@ -1,13 +1,13 @@
 """What a run is made of, built once for every entry point (training, rendering, benchmarks,
 the viewer, tests): the config, the renderer, the optimiser, the datasets and the ray bounds;
 and restoring all of it from a workdir. The wiring it calls lives beside it: from_data.py (the
-config completed from the data), components.py (each layer's settings and components),
+config completed from the data), builders.py (each layer's settings and components),
 experiment_parts.py (the Experiment these make) and signature.py (what a checkpoint records:
 the model signature, a fresh state, its template).
 """
 
 from nerf_jax.data import loaders
-from nerf_jax.run import auto, components, config_lib, experiment_parts, from_data
+from nerf_jax.run import auto, builders, config_lib, experiment_parts, from_data
 from nerf_jax.run.signature import model_signature, state_template
 from nerf_jax.train import checkpoints
 from nerf_jax.train.state import upgrade_state_dict
@@ -21,8 +21,8 @@ def setup(config):
   """The Experiment (experiment_parts.py) of `config`: loads the data, completes the config,
   builds the renderer and the optimiser."""
   config = config_lib.upgrade(config)
-  components.make_ray_renderer(config)  # a bad model or sampler setting fails before the data
-  train_ds, test_ds = loaders.load_dataset(components.data_settings(config.data))
+  builders.make_ray_renderer(config)  # a bad model or sampler setting fails before the data
+  train_ds, test_ds = loaders.load_dataset(builders.data_settings(config.data))
   if config.auto:
     config = auto.auto_config(config, train_ds)
   from_data.pixel_center(config, train_ds)  # a bad value fails here, naming the field

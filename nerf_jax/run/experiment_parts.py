@@ -14,7 +14,7 @@ from nerf_jax.cameras.rays import camera_rays
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.render.image_renderer import ImageSettings
 from nerf_jax.render.renderer import RayRenderer
-from nerf_jax.run import components, from_data
+from nerf_jax.run import builders, from_data
 from nerf_jax.train import optimizer
 
 
@@ -71,7 +71,7 @@ class Experiment:
 def assemble(config, train_ds, test_ds, near, far, hull=None):
   """The Experiment of a completed `config` on loaded datasets: its renderer, image settings and
   optimiser built from the config. near, far, hull: as Experiment holds them."""
-  return Experiment(config, components.make_ray_renderer(config, len(train_ds)),
-                    components.image_settings(config),
-                    optimizer.make_optimizer(components.optimizer_settings(config)), train_ds,
+  return Experiment(config, builders.make_ray_renderer(config, len(train_ds)),
+                    builders.image_settings(config),
+                    optimizer.make_optimizer(builders.optimizer_settings(config)), train_ds,
                     test_ds, near, far, hull)

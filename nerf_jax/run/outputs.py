@@ -17,7 +17,7 @@ import numpy as np
 from nerf_jax.cameras import camera_paths
 from nerf_jax.evaluate import lpips, visuals
 from nerf_jax.render import background, image_renderer, surface
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from nerf_jax.train import progress
 
 
@@ -157,7 +157,7 @@ def render(workdir, mode, poses_path="", out_dir="", depth_npy=False, resolution
     print(f"wrote {len(mesh['vertices'])} vertices and {len(mesh['faces'])} faces to {path}")
     return path
   if mode == "eval":
-    result = components.make_evaluator(exp)(variables, out_dir=out_dir)
+    result = builders.make_evaluator(exp)(variables, out_dir=out_dir)
     print(f"test PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.4f}, "
           f"{lpips.describe(result)} over {len(result['per_view'])} views -> {out_dir}")
     return result

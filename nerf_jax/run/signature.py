@@ -12,7 +12,7 @@ from nerf_jax.backend import components
 from nerf_jax.fields import registry
 from nerf_jax.fields.encodings import grid
 from nerf_jax.train.state import TrainState
-from nerf_jax.run.components import (encoding_family, make_ray_renderer, make_sampler,
+from nerf_jax.run.builders import (encoding_family, make_ray_renderer, make_sampler,
                                      network_family, own_settings, transient_settings)
 
 

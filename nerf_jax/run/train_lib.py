@@ -20,7 +20,7 @@ import ml_collections
 
 from nerf_jax.backend import determinism
 from nerf_jax.evaluate import lpips
-from nerf_jax.run import components, config_lib, experiment, outputs
+from nerf_jax.run import builders, config_lib, experiment, outputs
 from nerf_jax.run.experiment import TrainingError
 from nerf_jax.run.signature import init_state, model_signature, state_template
 from nerf_jax.train import (budget, checkpoints, hooks as hooks_lib, loop, optimizer, parallel,
@@ -62,16 +62,16 @@ def train_and_evaluate(config, workdir, watchers=()):
   t_start = time.perf_counter() - float(meta.get("wall_seconds", 0.0))
   elapsed = lambda: time.perf_counter() - t_start
   mesh = parallel.make_mesh(exp.config.train.data_parallel)
-  parallel.check_batch(components.rays_per_step(exp.config, exp.train_ds), mesh)
-  data = parallel.replicate(components.make_train_data(exp), mesh)
+  parallel.check_batch(builders.rays_per_step(exp.config, exp.train_ds), mesh)
+  data = parallel.replicate(builders.make_train_data(exp), mesh)
   key = jax.random.PRNGKey(exp.config.seed + 1)
   # Reused for an equal run in the same process (tests, sweeps and resumed runs compile once).
   cached = (exp.config.to_json(), exp.near, exp.far, mesh)
   if cached not in _STEPS:
-    _keep(cached, train_step_lib.make_train_step(**components.train_step_args(exp, mesh)))
+    _keep(cached, train_step_lib.make_train_step(**builders.train_step_args(exp, mesh)))
   _STEPS.move_to_end(cached)
   train_step = _STEPS[cached]
-  config, last_step = exp.config, components.schedule_steps(exp.config.train)
+  config, last_step = exp.config, builders.schedule_steps(exp.config.train)
   if fits_time(config.train):
     config = _resumed_or_fitted(exp, train_step, data, key, mesh, meta, t_start)
     train_step = functools.partial(train_step, planned_steps=jnp.int32(config.train.max_steps))
@@ -79,10 +79,10 @@ def train_and_evaluate(config, workdir, watchers=()):
   if main:  # with the schedule the run uses
     # Registered names as their module paths: a restore in a new process finds them again.
     checkpoints.atomic_write(os.path.join(workdir, "config.json"),
-                             components.portable(config).to_json(indent=2).encode())
+                             builders.portable(config).to_json(indent=2).encode())
   state = parallel.replicate(state, mesh)
   writer = summary.Writer(workdir, enabled=main and config.train.tensorboard)
-  evaluate = components.make_evaluator(exp)
+  evaluate = builders.make_evaluator(exp)
   loop_hooks = _loop_hooks(exp, config, workdir, signature, evaluate, writer, mesh,
                           int(state.step), last_step, elapsed)
   loop_hooks = [hooks_lib.Watch(make_watcher(exp, workdir, main), _variables_on(mesh))
@@ -113,14 +113,14 @@ def _loop_hooks(exp, config, workdir, signature, evaluate, writer, mesh, start_s
   save = lambda state: _save(workdir, state, signature, tc, elapsed())
   clocked = last_step == sys.maxsize  # a time budget: the clock, not a step count, is the total
   found = [
-      hooks_lib.Record(tc.log_every, window, components.rays_per_step(config, exp.train_ds),
+      hooks_lib.Record(tc.log_every, window, builders.rays_per_step(config, exp.train_ds),
                        elapsed, check),
       hooks_lib.Evaluate(tc.eval_every,
                          lambda v, on_view: evaluate(v, max_views=tc.eval_views, on_view=on_view),
                          variables, window, writer, exp.near, exp.far),
       hooks_lib.MetricsFile(os.path.join(workdir, "metrics.jsonl")) if main else None,
-      hooks_lib.TensorBoard(writer, optimizer.make_schedule(components.optimizer_settings(config))),
-      hooks_lib.ProgressLine(components.schedule_steps(tc), tc.max_seconds, clocked, start_step,
+      hooks_lib.TensorBoard(writer, optimizer.make_schedule(builders.optimizer_settings(config))),
+      hooks_lib.ProgressLine(builders.schedule_steps(tc), tc.max_seconds, clocked, start_step,
                              elapsed, stream=None if main else io.StringIO()),
       hooks_lib.Checkpoint(tc.checkpoint_every, window, check, save)]
   return [hook for hook in found if hook is not None]
@@ -184,7 +184,7 @@ def fits_time(train_config):
 
 def fit_schedule(train_config, num_steps):
   """Set max_steps = num_steps (in place); warm-up keeps its share of the planned steps."""
-  share = train_config.warmup_steps / max(components.schedule_steps(train_config), 1)
+  share = train_config.warmup_steps / max(builders.schedule_steps(train_config), 1)
   train_config.warmup_steps = int(round(share * num_steps))
   train_config.max_steps = int(num_steps)
 
@@ -236,7 +236,7 @@ def _save(workdir, state, signature, train_config, elapsed):
     checkpoints.save(workdir, int(host_state.step), host_state, signature,
                      train_config.keep_checkpoints,
                      meta={"wall_seconds": elapsed,
-                           "schedule_steps": components.schedule_steps(train_config),
+                           "schedule_steps": builders.schedule_steps(train_config),
                            "warmup_steps": int(train_config.warmup_steps)})
 
 

@@ -14,7 +14,7 @@ import jax
 import numpy as np
 
 from nerf_jax.render import background, image_renderer
-from nerf_jax.run import components, config_lib, experiment_parts, from_data
+from nerf_jax.run import builders, config_lib, experiment_parts, from_data
 from nerf_jax.run.signature import init_state
 from nerf_jax.train import train_step as train_step_lib
 
@@ -63,8 +63,8 @@ def photos_and_renders(dataset, seed=0):
   config = from_data.with_scene_extent(config, train)
   exp = experiment_parts.assemble(config, train, train, near, far)
   state = init_state(exp)
-  data = components.make_train_data(exp)
-  step = train_step_lib.make_train_step(**components.train_step_args(exp))
+  data = builders.make_train_data(exp)
+  step = train_step_lib.make_train_step(**builders.train_step_args(exp))
   key = jax.random.PRNGKey(seed + 1)
   for _ in range(WARM_UP_STEPS):
     state, _ = step(state, data, key)

@@ -226,7 +226,7 @@ class Sampler:
 
 def build(settings, base):
   """The built-in placement's builder (samplers/registry.py): `base` itself, whose settings are
-  the config's num_samples, data.* and occupancy.* (run/components.make_sampler); `section` is
+  the config's num_samples, data.* and occupancy.* (run/builders.make_sampler); `section` is
   None."""
   del settings
   return base

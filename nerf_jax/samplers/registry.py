@@ -5,7 +5,7 @@ A sampler's module defines `SAMPLER = components.Component(name, Settings, build
 and 'proposal' (proposal.py); a new one is a module anywhere, chosen with config.sampler = its
 dotted module path, or given a short name with `REGISTRY.register(name, module path)`. Its
 settings are its own config section, config.<name> (the record's name), read strictly;
-run/components.make_sampler builds it. A module is imported the first time it is asked for.
+run/builders.make_sampler builds it. A module is imported the first time it is asked for.
 
 build(settings, base) -> sampler: `settings` its settings dataclass (None if it has none),
 `base` the built-in placement.Sampler of the config (num_samples, scene_bound, contraction,

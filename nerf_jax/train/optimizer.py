@@ -1,6 +1,6 @@
 """The learning-rate schedule and the optimiser of a run: Adam with warm-up and exponential
 decay, and its parameter groups (poses, appearance codes, network). It reads no config: the
-entry layer builds `OptimizerSettings` from config.train (run/components.optimizer_settings).
+entry layer builds `OptimizerSettings` from config.train (run/builders.optimizer_settings).
 """
 
 import dataclasses
@@ -16,7 +16,7 @@ from nerf_jax.backend import components
 @dataclasses.dataclass(frozen=True)
 class OptimizerSettings:
   """The optimiser's settings: config.train's fields of the optimiser, and three the entry
-  layer derives (run/components.optimizer_settings): planned_steps (train.max_steps, else
+  layer derives (run/builders.optimizer_settings): planned_steps (train.max_steps, else
   train.default_steps), pose_refinement (train.pose_refinement: the corrections get their own
   Adam at pose_lr) and appearance_codes (model.appearance_dims > 0: the codes get their own
   Adam at appearance_lr, unless it is lr)."""

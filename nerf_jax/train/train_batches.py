@@ -102,7 +102,7 @@ def make_train_data(ds, camera, rgb_background, with_radii=False):
   """TrainData of every pixel of the images of `ds` (a Dataset), targets on `rgb_background`
   (float32 [3], background.parse's); rays are made per step from the poses and `camera`:
   (height, width, intrinsics, near, far, pixel_center, use_ndc), see TrainData.camera
-  (run/components.make_train_data passes the training camera's). With per-image cameras
+  (run/builders.make_train_data passes the training camera's). With per-image cameras
   (`ds.image_cameras`) the pixels are one flat run and each image's own camera is used (its
   height, width and intrinsics in `camera` are ignored). with_radii: see TrainData."""
   height, width, intrinsics, near, far, pixel_center, use_ndc = camera

@@ -4,7 +4,7 @@ is not applied and is reported.
 
 The step never sees a config: `make_train_step(ray_renderer, tx, terms, settings, ...)` takes
 the renderer, the optimiser, the loss terms (train/losses/), `StepSettings` and the buffer
-hooks, all built once by the entry layer (run/components.train_step_args).
+hooks, all built once by the entry layer (run/builders.train_step_args).
 
 With appearance codes each ray is rendered with its training image's code (and with the
 transient head, its image's transient embedding); with pose refinement each ray is made from its
@@ -34,7 +34,7 @@ from nerf_jax.train.state import TrainState
 @dataclasses.dataclass(frozen=True)
 class StepSettings:
   """What a train step does besides rendering and the loss terms: config.train's fields of
-  the step, and three the entry layer derives (run/components.step_settings): batch
+  the step, and three the entry layer derives (run/builders.step_settings): batch
   (train_batches.BatchSettings, how each step's rays are drawn), background (float32 (r, g, b),
   what the targets are composited on: data.background) and planned_steps (the steps the
   learning-rate schedule spans; BARF's coarse-to-fine share is of these when the step is not

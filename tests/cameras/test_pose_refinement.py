@@ -10,8 +10,9 @@ import pytest
 import scipy.linalg
 
 from nerf_jax.cameras import pose_refinement
-from nerf_jax.fields.encodings import hashgrid, posenc
-from nerf_jax.run import components, experiment
+from nerf_jax.fields.encodings import posenc
+from nerf_jax.fields.encodings import hash as hashgrid
+from nerf_jax.run import builders, experiment
 from nerf_jax.run.signature import init_state, model_signature
 from nerf_jax.train.state import TrainState
 from nerf_jax.train import train_step
@@ -108,7 +109,7 @@ def test_grid_levels_open_coarse_to_fine(encoding_name):
   # The tiny grid with three levels (two stages of bands to open).
   config = small_config({**TINY_GRID, "model.encoding": encoding_name,
                          **THREE_LEVELS[encoding_name]}, base="fast")
-  field = components.make_field(config)
+  field = builders.make_field(config)
   assert field.coarse_to_fine_stages == 2
   params = jitted(field.init)(jax.random.PRNGKey(0))
   points = jax.random.uniform(jax.random.PRNGKey(1), (5, 7, 3), minval=-1.0, maxval=1.0)
@@ -170,8 +171,8 @@ def _train_corrections(exp, start, steps):
   state = TrainState(step=jnp.array(0, jnp.int32), params=params,
                                 opt_state=exp.tx.init(params),
                                 bad_step=jnp.array(-1, jnp.int32))
-  step = components.make_train_step(exp)
-  data = components.make_train_data(exp)
+  step = builders.make_train_step(exp)
+  data = builders.make_train_data(exp)
   for _ in range(steps):
     state, _ = step(state, data, jax.random.PRNGKey(0))
   return np.asarray(state.params["poses"])

@@ -10,7 +10,7 @@ import numpy as np
 
 from nerf_jax.evaluate import evaluation
 from nerf_jax.render import image_renderer
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from tests.helpers import small_config
 
 H, W, D = 8, 12, 3  # image height, width; code length
@@ -127,7 +127,7 @@ def test_the_evaluator_fits_each_view_on_its_left_halfs_kept_pixels(monkeypatch)
   test = exp.test_ds
   masks = (np.random.default_rng(4).random(test.images.shape[:3]) > 0.3).astype(np.float32)
   exp = dataclasses.replace(exp, test_ds=dataclasses.replace(test, masks=masks))
-  components.make_evaluator(exp)({"params": {}}, max_views=2)
+  builders.make_evaluator(exp)({"params": {}}, max_views=2)
   assert len(calls) == 2
   for k, (target, weight) in enumerate(calls):
     left = slice(0, test.images.shape[2] // 2)

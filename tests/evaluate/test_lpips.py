@@ -11,7 +11,7 @@ import pytest
 
 from nerf_jax.evaluate import lpips
 from nerf_jax.render import image_renderer
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from nerf_jax.run.signature import init_state
 from tests.helpers import requires_lpips, small_config
 
@@ -170,7 +170,7 @@ def _evaluate(image_size, out_dir):
   exp = experiment.setup(small_config({"data.image_size": image_size}))
   variables = init_state(exp).variables
   seen = []
-  evaluate = components.make_evaluator(exp)
+  evaluate = builders.make_evaluator(exp)
   return evaluate(variables, max_views=1, out_dir=out_dir,
                   on_view=lambda i, out, truth: seen.append((out["rgb"], truth))), seen
 

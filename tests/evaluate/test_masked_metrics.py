@@ -11,7 +11,7 @@ import pytest
 
 from nerf_jax.evaluate import evaluation, lpips, metrics
 from nerf_jax.render import image_renderer
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from tests.helpers import requires_lpips, small_config
 
 
@@ -114,7 +114,7 @@ def test_evaluator_scores_kept_pixels_and_records_the_masks(monkeypatch, tmp_pat
   test = exp.test_ds
   masks = (np.random.default_rng(3).random(test.images.shape[:3]) > 0.3).astype(np.float32)
   exp = dataclasses.replace(exp, test_ds=dataclasses.replace(test, masks=masks))
-  result = components.make_evaluator(exp)({"params": {}}, max_views=2, out_dir=str(tmp_path))
+  result = builders.make_evaluator(exp)({"params": {}}, max_views=2, out_dir=str(tmp_path))
   truths = exp.test_ds.images  # on black: the debug scene's background
   for k, view in enumerate(result["per_view"]):
     kept = masks[k] > 0

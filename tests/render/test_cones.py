@@ -18,7 +18,7 @@ from nerf_jax.cameras import cones
 from nerf_jax.cameras.rays import Rays
 from nerf_jax.render import compositing, image_renderer, renderer as renderer_lib
 from nerf_jax.fields.encodings import grid
-from nerf_jax.run import components
+from nerf_jax.run import builders
 from nerf_jax.samplers import placement
 from tests.helpers import small_config, sphere_rays
 
@@ -29,7 +29,7 @@ SMALL = {"num_samples": 8, "num_fine_samples": 8, "pos_encode_dims": 6, "model.w
 
 
 def _field(**overrides):
-  return components.make_field(small_config({**SMALL, **overrides}, base="mipnerf"))
+  return builders.make_field(small_config({**SMALL, **overrides}, base="mipnerf"))
 
 
 def _rays(num=6, radius=0.01, near=2.0, far=6.0, seed=0):
@@ -116,7 +116,7 @@ def test_field_gaussians_in_contracted_space_are_the_linearised_contraction():
 
 def test_renderer_queries_the_gaussians_of_its_samples():
   config = small_config(SMALL, base="mipnerf")
-  renderer = components.make_ray_renderer(config)
+  renderer = builders.make_ray_renderer(config)
   assert renderer.networks == ("coarse",)  # one MLP for both passes (model.shared_fine)
   variables = renderer.init(jax.random.PRNGKey(0))
   params = variables["params"]["coarse"]
@@ -165,7 +165,7 @@ def test_gradients_are_finite_for_huge_t(contraction):
 def test_a_field_of_points_ignores_radii():
   # A plain field renders rays with radii exactly as without them.
   config = small_config({**SMALL, "model.encoding": "posenc"}, base="mipnerf")
-  renderer = components.make_ray_renderer(config)
+  renderer = builders.make_ray_renderer(config)
   variables = renderer.init(jax.random.PRNGKey(0))
   rays = _rays()
   with_radii = jax.jit(renderer.render)(variables, rays)
@@ -185,7 +185,7 @@ def _lattice_field(encoding, antialias, multisample=True, **overrides):
   config = small_config({**TINY_LATTICE, "model.encoding": encoding,
                          f"model.{encoding}.antialias": antialias,
                          f"model.{encoding}.multisample": multisample, **overrides}, base="fast")
-  return components.make_field(config)
+  return builders.make_field(config)
 
 
 @pytest.mark.parametrize("multisample", [True, False])
@@ -276,7 +276,7 @@ def test_antialiased_grid_renders_its_reference_pass(multisample):
   the field's own head; and the weights do differ from 1 there (levels are faded)."""
   config = small_config({**TINY_LATTICE, "model.grid.antialias": True,
                          "model.grid.multisample": multisample}, base="fast")
-  renderer = components.make_ray_renderer(config)
+  renderer = builders.make_ray_renderer(config)
   variables = renderer.init(jax.random.PRNGKey(0))
   params = dict(variables["params"]["coarse"])
   rng = np.random.default_rng(6)
@@ -316,7 +316,7 @@ def test_antialiased_grid_has_finite_gradients(contraction, multisample):
   overrides = {"data.contraction": contraction, "data.scene_bound": 1.0} if contraction else {}
   config = small_config({**TINY_LATTICE, "model.grid.antialias": True,
                          "model.grid.multisample": multisample, **overrides}, base="fast")
-  renderer = components.make_ray_renderer(config)
+  renderer = builders.make_ray_renderer(config)
   variables = renderer.init(jax.random.PRNGKey(0))
   rays = _rays(radius=0.02)
 
@@ -332,9 +332,9 @@ def test_antialiased_grid_has_finite_gradients(contraction, multisample):
 def test_image_renderer_compiles_and_draws_rays_with_radii():
   # Its compile step draws a probe ray of the kind it will draw: with a radius for cones.
   config = small_config(SMALL, base="mipnerf")
-  renderer = components.make_ray_renderer(config)
+  renderer = builders.make_ray_renderer(config)
   variables = renderer.init(jax.random.PRNGKey(0))
-  settings = dataclasses.replace(components.image_settings(config), chunk=16)
+  settings = dataclasses.replace(builders.image_settings(config), chunk=16)
   draw = image_renderer.make_image_renderer(renderer, settings)(variables)
   list(draw.compile_steps())
   rays = _rays()

@@ -11,7 +11,7 @@ import pytest
 
 from nerf_jax import rendering
 from nerf_jax.render import background, empty_space, image_renderer
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from nerf_jax.samplers import spacing
 from nerf_jax.run import train_lib
 from tests.helpers import assert_beats_trivial
@@ -129,7 +129,7 @@ def test_a_round_bigger_than_a_buffer_is_queried_in_several(monkeypatch):
                                     {"render.march": False}, {"occupancy.enabled": True}])
 def test_marching_only_where_it_applies(change):
   marches = lambda config: image_renderer.marches(ray_renderer(config),
-                                                  components.image_settings(config))
+                                                  builders.image_settings(config))
   assert marches(small_config(base="fast"))
   assert not marches(small_config(change, base="fast"))
 

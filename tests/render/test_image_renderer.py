@@ -12,7 +12,7 @@ import pytest
 from nerf_jax.cameras.rays import camera_rays, pose_spherical
 from nerf_jax.render import image_renderer
 from nerf_jax.render.image_renderer import ImageSettings
-from nerf_jax.run import components, config_lib
+from nerf_jax.run import builders, config_lib
 from tests.helpers import PATHS_RTOL, ray_renderer, small_config
 
 
@@ -52,7 +52,7 @@ MARCHING = {"model.grid.resolutions": (8, 16), "num_samples": 24, "render.march_
 def test_device_sized_chunks_render_the_image_fixed_chunks_render(base, fields, marches):
   config = small_config(fields, base=base)
   rr = ray_renderer(config)
-  settings = components.image_settings(config)
+  settings = builders.image_settings(config)
   assert image_renderer.marches(rr, settings) == marches
   variables = rr.init(jax.random.PRNGKey(0))  # a random field: the paths must agree anyway
   # Free memory for exactly MIN_CHUNK rays of this renderer, so the 40 x 40 image (1600 rays)

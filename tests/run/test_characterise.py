@@ -9,7 +9,7 @@ import pytest
 from nerf_jax import cli
 from nerf_jax.cameras import rays
 from nerf_jax.data import scenes
-from nerf_jax.run import auto, characterise, components, config_lib
+from nerf_jax.run import auto, builders, characterise, config_lib
 from nerf_jax.cameras.cameras import Cameras
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.data.scenes import photos
@@ -251,8 +251,8 @@ def test_auto_leaves_the_passers_by_of_crowd_out(capsys):
     section, name = field.split(".", 1)
     assert decided[section][name] == hand[section][name], field
   # ... and what follows from the switch: patches of 16, the colour term aside.
-  assert components.batch_settings(decided) == components.batch_settings(hand)
-  assert components.batch_settings(decided).batching == "patches"
+  assert builders.batch_settings(decided) == builders.batch_settings(hand)
+  assert builders.batch_settings(decided).batching == "patches"
   assert decided.model.appearance_dims > 0 and decided.eval.appearance == "left_half"
   line = next(l for l in capsys.readouterr().out.splitlines() if "transients" in l)
   assert line.startswith("auto: transients left out: RobustNeRF's trimmed loss on 16 x 16")

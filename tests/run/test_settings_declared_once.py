@@ -9,7 +9,7 @@ import pytest
 
 from nerf_jax.backend import components as backend_components
 from nerf_jax.fields.networks import mlp
-from nerf_jax.run import components, config_lib
+from nerf_jax.run import builders, config_lib
 
 
 def _leaves(section, path=""):
@@ -55,15 +55,15 @@ def test_every_config_field_is_one_dataclass_field_with_the_same_default():
 def test_the_settings_built_from_the_default_config_are_the_dataclasses_defaults():
   config = config_lib.default()
   # The MLP's width is the shared model.width (it used to arrive as `hidden`): one name.
-  shared = components.network_settings(config)
+  shared = builders.network_settings(config)
   assert shared.width == config.model.width == 64 and shared.view_width == 32
   assert config_lib.SECTIONS["model"].count(mlp.Settings) == 1
   assert "width" not in {f.name for f in dataclasses.fields(mlp.Settings)}
-  batch = components.batch_settings(config)
+  batch = builders.batch_settings(config)
   assert (batch.batch_rays, batch.images_per_step) == (512, 5)
-  opt = components.optimizer_settings(config)
+  opt = builders.optimizer_settings(config)
   assert opt.warmup_steps == 50 and opt.lr == 5e-3
-  assert components.image_settings(config).chunk == 4096
+  assert builders.image_settings(config).chunk == 4096
 
 
 @pytest.mark.parametrize("field, message", [
@@ -82,15 +82,15 @@ def test_a_misspelt_setting_is_one_line_naming_it(field, message):
     node = node[part]
   node[name] = 1  # a config file can add any key: the check must catch it
   with pytest.raises(ValueError, match=message):
-    components.check_config(config)
+    builders.check_config(config)
   with pytest.raises(ValueError, match=message):
-    components.make_field(config)
+    builders.make_field(config)
 
 
 def test_a_section_nested_in_a_shared_one_is_anothers_and_passes():
   config = config_lib.default()
   config.model.fourier = ml_collections.ConfigDict({"features": 8})  # an encoding's own
-  components.check_config(config)  # read strictly by that encoding when it is used
+  builders.check_config(config)  # read strictly by that encoding when it is used
 
 
 def test_two_dataclasses_cannot_declare_one_setting():

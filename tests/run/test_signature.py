@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from flax import serialization
 
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from nerf_jax.train import optimizer
 from nerf_jax.run.signature import init_state, model_signature, state_template
 from nerf_jax.train.state import upgrade_state_dict
@@ -44,7 +44,7 @@ def trained():
   """(config, Experiment, TrainState after 3 steps: the grid and the moments are not zero)."""
   config = small_config(OCCUPANCY)
   exp = experiment.setup(config)
-  step, data = components.make_train_step(exp), components.make_train_data(exp)
+  step, data = builders.make_train_step(exp), builders.make_train_data(exp)
   state = init_state(exp)
   for _ in range(3):
     state, _ = step(state, data, jax.random.PRNGKey(0))
@@ -112,7 +112,7 @@ def test_pose_refinement_keeps_the_optimiser_state_its_checkpoints_saved():
   config = small_config({"train.pose_refinement": True, "data.scene": "perturbed"})
   exp = experiment.setup(config)
   state = init_state(exp)
-  schedule = optimizer.make_schedule(components.optimizer_settings(config))
+  schedule = optimizer.make_schedule(builders.optimizer_settings(config))
   saved_style = optax.multi_transform(
       {"field": optax.adam(schedule), "poses": optax.adam(schedule)},
       lambda params: {k: "poses" if k == "poses" else "field" for k in params})

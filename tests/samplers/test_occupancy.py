@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.render import renderer
-from nerf_jax.run import components
+from nerf_jax.run import builders
 from nerf_jax.samplers import occupancy
 from nerf_jax.train import checkpoints
 from nerf_jax.run import train_lib
@@ -179,10 +179,10 @@ def test_training_with_the_grid_resumes_bitwise_and_refreshes_the_grid(tmp_path)
 def test_occupancy_config_errors_name_the_field():
   config = small_config(TRAIN, **{"train.max_steps": 1, "data.scene_bound": 0.0})
   with pytest.raises(ValueError, match="scene_bound"):
-    components.make_sampler(config)
+    builders.make_sampler(config)
   config = small_config(TRAIN, **{"train.max_steps": 1, "num_fine_samples": 8})
   with pytest.raises(ValueError, match="num_fine_samples"):
-    components.make_sampler(config)
+    builders.make_sampler(config)
 
 
 def _compiled_gradient(levels, contracted):
@@ -193,7 +193,7 @@ def _compiled_gradient(levels, contracted):
       "model.grid.resolutions": (4, 8, 16)[:levels], "occupancy.enabled": True,
       "occupancy.resolution": 8, "occupancy.candidates": 64, "num_samples": 16,
       "data.contraction": "linf" if contracted else ""})
-  ray_renderer = components.make_ray_renderer(config)
+  ray_renderer = builders.make_ray_renderer(config)
   variables = ray_renderer.init(jax.random.PRNGKey(0))
   origins, directions = _rays(64)
   rays = rays_lib.Rays.create(origins, directions, 2.0, 6.0)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.cameras.rays import Rays
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from nerf_jax.run.signature import init_state
 from nerf_jax.samplers import occupancy
 from nerf_jax.samplers.placement import Sampler
@@ -119,7 +119,7 @@ def test_a_forward_facing_run_trains_with_the_grid_and_records_its_box():
   exp = experiment.setup(config)
   box = tuple(exp.config.model.grid_box)
   assert len(box) == 6 and exp.renderer.sampler.occupancy_box == box  # from the rays
-  step, data = components.make_train_step(exp), components.make_train_data(exp)
+  step, data = builders.make_train_step(exp), builders.make_train_data(exp)
   state = init_state(exp)
   first = None
   for _ in range(12):
@@ -128,11 +128,11 @@ def test_a_forward_facing_run_trains_with_the_grid_and_records_its_box():
   assert np.isfinite(float(stats["loss"])) and float(stats["loss"]) < first
   grid = np.asarray(state.buffers["occupancy"])
   assert grid.max() > 0 and occupancy.occupied_mask(grid, 1.0).mean() < 1.0  # some cells empty
-  out = components.make_evaluator(exp)(state.variables, max_views=1)
+  out = builders.make_evaluator(exp)(state.variables, max_views=1)
   assert np.isfinite(out["psnr"])
 
 
 def test_ndc_with_a_scene_box_is_refused_naming_the_field():
   config = small_config(**{"data.ndc": True, "data.scene_bound": 1.5, "occupancy.enabled": True})
   with pytest.raises(ValueError, match="config.data.scene_bound = 0"):
-    components.make_sampler(config)
+    builders.make_sampler(config)

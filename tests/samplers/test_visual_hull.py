@@ -11,7 +11,7 @@ from nerf_jax.cameras import rays
 from nerf_jax.fields.networks import lattice
 from nerf_jax.fields.encodings import grid
 from nerf_jax.fields.protocol import NetworkSettings
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from nerf_jax.run.signature import init_state, model_signature
 from nerf_jax.samplers import occupancy, placement, visual_hull
 from tests.helpers import TINY_GRID, jitted, small_config
@@ -134,7 +134,7 @@ def test_axis_resolutions_with_long_cells_along_z():
 
 def test_a_grid_field_with_long_cells_along_z_has_fewer_lattice_points_there():
   config = small_config(TINY_GRID, base="fast", **{"model.grid_cell_aspect": (1.0, 1.0, 4.0)})
-  params = components.make_ray_renderer(config).init(jax.random.PRNGKey(0))["params"]["coarse"]
+  params = builders.make_ray_renderer(config).init(jax.random.PRNGKey(0))["params"]["coarse"]
   assert params["grid_16"].shape == (16, 16, 5, 4)  # 15 cells of x's side along z are 3.75
   assert model_signature(config)["grid_cell_aspect"] == [1.0, 1.0, 4.0]
   assert "grid_cell_aspect" not in model_signature(small_config(base="fast"))
@@ -167,8 +167,8 @@ def test_a_run_with_the_visual_hull_samples_only_inside_it():
   assert np.all(box[0] > -exp.config.data.scene_bound - 1e-6) and np.all(box[1] > box[0])
   state = init_state(exp)
   np.testing.assert_array_equal(np.asarray(state.buffers["occupancy"]), hull)
-  step = components.make_train_step(exp)
-  data = components.make_train_data(exp)
+  step = builders.make_train_step(exp)
+  data = builders.make_train_data(exp)
   for _ in range(2):  # step 0 refreshes the grid from the field (update_every = 1)
     state, _ = step(state, data, jax.random.PRNGKey(0))
   grid_after = np.asarray(state.buffers["occupancy"])

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.evaluate import evaluation, metrics
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from nerf_jax.run.signature import init_state, model_signature
 from nerf_jax.run import train_lib
 from nerf_jax.data import loaders
@@ -20,7 +20,7 @@ def _field_and_params(base, dims, num_images=5):
   # On the fast base, the tiny grid: the head is what is tested.
   config = small_config(TINY_GRID if base == "fast" else {}, base=base,
                         **{"model.appearance_dims": dims})
-  field = components.make_field(config, num_images)
+  field = builders.make_field(config, num_images)
   return field, jitted(field.init)(jax.random.PRNGKey(0))
 
 
@@ -87,7 +87,7 @@ def test_left_half_scores_the_right_half_and_says_so(dims):
   exp = experiment.setup(config)
   variables = {"params": init_state(exp).params}
   rendered = {}
-  result = components.make_evaluator(exp)(variables, on_view=lambda i, out, truth: rendered.update(
+  result = builders.make_evaluator(exp)(variables, on_view=lambda i, out, truth: rendered.update(
       {i: (out["rgb"], truth)}))
   assert result["appearance"] == (evaluation.APPEARANCE_PROTOCOLS["left_half"] if dims else
                                   evaluation.NO_CODE_HALF)
@@ -149,11 +149,11 @@ def test_codes_absorb_known_per_photo_gains(tmp_path, monkeypatch):
   exp = experiment.setup(config)
   exp.test_ds.images[:] = np.clip(1.5 * exp.test_ds.images, 0, 1)
   variables = restored_variables(workdir)
-  fitted = components.make_evaluator(exp)(variables)
+  fitted = builders.make_evaluator(exp)(variables)
   exp.config.eval.fit_steps = 0  # the code stays the mean: the same half
-  unfitted = components.make_evaluator(exp)(variables)
+  unfitted = builders.make_evaluator(exp)(variables)
   assert fitted["appearance"].startswith("left half")
   assert fitted["psnr"] > unfitted["psnr"] + 0.5, (fitted["psnr"], unfitted["psnr"])
   config.eval.appearance = "whole"
   with pytest.raises(ValueError, match="eval.appearance='whole'"):
-    components.make_evaluator(experiment.setup(config))
+    builders.make_evaluator(experiment.setup(config))

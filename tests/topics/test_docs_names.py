@@ -6,7 +6,7 @@ The docs are read as text: each `code span` and each markdown link target is one
     repository root, nerf_jax/, tests/ or the doc's own folder; a bare file name ('fast.py')
     exists somewhere in the repository;
   - a dotted name `nerf_jax.a.b` is a module, or a module and a name it defines;
-  - `folder/module.name` (`run/components.make_field`) names a module of nerf_jax/ and a name it
+  - `folder/module.name` (`run/builders.make_field`) names a module of nerf_jax/ and a name it
     defines; `module.name(` (`train_step.make_train_step(...)`) names a name some nerf_jax module
     of that name defines; `Class.attr` parts are checked as far as the class body.
 Names are read from each module's source (its top-level definitions and imports, and a class's
@@ -241,7 +241,7 @@ def test_every_path_and_name_in_the_docs_exists():
 
 @pytest.mark.parametrize("token", ["nerf_jax/no_such_module.py", "nerf_jax.run.no_such_module",
                                    "nerf_jax.cameras.rays.no_such_function",
-                                   "run/components.no_such_builder",
+                                   "run/builders.no_such_builder",
                                    "train_step.no_such_function(x)"])
 def test_the_check_catches_a_wrong_name(token):
   assert problem_with(token, ROOT / "README.md")

@@ -11,7 +11,7 @@ from nerf_jax.data import scenes
 from nerf_jax.fields import field
 from nerf_jax.fields.encodings import posenc
 from nerf_jax.render import background, compositing, renderer
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from nerf_jax.run.signature import init_state
 from nerf_jax.run import train_lib
 from nerf_jax.cameras.rays import Rays
@@ -59,10 +59,10 @@ def _spy_one_step(monkeypatch, config):
   monkeypatch.setattr(field.Field, "query", spy_query)
   monkeypatch.setattr(compositing, "composite", spy_composite)
   exp = experiment.setup(config)
-  data = components.make_train_data(exp)
+  data = builders.make_train_data(exp)
   state = init_state(exp)  # its network init encodes too: not the step's
   monkeypatch.setattr(posenc, "positional_encoding", spy_encode)
-  step = jax.jit(components.make_train_step(exp))
+  step = jax.jit(builders.make_train_step(exp))
   jax.block_until_ready(step(state, data, jax.random.PRNGKey(0)))
   jax.effects_barrier()  # every callback has run
   calls["query"] = [(values[0], params) for values, params in calls["query"]]
@@ -129,9 +129,9 @@ def _loss(monkeypatch, rendered, acc, pixel=0.3, spelling="random"):
   monkeypatch.setattr(renderer.RayRenderer, "render", fake_render)
   bg, switch = RANDOM_SPELLINGS[spelling]
   exp = experiment.setup(small_config({"data.background": bg, "train.random_background": switch}))
-  data = components.make_train_data(exp)
+  data = builders.make_train_data(exp)
   data = data.replace(rgb=jnp.full_like(data.rgb, pixel), acc=jnp.full_like(data.acc, acc))
-  _, stats = components.make_train_step(exp)(init_state(exp), data,
+  _, stats = builders.make_train_step(exp)(init_state(exp), data,
                                              jax.random.PRNGKey(0))
   return float(stats["loss"])
 
@@ -227,7 +227,7 @@ def test_view_dependence_reproduces_highlights_only_with_the_view_branch(tmp_pat
   # ... and a position-only model (the shared architecture without the branch) cannot.
   flat = exp.config.copy_and_resolve_references()
   flat.model.view_dependent = False
-  flat_field = components.make_field(flat)
+  flat_field = builders.make_field(flat)
   flat_params = jitted(flat_field.init)(jax.random.PRNGKey(0))
   flat_query = jitted(flat_field.query)
   flat_at = lambda d: flat_query(flat_params, jnp.asarray(points)[:, None], d)[0]
@@ -243,7 +243,7 @@ def test_ndc_rendering_of_the_forward_scene_learns_it_with_depth_in_unit_range(
   # image already scores 15.8 dB; the run scores 17.9 (measured, 600 steps, 4 bands).
   assert_beats_trivial(result["psnr"], exp, margin=1.5)
   depths = []
-  components.make_evaluator(exp)(variables,
+  builders.make_evaluator(exp)(variables,
                                  on_view=lambda i, out, truth: depths.append(out["depth"]))
   depths = np.stack(depths)
   assert depths.min() >= 0.0 and depths.max() <= 1.0  # NDC depth is the ray parameter t

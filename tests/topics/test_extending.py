@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.fields import registry
-from nerf_jax.run import components, config_lib, experiment, signature, train_lib
+from nerf_jax.run import builders, config_lib, experiment, signature, train_lib
 from tests import helpers
 
 # The shrinking every quick training test applies (tests/helpers.TINY_GRID's sizes), on top of
@@ -63,7 +63,7 @@ def test_the_docs_encoding_is_gamma_of_its_fixed_gaussian_matrix(doc_files):
 
 def test_the_docs_encoding_trains_and_restores_from_its_config_file(doc_files, tmp_path):
   config = _loaded(doc_files)
-  field = components.make_field(config)
+  field = builders.make_field(config)
   assert type(field.network).__name__ == "NerfMLP"  # the encoding's own network
   assert type(field.network.encoding).__name__ == "FourierFeatures"
   assert field.network.encoding.settings.scale == 4.0 and field.coarse_to_fine_stages == 0
@@ -87,7 +87,7 @@ def test_the_docs_encoding_trains_and_restores_from_its_config_file(doc_files, t
 def test_the_docs_encoding_under_another_network_and_a_registered_name(doc_files):
   config = _loaded(doc_files)
   config.model.network = "lattice"  # the grids' tiny head on the Fourier features
-  field = components.make_field(config)
+  field = builders.make_field(config)
   assert type(field.network).__name__ == "LatticeHead"
   assert field.init(jax.random.PRNGKey(0))["hidden"]["kernel"].shape == (16, 16)
   assert signature.model_signature(config)["network"] == "lattice"
@@ -104,13 +104,13 @@ def test_the_docs_encoding_names_a_wrong_setting_or_name(doc_files):
   config = _loaded(doc_files)
   config.model.fourier.scael = 2.0  # misspelt: an error naming it
   with pytest.raises(ValueError, match="model.fourier has no setting 'scael'"):
-    components.make_field(config)
+    builders.make_field(config)
   config = _loaded(doc_files)
   config.model.fourier.scale = -1.0  # checked in the settings' __post_init__
   with pytest.raises(ValueError, match="config.model.fourier needs features >= 1 and scale > 0"):
-    components.make_field(config)
+    builders.make_field(config)
   config.model.encoding = "no_such_encoding"
   known = ", ".join(registry.ENCODINGS.names())
   with pytest.raises(ValueError, match=f"config.model.encoding must be one of {known} or a "
                      "module path, got 'no_such_encoding'"):
-    components.make_field(config)
+    builders.make_field(config)

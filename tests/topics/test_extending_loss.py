@@ -10,7 +10,7 @@ import jax
 import numpy as np
 import pytest
 
-from nerf_jax.run import components, experiment, train_lib
+from nerf_jax.run import builders, experiment, train_lib
 from nerf_jax.train import losses
 from tests.helpers import TINY_GRID, doc_block, small_config
 
@@ -62,7 +62,7 @@ def test_the_docs_term_checks_its_settings_and_registers_by_name(config_file):
   config = small_config(STEPS, base=config_file)
   config.loss.opacity.weight = -1.0
   with pytest.raises(ValueError, match=r"config.loss.opacity.weight=-1.0"):
-    components.loss_terms(config, components.make_ray_renderer(config))
+    builders.loss_terms(config, builders.make_ray_renderer(config))
   losses.REGISTRY.register("opacity_for_test", "my_losses.opacity")
   try:
     assert losses.REGISTRY.lookup("opacity_for_test") is losses.REGISTRY.lookup(

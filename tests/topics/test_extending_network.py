@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.fields import registry
-from nerf_jax.run import components, config_lib, experiment, signature, train_lib
+from nerf_jax.run import builders, config_lib, experiment, signature, train_lib
 from nerf_jax.train import checkpoints
 from tests import helpers
 
@@ -51,7 +51,7 @@ def _loaded(path, **overrides):
 
 def test_the_docs_network_is_built_from_its_own_section(doc_files):
   config = _loaded(doc_files)
-  field = components.make_field(config)
+  field = builders.make_field(config)
   assert type(field.network).__name__ == "ResidualMLP"
   assert field.network.settings.blocks == 3 and field.network.shared.width == 16
   params = field.init(jax.random.PRNGKey(0))
@@ -65,10 +65,10 @@ def test_the_docs_network_refuses_a_misspelt_or_wrong_setting(doc_files):
   config = _loaded(doc_files)
   config.model.resmlp.blokcs = 4
   with pytest.raises(ValueError, match="config.model.resmlp has no setting 'blokcs'"):
-    components.make_field(config)
+    builders.make_field(config)
   config = _loaded(doc_files, **{"model.resmlp.blocks": 0})
   with pytest.raises(ValueError, match=r"config.model.resmlp.blocks=0: use 1 or more"):
-    components.make_field(config)
+    builders.make_field(config)
 
 
 def _restore_in_new_process(workdir, tmp_path):

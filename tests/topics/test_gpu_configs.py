@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from nerf_jax.fields.encodings.grid import DenseGrid
-from nerf_jax.fields.encodings.hashgrid import HashGrid
+from nerf_jax.fields.encodings.hash import HashGrid
 from nerf_jax.fields.networks.lattice import LatticeHead
-from nerf_jax.run import components, config_lib, train_lib
+from nerf_jax.run import builders, config_lib, train_lib
 from nerf_jax.train.losses import total_variation
 from tests.helpers import small_config
 
@@ -26,7 +26,7 @@ def _hash_rows(levels, base, finest, log2_size):
 
 def _param_shapes(config):
   """{name: shape} of the coarse network's parameters, from shapes alone (nothing allocated)."""
-  rr = components.make_ray_renderer(config)
+  rr = builders.make_ray_renderer(config)
   shapes = jax.eval_shape(rr.init, jax.random.PRNGKey(0))["params"]["coarse"]
   return rr, jax.tree_util.tree_map(lambda a: a.shape, shapes)
 
@@ -73,7 +73,7 @@ def test_llff_has_finer_levels_and_total_variation_in_ndc():
   assert shapes["grid_512"] == (512, 512, 129, 4)
   assert max(config.model.grid.resolutions) == 4 * max(config_lib.load("llff").model.grid
                                                        .resolutions)
-  terms = components.loss_terms(config, rr)
+  terms = builders.loss_terms(config, rr)
   assert [t.weight for t in terms if isinstance(t, total_variation.TotalVariation)] == [1e-2]
   assert config.train.batch_rays * config.num_samples == SAMPLES_PER_STEP
 

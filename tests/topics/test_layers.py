@@ -9,7 +9,7 @@
    and read none) no function takes a `config` / `*_config` argument, no code reads a
    `config.` / `*_config.` attribute, and none reads an attribute named `config` (`exp.config`;
    jax.config, JAX's flags, aside): each layer
-   receives its own small, typed settings, built once by run/components.py (docstrings and
+   receives its own small, typed settings, built once by run/builders.py (docstrings and
    messages may name config fields). The data loaders, the train batches, the train step and
    the evaluator are below the entry layer.
 """

@@ -10,7 +10,7 @@ import jax
 import numpy as np
 
 from nerf_jax.render import image_renderer
-from nerf_jax.run import components, experiment, train_lib
+from nerf_jax.run import builders, experiment, train_lib
 from tests.helpers import small_config
 
 # mip-NeRF's config at the tests' size: 6 + 1 views of 16², 8 + 8 samples, a narrow MLP.
@@ -48,7 +48,7 @@ def test_mipnerf_trains_and_restores(tmp_path):
   trained = kept[0].variables
   exp, state = experiment.restore(str(workdir))
   assert exp.renderer.field.cones and exp.renderer.networks == ("coarse",)
-  assert components.make_train_data(exp).with_radii  # the train step's rays carry radii
+  assert builders.make_train_data(exp).with_radii  # the train step's rays carry radii
   assert exp.rays(exp.test_ds.poses[0]).radii is not None  # so do the evaluated images'
   assert result["steps"] == 30 and len(exp.test_ds) == 1
   # The checkpoint holds the trained parameters, bit for bit, and renders what they render.
@@ -61,12 +61,12 @@ def test_mipnerf_trains_and_restores(tmp_path):
   np.testing.assert_array_equal(draw(restored)(rays)["rgb"], draw(trained)(rays)["rgb"])
   # Trained: at least half the way from the untrained model's PSNR to the mean colour's (the
   # best constant image; 30 steps of this size do not reach it: module docstring).
-  untrained = components.make_evaluator(exp)(exp.renderer.init(jax.random.PRNGKey(config.seed)))
+  untrained = builders.make_evaluator(exp)(exp.renderer.init(jax.random.PRNGKey(config.seed)))
   truth = np.float64(exp.test_ds.images[0])
   mean_colour = -10 * np.log10(np.mean((truth - truth.reshape(-1, 3).mean(0)) ** 2))
   floor = untrained["psnr"] + 0.5 * (mean_colour - untrained["psnr"])
   assert mean_colour - untrained["psnr"] > 3.0  # the floor is above the untrained model's
   assert result["psnr"] > floor, (result["psnr"], untrained["psnr"], mean_colour)
-  again = components.make_evaluator(exp)(state.variables)
+  again = builders.make_evaluator(exp)(state.variables)
   stored = json.loads((workdir / "metrics.json").read_text())
   assert again["per_view"] == stored["per_view"]

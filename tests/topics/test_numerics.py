@@ -617,11 +617,11 @@ def test_case11_low_precision_mlp_composited():
 @functools.lru_cache(maxsize=None)
 def _train_setup():
   """The debug config's model, optimizer and jitted train step (compiled once), and 2 views."""
-  from nerf_jax.run import components, experiment  # pylint: disable=g-import-not-at-top
+  from nerf_jax.run import builders, experiment  # pylint: disable=g-import-not-at-top
   from nerf_jax.train import train_batches  # pylint: disable=g-import-not-at-top
   from tests.helpers import small_config  # pylint: disable=g-import-not-at-top
   exp = experiment.setup(small_config({"train.batch_rays": 64}))
-  step = components.make_train_step(exp)
+  step = builders.make_train_step(exp)
   # Two views of a random 8x8 target from cameras 4 units from the origin; near 2, far 6.
   ray_list = [rays.get_rays(8, 8, 10.0, pose) for pose in rays.orbit_poses(num_frames=2)]
   data = train_batches.TrainData(

@@ -15,7 +15,7 @@ import pytest
 
 from nerf_jax.cameras.rays import Rays
 from nerf_jax.render import image_renderer
-from nerf_jax.run import components, experiment, train_lib
+from nerf_jax.run import builders, experiment, train_lib
 from nerf_jax.run.signature import model_signature
 from nerf_jax.samplers import placement, proposal, spacing
 from nerf_jax.samplers.occupancy import OccupancySettings
@@ -52,7 +52,7 @@ def _rays(count=24):
 @pytest.fixture(scope="module", params=["", "linf"], ids=["bounded", "contracted"])
 def rendered(request):
   """(ray renderer, variables, rays, render outputs with a key) of the tiny proposal config."""
-  rr = components.make_ray_renderer(_config(request.param))
+  rr = builders.make_ray_renderer(_config(request.param))
   variables = rr.init(jax.random.PRNGKey(0))
   rays = _rays()
   outputs = jax.jit(lambda v, r, k: rr.render(v, r, k))(variables, rays, jax.random.PRNGKey(1))
@@ -80,32 +80,32 @@ def test_builtin_sampler_generates_what_it_placed_and_brings_nothing():
 
 def test_builtin_renderer_has_no_sampler_parameters_outputs_or_terms():
   config = small_config()
-  rr = components.make_ray_renderer(config)
+  rr = builders.make_ray_renderer(config)
   assert type(rr.sampler) is placement.Sampler  # pylint: disable=unidiomatic-typecheck
   variables = rr.init(jax.random.PRNGKey(0))
   assert sorted(variables["params"]) == sorted(rr.networks)
   assert "sampler" not in rr.render(variables, _rays(4))
   assert not any(key.startswith(("sampler", "proposal"))
                  for key in model_signature(config))
-  assert [type(t) for t in components.loss_terms(config, rr)] == [colour_loss.Colour]
+  assert [type(t) for t in builders.loss_terms(config, rr)] == [colour_loss.Colour]
 
 
 # The proposal sampler.
 
 def test_sampler_owns_its_levels_parameters_signature_and_term():
   config = _config("linf")
-  rr = components.make_ray_renderer(config)
+  rr = builders.make_ray_renderer(config)
   assert isinstance(rr.sampler, proposal.ProposalSampler) and not rr.sampler.marchable
-  assert not image_renderer.marches(rr, components.image_settings(config))
+  assert not image_renderer.marches(rr, builders.image_settings(config))
   variables = rr.init(jax.random.PRNGKey(0))
   assert sorted(variables["params"]) == ["coarse", "proposal_0", "proposal_1"]
   # The NeRF's parameters are those of the built-in sampler's renderer: same key, same values.
-  plain = components.make_ray_renderer(_config("linf", sampler=""))
+  plain = builders.make_ray_renderer(_config("linf", sampler=""))
   assert params_equal(variables["params"]["coarse"],
                       plain.init(jax.random.PRNGKey(0))["params"]["coarse"])
   signature = model_signature(config)
   assert signature["sampler"] == "proposal" and signature["proposal_max_resolution"] == [16, 32]
-  terms = components.loss_terms(config, rr)
+  terms = builders.loss_terms(config, rr)
   assert isinstance(terms[-1], proposal.Interlevel) and terms[-1].weight == 1.0
 
 
@@ -134,7 +134,7 @@ def test_samples_are_sorted_inside_the_bounds_and_finite(rendered):
 
 def test_the_shipped_config_has_one_dense_lattice_level_and_places_finite_samples():
   config = small_config({"data.scene_bound": BOUND}, base="scenes/garden_proposal")
-  rr = components.make_ray_renderer(config)
+  rr = builders.make_ray_renderer(config)
   variables = rr.init(jax.random.PRNGKey(0))
   level = variables["params"]["proposal_0"]
   assert sorted(variables["params"]) == ["coarse", "proposal_0"]
@@ -164,7 +164,7 @@ def test_a_proposal_with_the_nerfs_density_bounds_its_weights(contraction):
   """A step function along each ray, constant (the quadrature is exact): per ray a density of
   0 (empty), 0.05 (thin), 1 or 1e3 (opaque) per unit length. Every level with the NeRF's own
   density bounds the NeRF's weights, and the interlevel loss is 0."""
-  rr = components.make_ray_renderer(_config(contraction))
+  rr = builders.make_ray_renderer(_config(contraction))
   rays = _rays()
   per_ray = jnp.asarray(np.resize([0.0, 0.05, 1.0, 1e3], 24), jnp.float32)
   density = lambda points: jnp.broadcast_to(per_ray[:, None], points.shape[:-1])
@@ -215,7 +215,7 @@ def test_photometric_loss_trains_the_nerf_and_interlevel_the_proposals_only(rend
 ])
 def test_settings_that_cannot_work_are_one_line_naming_the_field(fields, match):
   with pytest.raises(ValueError) as info:
-    components.make_ray_renderer(_config(**fields))
+    builders.make_ray_renderer(_config(**fields))
   assert match in str(info.value) and "\n" not in str(info.value)
 
 
@@ -240,7 +240,7 @@ def test_training_lowers_the_loss_and_the_checkpoint_restores(tmp_path):
       0]["interlevel/unweighted"]
   exp, state = experiment.restore(workdir)
   assert sorted(state.params) == ["coarse", "proposal_0", "proposal_1"]
-  again = components.make_evaluator(exp)(restored_variables(workdir))
+  again = builders.make_evaluator(exp)(restored_variables(workdir))
   assert again["per_view"] == json.loads(open(f"{workdir}/metrics.json").read())["per_view"]
   # A checkpoint of the proposal sampler does not restore under the built-in one.
   assert model_signature(config) != model_signature(

@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from nerf_jax.run.signature import init_state
 from tests.helpers import assert_beats_trivial, trivial_psnrs
 from tests.helpers import small_config
@@ -31,7 +31,7 @@ def test_shared_run_beats_the_trivial_answers_and_the_untrained_model(trained_ru
   workdir, result = trained_run
   exp, _ = experiment.restore(str(workdir))
   assert_beats_trivial(result["psnr"], exp)
-  untrained = components.make_evaluator(exp)(init_state(exp).variables)["psnr"]
+  untrained = builders.make_evaluator(exp)(init_state(exp).variables)["psnr"]
   assert result["psnr"] > untrained + 5.0, (untrained, result["psnr"])
   # What the run wrote says the same.
   saved = json.loads((workdir / "metrics.json").read_text())
@@ -66,7 +66,7 @@ def test_shared_run_depth_matches_the_scene_on_opaque_pixels(trained_run):
     opaque = test_ds.accs[i] > 0.999
     predicted.append(out["depth"][opaque])
     true.append(test_ds.depths[i][opaque])
-  components.make_evaluator(exp)(state.variables, on_view=on_view)
+  builders.make_evaluator(exp)(state.variables, on_view=on_view)
   predicted, true = np.concatenate(predicted), np.concatenate(true)
   assert len(true) > 200
   assert np.median(np.abs(predicted - true)) < DEPTH_MEDIAN_BOUND

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.render import image_renderer, renderer
-from nerf_jax.run import components
+from nerf_jax.run import builders
 from nerf_jax.cameras.rays import Rays
 from tests.helpers import TINY_GRID, jitted, ray_renderer, small_config
 from tests import helpers
@@ -38,9 +38,9 @@ def _rays():
 
 
 def _draw(config, variables, rays):
-  """The image of `config`'s renderer and render settings (components.image_settings)."""
+  """The image of `config`'s renderer and render settings (builders.image_settings)."""
   rr = ray_renderer(config)
-  return image_renderer.make_image_renderer(rr, components.image_settings(config))(variables)(rays)
+  return image_renderer.make_image_renderer(rr, builders.image_settings(config))(variables)(rays)
 
 
 def test_zero_keeps_the_renderer_and_a_count_replaces_only_the_sampler():
@@ -72,4 +72,4 @@ def test_more_render_samples_approach_the_brute_force_image_on_both_paths():
 
 def test_a_negative_count_is_refused_naming_the_field():
   with pytest.raises(ValueError, match="config.render.num_samples=-4"):
-    components.image_settings(small_config(**{"render.num_samples": -4}))
+    builders.image_settings(small_config(**{"render.num_samples": -4}))

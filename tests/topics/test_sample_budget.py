@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.render import renderer
-from nerf_jax.run import components
+from nerf_jax.run import builders
 from nerf_jax.train import losses
 from nerf_jax.train.losses import colour
 from tests.helpers import SPLIT_GRID, TINY_GRID, ball_in_first_density_level, jitted
@@ -52,7 +52,7 @@ def _renderers(split):
             "occupancy.enabled": True,
             "occupancy.resolution": 16, "model.colour_fraction": 1.0 if split else 0.0}
   config = small_config(base="fast", **fields)
-  plain = components.make_ray_renderer(config)
+  plain = builders.make_ray_renderer(config)
   variables = jitted(plain.init)(jax.random.PRNGKey(0))
   if split:
     variables["params"]["coarse"] = ball_in_first_density_level(variables["params"]["coarse"])
@@ -144,4 +144,4 @@ def test_the_colour_loss_reports_what_the_rays_asked_of_the_budget():
 def test_a_budget_needs_the_occupancy_grid():
   config = small_config(base="fast", **{"train.sample_budget": 1000})
   with pytest.raises(ValueError, match="occupancy.enabled"):
-    components.make_ray_renderer(config)
+    builders.make_ray_renderer(config)

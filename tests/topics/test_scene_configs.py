@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nerf_jax.run import components, config_lib
+from nerf_jax.run import builders, config_lib
 from nerf_jax.run import train_lib
 from tests.helpers import small_config
 
@@ -24,7 +24,7 @@ def test_components_match_the_scene():
   assert load("white").data.background == "white"
   assert load("forward").data.ndc
   crowd = load("crowd")  # the switch alone: patches of 16 follow
-  batch = components.batch_settings(crowd)
+  batch = builders.batch_settings(crowd)
   assert crowd.loss.robust.weight > 0 and crowd.model.appearance_dims > 0
   assert (batch.batching, batch.patch_size) == ("patches", 16)
 

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from nerf_jax.render import image_renderer
-from nerf_jax.run import components
+from nerf_jax.run import builders
 from nerf_jax.samplers import occupancy
 from nerf_jax.cameras.rays import Rays
 from tests.helpers import StandInNetwork, ray_renderer, small_config
@@ -53,7 +53,7 @@ def _rays_towards(targets, seed=0):
 
 def _marched_and_plain(sigma_fn, rays, config):
   rr, settings = ray_renderer(config, StandInNetwork(
-      lambda p: (jax.nn.sigmoid(3.0 * p), sigma_fn(p)))), components.image_settings(config)
+      lambda p: (jax.nn.sigmoid(3.0 * p), sigma_fn(p)))), builders.image_settings(config)
   variables = {"params": {"coarse": {}}}
   assert image_renderer.marches(rr, settings)
   marched = image_renderer.make_image_renderer(rr, settings)(variables)(rays)

@@ -13,7 +13,7 @@ import pytest
 
 from nerf_jax.cameras import camera_paths
 from nerf_jax.render import background
-from nerf_jax.run import components, config_lib, experiment, outputs
+from nerf_jax.run import builders, config_lib, experiment, outputs
 from nerf_jax.run.signature import init_state, model_signature, state_template
 from nerf_jax.train import checkpoints, train_batches
 from nerf_jax.run import train_lib
@@ -51,7 +51,7 @@ def test_resume_continues_at_the_right_step_and_matches_an_uninterrupted_run(tmp
 def test_checkpoint_restore_render_gives_the_same_image(trained_run):
   workdir, _ = trained_run  # conftest's shared run, read only
   exp, state = experiment.restore(str(workdir))
-  again = components.make_evaluator(exp)(state.variables)
+  again = builders.make_evaluator(exp)(state.variables)
   stored = json.loads((workdir / "metrics.json").read_text())
   assert again["per_view"] == stored["per_view"]
 
@@ -116,7 +116,7 @@ def test_epoch_image_order_visits_every_image_once_per_epoch():
   rays = Rays(ids, ids, ids, ids[..., 0], ids[..., 0])
   data = train_batches.TrainData(rays, ids, ids[..., 0])  # every pixel holds its image id
   run_key = jax.random.PRNGKey(7)
-  draw = jax.jit(lambda step: train_batches.draw_batch(data, components.batch_settings(config), None, step, run_key).rgb)
+  draw = jax.jit(lambda step: train_batches.draw_batch(data, builders.batch_settings(config), None, step, run_key).rgb)
   epochs = []
   for epoch in range(3):
     ids = [np.asarray(draw(epoch * 3 + s))[::2, 0].astype(int) for s in range(3)]
@@ -132,8 +132,8 @@ def test_whole_image_batching_draws_whole_images():
   config.train.images_per_step = 2
   exp = experiment.setup(config)
   train_ds = exp.train_ds
-  data = components.make_train_data(exp)
-  rgb = train_batches.draw_batch(data, components.batch_settings(config), jax.random.PRNGKey(0)).rgb
+  data = builders.make_train_data(exp)
+  rgb = train_batches.draw_batch(data, builders.batch_settings(config), jax.random.PRNGKey(0)).rgb
   pixels = train_ds.height * train_ds.width
   assert rgb.shape == (2 * pixels, 3)
   flat = np.asarray(data.rgb)
@@ -192,7 +192,7 @@ def test_targets_are_recomposited_on_the_configured_background():
   train_ds = exp.train_ds
   empty = train_ds.accs == 0
   assert empty.any() and np.all(train_ds.images[empty] == 1.0)
-  rgb = np.asarray(components.make_train_data(exp).rgb).reshape(train_ds.images.shape)
+  rgb = np.asarray(builders.make_train_data(exp).rgb).reshape(train_ds.images.shape)
   assert np.all(rgb[empty] == 0.0)
   opaque = train_ds.accs == 1
   np.testing.assert_allclose(rgb[opaque], train_ds.images[opaque], atol=1e-6)
@@ -225,8 +225,8 @@ def test_random_background_does_nothing_on_data_without_opacity():
   for switch in (False, True):
     exp = experiment.setup(small_config({"train.random_background": switch}))
     exp.train_ds.accs = None
-    step = components.make_train_step(exp)
-    _, stats = step(init_state(exp), components.make_train_data(exp),
+    step = builders.make_train_step(exp)
+    _, stats = step(init_state(exp), builders.make_train_data(exp),
                     jax.random.PRNGKey(0))
     losses[switch] = float(stats["loss"])
   assert np.isfinite(losses[True]) and losses[True] == losses[False]
@@ -271,7 +271,7 @@ def test_evaluation_scores_against_truth_on_the_configured_background():
   test_ds = exp.test_ds
   variables = init_state(exp).variables
   seen = []
-  components.make_evaluator(exp)(
+  builders.make_evaluator(exp)(
       variables, max_views=1, on_view=lambda i, out, truth: seen.append(truth))
   empty = test_ds.accs[0] == 0
   assert empty.any() and np.all(seen[0][empty] == 1.0)
@@ -288,12 +288,12 @@ def test_rays_made_per_step_equal_every_pixels_stored_ray(batching, ndc):
   if ndc:
     config.data.scene, config.data.ndc = "forward", True
   exp = experiment.setup(config)
-  data = components.make_train_data(exp)
+  data = builders.make_train_data(exp)
   assert data.rays is None and data.poses.shape == (len(exp.train_ds), 4, 4)
   per_image = [exp.rays(pose).reshape(-1) for pose in exp.train_ds.poses]
   stored = data.replace(rays=jax.tree_util.tree_map(lambda *a: jnp.stack(a), *per_image))
   key = jax.random.PRNGKey(5)
-  made, reference = (train_batches.draw_batch(d, components.batch_settings(config), key) for d in (data, stored))
+  made, reference = (train_batches.draw_batch(d, builders.batch_settings(config), key) for d in (data, stored))
   np.testing.assert_array_equal(made.rgb, reference.rgb)
   for field in ("origins", "directions", "viewdirs", "near", "far"):
     np.testing.assert_allclose(getattr(made.rays, field), getattr(reference.rays, field),

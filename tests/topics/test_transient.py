@@ -12,7 +12,7 @@ import pytest
 
 from nerf_jax.cameras.rays import Rays
 from nerf_jax.render import compositing
-from nerf_jax.run import components, experiment, train_lib
+from nerf_jax.run import builders, experiment, train_lib
 from nerf_jax.run.signature import model_signature
 from nerf_jax.train import losses
 from nerf_jax.train.losses import colour, transient
@@ -143,8 +143,8 @@ def _rays(num=8):
 
 
 def test_an_empty_head_renders_as_today_and_held_out_views_see_the_static_field():
-  with_head = components.make_ray_renderer(_tiny(4), num_images=3)
-  today = components.make_ray_renderer(_tiny(0), num_images=3)
+  with_head = builders.make_ray_renderer(_tiny(4), num_images=3)
+  today = builders.make_ray_renderer(_tiny(0), num_images=3)
   variables = with_head.init(jax.random.PRNGKey(0))
   static = {**variables, "params": {k: v for k, v in variables["params"].items()
                                     if k != "transient"}}
@@ -176,21 +176,21 @@ def test_an_empty_head_renders_as_today_and_held_out_views_see_the_static_field(
 
 def test_off_by_default_and_bad_settings_get_one_line():
   config = small_config()
-  assert components.make_ray_renderer(config).transient is None
+  assert builders.make_ray_renderer(config).transient is None
   assert not any(k.startswith("transient") for k in model_signature(config))
-  renderer = components.make_ray_renderer(config)
-  assert all(term.name != "transient" for term in components.loss_terms(config, renderer))
+  renderer = builders.make_ray_renderer(config)
+  assert all(term.name != "transient" for term in builders.loss_terms(config, renderer))
   on = _tiny(16)
   assert model_signature(on)["transient_dims"] == 16
-  terms = components.loss_terms(on, components.make_ray_renderer(on))
+  terms = builders.loss_terms(on, builders.make_ray_renderer(on))
   assert [term.name for term in terms][-1] == "transient"  # added, though not listed
   with pytest.raises(ValueError, match="colour_fraction"):
-    components.make_ray_renderer(_tiny(16, **{"model.colour_fraction": 0.5}))
+    builders.make_ray_renderer(_tiny(16, **{"model.colour_fraction": 0.5}))
   with pytest.raises(ValueError, match="model.transient.beta_min"):
-    components.make_ray_renderer(_tiny(16, **{"model.transient.beta_min": 0.0}))
+    builders.make_ray_renderer(_tiny(16, **{"model.transient.beta_min": 0.0}))
   with pytest.raises(ValueError, match="loss.transient.weight=0"):
-    components.loss_terms(_tiny(16, **{"loss.transient.weight": 0.0}),
-                          components.make_ray_renderer(on))
+    builders.loss_terms(_tiny(16, **{"loss.transient.weight": 0.0}),
+                          builders.make_ray_renderer(on))
 
 
 def test_a_short_run_with_the_head_trains_checkpoints_and_restores(tmp_path):
@@ -205,5 +205,5 @@ def test_a_short_run_with_the_head_trains_checkpoints_and_restores(tmp_path):
   assert not np.array_equal(variables["params"]["transient"]["output"]["kernel"],
                             fresh["output"]["kernel"])  # the head was trained
   # The held-out score is the static field's: the evaluator renders without images.
-  evaluated = components.make_evaluator(exp)(variables)
+  evaluated = builders.make_evaluator(exp)(variables)
   np.testing.assert_allclose(evaluated["psnr"], result["psnr"], rtol=1e-5)

@@ -12,7 +12,7 @@ from nerf_jax.fields import contraction
 from nerf_jax.fields.encodings import grid, posenc
 from nerf_jax.fields.networks import lattice
 from nerf_jax.fields.protocol import NetworkSettings
-from nerf_jax.run import components, experiment, from_data
+from nerf_jax.run import builders, experiment, from_data
 from nerf_jax.samplers import occupancy, placement, spacing
 from nerf_jax.fields.field import Field
 from nerf_jax.cameras.rays import Rays
@@ -94,7 +94,7 @@ def test_contraction_refuses_what_it_cannot_do_yet():
   config = small_config({"data.scene_bound": 1.5, "data.contraction": "linf",
                          "num_fine_samples": 8})
   with pytest.raises(ValueError, match="contraction"):
-    components.make_sampler(config)
+    builders.make_sampler(config)
 
 
 def test_occupancy_in_contracted_space_samples_only_occupied_cells():

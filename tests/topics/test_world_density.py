@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.render import empty_space, image_renderer, renderer
-from nerf_jax.run import components
+from nerf_jax.run import builders
 from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.cameras.rays import Rays
 from nerf_jax.data.scenes import builtin, simulator
@@ -70,7 +70,7 @@ def test_corner_rays_see_the_simulators_closed_form_fog(path):
     variables["occupancy"] = jitted(rr.occupancy_grid)(variables)
   rays = Rays.create(origins, directions, NEAR, FAR)
   if path == "march":
-    settings = components.image_settings(config)
+    settings = builders.image_settings(config)
     assert image_renderer.marches(rr, settings)
     out = image_renderer.make_image_renderer(rr, settings)(variables)(rays)
   else:
@@ -88,7 +88,7 @@ def test_the_marchers_stop_test_counts_world_length():
   config = small_config(PATHS["march"], num_samples=256, **{"render.march_group": 4,
                                                             "render.min_transmittance": 1e-2})
   marcher = image_renderer._Marcher(  # pylint: disable=protected-access
-      ray_renderer(config, _medium_alone(medium)), components.image_settings(config))
+      ray_renderer(config, _medium_alone(medium)), builders.image_settings(config))
   rays = Rays.create(origins, directions, NEAR, FAR)
   mask = jnp.ones((4, 4, 4), bool)
   t, t_world, points, occupied, rank = marcher.plan(mask, rays)

@@ -9,7 +9,7 @@ import re
 import numpy as np
 import pytest
 
-from nerf_jax.run import components, config_lib, experiment
+from nerf_jax.run import builders, config_lib, experiment
 from nerf_jax.train import optimizer
 from nerf_jax.train import budget, checkpoints
 from nerf_jax.run import train_lib
@@ -24,10 +24,10 @@ def _saved_train(workdir):
 def test_the_schedule_spans_the_planned_steps_and_stays_at_lr_final():
   config = small_config({"train.lr": 1e-2, "train.lr_final": 1e-4, "train.warmup_steps": 10})
   tc = config.train
-  assert tc.max_steps == 0 and components.schedule_steps(tc) == tc.default_steps == 20
+  assert tc.max_steps == 0 and builders.schedule_steps(tc) == tc.default_steps == 20
   train_lib.fit_schedule(tc, 200)  # warm-up keeps its half of the run
   assert (tc.max_steps, tc.warmup_steps) == (200, 100)
-  schedule = optimizer.make_schedule(components.optimizer_settings(config))
+  schedule = optimizer.make_schedule(builders.optimizer_settings(config))
   np.testing.assert_allclose([schedule(50), schedule(100), schedule(200), schedule(400)],
                              [5e-3, 1e-2, 1e-4, 1e-4], rtol=1e-5)
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from flax import serialization
 
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from nerf_jax.train import optimizer
 from nerf_jax.run.signature import init_state, model_signature, state_template
 from nerf_jax.train import checkpoints, losses, train_step
@@ -68,7 +68,7 @@ def test_the_huber_colour_loss_is_the_mean_over_whole_rays_and_psnr_stays_the_sq
 def test_a_negative_huber_delta_is_refused_naming_the_field():
   config = small_config(**{"loss.colour.huber_delta": -0.1})
   with pytest.raises(ValueError, match="config.loss.colour.huber_delta=-0.1"):
-    components.loss_terms(config, components.make_ray_renderer(config))
+    builders.loss_terms(config, builders.make_ray_renderer(config))
 
 
 # --- L2 on the networks' weight matrices ---------------------------------------------------
@@ -105,7 +105,7 @@ def test_network_l2_adds_lambda_w_to_the_gradient_of_weight_matrices_only(l2):
   config = small_config(**{"train.network_l2": l2, "train.warmup_steps": 0, "train.lr": 1e-2,
                            "train.lr_final": 1e-2, "train.adam_b2": 0.99,
                            "train.adam_eps": 1e-3})
-  tx = optimizer.make_optimizer(components.optimizer_settings(config))
+  tx = optimizer.make_optimizer(builders.optimizer_settings(config))
   params, grads = _tree()
   state = tx.init(params)
   for _ in range(3):
@@ -123,7 +123,7 @@ def test_network_l2_adds_lambda_w_to_the_gradient_of_weight_matrices_only(l2):
 def test_a_negative_network_l2_is_refused_naming_the_field():
   config = small_config(**{"train.network_l2": -1e-6})
   with pytest.raises(ValueError, match="config.train.network_l2=-1e-06"):
-    components.optimizer_settings(config)
+    builders.optimizer_settings(config)
 
 
 # --- the weights' moving average -------------------------------------------------------------
@@ -145,7 +145,7 @@ def ema_run():
   so the reference can average what each step left."""
   config = small_config(EMA)
   exp = experiment.setup(config)
-  step, data = components.make_train_step(exp), components.make_train_data(exp)
+  step, data = builders.make_train_step(exp), builders.make_train_data(exp)
   state = init_state(exp)
   seen = [jax.device_get(state.params)]
   for _ in range(4):
@@ -203,4 +203,4 @@ def test_the_average_is_checkpointed_and_an_older_checkpoint_is_refused_in_one_l
 def test_an_ema_decay_outside_zero_to_one_is_refused_naming_the_field(decay):
   config = small_config(**{"train.ema_decay": decay})
   with pytest.raises(ValueError, match=f"config.train.ema_decay={decay}"):
-    components.step_settings(experiment.setup(config))
+    builders.step_settings(experiment.setup(config))

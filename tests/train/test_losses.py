@@ -1,6 +1,6 @@
 """Tests of nerf_jax.train.losses: each built-in term against a brute-force reference written
 here, `total`'s namespaced stats and its clash error, and the registry of terms the entry layer
-builds from config.loss (run/components.loss_terms)."""
+builds from config.loss (run/builders.loss_terms)."""
 
 import itertools
 
@@ -11,7 +11,7 @@ import pytest
 
 from nerf_jax.backend import components as component_lib
 from nerf_jax.cameras import rays as rays_lib
-from nerf_jax.run import components, config_lib
+from nerf_jax.run import builders, config_lib
 from nerf_jax.samplers import placement, proposal
 from nerf_jax.train import losses
 from nerf_jax.train.losses import colour, distortion, pose_prior, total_variation
@@ -243,7 +243,7 @@ def test_the_default_configs_sections_are_the_terms_settings():
 
 def _terms(**fields):
   config = small_config(**fields)
-  return components.loss_terms(config, components.make_ray_renderer(config))
+  return builders.loss_terms(config, builders.make_ray_renderer(config))
 
 
 def test_loss_terms_builds_the_listed_terms_in_order_and_leaves_out_those_at_weight_0():
@@ -268,11 +268,11 @@ def test_the_old_flat_fields_build_the_same_terms():
     section, name = field.split(".")
     old[section][name] = value  # a config file that sets the old names
   new = config_lib.upgrade(old)
-  rr = components.make_ray_renderer(new)
+  rr = builders.make_ray_renderer(new)
   want = _terms(**{"loss.distortion.weight": 0.1, "loss.pose_prior.weight": 2.0,
                    "loss.total_variation.weight": 0.5, "train.pose_refinement": True,
                    "loss.colour.coarse_weight": 0.25, "loss.colour.huber_delta": 0.1})
-  got = components.loss_terms(new, rr)
+  got = builders.loss_terms(new, rr)
   assert [(t.name, getattr(t, "weight", None)) for t in got] == [
       (t.name, getattr(t, "weight", None)) for t in want]
 
@@ -296,11 +296,11 @@ def test_a_misspelt_or_missing_section_is_named():
   config = small_config()
   config.loss.distortion.wieght = 0.1
   with pytest.raises(ValueError, match="config.loss.distortion has no setting 'wieght'"):
-    components.loss_terms(config, components.make_ray_renderer(config))
+    builders.loss_terms(config, builders.make_ray_renderer(config))
   config = small_config()
   del config.loss["distortion"]
   with pytest.raises(ValueError, match="config.loss.distortion is missing"):
-    components.loss_terms(config, components.make_ray_renderer(config))
+    builders.loss_terms(config, builders.make_ray_renderer(config))
 
 
 def test_the_terms_gradients_match_their_references():

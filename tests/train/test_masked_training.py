@@ -13,7 +13,7 @@ import pytest
 
 from nerf_jax.cameras.cameras import Cameras
 from nerf_jax.data.dataset import Dataset
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from nerf_jax.train import train_batches, train_step
 from nerf_jax.train.state import TrainState
 from tests.helpers import TINY_GRID, small_config
@@ -47,17 +47,17 @@ def _trainer(exp, batching):
   config = exp.config.copy_and_resolve_references()
   config.train.batching = batching
   exp = dataclasses.replace(exp, config=config)
-  ray_renderer = components.training_renderer(exp)
+  ray_renderer = builders.training_renderer(exp)
   tx = optax.adam(1e-2)
-  step = train_step.make_train_step(ray_renderer, tx, components.loss_terms(config, ray_renderer),
-                                    components.step_settings(exp))
+  step = train_step.make_train_step(ray_renderer, tx, builders.loss_terms(config, ray_renderer),
+                                    builders.step_settings(exp))
   params = ray_renderer.init(jax.random.PRNGKey(0))["params"]
 
   def train(painted):
     fresh = jax.tree_util.tree_map(jnp.array, params)  # the step donates its state
     state = TrainState(step=jnp.int32(0), params=fresh, opt_state=tx.init(fresh),
                        bad_step=jnp.int32(-1), buffers={}, ema={})
-    data = components.make_train_data(dataclasses.replace(painted, config=config))
+    data = builders.make_train_data(dataclasses.replace(painted, config=config))
     history = []
     for _ in range(STEPS):
       state, stats = step(state, data, jax.random.PRNGKey(3))
@@ -83,7 +83,7 @@ def test_masked_colours_never_reach_the_loss(exp, batching):
 
 
 def test_random_rays_are_drawn_from_kept_pixels_and_images_weight_masked_by_zero(exp):
-  data = components.make_train_data(exp)
+  data = builders.make_train_data(exp)
   mask = exp.train_ds.masks.reshape(len(exp.train_ds), -1)
   rays = train_batches.BatchSettings(batching="rays", batch_rays=4096)
   batch = train_batches.draw_batch(data, rays, jax.random.PRNGKey(5))

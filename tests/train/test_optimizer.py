@@ -4,7 +4,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nerf_jax.run import components, config_lib
+from nerf_jax.run import builders, config_lib
 from nerf_jax.train import optimizer
 from tests.helpers import small_config
 
@@ -15,7 +15,7 @@ def _train_config(**fields):
   config.train.lr = 1e-2
   for name, value in fields.items():
     config.train[name] = value
-  return components.optimizer_settings(config)
+  return builders.optimizer_settings(config)
 
 
 def _params():
@@ -67,7 +67,7 @@ def test_adam_eps_floors_the_denominator(eps):
 def test_schedule_warms_up_linearly_then_decays_to_lr_final():
   config = small_config({"train.lr": 5e-3, "train.lr_final": 1e-4, "train.warmup_steps": 50,
                          "train.max_steps": 1050}, base="default")
-  schedule = optimizer.make_schedule(components.optimizer_settings(config))
+  schedule = optimizer.make_schedule(builders.optimizer_settings(config))
   lr = lambda step: float(schedule(step))
   assert lr(0) == 0.0
   assert lr(25) == pytest.approx(0.5 * 5e-3, rel=1e-6)
@@ -82,7 +82,7 @@ def test_schedule_warms_up_linearly_then_decays_to_lr_final():
 
 
 def test_schedule_without_warm_up_starts_at_lr():
-  schedule = optimizer.make_schedule(components.optimizer_settings(small_config(
+  schedule = optimizer.make_schedule(builders.optimizer_settings(small_config(
       {"train.lr": 1e-2, "train.lr_final": 1e-3, "train.warmup_steps": 0,
        "train.max_steps": 100}, base="default")))
   assert float(schedule(0)) == pytest.approx(1e-2, rel=1e-6)

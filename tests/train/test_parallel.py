@@ -33,19 +33,19 @@ import json, sys
 import jax
 import numpy as np
 from nerf_jax.configs import debug
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from nerf_jax.run.signature import init_state
 from nerf_jax.train import parallel
 
 config = debug.get_config()
 exp = experiment.setup(config)
-data = components.make_train_data(exp)
+data = builders.make_train_data(exp)
 key = jax.random.PRNGKey(1)
 
 def run(mesh):
   state = parallel.replicate(init_state(exp), mesh)
   replicated = parallel.replicate(data, mesh)
-  step = components.make_train_step(exp, mesh)
+  step = builders.make_train_step(exp, mesh)
   hlo = step.lower(state, replicated, key).compile().as_text()
   losses = []
   for _ in range(STEPS):

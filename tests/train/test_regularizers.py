@@ -9,7 +9,7 @@ import pytest
 
 from nerf_jax.cameras import rays
 from nerf_jax.fields import registry
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from nerf_jax.run.signature import init_state
 from nerf_jax.samplers import placement, spacing
 from nerf_jax.train import regularizers
@@ -62,8 +62,8 @@ def test_distortion_gradient_is_finite_and_analytic():
 def one_step_stats(overrides):
   """The stats of one train step from a fresh state of small_config(overrides)."""
   exp = experiment.setup(small_config(overrides))
-  step = components.make_train_step(exp)
-  _, stats = step(init_state(exp), components.make_train_data(exp),
+  step = builders.make_train_step(exp)
+  _, stats = step(init_state(exp), builders.make_train_data(exp),
                   jax.random.PRNGKey(3))
   return stats
 
@@ -146,8 +146,8 @@ def test_lattice_tables_and_the_weighted_tv_in_the_train_loss():
     state = init_state(exp)
     tv = sum(float(regularizers.total_variation(t, a))
              for t, a in registry.lattice_tables(state.params, grid_axes))
-    _, stats[weight] = components.make_train_step(exp)(
-        state, components.make_train_data(exp), jax.random.PRNGKey(3))
+    _, stats[weight] = builders.make_train_step(exp)(
+        state, builders.make_train_data(exp), jax.random.PRNGKey(3))
   # Same render: only the loss grows, by the weight times the random start's variation.
   np.testing.assert_allclose(stats[10.0]["colour/psnr"], stats[0.0]["colour/psnr"], rtol=1e-6)
   np.testing.assert_allclose(float(stats[10.0]["loss"] - stats[0.0]["loss"]), 10.0 * tv,

@@ -1,6 +1,6 @@
 """Tests of RobustNeRF's trimmed loss (train/losses/robust.py) against a brute-force mask and
 trimmed mean written here, of its one switch (loss.robust.weight > 0: patch batches, the colour
-term aside; run/components.py) and of the patch batches it trains on (train/train_batches.py)."""
+term aside; run/builders.py) and of the patch batches it trains on (train/train_batches.py)."""
 
 import jax
 import jax.numpy as jnp
@@ -8,7 +8,7 @@ import numpy as np
 import optax
 import pytest
 
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from nerf_jax.train import losses, train_batches, train_step
 from nerf_jax.train.losses import robust
 from nerf_jax.train.state import TrainState
@@ -129,7 +129,7 @@ def test_settings_that_cannot_work_name_the_field():
 
 def _terms(**fields):
   config = small_config(**fields)
-  return components.loss_terms(config, components.make_ray_renderer(config))
+  return builders.loss_terms(config, builders.make_ray_renderer(config))
 
 
 # RobustNeRF on, spelt with the switch alone and with the four settings it took before.
@@ -142,7 +142,7 @@ def test_the_switch_alone_trains_on_patches_without_the_colour_loss():
   assert [t.name for t in _terms()] == ["colour"]  # off by default
   config = small_config(**SWITCH, **{"train.patch_size": 4})
   assert config.train.batching == "rays" and config.loss.colour.weight == 1.0  # untouched
-  batch = components.batch_settings(config)
+  batch = builders.batch_settings(config)
   assert (batch.batching, batch.patch_size) == ("patches", 4)
   terms = _terms(**SWITCH, **{"train.patch_size": 4})
   assert [t.name for t in terms] == ["colour", "robust"]
@@ -150,8 +150,8 @@ def test_the_switch_alone_trains_on_patches_without_the_colour_loss():
   # 'patches' spelt out is the same; the four old settings give the same batches and terms.
   assert _terms(**SWITCH, **{"train.batching": "patches", "train.patch_size": 4}) == terms
   assert _terms(**FOUR) == _terms(**SWITCH)
-  assert (components.batch_settings(small_config(**FOUR))
-          == components.batch_settings(small_config(**SWITCH)))
+  assert (builders.batch_settings(small_config(**FOUR))
+          == builders.batch_settings(small_config(**SWITCH)))
 
 
 @pytest.mark.parametrize("passes", [("coarse",), ("coarse", "fine")])
@@ -179,11 +179,11 @@ def test_whole_images_contradict_the_switch():
   config = small_config(**SWITCH, **{"train.batching": "images"})
   match = r"config.train.batching='images' contradicts config.loss.robust.weight=1.0"
   with pytest.raises(ValueError, match=match):
-    components.batch_settings(config)
+    builders.batch_settings(config)
   with pytest.raises(ValueError, match=match):
     _terms(**SWITCH, **{"train.batching": "images"})
   # Off, whole images are whole images; and a term built without patches still refuses.
-  assert components.batch_settings(small_config(**{"train.batching": "images"})).batching == (
+  assert builders.batch_settings(small_config(**{"train.batching": "images"})).batching == (
       "images")
   with pytest.raises(ValueError, match="config.loss.robust.weight > 0 needs patches"):
     robust.build(robust.Settings(weight=1.0), losses.Context(None))
@@ -201,14 +201,14 @@ def _two_steps(fields):
   config = small_config(TINY_GRID, base="scenes/crowd", **{
       "train.batch_rays": 64, "num_samples": 8, "train.remat_chunk": 0, **fields})
   exp = experiment.setup(config)
-  ray_renderer = components.training_renderer(exp)
+  ray_renderer = builders.training_renderer(exp)
   tx = optax.adam(1e-2)
-  step = train_step.make_train_step(ray_renderer, tx, components.loss_terms(config, ray_renderer),
-                                    components.step_settings(exp))
+  step = train_step.make_train_step(ray_renderer, tx, builders.loss_terms(config, ray_renderer),
+                                    builders.step_settings(exp))
   params = ray_renderer.init(jax.random.PRNGKey(0))["params"]
   state = TrainState(step=jnp.int32(0), params=params, opt_state=tx.init(params),
                      bad_step=jnp.int32(-1), buffers={}, ema={})
-  data = components.make_train_data(exp)
+  data = builders.make_train_data(exp)
   history = []
   for _ in range(2):
     state, stats = step(state, data, jax.random.PRNGKey(3))

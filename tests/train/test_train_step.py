@@ -11,7 +11,7 @@ import numpy as np
 import optax
 import pytest
 
-from nerf_jax.run import components, experiment
+from nerf_jax.run import builders, experiment
 from nerf_jax.train import losses, train_batches, train_step
 from nerf_jax.train.state import TrainState
 from tests.helpers import TINY_GRID, small_config
@@ -28,11 +28,11 @@ def run():
       "train.random_background": False, "train.batch_rays": 64, "num_samples": 8,
       "train.remat_chunk": 0})
   exp = experiment.setup(config)
-  ray_renderer = components.training_renderer(exp)
-  terms = components.loss_terms(config, ray_renderer)
-  settings = components.step_settings(exp)
+  ray_renderer = builders.training_renderer(exp)
+  terms = builders.loss_terms(config, ray_renderer)
+  settings = builders.step_settings(exp)
   params = ray_renderer.init(jax.random.PRNGKey(0))["params"]
-  return ray_renderer, terms, settings, components.make_train_data(exp), params
+  return ray_renderer, terms, settings, builders.make_train_data(exp), params
 
 
 def _state(params, tx):

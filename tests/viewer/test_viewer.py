@@ -16,7 +16,7 @@ import pytest
 
 from nerf_jax.cameras import camera_paths
 from nerf_jax.render import image_renderer
-from nerf_jax.run import components, config_lib, experiment, outputs
+from nerf_jax.run import builders, config_lib, experiment, outputs
 from nerf_jax.cameras.rays import Rays, pose_spherical, project
 from nerf_jax.cameras import keyframes
 from nerf_jax.viewer import camera, policy, scene, server, training
@@ -297,7 +297,7 @@ def test_after_each_compile_step_frames_of_the_ready_size_compile_nothing(tiny_r
   config = small_config(TINY_FAST, base="fast", **{"render.march_threshold": 0.0})
   view = dataclasses.replace(  # and a renderer of its own, nothing compiled
       view, config=config, make_draw=image_renderer.make_image_renderer(
-          exp.renderer, components.image_settings(config)))
+          exp.renderer, builders.image_settings(config)))
   draw = view.make_draw(variables)
   # Inside a narrow view of the box every sample of every ray is in it (see Sampler.bounds).
   pose, fov = np.eye(4, dtype=np.float32), 0.3

@@ -9,7 +9,7 @@ h_l the level's cell size. In the unit box with n_l cells per side (h_l = 1/n_l)
 erf(1 / sqrt(8 sigma^2 n_l^2)), Zip-NeRF's form. w -> 1 for points (sigma -> 0) and -> 0 for
 Gaussians much wider than a cell.
 
-Cells: grid.py and hashgrid.py put R_l lattice points per side over the box, i.e. R_l - 1 cells
+Cells: grid.py and hash.py put R_l lattice points per side over the box, i.e. R_l - 1 cells
 (`to_unit_cube` maps [-bound, bound] to [0, 1]: n_l = R_l - 1 cells over the side 2·bound, or
 over each side of a `to_unit_box` box with cubic cells, `axis_resolutions`). So in world units
 h_l = side / (R_l - 1): `cell_sizes`. sigma and h must be in the same units (world, or

@@ -9,7 +9,8 @@ import jax.numpy as jnp
 
 from nerf_jax.backend import draws
 from nerf_jax.fields import registry
-from nerf_jax.fields.encodings import grid, hashgrid
+from nerf_jax.fields.encodings import grid
+from nerf_jax.fields.encodings import hash as hashgrid
 from nerf_jax.fields.networks import heads, lattice
 
 
@@ -45,7 +46,7 @@ class DensityGridNeRF(lattice.LatticeHead):
     return DENSITY_GAIN * raw
 
   def _hashed_level(self, name, init, features, unit, resolution, log2_size):
-    """Features float32 [..., features] of a one-level hash grid (hashgrid.py) of `resolution`
+    """Features float32 [..., features] of a one-level hash grid (hash.py) of `resolution`
     points per side in 2^log2_size rows (fewer if its lattice fits), the parameter `name`."""
     rows = hashgrid.level_rows((resolution,), log2_size)[0]
     table = self.param(name, init, (rows, features))

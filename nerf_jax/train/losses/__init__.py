@@ -10,7 +10,7 @@ A term is one module defining `LOSS = losses.Loss(name, Settings, build)` (a `Lo
 name (`REGISTRY`: colour, distortion, pose_prior, total_variation, transient, robust, the
 modules of this package) or the dotted path of any importable module; each term's settings are
 its own section, `config.loss.<name>` (docs/extending.md, "Adding a loss term"). The entry layer
-builds them (run/components.loss_terms), adds 'transient' where the field has a transient head,
+builds them (run/builders.loss_terms), adds 'transient' where the field has a transient head,
 and appends the sampler's own terms (its `loss_terms()`). A term whose class has
 `replaces_colour = True` (robust) is itself the photometric loss: beside it the entry layer
 builds the colour term with weight 0 (its PSNR only), so the two are never added.
@@ -58,7 +58,7 @@ class Context:
     encoding family's, fields/registry.py).
   pose_refinement: whether the run refines the cameras (params['poses'] exists).
   patch_size: the side P of the batch's patches (config.train.batching='patches', or
-    config.loss.robust.weight > 0: run/components.batch_settings; a batch is patches of P x P
+    config.loss.robust.weight > 0: run/builders.batch_settings; a batch is patches of P x P
     pixels, each row-major, train_batches.py); 0 = the rays are no patches.
   """
   ray_renderer: Any

@@ -65,7 +65,7 @@ class Colour:
   each channel's error instead. With a sample budget only whole rays count. With per-ray
   weights (LossInputs.weight, the data's lossmult) every mean is the weighted mean. All of it
   times `weight` (0: another term, e.g. robust.py's, is the photometric loss; the stats stay).
-  A term that replaces it has `replaces_colour` True (run/components.loss_terms then builds
+  A term that replaces it has `replaces_colour` True (run/builders.loss_terms then builds
   this one with weight 0).
   Stats: psnr of the final pass (from its squared error, whatever the loss); with a sample
   budget, rays_in_loss (the rays it held whole) and samples_wanted (the valid samples of every

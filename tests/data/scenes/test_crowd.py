@@ -6,13 +6,13 @@ import numpy as np
 
 from nerf_jax.data import loaders, scenes
 from nerf_jax.data.scenes import occluders, photos
-from nerf_jax.run import components
+from nerf_jax.run import builders
 
 VIEWS, SIZE = 30, 24
 
 
 def _load(scene):
-  return loaders.load_dataset(components.data_settings(
+  return loaders.load_dataset(builders.data_settings(
       {"scene": scene, "num_views": VIEWS, "image_size": SIZE}))
 
 

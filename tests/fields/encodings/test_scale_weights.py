@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from nerf_jax.fields import contraction
-from nerf_jax.fields.encodings import grid, hashgrid, scale_weights
+from nerf_jax.fields.encodings import grid, scale_weights
+from nerf_jax.fields.encodings import hash as hashgrid
 
 pytestmark = pytest.mark.usefixtures("debug_nans")  # conftest.py: NaNs raise in this module
 

@@ -22,7 +22,7 @@ import pytest
 
 from nerf_jax.fields import registry
 from nerf_jax.fields.encodings import sh
-from nerf_jax.run import components, signature
+from nerf_jax.run import builders, signature
 from tests.helpers import small_config
 
 
@@ -148,7 +148,7 @@ def test_a_degree_out_of_range_is_a_one_line_error(degree):
 def test_a_field_with_sh_directions_feeds_degree_squared_features_and_records_it():
   config = small_config({"dir_encoding": "sh", "dir_encode_dims": 4,
                          "model.view_dependent": True})
-  field = components.make_field(config)
+  field = builders.make_field(config)
   assert field.dir_width == 16
   params = field.init(jax.random.PRNGKey(0))
   assert params["view"]["kernel"].shape[0] == config.model.width + 16
@@ -166,4 +166,4 @@ def test_an_unknown_direction_encoding_is_a_one_line_error():
   known = ", ".join(registry.DIRECTION_ENCODINGS.names())
   with pytest.raises(ValueError, match=f"config.dir_encoding must be one of {known} or a module "
                      "path, got 'spherical'"):
-    components.make_field(small_config({"dir_encoding": "spherical"}))
+    builders.make_field(small_config({"dir_encoding": "spherical"}))

@@ -11,7 +11,7 @@ from nerf_jax.fields.networks import density_grid
 from nerf_jax.fields.encodings import grid
 from nerf_jax.fields.protocol import NetworkSettings
 from nerf_jax.render import renderer
-from nerf_jax.run import components
+from nerf_jax.run import builders
 from nerf_jax.run.signature import model_signature
 from tests.helpers import SPLIT_GRID, ball_in_first_density_level, jitted, small_config
 from tests.helpers import small_view_rays
@@ -44,7 +44,7 @@ def test_each_half_of_the_split_network_equals_the_whole():
 def _renderers(fraction, occupied=False):
   config = small_config(SPLIT_GRID, base="fast", **{"model.colour_fraction": fraction,
                                                 "occupancy.enabled": occupied})
-  split = components.make_ray_renderer(config)
+  split = builders.make_ray_renderer(config)
   return split, renderer.RayRenderer(split.field, split.sampler)
 
 
@@ -98,7 +98,7 @@ def test_split_gradients_are_finite_and_reach_both_halves():
 def test_density_grid_with_relu_is_refused():
   config = small_config(SPLIT_GRID, base="fast", **{"model.density_activation": "relu"})
   with pytest.raises(ValueError, match="density_activation"):
-    components.make_field(config)
+    builders.make_field(config)
 
 
 def test_occupancy_probes_read_the_density_half():
@@ -178,9 +178,9 @@ def test_a_hashed_colour_level_joins_the_colour_features():
 def test_a_hashed_level_needs_the_dense_density_levels(part):
   config = small_config({f"model.grid.{part}_hash_resolution": 32}, base="fast")
   with pytest.raises(ValueError, match="density_resolutions"):
-    components.make_ray_renderer(config)
+    builders.make_ray_renderer(config)
   config = small_config({**SPLIT_GRID, f"model.grid.{part}_hash_resolution": 32}, base="fast")
   assert model_signature(config)[f"grid_{part}_hash"] == [32, 20]
-  variables = jitted(components.make_ray_renderer(config).init)(jax.random.PRNGKey(0))
+  variables = jitted(builders.make_ray_renderer(config).init)(jax.random.PRNGKey(0))
   table = variables["params"]["coarse"][f"hashed_{part}"]
   assert table.shape[0] == 2 ** 15  # 32^3 points fit 2^20 rows: indexed densely, as grid.py

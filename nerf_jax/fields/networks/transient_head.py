@@ -1,7 +1,7 @@
 """NeRF-W's transient head (Flax; Martin-Brualla et al. 2021, section 4.2): per-training-image
 transient embeddings and a small MLP that gives each sample a transient density, a transient
 colour and an uncertainty. Its settings are config.model.transient (`Settings`); the field's
-side (fields/transient.py) queries it, render/compositing.composite_with_transient composites
+side (fields/transient_field.py) queries it, render/compositing.composite_with_transient composites
 it with the static field.
 
 Unlike NeRF-W, whose transient branch reads the static MLP's trunk, the head reads the points'

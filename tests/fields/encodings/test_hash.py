@@ -11,8 +11,9 @@ import numpy as np
 import optax
 import pytest
 
-from nerf_jax.fields.encodings import grid, hashgrid
-from nerf_jax.run import components
+from nerf_jax.fields.encodings import grid
+from nerf_jax.fields.encodings import hash as hashgrid
+from nerf_jax.run import builders
 from nerf_jax.run.signature import model_signature
 from nerf_jax.fields.networks.lattice import LatticeHead
 from nerf_jax.fields.protocol import NetworkSettings
@@ -214,7 +215,7 @@ def test_hash_model_trains_one_step_through_the_ray_renderer():
 
 def test_config_signature_and_errors():
   config = small_config(base="hash")
-  network = components.make_field(config).network  # the hash grid read by the lattice head
+  network = builders.make_field(config).network  # the hash grid read by the lattice head
   assert isinstance(network, LatticeHead) and isinstance(network.encoding, hashgrid.HashGrid)
   signature = model_signature(config)
   assert signature["hash_log2_size"] == config.model.hash.log2_size
@@ -228,13 +229,13 @@ def test_config_signature_and_errors():
   assert float(raw_sigma[0]) > -1e4 and float(raw_sigma[1]) == -1e5
   config.model.encoding = "hashgrid"
   with pytest.raises(ValueError, match="config.model.encoding"):
-    components.make_field(config)
+    builders.make_field(config)
   with pytest.raises(ValueError, match="model.hash.gather_dtype"):
     hashgrid.encode(jnp.zeros((64, 1)), jnp.zeros((1, 3)), (4,), 6, "float64")
   config.model.encoding = "hash"  # validated where the settings are built, naming the field
   config.model.hash.gather_dtype = "float64"
   with pytest.raises(ValueError, match="model.hash.gather_dtype must be one of"):
-    components.make_field(config)
+    builders.make_field(config)
 
 
 # Unit roundoff u of round-to-nearest: bfloat16 keeps 8 significant bits (7 stored), float16 11

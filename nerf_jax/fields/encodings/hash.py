@@ -115,7 +115,7 @@ def _interpolate_low(table, rows, weights, dtype):
 
   Plain autodiff would carry the cotangent back through the casts in float16, where the small
   cotangents of a mean loss (1e-5 to 1e-8 per row) are subnormal or flushed to zero: measured on
-  tests/fields/encodings/test_hashgrid.py's float16 case,
+  tests/fields/encodings/test_hash.py's float16 case,
   53 of 6060 non-zero table gradients became exactly 0.
   """
   return _interpolate(table, rows, weights, dtype).astype(jnp.float32)

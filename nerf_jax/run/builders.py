@@ -11,7 +11,7 @@ from nerf_jax.backend import components, precision
 from nerf_jax.fields import field as field_lib
 from nerf_jax.fields import protocol, registry
 from nerf_jax.fields import transient_field
-from nerf_jax.fields.networks import transient as transient_head
+from nerf_jax.fields.networks import transient_head
 from nerf_jax.run import config_lib
 from nerf_jax.samplers import occupancy
 from nerf_jax.samplers import registry as sampler_registry
@@ -194,7 +194,7 @@ def make_ray_renderer(config, num_images=1):
 
 
 def transient_settings(config):
-  """networks/transient.Settings of config.model.transient (ValueError naming a wrong field)."""
+  """networks/transient_head.Settings of config.model.transient (ValueError naming a wrong field)."""
   return components.settings_from(transient_head.Settings, dict(config.model.transient),
                                   "model.transient")
 
