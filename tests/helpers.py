@@ -285,6 +285,18 @@ def doc_block(doc, test, name):
   return found.group(1)
 
 
+def write_walkthrough(tmp_path, test, module_path):
+  """Writes docs/extending.md's two blocks marked for `test` into tmp_path, as its walk-through
+  says: the 'module' block as `module_path` ('my_networks/resmlp.py', in a package of its
+  own) and the 'config' block as my_config.py. Returns the config file's path."""
+  package, module = module_path.split("/")
+  (tmp_path / package).mkdir()
+  (tmp_path / package / "__init__.py").write_text("")
+  (tmp_path / package / module).write_text(doc_block("docs/extending.md", test, "module"))
+  (tmp_path / "my_config.py").write_text(doc_block("docs/extending.md", test, "config"))
+  return str(tmp_path / "my_config.py")
+
+
 # The margin (dB) a trained model must keep above the better trivial answer on the same views.
 # Measured: the shared run scores 24.6 dB where the mean training image scores 20.2 (+4.4 dB).
 TRIVIAL_MARGIN_DB = 3.0

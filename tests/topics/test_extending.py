@@ -20,22 +20,14 @@ SHRINK = {"data.num_views": 6, "data.image_size": 16, "data.holdout_from": 5, "n
           "render.video_frames": 0, "render.chunk": 256, "render.march_grid": 16}
 
 
-def doc_block(name):
-  """The code block of docs/extending.md marked `<!-- tests/topics/test_extending.py: name -->`."""
-  return helpers.doc_block("docs/extending.md", "tests/topics/test_extending.py", name)
-
-
 @pytest.fixture
 def doc_files(tmp_path, monkeypatch):
   """The doc's module (my_encodings/fourier.py) and config file (my_config.py), written into
   tmp_path, which goes on sys.path as the doc's PYTHONPATH; returns the config file's path."""
-  package = tmp_path / "my_encodings"
-  package.mkdir()
-  (package / "__init__.py").write_text("")
-  (package / "fourier.py").write_text(doc_block("module"))
-  (tmp_path / "my_config.py").write_text(doc_block("config"))
+  path = helpers.write_walkthrough(tmp_path, "tests/topics/test_extending.py",
+                                   "my_encodings/fourier.py")
   monkeypatch.syspath_prepend(str(tmp_path))
-  return str(tmp_path / "my_config.py")
+  return path
 
 
 def _loaded(path):

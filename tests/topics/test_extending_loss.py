@@ -12,7 +12,8 @@ import pytest
 
 from nerf_jax.run import builders, experiment, train_lib
 from nerf_jax.train import losses
-from tests.helpers import TINY_GRID, doc_block, small_config
+from tests import helpers
+from tests.helpers import TINY_GRID, small_config
 
 # The tiny grid run, shortened: 6 steps, logged every 3.
 STEPS = {**TINY_GRID, "train.max_steps": 6, "train.log_every": 3, "train.checkpoint_every": 6}
@@ -22,13 +23,9 @@ THIS = "tests/topics/test_extending_loss.py"
 @pytest.fixture
 def config_file(tmp_path, monkeypatch):
   """The path of the doc's config file, its term module a package beside it on sys.path."""
-  package = tmp_path / "my_losses"
-  package.mkdir()
-  (package / "__init__.py").write_text("")
-  (package / "opacity.py").write_text(doc_block("docs/extending.md", THIS, "module"))
-  (tmp_path / "my_config.py").write_text(doc_block("docs/extending.md", THIS, "config"))
+  path = helpers.write_walkthrough(tmp_path, THIS, "my_losses/opacity.py")
   monkeypatch.syspath_prepend(str(tmp_path))
-  yield str(tmp_path / "my_config.py")
+  yield path
   for name in [n for n in sys.modules if n == "my_losses" or n.startswith("my_losses.")]:
     del sys.modules[name]
 

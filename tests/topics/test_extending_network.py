@@ -23,22 +23,15 @@ SHRINK = {"data.num_views": 6, "data.image_size": 16, "data.holdout_from": 5, "n
           "render.video_frames": 0, "render.chunk": 256, "render.march_grid": 16}
 
 
-def doc_block(name):
-  return helpers.doc_block("docs/extending.md", "tests/topics/test_extending_network.py", name)
-
-
 @pytest.fixture
 def doc_files(tmp_path, monkeypatch):
   """The doc's module (my_networks/resmlp.py) and config file (my_config.py) in tmp_path, which
   goes on sys.path as the doc's PYTHONPATH; the name the config file registers is forgotten
   afterwards. Returns the config file's path."""
-  package = tmp_path / "my_networks"
-  package.mkdir()
-  (package / "__init__.py").write_text("")
-  (package / "resmlp.py").write_text(doc_block("module"))
-  (tmp_path / "my_config.py").write_text(doc_block("config"))
+  path = helpers.write_walkthrough(tmp_path, "tests/topics/test_extending_network.py",
+                                   "my_networks/resmlp.py")
   monkeypatch.syspath_prepend(str(tmp_path))
-  yield str(tmp_path / "my_config.py")
+  yield path
   registry.NETWORKS.unregister("resmlp")
 
 
