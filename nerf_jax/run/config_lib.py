@@ -7,6 +7,7 @@ ml_collections' config_flags does. A saved config is completed with `configs/def
 for fields it lacks (written before they existed), so the defaults live in one place.
 """
 
+import dataclasses
 import importlib.resources
 import importlib.util
 import json
@@ -200,7 +201,27 @@ def load_saved(workdir):
       saved = json.load(f)
   except (OSError, ValueError) as e:
     raise ConfigError(f"{path}: cannot read the saved config ({e})") from None
-  return complete(saved)
+  return _without_retired(complete(saved), path)
+
+
+def _without_retired(config, path):
+  """`config` less the settings a saved run has that no settings dataclass declares any more
+  (a field retired since it trained: it changes nothing now), one line each; so an old run
+  still restores, while a config file's misspelt field stays an error (builders.check_config).
+  """
+  for section_path, classes in SECTIONS.items():
+    section = config
+    for part in filter(None, section_path.split(".")):
+      section = section.get(part) if isinstance(section, ml_collections.ConfigDict) else None
+    if not isinstance(section, ml_collections.ConfigDict):
+      continue
+    declared = {f.name for cls in classes for f in dataclasses.fields(cls)}
+    for name in [k for k, v in section.items()
+                 if k not in declared and not isinstance(v, ml_collections.ConfigDict)]:
+      del section[name]
+      where = f"{section_path}.{name}" if section_path else name
+      print(f"note: {path}: config.{where} is no longer a setting; ignored", flush=True)
+  return config
 
 
 def get_field(config, field):

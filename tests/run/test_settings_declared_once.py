@@ -124,3 +124,14 @@ def test_every_built_in_is_one_record_named_as_its_module():
       if record.settings is not None:
         assert dataclasses.is_dataclass(record.settings)
         assert isinstance(record.entries(record.settings()), dict)  # a signature for any
+
+
+def test_a_saved_run_with_a_retired_setting_still_restores_its_config(tmp_path, capsys):
+  saved = config_lib.default().to_dict()
+  saved["train"]["retired_knob"] = 3  # a field an older version had
+  saved["model"]["fourier"] = {"features": 8}  # a component's own section is kept
+  (tmp_path / "config.json").write_text(ml_collections.ConfigDict(saved).to_json())
+  config = config_lib.load_saved(str(tmp_path))
+  assert "retired_knob" not in config.train and config.model.fourier.features == 8
+  assert "config.train.retired_knob is no longer a setting; ignored" in capsys.readouterr().out
+  builders.check_config(config)  # what restoring builds from passes
