@@ -6,6 +6,12 @@ data with cameras of their own in one line).
   python -m nerf_jax.data.export --scene=multiscale --format=multiscale --out=/tmp/ms
   python -m nerf_jax.data.export --scene=white --format=npz --out=/tmp/white.npz [--rgb_only]
   python -m nerf_jax.data.export --scene=forward --format=llff --out=/tmp/forward
+  python -m nerf_jax.data.export --scene=landmark --format=llff --out=/tmp/landmark
+
+A scene with capture effects (`scenes.scene.CAPTURE`: per-photo looks, passers-by, pose errors,
+per-photo lenses) is written as `load_dataset` gives it: the first 80% of the views are the
+photographed training views (scenes/photos.py), the rest the held-out ground truth (an LLFF
+folder holds out every 8th view: load it with data.holdout_from at 80% to hold out the same).
 
 PNG alpha: by default every pixel is opaque (alpha = 255) and holds the composited image, so that
 `load_blender` returns the same images (to 8-bit quantisation, 1/255) with any `background`.
@@ -17,6 +23,7 @@ images back to within 1/255, and another background re-composites the scene.
 """
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -28,6 +35,7 @@ import numpy as np
 from nerf_jax.data import masks as masks_lib, multicam, scenes
 from nerf_jax.data.dataset import DataError
 from nerf_jax.data.llff import export_llff
+from nerf_jax.data.scenes.scene import CAPTURE
 
 
 def export_npz(dataset, path, rgb_only=False):
@@ -105,6 +113,20 @@ def export_multiscale(dataset, dirpath, split_at=None):
   multicam.write(dirpath, {**splits, "val": splits["test"]})
 
 
+def photographed(dataset, effects):
+  """`dataset` (a built-in scene's views) with the capture `effects` applied to its 80%
+  training views, in view order (module docstring); `dataset` itself without capture effects."""
+  if not effects.names() & CAPTURE:
+    return dataset
+  train, test = dataset.split()
+  train = scenes.photographed(train, effects)
+  join = lambda a, b: None if a is None or b is None else np.concatenate([a, b])
+  return dataclasses.replace(dataset, images=join(train.images, test.images),
+                             poses=join(train.poses, test.poses),
+                             depths=join(train.depths, test.depths),
+                             accs=join(train.accs, test.accs), masks=join(train.masks, test.masks))
+
+
 def main(argv=None):
   parser = argparse.ArgumentParser(description="Export a built-in scene.")
   parser.add_argument("--scene", required=True, help=f"one of {', '.join(scenes.SCENES)}")
@@ -125,6 +147,7 @@ def main(argv=None):
     dataset = scenes.make_dataset(
         args.scene, args.num_views, args.image_size, args.image_size,
         pixel_center=args.pixel_center, seed=args.seed)  # focal: tiny_nerf's field of view
+    dataset = photographed(dataset, scenes.get_scene(args.scene).effects)
     if args.format == "npz":
       export_npz(dataset, args.out, rgb_only=args.rgb_only)
     elif args.format == "llff":

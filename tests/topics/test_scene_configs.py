@@ -27,6 +27,8 @@ def test_components_match_the_scene():
   batch = builders.batch_settings(crowd)
   assert crowd.loss.robust.weight > 0 and crowd.model.appearance_dims > 0
   assert (batch.batching, batch.patch_size) == ("patches", 16)
+  landmark = load("landmark")  # an unbounded capture with looks: the box from the data, codes
+  assert landmark.data.scene_bound == -1 and landmark.model.appearance_dims > 0
 
 
 @pytest.mark.parametrize("name", SCENES)

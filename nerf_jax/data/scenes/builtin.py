@@ -14,7 +14,7 @@ import numpy as np
 
 from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.data.dataset import Dataset
-from nerf_jax.data.scenes import cache, detail, garden, multiscale, simulator
+from nerf_jax.data.scenes import cache, detail, garden, landmark, multiscale, simulator
 from nerf_jax.data.scenes.geometry import Box, Cylinder, Sphere
 from nerf_jax.data.scenes.scene import Effects, Light, Material, Medium, Object, Scene
 
@@ -96,6 +96,9 @@ SCENES = {
     # `exposure` with passers-by (scenes/occluders.py): in 60% of the training photos one to
     # three opaque balls, boxes or people stand between the camera and the subject.
     "crowd": Scene("crowd", _objects(pedestal=False), Effects(appearance=True, transients=True)),
+    # A tourist photo collection (scenes/landmark.py): a monument on a square seen from 2 to 9
+    # times its size, each training photo with its own zoom and lens, one pinhole stored.
+    "landmark": landmark.SCENE,
 }
 
 
@@ -136,7 +139,8 @@ def make_dataset(name, num_views=100, height=None, width=None, focal=None, radiu
   passes (0.5 centres, as a renderer samples; 0 corners), recorded in the Dataset. A scene with
   `supersample > 1` is rendered by `tracer` (s x s rays per pixel), through the disk `cache`
   when large. 'multiscale' (scenes/multiscale.py): views at several distances and sizes
-  (height = level 0's side, width ignored; near, far None = its own).
+  (height = level 0's side, width ignored; near, far None = its own). 'landmark'
+  (scenes/landmark.py): its own cameras (radius ignored), `focal` the stored pinhole's.
   """
   scene = get_scene(name)
   bounds = (near, far)  # as asked: the multiscale scene has its own defaults
@@ -145,6 +149,8 @@ def make_dataset(name, num_views=100, height=None, width=None, focal=None, radiu
   height = scene.image_size if height is None else height
   width = scene.image_size if width is None else width
   focal = TINY_NERF_FOCAL * width / 100 if focal is None else focal
+  if name == landmark.SCENE.name:
+    return landmark.make_dataset(num_views, height, width, focal, pixel_center, near, far, seed)
   if scene.camera_rig == "forward":
     poses = forward_poses(num_views, seed=seed)
   else:

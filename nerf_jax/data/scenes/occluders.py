@@ -46,9 +46,10 @@ def _occluder(center, radius, kind, colour):
   return body, head
 
 
-def crowd(pose, height, width, focal, rng):
+def crowd(pose, height, width, focal, rng, distance=DISTANCE):
   """The occluders of one crowded photo taken by `pose` (float32 [4, 4]) at height x width
-  pixels with `focal` (pixels), drawn from `rng` (np.random.Generator): a tuple of `Object`s."""
+  pixels with `focal` (pixels), drawn from `rng` (np.random.Generator), standing `distance`
+  (min, max) from the camera: a tuple of `Object`s."""
   count = int(rng.integers(1, MAX_OCCLUDERS + 1))
   target = rng.uniform(*COVER) / count  # each occluder's share of the image
   objects = []
@@ -56,12 +57,23 @@ def crowd(pose, height, width, focal, rng):
     u, v = rng.uniform(0.2, 0.8, 2) * (width, height)  # a point of the image's middle
     ray = np.array([(u - 0.5 * width) / focal, -(v - 0.5 * height) / focal, -1.0])
     direction = pose[:3, :3] @ (ray / np.linalg.norm(ray))
-    distance = rng.uniform(*DISTANCE)
-    center = pose[:3, 3] + distance * direction
+    away = rng.uniform(*distance)
+    center = pose[:3, 3] + away * direction
     # A disc of radius R pixels covers π R² of the image's H·W; R = focal · radius / distance.
-    radius = distance * np.sqrt(target * height * width / np.pi) / focal
+    radius = away * np.sqrt(target * height * width / np.pi) / focal
     objects += _occluder(center, radius, int(rng.integers(0, 3)), rng.uniform(0.05, 0.95, 3))
   return tuple(objects)
+
+
+def shade(objects, origins, directions, light):
+  """`objects` seen from distance 0 along rays origins, directions float64 [R, 3], lit by
+  `light`, unshadowed: (t float64 [R], inf where none is hit; rgb float64 [R, 3], 0 there)."""
+  t, which, normal = simulator.first_hit(objects, origins, directions, 0.0, np.inf)
+  hit = np.isfinite(t)
+  rgb = np.zeros_like(origins)
+  albedo = np.array([o.material.albedo for o in objects])[which[hit]]
+  rgb[hit] = simulator.diffuse(albedo, normal[hit], light, np.ones(hit.sum()))
+  return t, rgb
 
 
 def paint(dataset, index, objects, light):
@@ -73,11 +85,10 @@ def paint(dataset, index, objects, light):
                                           dataset.poses[index], dataset.pixel_center)
   origins = np.asarray(origins, np.float64).reshape(-1, 3)
   directions = np.asarray(directions, np.float64).reshape(-1, 3)
-  t, which, normal = simulator.first_hit(objects, origins, directions, 0.0, np.inf)
+  t, colour = shade(objects, origins, directions, light)
   hit = np.isfinite(t)
   rgb = np.array(dataset.images[index], np.float64).reshape(-1, 3)
-  albedo = np.array([o.material.albedo for o in objects])[which[hit]]
-  rgb[hit] = simulator.diffuse(albedo, normal[hit], light, np.ones(hit.sum()))
+  rgb[hit] = colour[hit]
   depth = None
   if dataset.depths is not None:  # depths are distances along the un-normalised directions
     depth = np.array(dataset.depths[index], np.float64).reshape(-1)

@@ -14,7 +14,7 @@ import dataclasses
 
 import numpy as np
 
-from nerf_jax.data.scenes import occluders
+from nerf_jax.data.scenes import landmark, occluders
 
 # Each draw has a stream of its own: default_rng(seed) alone would repeat the stream the
 # cameras were drawn from (scenes.random_poses), tying a photo's gain to where it stands.
@@ -68,10 +68,13 @@ def perturbed(poses, degrees=POSE_DEGREES, translation=POSE_TRANSLATION, seed=0)
 
 def photographed(train, effects, seed=0):
   """The training views `train` (a Dataset) as the capture declaring `effects` took them:
-  passers-by in front of the subject in some photos (transients, occluders.py), per-photo
-  gains over the whole photo (appearance), poses off by a known amount (pose_error; the true
-  ones kept in `Dataset.true_poses`)."""
-  if effects.transients:
+  each photo through its own zoom and lens (lens: the `landmark` scene's, re-rendered by
+  landmark.py, passers-by included), passers-by in front of the subject in some photos
+  (transients, occluders.py), per-photo gains over the whole photo (appearance), poses off by a
+  known amount (pose_error; the true ones kept in `Dataset.true_poses`)."""
+  if effects.lens:
+    train = landmark.photographed(train, effects.transients, seed)[0]
+  elif effects.transients:
     train = occluders.with_crowd(train, seed=seed)[0]
   if effects.appearance:
     train = dataclasses.replace(train, images=with_gains(train.images, gains(len(train), seed)))

@@ -4,8 +4,8 @@ A scene is plain, frozen data; `scenes.simulator` renders it. The `effects` decl
 is checked against the content (`Scene.__post_init__`) and decides what the simulator computes:
 an effect that is not declared is never evaluated. (`unbounded` asks nothing more of the
 simulator; it tells a renderer that the content reaches beyond a bounded box. `appearance`,
-`pose_error` and `transients` are the capture's, not the content's: scenes/photos.py applies
-them to the training views.)
+`pose_error`, `transients` and `lens` (`CAPTURE`) are the capture's, not the content's:
+scenes/photos.py applies them to the training views.)
 """
 
 import dataclasses
@@ -68,10 +68,15 @@ class Effects:
   appearance: bool = False  # training photos differ in exposure and white balance (photos.py)
   pose_error: bool = False  # the training cameras' poses are off by a known amount (photos.py)
   transients: bool = False  # some training photos have passers-by in front (occluders.py)
+  lens: bool = False  # each training photo its own zoom and radial lens; one pinhole stored
 
   def names(self):
     """The declared effects: frozenset of field names."""
     return frozenset(f.name for f in dataclasses.fields(self) if getattr(self, f.name))
+
+
+# The effects of the capture (scenes/photos.py), not of the content.
+CAPTURE = frozenset({"appearance", "pose_error", "transients", "lens"})
 
 
 @dataclasses.dataclass(frozen=True)
