@@ -16,7 +16,9 @@ pixel's neighbours, train/losses/robust.py).
 Masks (`Dataset.masks`): a masked pixel is never trained on. Its colour is zeroed before it
 reaches the device; random rays are drawn from the kept pixels alone (`TrainData.kept`); whole
 images and patches carry it with weight exactly 0 (`TrainData.mask`), so every weighted loss
-ignores it.
+ignores it. Patches are centred on a kept pixel drawn uniformly from the kept ones (moved inside
+the image where the centre is near its edge), so that they cover kept pixels; a drawn batch
+carries its pixels' masks (`TrainData.mask` [B]) for the terms' statistics.
 """
 
 import dataclasses
@@ -80,7 +82,8 @@ class TrainData:
   kept: int32 [K] or None: with masks, the flat index (into rgb's [N * P] or [T] pixels) of each
     kept pixel; random rays are drawn from these alone.
   mask: float32 [N, P] (or [T]) or None: with masks, 1 for a kept pixel, 0 for a masked one;
-    whole-image batches weight each ray by it.
+    whole-image and patch batches weight each ray by it. In a drawn batch float32 [B], each
+    drawn pixel's (LossInputs.mask).
   """
   rays: Rays
   rgb: jnp.ndarray
@@ -216,7 +219,7 @@ def draw_batch(data, settings, key, step=0, run_key=None):
     pixel = jnp.tile(jnp.arange(num_pixels), per_step)
     masked = None if data.mask is None else take(data.mask)  # whole images: weight 0
   elif settings.batching == "patches":
-    image, pixel = _draw_patches(data.camera, num_images, settings, key)
+    image, pixel = _draw_patches(data, num_images, settings, key)
     idx = image * num_pixels + pixel
     take = lambda a: a.reshape(-1, *a.shape[2:])[idx]
     masked = None if data.mask is None else take(data.mask)  # patches: weight 0
@@ -224,12 +227,13 @@ def draw_batch(data, settings, key, step=0, run_key=None):
     idx = _random_pixels(data, key, settings.batch_rays, num_images * num_pixels)
     take = lambda a: a.reshape(-1, *a.shape[2:])[idx]
     image, pixel = idx // num_pixels, idx % num_pixels
-    masked = None  # drawn from the kept pixels alone
+    masked = None if data.mask is None else take(data.mask)  # kept pixels alone: all 1
   rays = (jax.tree_util.tree_map(take, data.rays) if data.rays is not None else
           pixel_rays_of(data, image, pixel))
+  weight = _ray_weight(data, image, None if settings.batching == "rays" else masked)
   return TrainData(rays=rays, rgb=take(data.rgb), acc=take(data.acc),
                    image=image.astype(jnp.int32), pixel=pixel.astype(jnp.int32),
-                   weight=_ray_weight(data, image, masked))
+                   weight=weight, mask=masked)
 
 
 def _random_pixels(data, key, count, total):
@@ -249,11 +253,15 @@ def _ray_weight(data, image, masked):
   return masked if weight is None else weight * masked
 
 
-def _draw_patches(camera, num_images, settings, key):
+def _draw_patches(data, num_images, settings, key):
   """(image, pixel), each int32 [n · P · P]: n = settings.num_patches() patches of P x P
-  pixels (P = settings.patch_size), each in an image drawn uniformly at a corner drawn
-  uniformly among those that keep it inside; patch after patch, each row-major. camera: the
-  TrainData's (height, width first)."""
+  pixels (P = settings.patch_size) of the TrainData `data`, patch after patch, each row-major.
+  Without masks each is in an image drawn uniformly at a corner drawn uniformly among those
+  that keep it inside; with masks (data.kept) each is centred on a kept pixel drawn uniformly
+  from all kept pixels (its row and column P // 2 into the patch), the patch moved inside the
+  image where that pixel is nearer an edge: every patch holds the kept pixel it was drawn
+  from."""
+  camera = data.camera
   if camera is None:
     raise ValueError("config.train.batching='patches' draws from images of one camera")
   height, width = camera[:2]
@@ -263,9 +271,15 @@ def _draw_patches(camera, num_images, settings, key):
                      "training images")
   count = settings.num_patches()
   image_key, row_key, col_key = jax.random.split(key, 3)
-  images = jax.random.randint(image_key, (count,), 0, num_images)
-  rows = jax.random.randint(row_key, (count, 1, 1), 0, height - size + 1)
-  cols = jax.random.randint(col_key, (count, 1, 1), 0, width - size + 1)
+  if data.kept is None:
+    images = jax.random.randint(image_key, (count,), 0, num_images)
+    rows = jax.random.randint(row_key, (count, 1, 1), 0, height - size + 1)
+    cols = jax.random.randint(col_key, (count, 1, 1), 0, width - size + 1)
+  else:
+    centre = data.kept[jax.random.randint(image_key, (count,), 0, data.kept.shape[0])]
+    images, centre = centre // (height * width), centre % (height * width)
+    corner = lambda at, side: jnp.clip(at - size // 2, 0, side - size)[:, None, None]
+    rows, cols = corner(centre // width, height), corner(centre % width, width)
   dy, dx = jnp.meshgrid(jnp.arange(size), jnp.arange(size), indexing="ij")
   pixel = ((rows + dy) * width + cols + dx).reshape(-1)
   return jnp.repeat(images, size * size), pixel
@@ -282,7 +296,8 @@ def _draw_flat(data, settings, key):
   pixel = (idx - data.offsets[image]).astype(jnp.int32)
   return TrainData(rays=pixel_rays_of(data, image, pixel), rgb=data.rgb[idx],
                    acc=data.acc[idx], image=image, pixel=pixel,
-                   weight=_ray_weight(data, image, None))
+                   weight=_ray_weight(data, image, None),
+                   mask=None if data.mask is None else data.mask[idx])
 
 
 def rays_per_step(settings, height, width):

@@ -147,7 +147,7 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
       return None
     return posed
 
-  def loss_fn(params, buffers, batch, key, data=None, bands=None):
+  def loss_fn(params, buffers, batch, key, data=None, bands=None, step=None):
     render_key, bg_key = jax.random.split(key)
     bg, target = fixed_background, batch.rgb
     if settings.random_background:
@@ -167,7 +167,8 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
       outs = render(rays, render_key, bg)
     else:  # only the first `posed` rays' gradient reaches the poses
       outs = _render_split(render, rays, render_key, bg, posed)
-    return losses.total(terms, losses.LossInputs(outs, target, rays, params, batch.weight))
+    return losses.total(terms, losses.LossInputs(outs, target, rays, params, batch.weight,
+                                                 batch.mask, step))
 
   def update_buffers(state, run_key):
     for update in buffer_updates:
@@ -181,7 +182,8 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
         train_batches.draw_batch(data, settings.batch, batch_key, state.step, run_key), mesh)
     buffers = update_buffers(state, run_key)
     grads, stats = jax.grad(loss_fn, has_aux=True)(state.params, buffers, batch, render_key,
-                                                   data, bands_at(state.step, planned_steps))
+                                                   data, bands_at(state.step, planned_steps),
+                                                   state.step)
     finite = jnp.isfinite(stats["loss"]) & jnp.all(jnp.array(
         [jnp.all(jnp.isfinite(g)) for g in jax.tree_util.tree_leaves(grads)]))
     step_tx = tx if planned_steps is None else optimizer_for(planned_steps)

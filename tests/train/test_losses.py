@@ -70,6 +70,16 @@ def test_colour_is_the_final_pass_error_plus_the_weighted_coarse_one(passes, del
     assert set(stats) == {"psnr"}
 
 
+def test_colour_logs_the_share_of_masked_rays():
+  mask = np.array([1, 0, 1, 1, 0, 0], np.float32)  # three of six rays masked
+  inputs = _colour_inputs(("coarse",)).replace(weight=jnp.asarray(mask),
+                                               mask=jnp.asarray(mask))
+  loss, stats = colour.Colour()(inputs)
+  assert set(stats) == {"psnr", "masked_share"}
+  np.testing.assert_allclose(stats["masked_share"], sum(m == 0 for m in mask) / B, rtol=1e-6)
+  np.testing.assert_allclose(loss, _pass_error_ref(RGB["coarse"], mask > 0, 0.0), rtol=1e-5)
+
+
 def test_colour_with_no_whole_ray_is_finite():
   inputs = _colour_inputs(("coarse",), budget=True)
   none = jnp.zeros(B, bool)

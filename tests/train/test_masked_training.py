@@ -1,7 +1,8 @@
 """A masked pixel (Dataset.masks) is never trained on: with the masked pixels set to random
 colours, a few train steps give bit-identical losses, statistics and parameters whatever the
-colours, for random-ray and whole-image batches; random rays are drawn from kept pixels alone
-and whole images weight masked pixels by exactly 0."""
+colours, for random-ray and whole-image batches and RobustNeRF's patches; random rays are drawn
+from kept pixels alone, whole images and patches weight masked pixels by exactly 0, and each step
+logs the share of its rays that are masked (colour/masked_share)."""
 
 import dataclasses
 
@@ -43,9 +44,13 @@ def _painted(exp, seed):
 
 def _trainer(exp, batching):
   """fn(exp) -> (stats of each step, final params) of STEPS Adam steps on exp's training data
-  with `batching` ('rays' | 'images'): one step, compiled once for every exp of one shape."""
+  with `batching` ('rays' | 'images' | 'robust': RobustNeRF's trimmed loss on 4 x 4 patches):
+  one step, compiled once for every exp of one shape."""
   config = exp.config.copy_and_resolve_references()
-  config.train.batching = batching
+  if batching == "robust":
+    config.loss.robust.weight, config.train.patch_size = 1.0, 4
+  else:
+    config.train.batching = batching
   exp = dataclasses.replace(exp, config=config)
   ray_renderer = builders.training_renderer(exp)
   tx = optax.adam(1e-2)
@@ -66,10 +71,15 @@ def _trainer(exp, batching):
   return train
 
 
-@pytest.mark.parametrize("batching", ["rays", "images"])
+@pytest.mark.parametrize("batching", ["rays", "images", "robust"])
 def test_masked_colours_never_reach_the_loss(exp, batching):
   train = _trainer(exp, batching)
   a, b = train(_painted(exp, 1)), train(_painted(exp, 2))
+  shares = [stats["colour/masked_share"] for stats in a[0]]
+  if batching == "rays":  # drawn from the kept pixels alone
+    assert all(share == 0 for share in shares)
+  else:  # about the masks' 40% (patches: fewer, each centred on a kept pixel)
+    assert all(0 < share < 0.6 for share in shares)
   for stats_a, stats_b in zip(a[0], b[0]):
     assert set(stats_a) == set(stats_b)
     for name in stats_a:

@@ -34,15 +34,21 @@ class LossInputs:
   target: float32 [B, 3], the colours the rays should render. rays: the rays rendered (those of
   the corrected cameras with pose refinement). params: the trained parameters.
   weight: float32 [B] or None, each ray's weight in the colour loss (its image's
-  Dataset.lossmult: mip-NeRF's area weighting; times its pixel's mask in whole-image batches
-  of masked data, 0 = a masked pixel: a term that reads `target` must weight by it); None =
-  every ray alike.
+  Dataset.lossmult: mip-NeRF's area weighting; times its pixel's mask in whole-image and patch
+  batches of masked data, 0 = a masked pixel: a term that reads `target` must weight by it);
+  None = every ray alike.
+  mask: float32 [B] or None, with masked data (Dataset.masks) each ray's pixel mask: 1 kept, 0
+  masked (its weight is 0 and its target black; a term that takes statistics of the batch
+  leaves it out of them: robust.py); None = data without masks.
+  step: int32 [] or None, the step number (the train step's; None outside it).
   """
   outputs: dict
   target: jnp.ndarray
   rays: Any
   params: dict
   weight: Any = None
+  mask: Any = None
+  step: Any = None
 
 
 # The render passes of the renderer's outputs (outputs['sampler'] is a sampler's, not a pass).

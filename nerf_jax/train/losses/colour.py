@@ -69,7 +69,9 @@ class Colour:
   this one with weight 0).
   Stats: psnr of the final pass (from its squared error, whatever the loss); with a sample
   budget, rays_in_loss (the rays it held whole) and samples_wanted (the valid samples of every
-  drawn ray: above the budget, rays were drawn in vain; below it, budget slots went empty).
+  drawn ray: above the budget, rays were drawn in vain; below it, budget slots went empty);
+  with masked data (LossInputs.mask), masked_share (the share of the batch's rays that are
+  masked pixels: 0 with random rays, drawn from the kept pixels alone).
   A pass with the transient head (its output has 'beta') is left to losses/transient.py."""
   name: ClassVar[str] = "colour"
   coarse_weight: float = 1.0
@@ -99,6 +101,8 @@ class Colour:
     if complete is not None:  # how many rays the budget held whole, and what all asked of it
       stats["rays_in_loss"] = jnp.sum(complete, dtype=jnp.int32)
       stats["samples_wanted"] = jnp.sum(outs["coarse"]["valid_samples"], dtype=jnp.int32)
+    if inputs.mask is not None:  # masked pixels in the batch (whole images, patches)
+      stats["masked_share"] = jnp.mean((inputs.mask <= 0).astype(jnp.float32))
     return self.weight * loss, stats
 
 

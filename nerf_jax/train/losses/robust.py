@@ -16,13 +16,24 @@ patches a pixel is kept (an inlier, weight 1) when any of these holds, else left
   * more than `neighbour_share` of the filter_size x filter_size box around it (zeros beyond the
     patch's edge) are such pixels: a lone outlier among inliers is fine detail, not an object;
   * it lies in the middle inner_size x inner_size square of a patch of which more than
-    `patch_share` of the pixels are such pixels.
+    `patch_share` of the pixels are such pixels (with `dilate`, RobustNeRF's code: pixels kept
+    by either rule above; without it, the default, pixels kept by the first alone).
 What is left out is a cluster of large residuals, the shape of an object. The mask is not
 differentiated (the threshold and the weights are constants of the step, as in RobustNeRF).
 The loss is the mean residual over the kept pixels (their trimmed mean), of every render pass
 added (each pass weighs 1: the colour term's coarse_weight is not applied); with per-ray
 weights (LossInputs.weight) the weighted mean (a sample budget's incomplete rays are not left
 out: use it without one).
+
+Masked pixels (LossInputs.mask 0: Dataset.masks; weight 0 and a black target) enter no
+statistic: the quantile is over the batch's unmasked pixels alone, a box's share of inliers is
+over its unmasked pixels (and the cells beyond the patch's edge), a patch's vote over its
+unmasked pixels, and the loss over the unmasked inliers. Without masks (mask None, or none 0)
+the rule is the one above, bit for bit.
+
+Warm-up (`warmup_steps` > 0, LossInputs.step): before step warmup_steps nothing is trimmed, the
+loss is the mean residual over every unmasked pixel (the plain squared colour error, each pass
+weighing 1); the trimming starts at step warmup_steps.
 """
 
 import dataclasses
@@ -43,6 +54,8 @@ class Settings:
   neighbour_share: float = 0.5  # kept: more than this share of its box is inliers
   inner_size: int = 8  # side of each patch's middle square, kept whole for an inlier patch
   patch_share: float = 0.6  # an inlier patch: more than this share of its pixels is inliers
+  dilate: bool = False  # the patch vote on the inliers dilated by the box rule (RobustNeRF's code)
+  warmup_steps: int = 0  # steps of the plain loss (nothing trimmed) before the trimming starts
 
   def __post_init__(self):
     losses.check_weight(self.weight, "robust", "1.0")
@@ -52,6 +65,9 @@ class Settings:
     if self.filter_size < 1 or self.filter_size % 2 == 0:
       raise ValueError(f"config.loss.robust.filter_size={self.filter_size}: use an odd side "
                        "(RobustNeRF: 3)")
+    if self.warmup_steps < 0:
+      raise ValueError(f"config.loss.robust.warmup_steps={self.warmup_steps}: use 0 (trim from "
+                       "the first step) or a number of steps of the plain loss first")
 
 
 def batching(train_batching, weight):
@@ -69,11 +85,15 @@ def batching(train_batching, weight):
   return "patches"
 
 
-def box_mean(x, size):
-  """The mean of x float32 [n, P, P] over the size x size box (odd size) centred on each pixel,
+def box_sum(x, size):
+  """The sum of x float32 [n, P, P] over the size x size box (odd size) centred on each pixel,
   zeros beyond each patch's edge (RobustNeRF's 'SAME' convolution): float32 [n, P, P]."""
-  window = jax.lax.reduce_window(x, 0.0, jax.lax.add, (1, size, size), (1, 1, 1), "SAME")
-  return window / (size * size)
+  return jax.lax.reduce_window(x, 0.0, jax.lax.add, (1, size, size), (1, 1, 1), "SAME")
+
+
+def box_mean(x, size):
+  """`box_sum` over the box's size * size cells: float32 [n, P, P]."""
+  return box_sum(x, size) / (size * size)
 
 
 def inner_square(patch, inner):
@@ -86,50 +106,90 @@ def inner_square(patch, inner):
   return side[:, None] & side[None, :]
 
 
-def inlier_mask(residual, settings):
+def inlier_mask(residual, settings, kept=None):
   """RobustNeRF's inlier mask of residual float32 [n, P, P] (each pixel's squared error,
   averaged over channels) under `settings` (Settings): (mask bool [n, P, P], threshold
-  float32 [], the batch's inlier_quantile of the residuals)."""
-  threshold = jnp.quantile(residual, settings.inlier_quantile)
+  float32 [], the inlier_quantile of the residuals). kept: bool [n, P, P] or None, the
+  unmasked pixels (None: all): a masked pixel enters no statistic (module docstring) and is
+  never in the mask."""
+  if kept is None:
+    threshold = jnp.quantile(residual, settings.inlier_quantile)
+  else:  # the quantile of the unmasked residuals alone (NaN sorts last and is not counted)
+    threshold = jnp.nanquantile(jnp.where(kept, residual, jnp.nan), settings.inlier_quantile)
+    # No unmasked pixel has no quantile (NaN): 0 keeps the logged threshold finite.
+    threshold = jnp.where(jnp.any(kept), threshold, 0.0)
   inlier = residual < threshold
   if settings.inlier_quantile >= 1:  # the largest residual is below no quantile: keep all
     inlier = jnp.ones_like(inlier)
-  neighbours = box_mean(inlier.astype(jnp.float32), settings.filter_size)
+  if kept is not None:
+    inlier = inlier & kept
+  size = settings.filter_size
+  neighbours = box_mean(inlier.astype(jnp.float32), size)
   near_inliers = neighbours > settings.neighbour_share
-  patch_inlier = jnp.mean(inlier, axis=(1, 2), keepdims=True) > settings.patch_share
+  if kept is not None:  # the share of the box's unmasked pixels and cells beyond the edge
+    masked = box_sum((~kept).astype(jnp.float32), size)
+    # count > share · cells, not count / cells > share: a GPU's approximate division can put
+    # 3 / 6 above 0.5; where no cell is masked, the rule above, bit for bit.
+    near_inliers = jnp.where(masked > 0, box_sum(inlier.astype(jnp.float32), size)
+                             > settings.neighbour_share * (size * size - masked), near_inliers)
+  voters = inlier | near_inliers if settings.dilate else inlier
+  patch_inlier = jnp.mean(voters, axis=(1, 2), keepdims=True) > settings.patch_share
+  if kept is not None:  # the share of the patch's unmasked pixels (none: no vote)
+    count = jnp.sum(kept, axis=(1, 2), keepdims=True)
+    votes = jnp.sum(voters & kept, axis=(1, 2), keepdims=True)
+    patch_inlier = jnp.where(count < kept[0].size, votes > settings.patch_share * count,
+                             patch_inlier)
   middle = inner_square(residual.shape[-1], settings.inner_size)[None] & patch_inlier
-  return inlier | near_inliers | middle, threshold
+  mask = inlier | near_inliers | middle
+  return (mask if kept is None else mask & kept), threshold
 
 
 @dataclasses.dataclass(frozen=True)
 class Robust:
   """The trimmed loss of a batch of n patches of patch_size² pixels (`inlier_mask`), times
-  `weight`. Stats: inliers (the share of pixels kept, final pass), threshold (the residual
-  quantile, final pass). It replaces the colour term's loss (`replaces_colour`: the entry
-  layer builds that term with weight 0 beside it)."""
+  `weight`. Stats: inliers (the share of the unmasked pixels kept, final pass), threshold (the
+  residual quantile, final pass). It replaces the colour term's loss (`replaces_colour`: the
+  entry layer builds that term with weight 0 beside it)."""
   name: ClassVar[str] = "robust"
   replaces_colour: ClassVar[bool] = True
   weight: float
   patch_size: int
   settings: Settings
 
-  def _pass_loss(self, rgb, target, ray_weight):
+  def _pass_loss(self, rgb, target, ray_weight, kept, warm):
     residual = jnp.mean((rgb - target) ** 2, axis=-1)  # [B]
     patches = jax.lax.stop_gradient(residual).reshape(-1, self.patch_size, self.patch_size)
-    mask, threshold = inlier_mask(patches, self.settings)
-    keep = mask.reshape(-1).astype(jnp.float32)
+    mask, threshold = inlier_mask(patches, self.settings, kept)
+    mask = mask.reshape(-1)
+    if warm is not None:  # the warm-up: every unmasked pixel, nothing trimmed
+      mask = jnp.where(warm, True if kept is None else kept.reshape(-1), mask)
+    keep = mask.astype(jnp.float32)
     if ray_weight is not None:
       keep = keep * ray_weight
     # max(.., 1e-12): a batch whose pixels all have weight 0 keeps the loss finite (0).
     loss = jnp.sum(keep * residual) / jnp.maximum(jnp.sum(keep), 1e-12)
-    return loss, jnp.mean(mask.astype(jnp.float32)), threshold
+    if kept is None:
+      share = jnp.mean(mask.astype(jnp.float32))
+    else:
+      share = jnp.sum(mask) / jnp.maximum(jnp.sum(kept), 1)
+    return loss, share, threshold
 
   def __call__(self, inputs):
     outs = inputs.outputs
     names = [name for name in losses.PASSES if name in outs]
+    kept = None
+    if inputs.mask is not None:
+      kept = (inputs.mask > 0).reshape(-1, self.patch_size, self.patch_size)
+    warm = None
+    if self.settings.warmup_steps > 0:
+      if inputs.step is None:
+        raise ValueError("config.loss.robust.warmup_steps > 0 needs the step number "
+                         "(LossInputs.step)")
+      warm = inputs.step < self.settings.warmup_steps
     total, share, threshold = 0.0, None, None
     for name in names:
-      loss, share, threshold = self._pass_loss(outs[name]["rgb"], inputs.target, inputs.weight)
+      loss, share, threshold = self._pass_loss(outs[name]["rgb"], inputs.target, inputs.weight,
+                                               kept, warm)
       total = total + loss
     return self.weight * total, {"inliers": share, "threshold": threshold}
 
