@@ -133,16 +133,18 @@ def write_true_folder(folder, processed, true, camera=None):
 
 def held_out(workdir, folder):
   """The held-out views of the transforms.json `folder`, loaded as the run in `workdir` loads
-  its data (its factor, background, split; moved as its world was, data.focus): a Dataset."""
+  its data (its factor, background, split; moved as its world was, data.focus or data.subject):
+  a Dataset."""
   # pylint: disable-next=import-outside-toplevel
-  from nerf_jax.run import builders, config_lib, from_data
+  from nerf_jax.run import builders, config_lib, from_data, subject
   from nerf_jax.data import loaders  # pylint: disable=import-outside-toplevel
   config = config_lib.load_saved(workdir)
   data = config.data.to_dict()
   data["path"] = folder
   test_ds = loaders.load_dataset(builders.data_settings(data))[1]
-  if config.data.focus:  # the run's world is centred on its own cameras' focus: move these too
+  if config.data.focus or config.data.subject:  # the run's world was moved: move these too
     train_ds = loaders.load_dataset(builders.data_settings(config.data))[0]
+    test_ds = subject.with_subject(config, train_ds, test_ds)[2]
     test_ds = from_data.with_focus(config, train_ds, test_ds)[1]
   return test_ds
 

@@ -53,6 +53,10 @@ class Dataset:
   masks: float32 [N, H, W] or None (a list of [H_i, W_i] with mixed sizes, as `images`): 1 where
     a pixel shows the scene (kept), 0 where it must be ignored (a passer-by, a car): a masked
     pixel is neither trained on nor scored (data/masks.py, docs/masks.md). None = keep all.
+  points: float32 [P, 3] or None, the sparse points of structure from motion in world units
+    (nerfstudio's ply_file_path); scene-wide, so subsets keep them. None when the data has none.
+  bounds: float32 [N, 2] or None, each image's own (near, far) z-depths (LLFF's poses_bounds);
+    `near`, `far` cover them all. The samplers read only `near`, `far`. None when unknown.
   """
   images: np.ndarray
   poses: np.ndarray
@@ -72,6 +76,8 @@ class Dataset:
   lossmult: Optional[np.ndarray] = None
   labels: Optional[np.ndarray] = None
   masks: Optional[np.ndarray] = None
+  points: Optional[np.ndarray] = None
+  bounds: Optional[np.ndarray] = None
 
   def __post_init__(self):
     if self.image_cameras is not None and self.image_cameras.is_shared() and not isinstance(
@@ -178,7 +184,8 @@ class Dataset:
                                poses=self.poses[indices], depths=take(self.depths),
                                accs=take(self.accs), true_poses=take(self.true_poses),
                                image_cameras=cameras, lossmult=take(self.lossmult),
-                               labels=take(self.labels), masks=take(self.masks))
+                               labels=take(self.labels), masks=take(self.masks),
+                               bounds=take(self.bounds))
 
   def split(self, holdout_from=-1):
     """(train, test): views [:holdout_from] and [holdout_from:].

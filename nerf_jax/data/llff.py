@@ -25,15 +25,16 @@ _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 
 def export_llff(dataset, dirpath):
-  """Write `poses_bounds.npy` (every view with the bounds dataset.near, dataset.far) and
-  `images/000.png`, ... (8-bit RGB) under `dirpath`, and `masks/000.png`, ... where the
-  dataset has masks; DataError unless a centred pinhole."""
+  """Write `poses_bounds.npy` (each view with its bounds, dataset.bounds, else dataset.near,
+  dataset.far) and `images/000.png`, ... (8-bit RGB) under `dirpath`, and `masks/000.png`, ...
+  where the dataset has masks; DataError unless a centred pinhole."""
   focal = dataset.pinhole_focal()
   c2w = dataset.poses[:, :3, :4].astype(np.float64)
   num = len(dataset)
   hwf = np.broadcast_to([[dataset.height], [dataset.width], [focal]], (num, 3, 1))
   llff = np.concatenate([-c2w[:, :, 1:2], c2w[:, :, 0:1], c2w[:, :, 2:4], hwf], axis=2)
-  bounds = np.broadcast_to([dataset.near, dataset.far], (num, 2))
+  bounds = (np.broadcast_to([dataset.near, dataset.far], (num, 2)) if dataset.bounds is None
+            else np.asarray(dataset.bounds, np.float64))
   os.makedirs(os.path.join(dirpath, "images"), exist_ok=True)
   np.save(os.path.join(dirpath, "poses_bounds.npy"),
           np.concatenate([llff.reshape(num, 15), bounds], axis=1))
@@ -117,8 +118,8 @@ def load_llff(path, factor=1, bd_factor=None, recenter=False):
     1 / bd_factor > 1 and NDC's near plane z = -1 lies in front of all content.
   recenter: bool, express the poses in the frame of the average camera (`_recenter`), which NDC
     needs when the capture's world frame is arbitrary (e.g. COLMAP's).
-  near, far: the smallest near bound and the largest far bound over all views. Returns a Dataset
-  with accs = None, background = (0, 0, 0) (unknown) and forward_facing = True.
+  near, far: the smallest near bound and the largest far bound over all views; bounds: each
+  view's own (Dataset.bounds, float32 [N, 2]). Returns a Dataset with accs = None, background = (0, 0, 0) (unknown) and forward_facing = True.
   """
   table_path = os.path.join(path, "poses_bounds.npy")
   if not os.path.isfile(table_path):
@@ -160,4 +161,4 @@ def load_llff(path, factor=1, bd_factor=None, recenter=False):
   return Dataset(images.astype(np.float32), validate.poses(c2w, table_path),
                  (float(focal), float(focal), width * 0.5, height * 0.5),
                  near=float(bounds[:, 0].min()), far=float(bounds[:, 1].max()), name=path,
-                 forward_facing=True, masks=masks)
+                 forward_facing=True, masks=masks, bounds=bounds.astype(np.float32))

@@ -243,7 +243,8 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
   the Dataset's order; test_names, the set of them the file names as test (or val) images, or
   None. Dataset.aabb: `ngp_box` where the file has aabb_scale, else `orient.points_box` of
   ply_file_path's points, else None; Dataset.core: instant-ngp's unit cube where the file has
-  aabb_scale, else the points' box; both carried with the poses into the Dataset's frame.
+  aabb_scale, else the points' box; both carried with the poses into the Dataset's frame, as
+  are Dataset.points (ply_file_path's, or None).
   """
   meta_path = path if path.endswith(".json") else os.path.join(path, FILENAME)
   root = os.path.dirname(meta_path)
@@ -305,7 +306,8 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
                     pixel_center=0.0,  # the intrinsics hold cx - 0.5: rays through centres
                     aabb=None if aabb is None else aabb.astype(np.float32),
                     core=None if core is None else core.astype(np.float32),
-                    masks=_stack_masks(masks, sizes, one_size))
+                    masks=_stack_masks(masks, sizes, one_size),
+                    points=None if points is None else points.astype(np.float32))
   return dataset, names, _test_names(meta, names)
 
 

@@ -4,8 +4,10 @@ user's flags, which win over the decisions.
 
 import jax
 import ml_collections
+import numpy as np
 
-from nerf_jax.run import characterise, config_lib, from_data, transient_share, warm_up
+from nerf_jax.run import (characterise, config_lib, from_data, subject, transient_share,
+                          warm_up)
 
 APPEARANCE_DIMS = 8  # the appearance codes' length auto switches on (NeRF-W: 48, nerfacto: 32)
 CONTRACTION = "linf"  # where the rays leave the box: nerfacto's contraction (docs/real_captures.md)
@@ -16,6 +18,10 @@ ANTIALIAS_MULTISAMPLE = False
 # Transients (passers-by): RobustNeRF's loss above this share of clustered outliers after the
 # warm-up; crowd 0.027, the clean built-in scenes <= 0.0033 at 48 px (docs/photo_collections.md).
 TRANSIENT_SHARE = 0.01
+# A photo collection's subject fills the inner region (data.subject) when the sparse points or
+# the masks mark a subject whose largest half-extent is under this share of the cameras' median
+# distance from it (landmark: 0.5 of ~4.2; crowd's masks mark passers-by, no subject).
+SUBJECT_SHARE = 0.25
 _OWN = ("auto", "auto_decisions", "auto_flags")  # auto's own fields, set by auto_config itself
 # On a GPU backend, the config of configs/gpu/ that takes each CPU choice's place (docs/gpu.md:
 # chosen for a GPU, unmeasured there until a GPU session measures them).
@@ -73,6 +79,35 @@ def transient_effects(dataset, collection, patch_size):
   return (effects,
           f"transients left out: RobustNeRF's trimmed loss on {patch} x {patch} patches "
           f"(loss.robust): {reason}")
+
+
+def subject_effects(dataset, collection, contraction=""):
+  """({field: value}, [line]): for a photo collection (`collection`), data.subject='auto' where
+  the sparse points or the masks of `dataset` (one camera) mark a subject (subject.subject_box)
+  whose largest half-extent is under SUBJECT_SHARE of the cameras' median distance from its
+  centre, and the space beyond the inner region contracted (CONTRACTION) unless `contraction`
+  (the run's) already is: the cameras and the rest of the world lie outside it; else ({}, []
+  where not a collection, or the line saying why the world stays)."""
+  if not collection:
+    return {}, []
+  box = subject.subject_box(dataset)
+  distance = float(np.median(np.linalg.norm(dataset.poses[:, :3, 3] - box.centre, axis=1)))
+  half = float(np.max(box.half))
+  if box.source not in ("points", "masks"):
+    return {}, ["the world as it is (data.subject off): no sparse points or masks mark a "
+                "subject (its box would be the cameras')"]
+  measured = (f"the {box.source} mark a subject of half-extent {half:.3g}, the cameras "
+              f"{distance:.3g} from it ({'<' if half < SUBJECT_SHARE * distance else '>='} "
+              f"{SUBJECT_SHARE:g} of that)")
+  if half >= SUBJECT_SHARE * distance:
+    return {}, [f"the world as it is (data.subject off): {measured}"]
+  effects = {"data.subject": "auto"}
+  beyond = ""
+  if not contraction:
+    effects["data.contraction"] = CONTRACTION
+    beyond = f", the space beyond contracted (data.contraction={CONTRACTION!r})"
+  return effects, [f"the world scaled and moved so the subject fills the inner region "
+                   f"(data.subject='auto'){beyond}: {measured}"]
 
 
 def cone_summary(config):
@@ -149,7 +184,8 @@ def auto_config(config, dataset, backend=None):
   configs/gpu/ counterpart, `for_backend`) and the effects it calls for (view dependence only
   where it is measured: the views need depth; else the representation's setting stands;
   appearance codes with held-out photos scored the NeRF-W way; an unbounded capture's box,
-  contraction and centre: `box_effects`). A field the user set (named in config.auto_flags by
+  contraction and centre: `box_effects`; a photo collection's subject filling the inner
+  region: `subject_effects`). A field the user set (named in config.auto_flags by
   the command line, or differing from configs/auto.py's) wins over the decision, with one line
   saying so. Prints one line per
   decision with its reason, and one naming the backend and the config it chose; the lines go
@@ -215,6 +251,11 @@ def auto_config(config, dataset, backend=None):
         absent = "one scale" if d.name == "scales" else "no " + d.name.replace("_", " ")
         lines.append(f"{settings[d.name] if d.found else absent}: {d.reason}")
     lines += box_lines
+    fill, fill_lines = subject_effects(
+        dataset, found["appearance"].found,
+        user.get("data.contraction", effects.get("data.contraction", result.data.contraction)))
+    effects.update(fill)
+    lines += fill_lines
     transient, transient_line = transient_effects(
         dataset, found["appearance"].found,
         user.get("train.patch_size", result.train.patch_size))

@@ -7,7 +7,7 @@ the model signature, a fresh state, its template).
 """
 
 from nerf_jax.data import loaders
-from nerf_jax.run import auto, builders, config_lib, experiment_parts, from_data
+from nerf_jax.run import auto, builders, config_lib, experiment_parts, from_data, subject
 from nerf_jax.run.signature import model_signature, state_template
 from nerf_jax.train import checkpoints
 from nerf_jax.train.state import upgrade_state_dict
@@ -26,6 +26,7 @@ def setup(config):
   if config.auto:
     config = auto.auto_config(config, train_ds)
   from_data.pixel_center(config, train_ds)  # a bad value fails here, naming the field
+  config, train_ds, test_ds = subject.with_subject(config, train_ds, test_ds)
   near, far = from_data.bounds(config, train_ds)
   train_ds, test_ds = from_data.with_focus(config, train_ds, test_ds)
   config = from_data.with_scene_extent(config, train_ds)

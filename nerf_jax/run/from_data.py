@@ -21,8 +21,9 @@ def with_focus(config, train_ds, test_ds):
   scene box (and a contraction's inner region) is centred: nerfstudio's 'focus' centring. The
   world moves, nothing turns or scales: poses, the data's boxes (aabb, core) and true poses
   move alike; depths and the near/far bounds (z-depths) stay. One line says where the point
-  was; the datasets as they are without data.focus or in NDC (the frame is the cameras')."""
-  if not config.data.focus or config.data.ndc:
+  was; the datasets as they are without data.focus, in NDC (the frame is the cameras') or
+  with data.subject (run/subject.py: the subject's centre is the origin already)."""
+  if not config.data.focus or config.data.ndc or config.data.subject:
     return train_ds, test_ds
   point = characterise.focus_point(train_ds.poses, train_ds.near, train_ds.far)
   print(f"focus: the cameras look at ({', '.join(f'{v:.3g}' for v in point)}); the world is "

@@ -29,6 +29,7 @@ class SceneSettings:
   contraction: str = ""  # unbounded scene: 'linf' or 'l2' contracts the space beyond the box
   inner_fraction: float = 0.5  # unbounded scene: share of samples inside the box (the rest beyond)
   focus: bool = False  # move the world so that the point the cameras look at is the origin
+  subject: str = ""  # 'auto': scale, move the world so the subject's box fills ±scene_bound ('' off)
 
 
 @dataclasses.dataclass(frozen=True)

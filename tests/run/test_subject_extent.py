@@ -1,0 +1,190 @@
+"""The subject's box from each source the data may hold (run/subject.py), checked against a known
+box BOX_LO..BOX_HI off the origin: sparse points sampled in it (with outliers), LLFF-style
+per-camera depth bounds and masks computed from it here; then the world scaled and moved so
+that the box fills the inner region exactly, and data.subject='' leaving the datasets alone."""
+
+import dataclasses
+
+import ml_collections
+import numpy as np
+import pytest
+
+from nerf_jax.data.dataset import Dataset
+from nerf_jax.run import auto, subject
+
+BOX_LO, BOX_HI = np.array([1.0, -2.5, 0.5]), np.array([1.8, -1.3, 1.7])  # half (0.4, 0.6, 0.6)
+CENTRE, HALF = 0.5 * (BOX_LO + BOX_HI), 0.5 * (BOX_HI - BOX_LO)
+SIZE, FOCAL = 64, 60.0  # masks' pixels a side, focal in pixels
+
+
+def _look_at(centre, target):
+  """float64 [4, 4] camera-to-world at `centre` looking down -z at `target` (rays.py axes)."""
+  back = (centre - target) / np.linalg.norm(centre - target)
+  up = np.array([0.0, 0.0, 1.0]) if abs(back[2]) < 0.9 else np.array([0.0, 1.0, 0.0])
+  right = np.cross(up, back) / np.linalg.norm(np.cross(up, back))
+  pose = np.eye(4)
+  pose[:3, :3] = np.stack([right, np.cross(back, right), back], axis=1)
+  pose[:3, 3] = centre
+  return pose
+
+
+def _sphere_cameras(num=40, distance=8.0):
+  """float64 [num + 6, 4, 4]: cameras on a sphere about CENTRE (a Fibonacci spiral, and one on
+  each axis), looking at it."""
+  k = np.arange(num) + 0.5
+  z = 1 - 2 * k / num
+  phi = np.pi * (1 + 5 ** 0.5) * k
+  dirs = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], 1)
+  dirs = np.concatenate([dirs, np.eye(3), -np.eye(3)])
+  return np.stack([_look_at(CENTRE + distance * d, CENTRE) for d in dirs])
+
+
+def _corners(lo, hi):
+  """float64 [8, 3], the corners of the box lo..hi."""
+  return np.stack(np.meshgrid(*zip(lo, hi), indexing="ij"), -1).reshape(-1, 3)
+
+
+def _dataset(poses, **fields):
+  """A Dataset of blank SIZE x SIZE images from `poses`, near 1, far 20."""
+  images = np.zeros((len(poses), SIZE, SIZE, 3), np.float32)
+  return Dataset(images, poses.astype(np.float32), (FOCAL, FOCAL, SIZE / 2, SIZE / 2),
+                 near=1.0, far=20.0, **fields)
+
+
+def test_points_give_their_box_without_the_outliers():
+  rng = np.random.default_rng(0)
+  points = rng.uniform(BOX_LO, BOX_HI, (20000, 3))
+  outliers = CENTRE + rng.normal(0.0, 30.0, (100, 3))  # 0.5%: beyond the percentiles
+  box = subject.subject_box(_dataset(_sphere_cameras(), points=np.concatenate(
+      [points, outliers]).astype(np.float32)))
+  assert box.source == "points"
+  # The 1st..99th percentiles of a uniform box lose 1% of its side at each end.
+  np.testing.assert_allclose(box.centre, CENTRE, atol=0.02)
+  np.testing.assert_allclose(box.half, 0.98 * HALF, atol=0.02)
+
+
+def test_per_camera_depth_bounds_give_the_box():
+  poses = _sphere_cameras()
+  # Each camera's bounds: the z-depths of the box's corners, what COLMAP's points would give.
+  rel = _corners(BOX_LO, BOX_HI)[None] - poses[:, None, :3, 3]
+  z = -np.einsum("nmi,ni->nm", rel, poses[:, :3, 2])
+  bounds = np.stack([z.min(1), z.max(1)], -1).astype(np.float32)
+  box = subject.subject_box(_dataset(poses, bounds=bounds))
+  assert box.source == "bounds"
+  # The cameras on the axes make the slabs' intersection the box itself; carving finds it
+  # within a cell of the second grid (box + 4 cells over 48).
+  cell = 2 * (HALF.max() + 0.1) / subject.CARVE_CELLS
+  np.testing.assert_allclose(box.centre, CENTRE, atol=cell)
+  np.testing.assert_allclose(box.half, HALF, atol=cell)
+
+
+def _box_masks(poses):
+  """float32 [N, SIZE, SIZE]: 1 where a pixel's ray (through its centre) meets the box, by the
+  slab test in the test's own code."""
+  u, v = np.meshgrid(np.arange(SIZE) + 0.5, np.arange(SIZE) + 0.5, indexing="xy")
+  cam = np.stack([(u - SIZE / 2) / FOCAL, -(v - SIZE / 2) / FOCAL, -np.ones_like(u)], -1)
+  masks = []
+  for pose in poses:
+    d = cam @ pose[:3, :3].T
+    with np.errstate(divide="ignore"):
+      t0, t1 = (BOX_LO - pose[:3, 3]) / d, (BOX_HI - pose[:3, 3]) / d
+    enter = np.minimum(t0, t1).max(-1)
+    leave = np.maximum(t0, t1).min(-1)
+    masks.append((leave >= max(enter.min(), 0.0)) & (leave >= enter))
+  return np.stack(masks).astype(np.float32)
+
+
+def test_masks_of_a_subject_give_its_box():
+  poses = _sphere_cameras()
+  box = subject.subject_box(_dataset(poses, masks=_box_masks(poses)))
+  assert box.source == "masks"
+  # A pixel at 8 units spans 8 / FOCAL = 0.13: the box holds the true one within a pixel's
+  # footprint, and exceeds it by under 0.2 per side (the points outside that MASK_VOTE = 80% of
+  # the views see against the box: 0.16 here, 0.07 with every view's vote).
+  pixel = 8 / FOCAL
+  np.testing.assert_allclose(box.centre, CENTRE, atol=pixel)
+  assert np.all(box.half >= HALF - pixel) and np.all(box.half <= HALF + 0.2)
+
+
+def test_masks_of_passers_by_mark_no_subject():
+  poses = _sphere_cameras()
+  masks = np.ones((len(poses), SIZE, SIZE), np.float32)
+  masks[:, 20:40, 10:30] = 0.0  # a passer-by in every photo
+  box = subject.subject_box(_dataset(poses, masks=masks))
+  assert box.source == "focus"  # the cameras' region, today's box
+  region = subject.cameras_region(_dataset(poses))
+  np.testing.assert_allclose(box.half, region[1])
+
+
+def _config(source, bound):
+  return ml_collections.ConfigDict({"data": {"subject": source, "scene_bound": bound,
+                                             "ndc": False},
+                                    "model": {"grid_bound": 0.0}})
+
+
+@pytest.mark.parametrize("bound", [-1.0, 2.0])
+def test_the_box_fills_the_inner_region(bound):
+  poses = _sphere_cameras()
+  rng = np.random.default_rng(1)
+  points = rng.uniform(BOX_LO, BOX_HI, (5000, 3)).astype(np.float32)
+  train = _dataset(poses, points=points, depths=np.full((len(poses), SIZE, SIZE), 3.0,
+                                                        np.float32))
+  config, moved, test = subject.with_subject(_config("points", bound), train, train.subset([0]))
+  target = 1.0 if bound == -1 else bound
+  assert config.data.scene_bound == target
+  box = subject.from_points(points)
+  scale = target / (subject.MARGIN * box.half.max())
+  # The box's corners, moved here by x -> scale (x - centre): inside ±target, the largest
+  # half-extent at target / MARGIN, centred at the origin.
+  corners = scale * (_corners(box.centre - box.half, box.centre + box.half) - box.centre)
+  np.testing.assert_allclose(np.abs(corners).max(), target / subject.MARGIN, rtol=1e-6)
+  np.testing.assert_allclose(corners.mean(0), 0.0, atol=1e-9)
+  np.testing.assert_allclose(subject.from_points(moved.points).centre, 0.0, atol=1e-5)
+  np.testing.assert_allclose(subject.from_points(moved.points).half, scale * box.half,
+                             rtol=1e-5)
+  np.testing.assert_allclose(moved.poses[:, :3, 3], scale * (poses[:, :3, 3] - box.centre),
+                             atol=1e-5)
+  np.testing.assert_allclose(moved.poses[:, :3, :3], poses[:, :3, :3], atol=1e-7)
+  np.testing.assert_allclose(test.poses[0, :3, 3], moved.poses[0, :3, 3], atol=1e-6)
+  np.testing.assert_allclose(moved.depths, 3.0 * scale, rtol=1e-6)
+  # Each photo's bounds hold the moved box's corners; near, far hold every photo's bounds.
+  z = -np.einsum("nmi,ni->nm", corners[None] - moved.poses[:, None, :3, 3],
+                 moved.poses[:, :3, 2])
+  np.testing.assert_allclose(moved.bounds, np.stack([z.min(1), z.max(1)], -1), rtol=1e-5)
+  assert moved.near <= min(scale * 1.0, moved.bounds[:, 0].min())
+  assert moved.far >= max(scale * 20.0, moved.bounds[:, 1].max())
+
+
+def test_off_leaves_the_datasets_as_they_are():
+  train = _dataset(_sphere_cameras(), points=np.zeros((10, 3), np.float32))
+  config = _config("", -1.0)
+  out = subject.with_subject(config, train, train)
+  assert out[0] is config and out[1] is train and out[2] is train
+
+
+def test_auto_fills_a_small_subject_of_a_collection_only():
+  poses = _sphere_cameras(distance=8.0)  # half-extent 0.6 < 0.25 * 8
+  masked = _dataset(poses, masks=_box_masks(poses))
+  assert auto.subject_effects(masked, True)[0] == {"data.subject": "auto",
+                                                   "data.contraction": auto.CONTRACTION}
+  assert auto.subject_effects(masked, True, "l2")[0] == {"data.subject": "auto"}
+  assert auto.subject_effects(masked, False) == ({}, [])
+  near = _sphere_cameras(distance=2.0)  # 0.6 >= 0.25 * 2: the subject fills the photos
+  assert auto.subject_effects(_dataset(near, masks=_box_masks(near)), True)[0] == {}
+  assert auto.subject_effects(_dataset(poses), True)[0] == {}  # nothing marks a subject
+
+
+def test_a_misspelt_source_is_refused():
+  with pytest.raises(ValueError, match="data.subject"):
+    subject.with_subject(_config("mask", -1.0), _dataset(_sphere_cameras()), None)
+
+
+def test_llff_keeps_each_views_bounds(tmp_path):
+  from nerf_jax.data import llff  # pylint: disable=import-outside-toplevel
+  poses = _sphere_cameras(num=4)[:4]
+  bounds = np.array([[1, 5], [2, 6], [1.5, 7], [3, 9]], np.float32)
+  llff.export_llff(dataclasses.replace(_dataset(poses), bounds=bounds), str(tmp_path))
+  loaded = llff.load_llff(str(tmp_path))
+  np.testing.assert_allclose(loaded.bounds, bounds)
+  assert (loaded.near, loaded.far) == (1.0, 9.0)
+  np.testing.assert_allclose(loaded.subset([1, 3]).bounds, bounds[[1, 3]])
