@@ -162,7 +162,7 @@ def base_radius(fx, fy):
 
 
 def pixel_rays(i, j, height, width, intrinsics, c2w, near, far, pixel_center=0.5,
-               use_ndc=False, with_radii=False):
+               use_ndc=False, with_radii=False, lens=None):
   """`camera_rays` of the pixels at column i, row j (float32 [...]) of a height×width camera.
 
   The batch shape is that of i and j, not the image's, so a jitted caller working through an
@@ -171,14 +171,22 @@ def pixel_rays(i, j, height, width, intrinsics, c2w, near, far, pixel_center=0.5
   every pixel of a pinhole camera); in NDC mip-NeRF's, PIXEL_TO_RADIUS times the distance
   between the NDC directions of the pixel and of the one below it (row j + 1; mip-NeRF takes
   the row above for its last row).
+  lens: None (the pinhole `intrinsics`), or a refined camera (intrinsics_refinement.Lens, over
+  the batch shape): its `undistort` moves the pinhole's camera-space directions and scales the
+  base radius; NDC keeps the stored focal (the warp is the scene's, one for every camera).
   """
   fx, fy, cx, cy = intrinsics
-  origins, directions = to_world(_directions(i, j, fx, fy, cx, cy, pixel_center), c2w)
+
+  def camera_dirs(j):  # (camera-space directions [..., 3], radius scale [...] or None)
+    dirs = _directions(i, j, fx, fy, cx, cy, pixel_center)
+    return (dirs, None) if lens is None else lens.undistort(dirs)
+  dirs, radius_scale = camera_dirs(j)
+  origins, directions = to_world(dirs, c2w)
   viewdirs = safe_normalize(directions)
   if use_ndc:
     to_ndc = lambda o, d: ndc.ndc_rays(o, d, fx, width, height, near=1.0, focal_y=fy)
     if with_radii:
-      _, below = to_ndc(*to_world(_directions(i, j + 1.0, fx, fy, cx, cy, pixel_center), c2w))
+      _, below = to_ndc(*to_world(camera_dirs(j + 1.0)[0], c2w))
     origins, directions = to_ndc(origins, directions)
   rays = Rays.create(origins, directions, near, far, viewdirs)
   if not with_radii:
@@ -186,7 +194,8 @@ def pixel_rays(i, j, height, width, intrinsics, c2w, near, far, pixel_center=0.5
   if use_ndc:
     radii = PIXEL_TO_RADIUS * jnp.sqrt(jnp.sum((below - directions) ** 2, axis=-1))
   else:
-    radii = jnp.broadcast_to(base_radius(fx, fy), rays.shape)
+    radii = base_radius(fx, fy) if lens is None else base_radius(fx, fy) * radius_scale
+    radii = jnp.broadcast_to(radii, rays.shape)
   return rays.replace(radii=radii)
 
 

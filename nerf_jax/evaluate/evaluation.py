@@ -252,7 +252,10 @@ def refined_poses(exp, variables):
 
 def held_out_poses(exp, variables):
   """The test views' cameras float32 [T, 4, 4] in the frame the field was learnt in: as given,
-  or with refined training cameras moved by POSE_PROTOCOL's similarity."""
+  or with refined training cameras moved by POSE_PROTOCOL's similarity. Their intrinsics are
+  always the stored ones: train.intrinsics_refinement's focal scales and lens
+  (params['intrinsics']) belong to the training photos, and a held-out view is rendered
+  through the pinhole its file stores (on `landmark`, exactly the camera that took it)."""
   refined = refined_poses(exp, variables)
   if refined is None:
     return exp.test_ds.poses

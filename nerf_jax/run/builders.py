@@ -254,6 +254,7 @@ def optimizer_settings(config):
   return shared_settings(optimizer.OptimizerSettings, config, "train",
                          planned_steps=schedule_steps(config.train),
                          pose_refinement=config.train.pose_refinement,
+                         intrinsics_refinement=config.train.intrinsics_refinement,
                          appearance_codes=config.model.appearance_dims > 0)
 
 

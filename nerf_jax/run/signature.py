@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 
 from nerf_jax.backend import components
+from nerf_jax.cameras import intrinsics_refinement
 from nerf_jax.fields import registry
 from nerf_jax.fields.encodings import grid
 from nerf_jax.train.state import TrainState
@@ -60,6 +61,8 @@ def model_signature(config):
                                           exclude=("beta_min", "density_shift")))
   if config.train.pose_refinement:
     signature.update(pose_refinement=True)
+  if config.train.intrinsics_refinement:  # params['intrinsics']
+    signature.update(intrinsics_refinement=True)
   if config.train.ema_decay > 0:  # the state holds the weights' moving average
     signature.update(ema=True)
   if m.grid_box:
@@ -76,6 +79,8 @@ def init_state(exp):
   params = buffers.pop("params")
   if exp.config.train.pose_refinement:  # a correction per training image, zero = as given
     params["poses"] = jnp.zeros((len(exp.train_ds), 6), jnp.float32)
+  if exp.config.train.intrinsics_refinement:  # focal scales and a lens, zeros = as given
+    params["intrinsics"] = intrinsics_refinement.initial(len(exp.train_ds))
   if exp.hull is not None:  # sample only inside the hull from the first step, and ever after
     # Two arrays, not one: the train step donates its state, and a buffer is donated once.
     buffers.update(occupancy=jnp.array(exp.hull), hull=jnp.array(exp.hull))

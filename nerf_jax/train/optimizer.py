@@ -15,11 +15,12 @@ from nerf_jax.backend import components
 
 @dataclasses.dataclass(frozen=True)
 class OptimizerSettings:
-  """The optimiser's settings: config.train's fields of the optimiser, and three the entry
+  """The optimiser's settings: config.train's fields of the optimiser, and four the entry
   layer derives (run/builders.optimizer_settings): planned_steps (train.max_steps, else
   train.default_steps), pose_refinement (train.pose_refinement: the corrections get their own
-  Adam at pose_lr) and appearance_codes (model.appearance_dims > 0: the codes get their own
-  Adam at appearance_lr, unless it is lr)."""
+  Adam at pose_lr), intrinsics_refinement (train.intrinsics_refinement: the focal scales and
+  the lens get their own Adam at intrinsics_lr) and appearance_codes (model.appearance_dims >
+  0: the codes get their own Adam at appearance_lr, unless it is lr)."""
   planned_steps: int = components.derived()
   lr: float = 5e-3  # initial Adam learning rate
   lr_final: float = 1e-4  # learning rate at max_steps (exponential decay)
@@ -31,7 +32,9 @@ class OptimizerSettings:
   network_lr: float = 0.0  # the MLP's Adam learning rate on the same schedule (0 = train.lr)
   appearance_lr: float = 3e-4  # appearance codes: Adam learning rate (the field's schedule)
   pose_lr: float = 3e-4  # pose refinement: Adam learning rate of the corrections (same decay)
+  intrinsics_lr: float = 1e-3  # intrinsics refinement: Adam learning rate (same decay)
   pose_refinement: bool = components.derived(False)
+  intrinsics_refinement: bool = components.derived(False)
   appearance_codes: bool = components.derived(False)
 
   def __post_init__(self):
@@ -69,7 +72,8 @@ def make_optimizer(settings, planned_steps=None):
   """Adam on the schedule (see `make_schedule`; settings: OptimizerSettings, planned_steps as
   there), with optional global-norm gradient clipping.
   With pose_refinement the camera corrections (params['poses']) have an Adam of their own, on
-  the same schedule scaled to pose_lr; with appearance_codes (every parameter named
+  the same schedule scaled to pose_lr; with intrinsics_refinement the focal scales and the lens
+  (params['intrinsics']) too, scaled to intrinsics_lr; with appearance_codes (every parameter named
   'appearance'), so do the codes, scaled to appearance_lr (unless it is lr: one Adam, as in
   runs saved before train.appearance_lr existed); with network_lr, the MLP's layers (leaves
   'kernel' and 'bias'), scaled to it. With network_l2 = λ, λ·w is added to the gradient of
@@ -85,6 +89,8 @@ def make_optimizer(settings, planned_steps=None):
   groups = {"field": adam}
   if tc.pose_refinement:
     groups["poses"] = scaled(tc.pose_lr)
+  if tc.intrinsics_refinement:
+    groups["intrinsics"] = scaled(tc.intrinsics_lr)
   if tc.appearance_codes and tc.appearance_lr != tc.lr:
     groups["codes"] = scaled(tc.appearance_lr)
   if tc.network_lr > 0 and tc.network_lr != tc.lr:
@@ -106,10 +112,11 @@ def network_matrices(params):
 
 
 def _parameter_groups(groups, params):
-  """The optimiser group of `params`' parts: 'poses' for params['poses'], 'codes' for the leaves
-  named 'appearance' where `groups` has codes, 'network' for the MLP's 'kernel' and 'bias'
-  leaves where it has network, else 'field'. Labels stay a prefix of the tree
-  where they can (a whole network is 'field'), as checkpoints of pose refinement saved them."""
+  """The optimiser group of `params`' parts: 'poses' for params['poses'], 'intrinsics' for
+  params['intrinsics'], 'codes' for the leaves named 'appearance' where `groups` has codes,
+  'network' for the MLP's 'kernel' and 'bias' leaves where it has network, else 'field'. Labels
+  stay a prefix of the tree where they can (a whole network is 'field'), as checkpoints of pose
+  refinement saved them."""
   def label(path):
     name = getattr(path[-1], "key", None)
     if name == "appearance" and "codes" in groups:
@@ -120,4 +127,5 @@ def _parameter_groups(groups, params):
     if "codes" not in groups and "network" not in groups:
       return "field"
     return jax.tree_util.tree_map_with_path(lambda path, _: label(path), tree)
-  return {name: "poses" if name == "poses" else network(tree) for name, tree in params.items()}
+  own = ("poses", "intrinsics")  # groups of their own, by top-level name
+  return {name: name if name in own else network(tree) for name, tree in params.items()}

@@ -29,7 +29,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from nerf_jax.render import background
+from nerf_jax.cameras import intrinsics_refinement
 from nerf_jax.cameras.rays import Rays, pixel_rays
+
+INTRINSICS_NEED_ONE_CAMERA = (
+    "config.train.intrinsics_refinement=True refines the focal of images that share one camera "
+    "(a focal scale each, one lens): this data has cameras of its own per image "
+    "(Dataset.image_cameras: sizes or intrinsics that differ); set "
+    "config.train.intrinsics_refinement=False")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -153,12 +160,16 @@ def _flat_train_data(ds, camera, rgb_background, lossmult, with_radii):
                    with_radii=bool(with_radii))
 
 
-def pixel_rays_of(data, image, pixel, poses=None):
+def pixel_rays_of(data, image, pixel, poses=None, intrinsics=None):
   """Rays [B] of pixels `pixel` (int32 [B], row-major index in its image) of images `image`
   (int32 [B]), made from `poses` (float32 [N, 4, 4]; None = data.poses: the train step passes
-  the refined cameras) and data.camera."""
+  the refined cameras) and data.camera; with `intrinsics` (params['intrinsics'] of
+  cameras/intrinsics_refinement.py) each through its image's refined focal and the shared
+  lens (images of one camera only: ValueError with per-image cameras)."""
   poses = data.poses if poses is None else poses
-  height, width, intrinsics, near, far, pixel_center, use_ndc = data.camera
+  height, width, pinhole, near, far, pixel_center, use_ndc = data.camera
+  if intrinsics is not None and data.offsets is not None:
+    raise ValueError(INTRINSICS_NEED_ONE_CAMERA)
   if data.offsets is not None:  # each ray through its own image's camera
     cams = data.cameras[image]
     widths = cams[:, 4].astype(jnp.int32)
@@ -171,7 +182,11 @@ def pixel_rays_of(data, image, pixel, poses=None):
     return jax.vmap(one)(i, j, poses[image], cams)
   i = (pixel % width).astype(jnp.float32)
   j = (pixel // width).astype(jnp.float32)
-  one = lambda i, j, c2w: pixel_rays(i, j, height, width, intrinsics, c2w, near, far,
+  if intrinsics is not None:
+    one = lambda i, j, c2w, lens: pixel_rays(i, j, height, width, pinhole, c2w, near, far,
+                                             pixel_center, use_ndc, data.with_radii, lens)
+    return jax.vmap(one)(i, j, poses[image], intrinsics_refinement.lens_of(intrinsics, image))
+  one = lambda i, j, c2w: pixel_rays(i, j, height, width, pinhole, c2w, near, far,
                                      pixel_center, use_ndc, data.with_radii)
   return jax.vmap(one)(i, j, poses[image])
 

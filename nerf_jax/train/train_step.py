@@ -9,7 +9,10 @@ hooks, all built once by the entry layer (run/builders.train_step_args).
 With appearance codes each ray is rendered with its training image's code (and with the
 transient head, its image's transient embedding); with pose refinement each ray is made from its
 camera's corrected pose (cameras/pose_refinement.py), so the corrections params['poses'] take a
-gradient, and the positional encoding's bands open coarse to fine.
+gradient, and the positional encoding's bands open coarse to fine; with intrinsics refinement
+each ray is made through its image's refined focal and the shared lens
+(cameras/intrinsics_refinement.py, params['intrinsics']; the bands open coarse to fine only
+with pose refinement).
 
 With several devices each batch is split over them (see parallel.py); the parameters are
 replicated.
@@ -49,6 +52,7 @@ class StepSettings:
   pose_refinement: bool = False  # learn an SE(3) correction of each training camera (BARF)
   pose_coarse_to_fine: Tuple[float, float] = (0.1, 0.5)  # bands (grid levels) open between these shares of steps
   pose_ray_share: float = 1.0  # pose refinement: share of a batch's rays that move the poses
+  intrinsics_refinement: bool = False  # learn a focal scale per training image, one lens (k)
   ema_decay: float = 0.0  # score and render the weights' moving average of this decay (0 = off)
 
 
@@ -125,7 +129,7 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
   the buffers they return.
   """
   fixed_background = jnp.asarray(settings.background)
-  refine = settings.pose_refinement
+  refine, lens = settings.pose_refinement, settings.intrinsics_refinement
 
   def bands_at(step, planned_steps):
     """BARF's α: positional-encoding bands (or grid levels) open between the shares
@@ -155,9 +159,10 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
       bg = draws.uniform(bg_key, batch.rgb.shape)
       target = background_lib.recomposite(batch.rgb, batch.acc, fixed_background, bg)
     rays = batch.rays
-    if refine:  # the rays of the corrected cameras: the corrections take a gradient
-      rays = train_batches.pixel_rays_of(
-          data, batch.image, batch.pixel, pose_refinement.corrected(data.poses, params["poses"]))
+    if refine or lens:  # the rays of the refined cameras: the refinements take a gradient
+      poses = pose_refinement.corrected(data.poses, params["poses"]) if refine else None
+      rays = train_batches.pixel_rays_of(data, batch.image, batch.pixel, poses,
+                                         params["intrinsics"] if lens else None)
     if ray_renderer.uses_images:  # each ray's image: its appearance code, its transient head
       rays = rays.replace(image=batch.image)
     render = lambda rays, key, bg: ray_renderer.render(
