@@ -33,13 +33,13 @@ from nerf_jax.backend import draws
 @dataclasses.dataclass(frozen=True)
 class OccupancySettings:
   """An occupancy grid over the scene box and how training keeps it (module docstring)."""
-  enabled: bool = False  # sample only in occupied cells of a grid over data.scene_bound's box
   resolution: int = 32  # occupancy cells per side of the box
   candidates: int = 256  # candidate intervals per ray; the occupied ones share num_samples samples
   update_every: int = 16  # train steps between probing the density field again
   probes: int = 2  # probes per cell side at each refresh, at jittered positions
   decay: float = 0.95  # each refresh keeps max(decay·old, new): probes add up, gone density fades
   threshold: float = 1.0  # density (per scene unit) from which a cell counts as occupied
+  enabled: bool = False  # sample only in occupied cells of a grid over data.scene_bound's box
 
   def empty_grid(self):
     """float32 [R, R, R] zeros: the grid before the first refresh (occupied everywhere)."""
