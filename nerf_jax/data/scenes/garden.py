@@ -28,25 +28,33 @@ SKY_Z = 10.0  # the ceiling's lower face
 THICK = 1.0  # walls, ground and ceiling are slabs of this thickness (solid, no gaps at corners)
 
 
+def enclosure(wall, thick, ground_z, sky_z, ground, walls, sky):
+  """Ground, four walls and a ceiling closing a square world: boxes of thickness `thick`
+  overlapping at the edges (solid, no gaps at corners), the walls' inner faces at x, y = +-wall,
+  the ground's top at ground_z, the ceiling's lower face at sky_z; their Materials `ground`,
+  `walls`, `sky`."""
+  span = 2.0 * (wall + thick)  # outer size, corners included
+  height = sky_z - ground_z
+  mid_z = 0.5 * (sky_z + ground_z)
+  wall_x = lambda x: Box((x, 0.0, mid_z), (thick, span, height))
+  wall_y = lambda y: Box((0.0, y, mid_z), (span, thick, height))
+  offset = wall + 0.5 * thick
+  return (
+      Object(Box((0.0, 0.0, ground_z - 0.5 * thick), (span, span, thick)), ground),
+      Object(wall_x(offset), walls), Object(wall_x(-offset), walls),
+      Object(wall_y(offset), walls), Object(wall_y(-offset), walls),
+      Object(Box((0.0, 0.0, sky_z + 0.5 * thick), (span, span, thick)), sky),
+  )
+
+
 def _room():
-  """Ground, four walls and the ceiling: boxes overlapping at the edges, closing the room."""
-  span = 2.0 * (WALL + THICK)  # outer size, corners included
-  height = SKY_Z - GROUND_Z
-  mid_z = 0.5 * (SKY_Z + GROUND_Z)
+  """Grass, brick walls and a sky closing the garden (`enclosure`)."""
   grass = Material((0.45, 0.6, 0.3), texture=Texture(noise=0.55, noise_scale=1.5, seed=11))
   brick = Material((0.75, 0.5, 0.4), texture=Texture(
       noise=0.35, noise_scale=0.4, stripes=1.2, stripe_axis=(0.0, 0.0, 1.0), stripe_warp=0.3,
       stripe_color=(0.55, 0.5, 0.45), seed=12))
   sky = Material((0.55, 0.7, 0.95), texture=Texture(noise=0.5, noise_scale=0.15, seed=13))
-  wall_x = lambda x: Box((x, 0.0, mid_z), (THICK, span, height))
-  wall_y = lambda y: Box((0.0, y, mid_z), (span, THICK, height))
-  offset = WALL + 0.5 * THICK
-  return (
-      Object(Box((0.0, 0.0, GROUND_Z - 0.5 * THICK), (span, span, THICK)), grass),
-      Object(wall_x(offset), brick), Object(wall_x(-offset), brick),
-      Object(wall_y(offset), brick), Object(wall_y(-offset), brick),
-      Object(Box((0.0, 0.0, SKY_Z + 0.5 * THICK), (span, span, THICK)), sky),
-  )
+  return enclosure(WALL, THICK, GROUND_Z, SKY_Z, grass, brick, sky)
 
 
 def _surroundings():

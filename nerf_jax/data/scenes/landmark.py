@@ -33,7 +33,7 @@ from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.cameras.cameras import Cameras
 from nerf_jax.data import lens
 from nerf_jax.data.dataset import Dataset
-from nerf_jax.data.scenes import occluders, simulator
+from nerf_jax.data.scenes import garden, occluders, simulator
 from nerf_jax.data.scenes.geometry import Box, Cylinder, Sphere
 from nerf_jax.data.scenes.scene import Effects, Light, Material, Object, Scene
 from nerf_jax.data.scenes.textures import Texture
@@ -78,9 +78,7 @@ def _subject():
 
 
 def _square():
-  """The paved ground, four façades and the sky: slabs overlapping at the edges."""
-  thick, span = 1.0, 2.0 * (WALL + 1.0)
-  height, mid_z, offset = SKY_Z - GROUND_Z, 0.5 * (SKY_Z + GROUND_Z), WALL + 0.5
+  """The paved ground, four façades and the sky (garden.enclosure)."""
   paving = Material((0.62, 0.6, 0.56), texture=Texture(
       noise=0.45, noise_scale=2.0, stripes=0.7, stripe_axis=(1.0, 1.0, 0.0), stripe_warp=0.1,
       stripe_color=(0.45, 0.44, 0.42), seed=26))
@@ -88,14 +86,7 @@ def _square():
       noise=0.3, noise_scale=0.5, stripes=2.5, stripe_axis=(0.0, 0.0, 1.0), stripe_warp=0.2,
       stripe_color=(0.3, 0.32, 0.4), seed=27))
   sky = Material((0.55, 0.72, 0.95), texture=Texture(noise=0.4, noise_scale=0.1, seed=28))
-  wall_x = lambda x: Box((x, 0.0, mid_z), (thick, span, height))
-  wall_y = lambda y: Box((0.0, y, mid_z), (span, thick, height))
-  return (
-      Object(Box((0.0, 0.0, GROUND_Z - 0.5 * thick), (span, span, thick)), paving),
-      Object(wall_x(offset), facade), Object(wall_x(-offset), facade),
-      Object(wall_y(offset), facade), Object(wall_y(-offset), facade),
-      Object(Box((0.0, 0.0, SKY_Z + 0.5 * thick), (span, span, thick)), sky),
-  )
+  return garden.enclosure(WALL, 1.0, GROUND_Z, SKY_Z, paving, facade, sky)
 
 
 SUBJECT = _subject()  # SCENE.objects[:len(SUBJECT)]
