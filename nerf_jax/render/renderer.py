@@ -64,7 +64,7 @@ class RayRenderer:
     the colour budget is then a share of the budget. out['valid_samples'] counts each ray's
     valid samples, fitted or not (what the rays asked of the budget: train/losses/colour.py
     logs their sum, so a run shows whether its rays fill it). 0 = every slot of every ray.
-  transient: a fields/transient.TransientField (NeRF-W's transient head) or None. With one,
+  transient: a fields/transient_field.TransientField (NeRF-W's transient head) or None. With one,
     the final pass of rays that carry their training image (rays.image: training batches)
     composites it with the static field (compositing.composite_with_transient: its outputs
     add transient_weights, beta and transient_density, the head's sigma float32 [..., S] per

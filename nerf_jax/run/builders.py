@@ -6,6 +6,7 @@ nothing below run/ reads a config): the data's, the field (its encodings and net
 import dataclasses
 import functools
 
+import ml_collections
 
 from nerf_jax.backend import components, precision
 from nerf_jax.fields import field as field_lib
@@ -38,21 +39,14 @@ def data_settings(data):
 def shared_settings(settings_class, config, path, **derived):
   """settings_class built from the shared section of `config` at dotted `path` (the fields it
   declares; `check_config` has refused the keys nobody declares) and the `derived` fields."""
-  section = config
-  for part in filter(None, path.split(".")):
-    section = section[part]
-  return components.settings_from(settings_class, section.to_dict(), path, strict=False,
-                                  **derived)
+  return components.settings_from(settings_class, config_lib.section_at(config, path).to_dict(),
+                                  path, strict=False, **derived)
 
 
 def own_settings(reg, record, config):
   """`record`'s settings (reg: its components.Registry) built from its section of `config`
   (Registry.section_path); None if it has none; ValueError naming the field if wrong."""
-  path, values = reg.section_path(record), config
-  for part in filter(None, path.split(".")):
-    values = values[part] if part in values else None
-    if values is None:
-      break
+  values = config_lib.section_at(config, reg.section_path(record))
   return reg.settings(record, None if values is None else values.to_dict())
 
 
@@ -60,12 +54,11 @@ def check_config(config):
   """ValueError naming the first key of `config` that no settings dataclass declares: a
   misspelt setting (configs/default.SECTIONS for the shared sections; each component's own
   section is read strictly when it is built)."""
-  sections = config_lib.SECTIONS
-  for path, classes in sections.items():
-    values = config
-    for part in filter(None, path.split(".")):
-      values = values[part] if part in values else {}
-    nested = [k for k, v in values.items() if isinstance(v, dict) or hasattr(v, "to_dict")]
+  for path, classes in config_lib.SECTIONS.items():
+    values = config_lib.section_at(config, path)
+    if values is None:
+      continue
+    nested = [k for k, v in values.items() if isinstance(v, (dict, ml_collections.ConfigDict))]
     components.check_section(values, path, classes, subsections=nested)
 
 
@@ -200,7 +193,7 @@ def transient_settings(config):
 
 
 def make_transient(config, num_images=1):
-  """NeRF-W's transient field (fields/transient.TransientField) of config.model.transient, one
+  """NeRF-W's transient field (fields/transient_field.TransientField) of config.model.transient, one
   embedding per training image, or None when its dims is 0; ValueError naming the fields it
   does not work with yet."""
   settings = transient_settings(config)

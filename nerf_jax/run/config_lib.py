@@ -210,10 +210,8 @@ def _without_retired(config, path):
   still restores, while a config file's misspelt field stays an error (builders.check_config).
   """
   for section_path, classes in SECTIONS.items():
-    section = config
-    for part in filter(None, section_path.split(".")):
-      section = section.get(part) if isinstance(section, ml_collections.ConfigDict) else None
-    if not isinstance(section, ml_collections.ConfigDict):
+    section = section_at(config, section_path)
+    if section is None:
       continue
     declared = {f.name for cls in classes for f in dataclasses.fields(cls)}
     for name in [k for k, v in section.items()
@@ -230,6 +228,15 @@ def get_field(config, field):
   for part in field.split("."):
     node = node[part]
   return node
+
+
+def section_at(config, path):
+  """The section of `config` (a ConfigDict) at dotted `path` ('' = the config itself), or None
+  where it has none."""
+  node = config
+  for part in filter(None, path.split(".")):
+    node = node.get(part) if isinstance(node, ml_collections.ConfigDict) else None
+  return node if isinstance(node, ml_collections.ConfigDict) else None
 
 
 def set_field(config, field, value):
