@@ -178,6 +178,7 @@ class DataSettings:
   bd_factor: float = 0.75  # LLFF data: scale so the nearest bound is 1/bd_factor (0 = keep units)
   recenter: bool = True  # LLFF data: move the mean camera pose to the origin
   min_sharpness: float = 0.0  # transforms.json: drop frames < this x neighbours' sharpness (0 = off)
+  without: str = ""  # built-in scene: capture effects left out, e.g. 'zoom,distortion' (the truth)
 
 
 def load_dataset(settings):
@@ -203,17 +204,20 @@ def load_dataset(settings):
     name, size = settings.scene, settings.image_size
     if name not in scenes.SCENES:
       raise DataError(f"data.scene: unknown scene {name!r} (valid: {', '.join(scenes.SCENES)})")
+    try:
+      effects, lens_parts = scenes.without(scenes.get_scene(name).effects, settings.without)
+    except ValueError as error:
+      raise DataError(str(error)) from None
     dataset = scenes.make_dataset(
         name, num_views=settings.num_views, height=size, width=size,
         focal=scenes.TINY_NERF_FOCAL * size / 100,
         pixel_center=0.5 if settings.pixel_center == -1 else settings.pixel_center)
     train, test = dataset.split(holdout_from)
-    effects = scenes.get_scene(name).effects
     if settings.held_out_looks not in ("neutral", "own"):
       raise DataError(f"data.held_out_looks={settings.held_out_looks!r}: use 'neutral' or 'own'")
     if settings.held_out_looks == "own":
       test = scenes.held_out_with_own_looks(test, effects, len(train))
-    return scenes.photographed(train, effects), test
+    return scenes.photographed(train, effects, lens_parts=lens_parts), test
   if not os.path.exists(path):
     raise DataError(f"{path}: no such file or directory")
   if os.path.isfile(path) and path.endswith(".npz"):

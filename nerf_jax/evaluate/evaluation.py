@@ -47,6 +47,7 @@ class EvalSettings:
   """How the test views are rendered and scored (run/builders.eval_settings builds them)."""
   background: tuple  # (r, g, b) in [0, 1]: the colour rendered and scored on (data.background)
   held_out: Settings  # the held-out views' codes (config.eval)
+  photo_bounds: bool = False  # each view's rays within its own near/far (data.photo_bounds)
 
 
 def make_evaluator(exp, settings):
@@ -81,6 +82,8 @@ def make_evaluator(exp, settings):
   test_ds = exp.test_ds
   shared = (test_ds.height, test_ds.width, test_ds.intrinsics)
   camera = lambda i: shared if test_ds.image_cameras is None else test_ds.cameras.camera(i)
+  if settings.photo_bounds and test_ds.bounds is None:
+    raise ValueError("config.data.photo_bounds: the test views have no per-view bounds")
   truths = background.images_on_background(test_ds, bg)[1]
   half = appearance_protocol(protocol, exp.renderer.field.uses_images) == "left_half"
   scored = right_half if protocol == "left_half" else (lambda a: a)
@@ -100,6 +103,9 @@ def make_evaluator(exp, settings):
     poses = held_out_poses(exp, variables)
     for i in range(count):
       rays = exp.rays(poses[i], camera(i))
+      if settings.photo_bounds:  # this view's own near and far (data.photo_bounds)
+        rays = rays.replace(near=jnp.full_like(rays.near, test_ds.bounds[i][0]),
+                            far=jnp.full_like(rays.far, test_ds.bounds[i][1]))
       truth, mask = truths[i], test_ds.mask(i)
       if fit_code is not None:  # this view's own code, from its left half
         weight = None if mask is None else jnp.asarray(left_half_mask(mask))

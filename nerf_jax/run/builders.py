@@ -330,14 +330,16 @@ def make_train_data(exp):
             exp.config.data.ndc)
   return train_batches.make_train_data(exp.train_ds, camera,
                                        background.parse(exp.config.data.background),
-                                       with_radii=exp.renderer.field.cones)
+                                       with_radii=exp.renderer.field.cones,
+                                       photo_bounds=exp.config.data.photo_bounds)
 
 
 def eval_settings(config):
   """evaluation.EvalSettings of `config` (data.background; config.eval: evaluation.Settings)."""
   return evaluation.EvalSettings(
       background=tuple(float(v) for v in background.parse(config.data.background)),
-      held_out=components.settings_from(evaluation.Settings, dict(config.eval), "eval"))
+      held_out=components.settings_from(evaluation.Settings, dict(config.eval), "eval"),
+      photo_bounds=config.data.photo_bounds)
 
 
 def make_evaluator(exp):

@@ -30,6 +30,8 @@ class SceneSettings:
   inner_fraction: float = 0.5  # unbounded scene: share of samples inside the box (the rest beyond)
   focus: bool = False  # move the world so that the point the cameras look at is the origin
   subject: str = ""  # 'auto': scale, move the world so the subject's box fills ±scene_bound ('' off)
+  photo_bounds: bool = False  # sample each photo's rays within its own near/far (Dataset.bounds)
+  subject_box: tuple = ()  # data.subject='box': the subject's (x, y, z centre, x, y, z half-extent)
 
 
 @dataclasses.dataclass(frozen=True)

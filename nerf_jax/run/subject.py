@@ -17,6 +17,7 @@ The sources, in the order `subject_box` tries them:
           than the cameras' region (masks of passers-by keep nearly everything);
   focus   else the cameras: centred on their focus point, out to the farthest camera
           (today's box about data.focus).
+  box     by hand (data.subject_box), as K-Planes sizes each scene; never tried by 'auto'.
 """
 
 import dataclasses
@@ -35,14 +36,14 @@ MASK_SEEN = 0.5  # ... and at least half of all photos see it (not a point a few
 MASK_SUBJECT = 0.5  # masks mark a subject when its box is under half the carved region's size
 MARGIN = 1.1  # the subject's largest half-extent times this fills the inner region
 MIN_NEAR = 1e-3  # a camera inside the subject's box: its near bound stays positive
-SOURCES = ("auto", "points", "bounds", "masks", "focus")  # data.subject's values besides ''
+SOURCES = ("auto", "points", "bounds", "masks", "focus", "box")  # data.subject's values besides ''
 
 
 @dataclasses.dataclass(frozen=True)
 class SubjectBox:
   centre: np.ndarray  # float64 [3]
   half: np.ndarray  # float64 [3], half-extent per axis
-  source: str  # 'points', 'bounds', 'masks' or 'focus'
+  source: str  # 'points', 'bounds', 'masks', 'focus' or 'box'
 
 
 def cameras_region(dataset):
@@ -137,10 +138,22 @@ def from_masks(dataset, region):
   return SubjectBox(0.5 * (box[0] + box[1]), 0.5 * (box[1] - box[0]), "masks")
 
 
-def subject_box(dataset, source="auto"):
+def from_hand(box):
+  """SubjectBox of `box` (data.subject_box: x, y, z centre then x, y, z half-extent); ValueError
+  naming the field unless it holds six numbers with positive half-extents."""
+  values = np.asarray(box, np.float64).reshape(-1)
+  if values.shape != (6,) or not np.all(np.isfinite(values)) or np.any(values[3:] <= 0):
+    raise ValueError(f"config.data.subject_box={tuple(box)!r}: give the subject's centre and "
+                     "half-extent, six numbers (x, y, z, hx, hy, hz), each half-extent > 0")
+  return SubjectBox(values[:3], values[3:], "box")
+
+
+def subject_box(dataset, source="auto", box=()):
   """SubjectBox of the training views `dataset` (a Dataset) from `source` (module docstring):
   'auto' tries points, bounds, masks, then the cameras' focus; a named source gives None where
-  the data lacks it ('focus' never does)."""
+  the data lacks it ('focus' never does); 'box' is `box` (data.subject_box) by hand."""
+  if source == "box":
+    return from_hand(box)
   region = cameras_region(dataset)
   finders = {
       "points": lambda: from_points(dataset.points),
@@ -200,7 +213,7 @@ def with_subject(config, train_ds, test_ds):
     return config, train_ds, test_ds
   if source not in SOURCES:
     raise ValueError(f"config.data.subject={source!r}: use '' (off) or one of {SOURCES}")
-  box = subject_box(train_ds, source)
+  box = subject_box(train_ds, source, config.data.subject_box)
   if box is None:
     raise ValueError(f"config.data.subject={source!r}: the data has no {source} to find the "
                      "subject from (use 'auto')")
@@ -208,6 +221,8 @@ def with_subject(config, train_ds, test_ds):
   scale = bound / (MARGIN * float(np.max(box.half)))
   train_ds, test_ds = (moved(d, box.centre, scale) for d in (train_ds, test_ds))
   train_ds = with_bounds(train_ds, scale * box.half)
+  if config.data.photo_bounds:  # the held-out views sampled as the photos are
+    test_ds = with_bounds(test_ds, scale * box.half)
   if config.data.scene_bound == -1:
     config = ml_collections.ConfigDict(config.to_dict())
     config.data.scene_bound = config.model.grid_bound = bound

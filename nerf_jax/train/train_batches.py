@@ -91,6 +91,8 @@ class TrainData:
   mask: float32 [N, P] (or [T]) or None: with masks, 1 for a kept pixel, 0 for a masked one;
     whole-image and patch batches weight each ray by it. In a drawn batch float32 [B], each
     drawn pixel's (LossInputs.mask).
+  bounds: float32 [N, 2] or None: each image's own (near, far) z-depths (Dataset.bounds, with
+    data.photo_bounds): every ray of the image is sampled between them, not the shared camera's.
   """
   rays: Rays
   rgb: jnp.ndarray
@@ -106,29 +108,36 @@ class TrainData:
   with_radii: bool = flax.struct.field(pytree_node=False, default=False)
   kept: jnp.ndarray = None
   mask: jnp.ndarray = None
+  bounds: jnp.ndarray = None
 
 
-def make_train_data(ds, camera, rgb_background, with_radii=False):
+def make_train_data(ds, camera, rgb_background, with_radii=False, photo_bounds=False):
   """TrainData of every pixel of the images of `ds` (a Dataset), targets on `rgb_background`
   (float32 [3], background.parse's); rays are made per step from the poses and `camera`:
   (height, width, intrinsics, near, far, pixel_center, use_ndc), see TrainData.camera
   (run/builders.make_train_data passes the training camera's). With per-image cameras
   (`ds.image_cameras`) the pixels are one flat run and each image's own camera is used (its
-  height, width and intrinsics in `camera` are ignored). with_radii: see TrainData."""
+  height, width and intrinsics in `camera` are ignored). with_radii: see TrainData.
+  photo_bounds: each image's rays between its own bounds (TrainData.bounds; ds.bounds must be
+  set)."""
   height, width, intrinsics, near, far, pixel_center, use_ndc = camera
   lossmult = None if ds.lossmult is None else jnp.asarray(ds.lossmult, jnp.float32)
+  if photo_bounds and ds.bounds is None:
+    raise ValueError("config.data.photo_bounds: the data has no per-photo bounds (LLFF's, or "
+                     "data.subject's)")
+  bounds = jnp.asarray(ds.bounds, jnp.float32) if photo_bounds else None
   if ds.image_cameras is not None:
     data = _flat_train_data(ds, (None, None, None, float(near), float(far),
                                  float(pixel_center), bool(use_ndc)), rgb_background, lossmult,
                             with_radii)
-    return _with_masks(data, ds)
+    return _with_masks(data.replace(bounds=bounds), ds)
   camera = (height, width, tuple(float(v) for v in intrinsics), float(near), float(far),
             float(pixel_center), bool(use_ndc))
   acc, rgb = _targets(ds, rgb_background)
   data = TrainData(rays=None, rgb=jnp.asarray(rgb, jnp.float32).reshape(len(ds), -1, 3),
                    acc=jnp.asarray(acc, jnp.float32).reshape(len(ds), -1),
                    poses=jnp.asarray(ds.poses, jnp.float32), camera=camera, lossmult=lossmult,
-                   with_radii=bool(with_radii))
+                   with_radii=bool(with_radii), bounds=bounds)
   return _with_masks(data, ds)
 
 
@@ -165,7 +174,16 @@ def pixel_rays_of(data, image, pixel, poses=None, intrinsics=None):
   (int32 [B]), made from `poses` (float32 [N, 4, 4]; None = data.poses: the train step passes
   the refined cameras) and data.camera; with `intrinsics` (params['intrinsics'] of
   cameras/intrinsics_refinement.py) each through its image's refined focal and the shared
-  lens (images of one camera only: ValueError with per-image cameras)."""
+  lens (images of one camera only: ValueError with per-image cameras); each between its image's
+  own bounds where data.bounds is set."""
+  rays = _pixel_rays(data, image, pixel, poses, intrinsics)
+  if data.bounds is None:
+    return rays
+  return rays.replace(near=data.bounds[image, 0], far=data.bounds[image, 1])
+
+
+def _pixel_rays(data, image, pixel, poses, intrinsics):
+  """pixel_rays_of's rays between the shared camera's near and far."""
   poses = data.poses if poses is None else poses
   height, width, pinhole, near, far, pixel_center, use_ndc = data.camera
   if intrinsics is not None and data.offsets is not None:

@@ -116,9 +116,10 @@ def test_masks_of_passers_by_mark_no_subject():
   np.testing.assert_allclose(box.half, region[1])
 
 
-def _config(source, bound):
+def _config(source, bound, box=(), photo_bounds=False):
   return ml_collections.ConfigDict({"data": {"subject": source, "scene_bound": bound,
-                                             "ndc": False},
+                                             "ndc": False, "subject_box": box,
+                                             "photo_bounds": photo_bounds},
                                     "model": {"grid_bound": 0.0}})
 
 
@@ -172,6 +173,29 @@ def test_auto_fills_a_small_subject_of_a_collection_only():
   near = _sphere_cameras(distance=2.0)  # 0.6 >= 0.25 * 2: the subject fills the photos
   assert auto.subject_effects(_dataset(near, masks=_box_masks(near)), True)[0] == {}
   assert auto.subject_effects(_dataset(poses), True)[0] == {}  # nothing marks a subject
+
+
+def test_a_box_by_hand_fills_the_inner_region_and_bounds_the_held_out_views():
+  poses = _sphere_cameras()
+  train, test = _dataset(poses[:30]), _dataset(poses[30:])
+  box = tuple(CENTRE) + tuple(HALF)
+  config, moved, moved_test = subject.with_subject(_config("box", 2.0, box, True), train, test)
+  scale = 2.0 / (subject.MARGIN * HALF.max())
+  np.testing.assert_allclose(moved.poses[:, :3, 3], scale * (poses[:30, :3, 3] - CENTRE),
+                             atol=1e-5)
+  assert config.data.scene_bound == 2.0
+  # With data.photo_bounds the held-out views get their bounds too: the moved box's z-depths.
+  corners = scale * (_corners(BOX_LO, BOX_HI) - CENTRE)
+  for view, pose in zip(moved_test.bounds, moved_test.poses):
+    z = -(corners - pose[:3, 3]) @ pose[:3, 2]
+    np.testing.assert_allclose(view, [z.min(), z.max()], rtol=1e-5)
+  assert subject.with_subject(_config("box", 2.0, box), train, test)[2].bounds is None
+
+
+@pytest.mark.parametrize("box", [(), (0, 0, 0, 1, 1), (0, 0, 0, 1, 0, 1)])
+def test_a_box_by_hand_must_be_six_numbers(box):
+  with pytest.raises(ValueError, match="data.subject_box"):
+    subject.with_subject(_config("box", -1.0, box), _dataset(_sphere_cameras()), None)
 
 
 def test_a_misspelt_source_is_refused():

@@ -1,6 +1,8 @@
 """Tests of nerf_jax.train.train_batches' path for images with cameras of their own: the flat
 draws cover every pixel of every image, each with its image's colour, ray and lossmult."""
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
@@ -86,3 +88,26 @@ def test_one_camera_data_keep_their_rows_and_draw_no_weight():
   batch = train_batches.draw_batch(data, train_batches.BatchSettings(batch_rays=8),
                                    jax.random.PRNGKey(0))
   assert batch.weight is None
+
+
+@pytest.mark.parametrize("own_cameras", [True, False])
+def test_each_photos_rays_are_sampled_within_its_own_bounds(own_cameras):
+  ds = _dataset()
+  if not own_cameras:  # one shared camera: every image 6 x 8
+    ds = Dataset(np.stack([np.resize(im, (6, 8, 3)) for im in ds.images]), ds.poses, CAMS[0][2])
+  bounds = np.array([[1.0, 3.0], [2.5, 4.0], [0.5, 9.0]], np.float32)
+  ds = dataclasses.replace(ds, bounds=bounds)
+  image, pixel = np.array([2, 0, 1, 2, 0]), np.array([3, 5, 7, 11, 0])
+  shared = train_batches.pixel_rays_of(_data(ds), image, pixel)
+  own = train_batches.pixel_rays_of(train_batches.make_train_data(
+      ds, (6, 8, CAMS[0][2], 2.0, 6.0, 0.5, False), np.zeros(3, np.float32),
+      photo_bounds=True), image, pixel)
+  np.testing.assert_array_equal(shared.near, 2.0)
+  np.testing.assert_array_equal(shared.far, 6.0)
+  np.testing.assert_array_equal(own.near, bounds[image, 0])  # the drawn photo's, ray by ray
+  np.testing.assert_array_equal(own.far, bounds[image, 1])
+  np.testing.assert_array_equal(own.directions, shared.directions)
+  with pytest.raises(ValueError, match="data.photo_bounds"):
+    train_batches.make_train_data(dataclasses.replace(ds, bounds=None),
+                                  (6, 8, CAMS[0][2], 2.0, 6.0, 0.5, False),
+                                  np.zeros(3, np.float32), photo_bounds=True)

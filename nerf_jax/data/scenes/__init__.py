@@ -2,7 +2,7 @@
 
 from nerf_jax.data.scenes.builtin import (SCENES, TINY_NERF_FOCAL, forward_poses, get_scene,
                                           make_dataset, random_poses)
-from nerf_jax.data.scenes.photos import held_out_with_own_looks, photographed
+from nerf_jax.data.scenes.photos import held_out_with_own_looks, photographed, without
 from nerf_jax.data.scenes.geometry import Box, Cylinder, Sphere
 from nerf_jax.data.scenes.raycast import Rod
 from nerf_jax.data.scenes.scene import Effects, Light, Material, Medium, Object, Scene

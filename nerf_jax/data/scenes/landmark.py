@@ -108,15 +108,19 @@ def poses(num_views, seed=0):
   return np.stack([rays_lib.pose_spherical(t, -p, d) for t, p, d in zip(thetas, phis, distances)])
 
 
-def lenses(num_photos, focal, seed=0):
+def lenses(num_photos, focal, seed=0, zoom=True, distortion=True):
   """The true cameras of `num_photos` training photos whose stored pinhole has `focal` (pixels):
   (focals float64 [N], focal * ZOOM^s with s the N points evenly spaced over [-1/2, 1/2] (0 for
-  one photo), shuffled: their median is `focal`; dist float64 [N, 2], each photo's (k1, k2))."""
+  one photo), shuffled: their median is `focal`; dist float64 [N, 2], each photo's (k1, k2)).
+  zoom=False: every focal is `focal`; distortion=False: every (k1, k2) is 0 (a pinhole), the
+  draws unchanged, so that each part can be left out alone (data.without)."""
   rng = np.random.default_rng([seed, LENS_STREAM])
   spread = np.linspace(-0.5, 0.5, num_photos) if num_photos > 1 else np.zeros(num_photos)
   focals = focal * ZOOM ** rng.permutation(spread)
   k1 = rng.uniform(*K1, num_photos)
-  return focals, np.stack([k1, K2_PER_K1_SQUARED * k1 * k1], -1)
+  dist = np.stack([k1, K2_PER_K1_SQUARED * k1 * k1], -1)
+  return (focals if zoom else np.full(num_photos, float(focal)),
+          dist if distortion else np.zeros_like(dist))
 
 
 def true_cameras(dataset, seed=0):
@@ -214,14 +218,14 @@ def _passers_by(pose, origins, directions, depth, subject, shape, focal, rng):
   raise ValueError(f"landmark: {MAX_DRAWS} crowds in a row hid the subject")
 
 
-def photographed(dataset, transients=True, seed=0):
+def photographed(dataset, transients=True, seed=0, zoom=True, distortion=True):
   """The training views `dataset` (a Dataset of `make_dataset`) as the photographers took them:
   each through its own lens (`lenses(len(dataset), dataset.focal, seed)`), passers-by in the
   photos `occluders.crowded_views(N, seed)` picks (with `transients`); the stored camera is
   unchanged. Returns (dataset, passers bool [N, H, W], True where a passer-by is seen); its
-  masks keep the subject's pixels that no passer-by hides."""
+  masks keep the subject's pixels that no passer-by hides. zoom, distortion: `lenses`'."""
   num, height, width = len(dataset), dataset.height, dataset.width
-  focals, dists = lenses(num, dataset.focal, seed)
+  focals, dists = lenses(num, dataset.focal, seed, zoom, distortion)
   cams = np.asarray(dataset.poses, np.float64)
   rgb, depth, subject, origins, directions = _views(
       cams, height, width, focals, dists, dataset.pixel_center, dataset.near, dataset.far)

@@ -15,6 +15,7 @@ import dataclasses
 import numpy as np
 
 from nerf_jax.data.scenes import landmark, occluders
+from nerf_jax.data.scenes.scene import CAPTURE
 
 # Each draw has a stream of its own: default_rng(seed) alone would repeat the stream the
 # cameras were drawn from (scenes.random_poses), tying a photo's gain to where it stands.
@@ -66,14 +67,19 @@ def perturbed(poses, degrees=POSE_DEGREES, translation=POSE_TRANSLATION, seed=0)
   return out.astype(np.float32)
 
 
-def photographed(train, effects, seed=0):
+LENS_PARTS = ("zoom", "distortion")  # the parts of Effects.lens that data.without leaves out alone
+
+
+def photographed(train, effects, seed=0, lens_parts=LENS_PARTS):
   """The training views `train` (a Dataset) as the capture declaring `effects` took them:
   each photo through its own zoom and lens (lens: the `landmark` scene's, re-rendered by
-  landmark.py, passers-by included), passers-by in front of the subject in some photos
-  (transients, occluders.py), per-photo gains over the whole photo (appearance), poses off by a
-  known amount (pose_error; the true ones kept in `Dataset.true_poses`)."""
-  if effects.lens:
-    train = landmark.photographed(train, effects.transients, seed)[0]
+  landmark.py, passers-by included; only the LENS_PARTS in `lens_parts`), passers-by in front
+  of the subject in some photos (transients, occluders.py), per-photo gains over the whole photo
+  (appearance), poses off by a known amount (pose_error; the true ones kept in
+  `Dataset.true_poses`)."""
+  if effects.lens and lens_parts:
+    train = landmark.photographed(train, effects.transients, seed, "zoom" in lens_parts,
+                                  "distortion" in lens_parts)[0]
   elif effects.transients:
     train = occluders.with_crowd(train, seed=seed)[0]
   if effects.appearance:
@@ -82,6 +88,20 @@ def photographed(train, effects, seed=0):
     train = dataclasses.replace(train, poses=perturbed(train.poses, seed=seed),
                                 true_poses=train.poses)
   return train
+
+
+def without(effects, names):
+  """(effects, lens_parts): the Effects `effects` less the capture effects named in `names`
+  (data.without: comma-separated, from scene.CAPTURE and LENS_PARTS), and the parts of the
+  lens kept. ValueError naming the field for a name that is neither."""
+  names = {n.strip() for n in names.split(",") if n.strip()}
+  valid = sorted(CAPTURE) + list(LENS_PARTS)
+  unknown = sorted(names - set(valid))
+  if unknown:
+    raise ValueError(f"config.data.without: unknown {', '.join(unknown)} (valid: "
+                     f"{', '.join(valid)})")
+  effects = dataclasses.replace(effects, **{n: False for n in names & CAPTURE})
+  return effects, tuple(p for p in LENS_PARTS if p not in names)
 
 
 def held_out_with_own_looks(test, effects, num_train, seed=0):

@@ -229,3 +229,25 @@ def test_llff_export_holds_one_focal_and_the_masks(loaded, tmp_path):
   np.testing.assert_allclose(read.images, np.concatenate([train.images, test.images]),
                              atol=0.5 / 255 + 1e-6)
   np.testing.assert_allclose(read.poses, np.concatenate([train.poses, test.poses]), atol=1e-6)
+
+
+def test_each_part_of_the_capture_can_be_left_out_alone():
+  focals, dists = landmark.lenses(9, 50.0)
+  no_zoom = landmark.lenses(9, 50.0, zoom=False)
+  pinhole = landmark.lenses(9, 50.0, distortion=False)
+  np.testing.assert_array_equal(no_zoom[0], 50.0)  # the stored focal is every photo's
+  np.testing.assert_array_equal(no_zoom[1], dists)  # the lenses drawn as before
+  np.testing.assert_array_equal(pinhole[0], focals)
+  np.testing.assert_array_equal(pinhole[1], 0.0)
+  effects = landmark.SCENE.effects
+  less, parts = scenes.without(effects, " zoom, transients")
+  assert parts == ("distortion",) and not less.transients
+  assert less.names() == effects.names() - {"transients"}
+  assert scenes.without(effects, "") == (effects, photos.LENS_PARTS)
+  assert scenes.without(effects, "lens,appearance")[0].names() == effects.names() - {
+      "lens", "appearance"}
+
+
+def test_a_misspelt_effect_is_one_line_naming_the_field():
+  with pytest.raises(loaders.DataError, match="data.without: unknown zoomm"):
+    loaders.load_dataset(loaders.DataSettings(scene="landmark", without="zoomm"))
