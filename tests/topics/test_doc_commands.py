@@ -1,10 +1,11 @@
 """Every command in README.md and docs/*.md works as written: checked by parsing, not running.
 
 A command is a line of a fenced block (```, ```bash, ```sh, ```console, ```text; a ```python block
-is code, not a shell) whose first word, after an optional `$ ` prompt, is `python`, `python3` or one
-of pyproject's console scripts; backslash-continued lines are joined, `&&`, `;` and `|` separate
-commands, `# ...` is a comment, and `NAME="..."` lines of the same block are expanded where
-`$NAME` is used. Every other line of a block is a program's output and is skipped.
+is code, not a shell) that runs `python`, `python3` or one of pyproject's console scripts, first
+(after an optional `$ ` prompt and `NAME=VALUE` environment) or after `&&` or `;`:
+backslash-continued lines are joined, `&&`, `;` and `|` separate commands, `# ...` is a
+comment, and `NAME="..."` lines of the same block are expanded where `$NAME` is used. Every
+other line of a block is a program's output, or a command of no interest here, and is skipped.
 
 For each command:
   - the script (`python render.py`), module (`python -m nerf_jax.bench`) or console script
@@ -105,10 +106,14 @@ def block_commands(doc, block):
   for number, text in _logical_lines(block):
     text = text.strip()
     text = text[2:] if text.startswith("$ ") else text
-    assignment = ASSIGNMENT.match(text)
-    if assignment:
-      variables[assignment.group(1)] = " ".join(shlex.split(assignment.group(2)))
-      continue
+    if ASSIGNMENT.match(text):  # NAME=VALUE: a variable, or the environment of a command
+      words = shlex.split(text, comments=True)
+      environment = words[:next((i for i, w in enumerate(words) if not ASSIGNMENT.match(w)),
+                                len(words))]
+      if len(environment) == len(words):
+        variables.update(w.split("=", 1) for w in words)
+        continue
+      text = shlex.join(words[len(environment):])
     if not STARTS.search(text):
       continue  # a program's output, or a command of no interest (cd, bash)
     text = VARIABLE.sub(lambda m: variables.get(m.group(1), m.group(0)), text)
@@ -343,11 +348,13 @@ def test_a_block_is_read_as_a_shell_would():
       "    --config.num_samples=32   # a comment",
       "step 100: loss 0.01 (output)",
       'pip install -e . && python -m nerf_jax.bench --only=a,"b c"',
+      "JAX_DEBUG_NANS=True python train.py --config=fast   # the environment, then the command",
   ], 1))
   assert [(c.line, c.argv) for c in block_commands("x.md", block)] == [
       (2, ("python", "train.py", "--config=capture", "--config.data.factor=4",
            "--workdir=runs/fox", "--config.num_samples=32")),
-      (5, ("python", "-m", "nerf_jax.bench", "--only=a,b c"))]
+      (5, ("python", "-m", "nerf_jax.bench", "--only=a,b c")),
+      (6, ("python", "train.py", "--config=fast"))]
 
 
 @pytest.mark.parametrize("argv", [
