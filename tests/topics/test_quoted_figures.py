@@ -31,9 +31,10 @@ SUITE = "suite/results.jsonl"
 FIGURES = [
     ("README.md", r"test PSNR ([\d.]+) dB after (\d+) steps",
      [source(DEFAULT_RUN, "psnr", 2), source(DEFAULT_RUN, "steps", 0)]),
-    ("docs/performance.md", r"test PSNR ([\d.]+) dB, SSIM ([\d.]+) over 20 views after (\d+) steps",
+    ("docs/performance.md",
+     r"test PSNR ([\d.]+) dB, SSIM ([\d.]+), LPIPS ([\d.]+) over 20 views after (\d+) steps",
      [source(DEFAULT_RUN, "psnr", 2), source(DEFAULT_RUN, "ssim", 4),
-      source(DEFAULT_RUN, "steps", 0)]),
+      source(DEFAULT_RUN, "lpips", 4), source(DEFAULT_RUN, "steps", 0)]),
     ("README.md", r"(\d+) tests in ([\d.]+) min",
      [source(SUITE, "tests", 0, command=".ci/run"), source(SUITE, "minutes", 1, command=".ci/run")]),
     ("docs/usage.md", r"Now: (\d+) tests in ([\d.]+) min",
