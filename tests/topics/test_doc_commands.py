@@ -23,18 +23,27 @@ A script that parses neither with absl nor with argparse (docs/nerfacto/score_vi
 sys.argv) is never run: it must exist and be given no flags.
 """
 
+import argparse
+import contextlib
 import dataclasses
+import importlib.util
+import io
 import json
 import os
 import pathlib
 import re
+import runpy
 import shlex
 import subprocess
 import sys
 import tomllib
+from unittest import mock
 
 import pytest
+from absl import app, flags
 
+from nerf_jax import cli
+from nerf_jax.run import config_lib
 from tests.helpers import ROOT
 
 ROOT = pathlib.Path(ROOT)
@@ -157,7 +166,6 @@ def entry(argv):
 def static_problems(command):
   """What can be said of `command` without importing it: a missing script or module, a config
   that is not shipped, an old spelling."""
-  from nerf_jax.run import config_lib  # pylint: disable=import-outside-toplevel
   (kind, target), args = entry(command.argv)
   problems = []
   if kind == "unknown":
@@ -170,6 +178,8 @@ def static_problems(command):
     if not (path.with_suffix(".py").is_file() or (path / "__main__.py").is_file()
             or (kind == "console" and (path / "__init__.py").is_file())):
       problems.append(f"{module}: no such module in this checkout")
+  if kind == "external" and importlib.util.find_spec(target.split(".")[0]) is None:
+    problems.append(f"{target}: not installed")
   if kind == "external" and target == "pytest":
     problems += [f"{a}: no such test path" for a in args
                  if not a.startswith("-") and not (ROOT / a.split("::")[0]).exists()]
@@ -201,15 +211,6 @@ def parse_as_entry(command):
   """None if `command`'s entry point accepts its flags, else what it said. Runs the entry point
   as its command line would, with absl's app.run and argparse's parse_args stopping after the
   parse; the flags it defined are removed again afterwards."""
-  # pylint: disable=import-outside-toplevel
-  import argparse
-  import contextlib
-  import io
-  import runpy
-  from unittest import mock
-
-  from absl import app, flags
-
   (kind, target), args = entry(command.argv)
   if kind == "script":
     source = (ROOT / target).read_text()
@@ -304,9 +305,7 @@ def _flag(args, name):
 def written_workdir(command):
   """The workdir a training command writes: its --workdir, else cli.default_workdir of its
   config with its data overrides. None if `command` does not train."""
-  from nerf_jax import cli  # pylint: disable=import-outside-toplevel
-  from nerf_jax.run import config_lib  # pylint: disable=import-outside-toplevel
-  (kind, target), args = entry(command.argv)
+  (_, target), args = entry(command.argv)
   if target not in ("train.py", SCRIPTS["nerf-train"]):
     return None
   if _flag(args, "workdir"):
