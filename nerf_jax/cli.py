@@ -4,6 +4,7 @@
   nerf-train --config=fast --workdir=runs/a           # a config by name, from any directory
   nerf-train --config=configs/debug.py --config.num_samples=64
   nerf-render --workdir=runs/a --mode=eval|video|views|mesh
+  nerf-render --workdir=runs/a --mode=eval --config.eval.fit_steps=300   # over its config.json
 
 Errors the user can fix (bad flags, config files or overrides, bad data, incompatible
 checkpoint, diverged training) are printed as one line and exit with status 1; `--verbosity=1`
@@ -130,7 +131,17 @@ def train_main(argv=None):
 
 
 def render_main(argv=None):
-  """`nerf-render` / render.py: render a trained workdir's newest checkpoint."""
+  """`nerf-render` / render.py: render a trained workdir's newest checkpoint, under the config
+  the run saved; `--config.eval.FIELD=VALUE` overrides how the test views are scored (the
+  evaluation settings, evaluation.Settings), and nothing else: the rest is what it trained with."""
+  argv = list(sys.argv if argv is None else argv)
+  for arg in argv[1:]:
+    if arg.startswith(("--config", "-config")) and not arg.startswith("--config.eval."):
+      errors.fail(f"{arg.split('=', 1)[0]}: render.py restores the run's config.json; only the "
+                  "evaluation settings can be overridden (--config.eval.FIELD=VALUE)")
+  config_flags.DEFINE_config_dict("config", config_lib.default(), "Evaluation settings over the "
+                                  "run's config.json: --config.eval.FIELD=VALUE.",
+                                  lock_config=True, sys_argv=argv)
   workdir = flags.DEFINE_string("workdir", None, "Training run directory.", required=True)
   mode = flags.DEFINE_enum("mode", "eval", list(outputs.MODES), "What to render.")
   poses = flags.DEFINE_string("poses", "", "views mode: .npy [N,4,4] or transforms-style .json; "
@@ -151,6 +162,7 @@ def render_main(argv=None):
   def run(_):
     run_main(lambda: outputs.render(workdir.value, mode.value, poses.value, out.value,
                                     depth_npy.value, resolution.value, threshold.value,
-                                    bound.value, scale.value, path_frames.value))
+                                    bound.value, scale.value, path_frames.value,
+                                    flags.FLAGS["config"].override_values))
 
-  app.run(run, argv=list(sys.argv if argv is None else argv), flags_parser=errors.parse_flags)
+  app.run(run, argv=argv, flags_parser=errors.parse_flags)

@@ -350,6 +350,27 @@ def _run(args, cwd=ROOT):
                         text=True, timeout=300)
 
 
+def test_render_sets_the_evaluation_overrides_on_the_saved_config(trained):
+  exp, _ = experiment.restore(str(trained[0]), overrides={"eval.fit_steps": 300})
+  assert exp.config.eval.fit_steps == 300
+  assert config_lib.load_saved(str(trained[0])).eval.fit_steps == 100  # config.json unchanged
+
+
+@pytest.mark.slow  # three processes
+def test_render_takes_evaluation_overrides_only(tmp_path):
+  """render.py --config.eval.FIELD=VALUE is parsed and typed against evaluation.Settings; any
+  other --config argument is refused in one line (the run's config.json is what it trained)."""
+  nowhere = f"--workdir={tmp_path}/nowhere"
+  res = _run(["render.py", nowhere, "--mode=eval", "--config.eval.fit_steps=300"])
+  assert res.stderr.strip().splitlines() == [f"error: {nowhere}: no such directory"], res.stderr
+  res = _run(["render.py", nowhere, "--config.train.lr=1"])
+  assert res.returncode == 1 and res.stderr.strip().splitlines() == [
+      "error: --config.train.lr: render.py restores the run's config.json; only the evaluation "
+      "settings can be overridden (--config.eval.FIELD=VALUE)"], res.stderr
+  res = _run(["render.py", nowhere, "--config.eval.fit_steps=many"])
+  assert res.returncode == 1 and "--config.eval.fit_steps" in res.stderr, res.stderr
+
+
 @pytest.mark.slow  # three processes
 def test_entry_points_print_one_line(tmp_path):
   res = _run(["train.py", "--config=configs/debug.py", "--config.data.bogus=1",

@@ -37,10 +37,13 @@ def setup(config):
   return exp
 
 
-def restore(workdir, with_meta=False):
+def restore(workdir, with_meta=False, overrides=None):
   """(Experiment, TrainState[, meta]) of the newest checkpoint in `workdir`, under the config
-  the run saved (completed with today's defaults, see config_lib.load_saved)."""
+  the run saved (completed with today's defaults, see config_lib.load_saved) with `overrides`
+  ({dotted field: value}, e.g. render.py's --config.eval.fit_steps) set on top."""
   config = config_lib.load_saved(workdir)
+  for field, value in (overrides or {}).items():
+    config_lib.set_field(config, field, value)
   path = checkpoints.latest_path(workdir)
   if path is None:
     raise TrainingError(f"no checkpoint in {checkpoints.checkpoint_dir(workdir)}: "

@@ -130,12 +130,13 @@ def export_mesh(exp, variables, resolution=128, threshold=50.0, bound=0.0):
 
 
 def render(workdir, mode, poses_path="", out_dir="", depth_npy=False, resolution=128,
-           threshold=50.0, bound=0.0, scale=1.0, path_frames=30):
+           threshold=50.0, bound=0.0, scale=1.0, path_frames=30, overrides=None):
   """Render `mode` (one of MODES) from the newest checkpoint of `workdir`; returns what it wrote.
 
   depth_npy: video mode also writes float depth_frames.npy. resolution, threshold, bound: mesh
   mode (see surface.extract). scale: video and views modes render `scale` times the training
   images' pixels per side. path_frames: path mode, frames from one key camera to the next.
+  overrides: {dotted field: value} set on the run's saved config (render.py's --config.eval.*).
   """
   if not os.path.isdir(workdir):
     raise FileNotFoundError(f"--workdir={workdir}: no such directory")
@@ -145,7 +146,7 @@ def render(workdir, mode, poses_path="", out_dir="", depth_npy=False, resolution
     raise ValueError(f"--mode={mode} needs --poses=FILE (.npy [N,4,4] or .json with frames)")
   if mode in ("views", "path") and not os.path.exists(poses_path):
     raise FileNotFoundError(f"{poses_path}: no such poses file")
-  exp, state = experiment.restore(workdir)
+  exp, state = experiment.restore(workdir, overrides=overrides)
   variables = state.variables
   print(f"restored step {int(state.step)} from {workdir}", flush=True)
   out_dir = out_dir or os.path.join(workdir, mode)

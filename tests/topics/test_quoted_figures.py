@@ -1,0 +1,99 @@
+"""Every measured figure README.md quotes comes from a results file in docs/bench/ and agrees
+with it, as do the pages that repeat them (the default run's transcript in docs/performance.md,
+the suite's time in docs/usage.md and pyproject.toml).
+
+FIGURES says where each figure is quoted (a pattern of the text around it, one group per
+figure) and where it comes from (a results file, the record's selecting fields, the key, the
+decimals it is quoted with). A figure re-measured is changed in its results file first; this
+test then names every page that still quotes the old one. A quote rephrased so that its
+pattern no longer matches fails too: change the pattern with it.
+"""
+
+import json
+import pathlib
+import re
+
+import pytest
+
+from tests.helpers import ROOT
+
+ROOT = pathlib.Path(ROOT)
+BENCH = ROOT / "docs" / "bench"
+
+
+def source(path, key, decimals, **where):
+  """(results file relative to docs/bench, key, decimals, the record's selecting fields)."""
+  return (path, key, decimals, where)
+
+
+DEFAULT_RUN = "default_run/metrics.json"
+SUITE = "suite/results.jsonl"
+CI_RUN = (("tests", 0), ("minutes", 1))  # the suite as .ci/run measures it
+FIGURES = [
+    ("README.md", r"test PSNR ([\d.]+) dB after (\d+) steps",
+     [source(DEFAULT_RUN, "psnr", 2), source(DEFAULT_RUN, "steps", 0)]),
+    ("docs/performance.md",
+     r"test PSNR ([\d.]+) dB, SSIM ([\d.]+), LPIPS ([\d.]+) over 20 views after (\d+) steps",
+     [source(DEFAULT_RUN, "psnr", 2), source(DEFAULT_RUN, "ssim", 4),
+      source(DEFAULT_RUN, "lpips", 4), source(DEFAULT_RUN, "steps", 0)]),
+    ("README.md", r"(\d+) tests in ([\d.]+) min",
+     [source(SUITE, key, decimals, command=".ci/run") for key, decimals in CI_RUN]),
+    ("docs/usage.md", r"Now: (\d+) tests in ([\d.]+) min",
+     [source(SUITE, key, decimals, command=".ci/run") for key, decimals in CI_RUN]),
+    ("pyproject.toml", r"take ([\d.]+) min where one takes ([\d.]+)",
+     [source(SUITE, "minutes", 1, workers=2, tests=631),
+      source(SUITE, "minutes", 1, workers=1, tests=631)]),
+    ("README.md", r"`default.py` ([\d.]+) / ([\d.]+) / ([\d.]+) dB at 60 / 300 / 900 s",
+     [source(f"centres/configs{t}/results.jsonl", "test_psnr", 2, label="default")
+      for t in (60, 300, 900)]),
+    ("README.md", r"the Keras reference: ([\d.]+)–([\d.]+)",
+     [source("configs/results.jsonl", "test_psnr", 1, label="keras_seed"),
+      source("configs900/results.jsonl", "test_psnr", 1, label="keras_seed")]),
+    ("README.md", r"`fast.py` ([\d.]+) dB after 300 s, (\d+) ms a frame",
+     [source("centres/configs300/results.jsonl", "test_psnr", 2, label="fast"),
+      source("centres/configs300/results.jsonl", "render_ms", 0, label="fast")]),
+    ("README.md", r"16 samples reach ([\d.]+) dB, 64 samples ([\d.]+)",
+     [source("centres/samples/results.jsonl", "test_psnr", 2, label=f"samples={n}")
+      for n in (16, 64)]),
+    ("README.md", r"`detail` ([\d.]+) dB, lego ([\d.]+)",
+     [source("detail/ten_minutes/detail_py.jsonl", "test_psnr", 2, scene=s)
+      for s in ("detail", "lego400")]),
+]
+
+
+def record(path, where):
+  """The last record of docs/bench/`path` (a .json, or a .jsonl of one record a line) whose
+  fields match `where`."""
+  text = (BENCH / path).read_text()
+  records = ([json.loads(l) for l in text.splitlines() if l.strip()] if path.endswith(".jsonl")
+             else [json.loads(text)])
+  matching = [r for r in records if all(r.get(k) == v for k, v in where.items())]
+  assert matching, f"docs/bench/{path} has no record with {where}"
+  return matching[-1]
+
+
+def disagreements(text, pattern, sources):
+  """(quoted, from the results file, the file) for each figure of `pattern` in `text` that
+  its source does not give; [('missing', pattern, '')] if `text` does not quote it."""
+  match = re.search(pattern, " ".join(text.split()))  # a quote may run over a line break
+  if match is None:
+    return [("missing", pattern, "")]
+  out = []
+  for quoted, (path, key, decimals, where) in zip(match.groups(), sources):
+    expected = f"{record(path, where)[key]:.{decimals}f}"
+    if quoted != expected:
+      out.append((quoted, expected, f"docs/bench/{path} {where} {key}"))
+  return out
+
+
+@pytest.mark.parametrize("page,pattern,sources", FIGURES,
+                         ids=[f"{p}:{s[0][0]}" for p, _, s in FIGURES])
+def test_the_quoted_figure_is_its_results_files(page, pattern, sources):
+  assert disagreements((ROOT / page).read_text(), pattern, sources) == []
+
+
+def test_the_check_catches_a_stale_figure():
+  pattern, sources = FIGURES[5][1], FIGURES[5][2]
+  text = "`default.py` 28.12 / 31.15 / 32.40 dB at 60 / 300 / 900 s"
+  assert [d[:2] for d in disagreements(text, pattern, sources)] == [("32.40", "32.47")]
+  assert disagreements("rephrased", pattern, sources)[0][0] == "missing"
