@@ -35,6 +35,10 @@ TINY_SQUARE = 1e-18
 # sum_j j·exp(i·theta_j) = 0, so offsets proportional to t_j (affine in j) average to 0: the
 # points' mean lies on the ray (see `multisamples`).
 HEXAGON = np.array([0, 2, 4, 3, 5, 1]) * (np.pi / 3)
+# camp_zipnerf's `unscented_scale_mult` (0.5 in its configs): the level weights read each
+# multisample's scale halved, so a level fades where the cells reach half the cone's width, not
+# one octave earlier (fields/field.Field.multisamples applies it).
+UNSCENTED_SCALE_MULT = 0.5
 # The six points' t as mean + std·HEX_T: j = 0..5 evenly spaced, scaled to mean 0, variance 1.
 HEX_T = (np.arange(6) * 0.4 - 1.0) * np.sqrt(15.0 / 7.0)
 

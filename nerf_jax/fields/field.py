@@ -126,11 +126,13 @@ class Field:
     """Zip-NeRF's six points of each frustum [t0, t1) of `rays` [...] (with radii), or its mean
     alone (cones 'scales'), and their scales, in the network's space (contracted by
     contraction.contract_isotropic in an unbounded scene): (float32 [..., S, M, 3], float32
-    [..., S, M]), M = 6 or 1. t0, t1: float32 [..., S]."""
+    [..., S, M]), M = 6 or 1; the scales times cones.UNSCENTED_SCALE_MULT, as Zip-NeRF's level
+    weights read them. t0, t1: float32 [..., S]."""
     if rays.radii is None:
       raise ValueError("a field of cones needs rays with radii (pixel_rays(..., with_radii=True))")
     sampler = cones.centre_samples if self.cones == "scales" else cones.multisamples
     points, std = sampler(rays.origins, rays.directions, rays.radii, t0, t1)
+    std = cones.UNSCENTED_SCALE_MULT * std  # a Python float: std stays float32
     if self.contraction:
       points, std = contraction.contract_isotropic(points, std, self.inner_radius,
                                                    self.contraction)

@@ -272,8 +272,9 @@ class _GivenFeatures:
 def test_antialiased_grid_renders_its_reference_pass(multisample):
   """The anti-aliased dense grid's render against a pass written here: each level's features
   interpolated at the six multisamples (or the frustum's mean: multisample False) by the 8
-  corners, weighted by erf(h_l / (sqrt(8)·std)) with h_l = 2·bound / (R_l - 1), averaged, then
-  the field's own head; and the weights do differ from 1 there (levels are faded)."""
+  corners, weighted by erf(h_l / (sqrt(8)·std)) with h_l = 2·bound / (R_l - 1) and std the
+  multisample's scale times 0.5 (camp_zipnerf's unscented_scale_mult), averaged, then the
+  field's own head; and the weights do differ from 1 there (levels are faded)."""
   config = small_config({**TINY_LATTICE, "model.grid.antialias": True,
                          "model.grid.multisample": multisample}, base="fast")
   renderer = builders.make_ray_renderer(config)
@@ -284,7 +285,7 @@ def test_antialiased_grid_renders_its_reference_pass(multisample):
   for r in resolutions:  # features of order 1, so that the weights show in the colour
     params[f"grid_{r}"] = jnp.asarray(rng.normal(size=params[f"grid_{r}"].shape), jnp.float32)
   variables = {**variables, "params": {"coarse": params}}
-  rays = _rays(radius=0.1)  # scales of ~0.1-0.3 against cells of 0.43 and 0.2
+  rays = _rays(radius=0.2)  # scales (halved) of ~0.1-0.3 against cells of 0.43 and 0.2
   out = jax.jit(renderer.render)(variables, rays)["coarse"]
 
   samples, _ = renderer.sampler.generate(rays)
@@ -292,6 +293,7 @@ def test_antialiased_grid_renders_its_reference_pass(multisample):
   sampler = cones.multisamples if multisample else cones.centre_samples
   points, std = (np.float64(a) for a in sampler(rays.origins, rays.directions, rays.radii,
                                                 t[..., :-1], t[..., 1:]))
+  std = 0.5 * std  # Zip-NeRF's configs: unscented_scale_mult = 0.5
   bound = config.data.scene_bound
   erf = np.vectorize(math.erf)
   levels = []
