@@ -77,7 +77,7 @@ def factor_effects(config, backend):
   width, height = size
   max_side = MAX_SIDE["gpu" if backend == "gpu" else "cpu"]
   factor = factor_for(width, height, max_side)
-  photos = f"the photos are {width} x {height} ({width * height / 1e6:.1f} MP)"
+  photos = f"the photos are {width} x {height} ({width * height / 1e6:.3g} MP)"
   if ("data.factor" in config.auto_flags
       or config.data.factor != config_lib.load("auto").data.factor):
     if config.data.factor == factor:

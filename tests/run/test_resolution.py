@@ -59,7 +59,7 @@ def test_setup_loads_an_llff_folder_at_the_factor_and_records_why(tmp_path, monk
   exp = experiment.setup(_auto(_llff(tmp_path)))
   assert exp.config.data.factor == 3
   assert (exp.train_ds.height, exp.train_ds.width) == (8, 8)  # 24 // 3
-  line = ("data.factor=3: the photos are 24 x 24 (0.0 MP); the smallest integer factor that "
+  line = ("data.factor=3: the photos are 24 x 24 (0.000576 MP); the smallest integer factor that "
           "brings them to 8 x 8 (> 10 px a side on the cpu backend (MAX_SIDE) at full size)")
   assert exp.config.auto_decisions[0] == line
   assert f"auto: {line}" in capsys.readouterr().out
@@ -72,16 +72,16 @@ def test_your_factor_wins(tmp_path, monkeypatch, capsys):
   assert exp.config.data.factor == 2
   assert (exp.train_ds.height, exp.train_ds.width) == (12, 12)
   assert exp.config.auto_decisions[0] == ("data.factor=2 from your flags, not auto's 3 (the "
-                                          "photos are 24 x 24 (0.0 MP))")
+                                          "photos are 24 x 24 (0.000576 MP))")
   # Given on the command line as 1, the default, it wins too.
   effects, lines = resolution.factor_effects(_auto(_llff(tmp_path), {"data.factor": 1}), "cpu")
   assert (effects, lines) == ({}, ["data.factor=1 from your flags, not auto's 3 (the photos "
-                                   "are 24 x 24 (0.0 MP))"])
+                                   "are 24 x 24 (0.000576 MP))"])
 
 
 def test_small_photos_stay_at_full_size_and_other_data_is_not_measured(tmp_path):
   effects, lines = resolution.factor_effects(_auto(_llff(tmp_path)), "cpu")
   assert effects == {"data.factor": 1}
-  assert lines == ["data.factor=1: the photos are 24 x 24 (0.0 MP), full size (<= 1024 px a "
+  assert lines == ["data.factor=1: the photos are 24 x 24 (0.000576 MP), full size (<= 1024 px a "
                    "side on the cpu backend (MAX_SIDE))"]
   assert resolution.factor_effects(_auto(""), "cpu") == ({}, [])  # a built-in scene
