@@ -190,10 +190,12 @@ def process(out_dir, images="", video="", num_frames=100, matcher="auto",
       f"images registered, mean reprojection error {rec.mean_error:.2f} px, "
       f"{len(rec.points)} points, {seconds['total']:.1f} s")
   name = os.path.basename(os.path.normpath(out_dir))
-  log("train and render it with (a room, a garden: the whole scene):\n"
-      f"  python train.py --config=capture --config.data.path={out_dir} --workdir=runs/{name}\n"
-      "or, for an object alone on an empty background, with an orbit video:\n"
-      f"  python train.py --config=configs/fast.py --config.data.path={out_dir} "
+  log("train and render it with (the config and the photos' size decided from the data, "
+      "docs/auto.md):\n"
+      f"  python train.py --config=auto --config.data.path={out_dir} --workdir=runs/{name}\n"
+      "or choose the config yourself: --config=capture for a room or a garden (the whole "
+      "scene); for an object alone on an empty background, with an orbit video:\n"
+      f"  python train.py --config=fast --config.data.path={out_dir} "
       f"--config.render.orbit_radius={written['orbit_radius']:.2f} "
       f"--config.render.orbit_phi={written['orbit_phi']:.0f} --workdir=runs/{name}")
   return summary

@@ -175,7 +175,7 @@ def _flat(config):
   return out
 
 
-def auto_config(config, dataset, backend=None):
+def auto_config(config, dataset, backend=None, before_loading=({}, [])):
   """`config` (config.auto: configs/auto.py and the user's flags) decided from the training
   views `dataset` by characterise.decide: the representation of the config that suits the
   kind of capture (fast.py for an object on a background, detail.py from LARGE_IMAGES pixels,
@@ -190,14 +190,15 @@ def auto_config(config, dataset, backend=None):
   saying so. Prints one line per
   decision with its reason, and one naming the backend and the config it chose; the lines go
   to config.auto_decisions (config.json), and auto is off in the result (a restored run keeps
-  what was decided)."""
+  what was decided). before_loading: ({field: value}, [line]) decided before `dataset` was
+  loaded (resolution.factor_effects: data.factor), recorded first."""
   base = _flat(config_lib.load("auto"))
   given = _flat(config)
   user = {k: v for k, v in given.items()
           if (base.get(k) != v or k in config.auto_flags) and k not in _OWN}
   decisions = characterise.decide(dataset)  # scales from every camera, the rest from image 0's
   dataset = dataset.one_camera()
-  effects, lines = {}, []
+  effects, lines = dict(before_loading[0]), list(before_loading[1])
   if decisions is None:
     chosen = "capture"
     lines.append(f"{len(dataset)} cameras are too few to characterise (< "

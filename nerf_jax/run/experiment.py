@@ -6,8 +6,13 @@ experiment_parts.py (the Experiment these make) and signature.py (what a checkpo
 the model signature, a fresh state, its template).
 """
 
+import dataclasses
+
+import jax
+
 from nerf_jax.data import loaders
-from nerf_jax.run import auto, builders, config_lib, experiment_parts, from_data, subject
+from nerf_jax.run import (auto, builders, config_lib, experiment_parts, from_data, resolution,
+                          subject)
 from nerf_jax.run.signature import model_signature, state_template
 from nerf_jax.train import checkpoints
 from nerf_jax.train.state import upgrade_state_dict
@@ -22,9 +27,13 @@ def setup(config):
   builds the renderer and the optimiser."""
   config = config_lib.upgrade(config)
   builders.make_ray_renderer(config)  # a bad model or sampler setting fails before the data
-  train_ds, test_ds = loaders.load_dataset(builders.data_settings(config.data))
+  settings = builders.data_settings(config.data)
+  if config.auto:  # the photos' size is decided before they are read at full size
+    factor = resolution.factor_effects(config, jax.default_backend())
+    settings = dataclasses.replace(settings, factor=factor[0].get("data.factor", settings.factor))
+  train_ds, test_ds = loaders.load_dataset(settings)
   if config.auto:
-    config = auto.auto_config(config, train_ds)
+    config = auto.auto_config(config, train_ds, before_loading=factor)
   from_data.pixel_center(config, train_ds)  # a bad value fails here, naming the field
   config, train_ds, test_ds = subject.with_subject(config, train_ds, test_ds)
   near, far = from_data.bounds(config, train_ds)
