@@ -97,8 +97,9 @@ def restore_with_meta(path, template, signature, upgrade=None):
     raise CheckpointError(f"{path}: unreadable checkpoint ({type(e).__name__}); delete it to "
                           "resume from the one before, or use a new --workdir") from None
   if saved != json.loads(json.dumps(signature)):
-    diffs = [f"{k}: checkpoint {saved.get(k)!r} vs config {v!r}"
-             for k, v in json.loads(json.dumps(signature)).items() if saved.get(k) != v]
+    current = json.loads(json.dumps(signature))
+    diffs = [f"{k}: checkpoint {saved.get(k)!r} vs config {current.get(k)!r}"
+             for k in sorted(set(saved) | set(current)) if saved.get(k) != current.get(k)]
     raise CheckpointError(f"{path} was made with an incompatible config ({'; '.join(diffs)}); "
                           "use a new --workdir or the original config")
   try:

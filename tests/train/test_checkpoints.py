@@ -3,6 +3,7 @@ failed final rename leaves the previous checkpoint intact. Randomness is seeded 
 
 import os
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -65,3 +66,14 @@ def test_a_failed_rename_leaves_the_previous_checkpoint_intact(tmp_path, monkeyp
   checkpoints.save(workdir, 30, third, SIGNATURE, keep=1)
   assert os.listdir(checkpoints.checkpoint_dir(workdir)) == ["ckpt_30.msgpack"]
   assert _equal(checkpoints.restore(checkpoints.latest_path(workdir), third, SIGNATURE), third)
+
+
+def test_a_setting_only_the_checkpoint_has_is_named(tmp_path):
+  # A run saved with an entry (e.g. intrinsics refinement on) resumed by a config that lacks
+  # it: the refusal names the entry, on whichever side it is missing.
+  state = {"w": jnp.zeros(3)}
+  checkpoints.save(str(tmp_path), 1, state, {"width": 64, "intrinsics_refinement": True})
+  path = checkpoints.latest_path(str(tmp_path))
+  with pytest.raises(checkpoints.CheckpointError,
+                     match="intrinsics_refinement: checkpoint True vs config None"):
+    checkpoints.restore(path, state, {"width": 64})
