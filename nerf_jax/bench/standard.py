@@ -27,6 +27,7 @@ import dataclasses
 import datetime
 import json
 import os
+import shlex
 import sys
 import time
 
@@ -36,6 +37,7 @@ import ml_collections
 import numpy as np
 from absl import flags
 
+from nerf_jax import cli
 from nerf_jax.bench import command_line
 from nerf_jax.run import train_lib
 
@@ -181,8 +183,7 @@ def _find_fox(root):
 def find_scene(family, root, name, half=False, test_every=1):
   """The Scene `name` of `family` under the archive folder `root`; FileNotFoundError with one
   line naming the path and what belongs there."""
-  if not os.path.isdir(root):
-    raise _missing(root, f"the unpacked {ARCHIVES[family]} folder (--{family})")
+  _check_archive(family, root)
   if family == "blender":
     return _find_blender(root, name, half, test_every)
   if family == "fox":
@@ -191,24 +192,30 @@ def find_scene(family, root, name, half=False, test_every=1):
 
 
 
-def _present(family, root, name):
-  """Whether the archive folder `root` holds scene `name` of `family` (any file of it)."""
-  if family == "fox":
-    return True
-  return os.path.isdir(os.path.join(root, name))
+def _check_archive(family, root):
+  """FileNotFoundError with one line unless `root` is an archive folder of `family` (not, say,
+  one scene's folder of it)."""
+  if not os.path.isdir(root):
+    raise _missing(root, f"the unpacked {ARCHIVES[family]} folder (--{family})")
+  if family != "fox" and any(os.path.isfile(os.path.join(root, f)) for f in (
+      "transforms_train.json", "poses_bounds.npy")):
+    raise FileNotFoundError(
+        f"--{family}={root} is one scene's folder; give the {ARCHIVES[family]} folder that "
+        f"holds it ({os.path.dirname(os.path.abspath(root))}) and --scenes="
+        f"{os.path.basename(os.path.abspath(root))}")
 
 
 def plan(roots, names=(), half=False, test_every=1):
   """The Scenes to run. roots: {family: archive folder} (those given). names: the scenes asked
-  for (default: every scene of SCENES found in the given folders). Raises FileNotFoundError or
-  ValueError with one line when a folder, a scene or a file of one is missing."""
+  for (default: every scene of SCENES whose folder is in the archive folders given). Raises
+  FileNotFoundError or ValueError with one line when a folder, a scene or a file of one is
+  missing."""
   if not roots:
     raise ValueError("no archive given: pass at least one of --blender, --llff, --m360, --fox")
   if test_every < 1:
     raise ValueError(f"--test_every={test_every}: must be >= 1")
   for family, root in roots.items():
-    if not os.path.isdir(root):
-      raise _missing(root, f"the unpacked {ARCHIVES[family]} folder (--{family})")
+    _check_archive(family, root)
   wanted = []
   if names:
     for name in names:
@@ -218,11 +225,13 @@ def plan(roots, names=(), half=False, test_every=1):
         raise ValueError(f"--scenes: {name!r} is no scene of the archives given ({known})")
       wanted += [(f, name) for f in families]
   else:
-    wanted = [(f, n) for f in roots for n in SCENES[f] if _present(f, roots[f], n)]
-    if not wanted:
-      family, root = next(iter(roots.items()))
-      raise _missing(os.path.join(root, SCENES[family][0]),
-                     f"scene folders of {ARCHIVES[family]} ({', '.join(SCENES[family])})")
+    for family, root in roots.items():
+      found = [n for n in SCENES[family]
+               if family == "fox" or os.path.isdir(os.path.join(root, n))]
+      if not found:
+        raise _missing(os.path.join(root, SCENES[family][0]), f"a scene folder of "
+                       f"{ARCHIVES[family]} ({', '.join(SCENES[family])})")
+      wanted += [(family, n) for n in found]
   return [find_scene(f, roots[f], n, half, test_every) for f, n in wanted]
 
 
@@ -271,9 +280,10 @@ def blender_view_folder(scene, folder, test_every):
   return folder
 
 
-def run_config(base, scene, data_path, seconds, half):
+def run_config(base, scene, data_path, seconds, half, overrides=()):
   """A copy of the ConfigDict `base` that trains `scene` by its protocol from `data_path` for
-  `seconds`; the fields set here are added to config.auto_flags, so auto keeps them."""
+  `seconds`. The fields set here and `overrides` (the dotted fields the command line set) go
+  into config.auto_flags, so that auto keeps them."""
   config = ml_collections.ConfigDict(base.to_dict())
   fields = {"data.path": data_path, "data.holdout_from": -1, "train.max_seconds": float(seconds),
             "render.after_training": False}
@@ -284,7 +294,7 @@ def run_config(base, scene, data_path, seconds, half):
   for name, value in fields.items():
     section, _, key = name.rpartition(".")
     config[section][key] = value
-  config.auto_flags = tuple(dict.fromkeys((*config.auto_flags, *fields)))
+  config.auto_flags = tuple(dict.fromkeys((*config.auto_flags, *overrides, *fields)))
   return config
 
 
@@ -294,10 +304,31 @@ def device():
   return f"{devices[0].platform}: {devices[0].device_kind} (x{len(devices)})"
 
 
+def run_choices(saved):
+  """What a run's config.json (`saved`, a dict) says about how it was scored beyond the
+  protocol: {'appearance_codes': {'dims', 'held_out'}} where it learnt per-photo codes (its
+  held-out views then scored by eval.appearance: 'left_half' is NeRF-W's fit, not the papers'
+  protocol), and 'auto_decisions' (auto's lines) where auto chose the config."""
+  choices = {}
+  dims = saved.get("model", {}).get("appearance_dims", 0)
+  if dims:
+    choices["appearance_codes"] = {"dims": dims,
+                                   "held_out": saved.get("eval", {}).get("appearance")}
+  if saved.get("auto_decisions"):
+    choices["auto_decisions"] = list(saved["auto_decisions"])
+  return choices
+
+
 def make_row(scene, metrics, extra):
   """One results.jsonl row: the scene, its protocol, the scores of metrics.json (LPIPS, or
-  'lpips_missing' saying why) and `extra` (seconds, device, config, date...)."""
-  row = {"family": scene.family, "scene": scene.name, **extra["protocol"],
+  'lpips_missing' saying why) and `extra` (seconds, device, config, date, `run_choices`...);
+  a run with appearance codes says so in its protocol line."""
+  fields = dict(extra["protocol"])
+  codes = extra.get("appearance_codes")
+  if codes:
+    fields["protocol"] += (f"; per-photo appearance codes, held-out views scored with "
+                           f"eval.appearance={codes['held_out']}")
+  row = {"family": scene.family, "scene": scene.name, **fields,
          "test_views": len(metrics.get("per_view", [])) or len(scene.test_views),
          "psnr": metrics["psnr"], "ssim": metrics["ssim"]}
   if "lpips" in metrics:
@@ -337,10 +368,12 @@ def markdown(rows, command):
   return "\n".join(lines) + "\n"
 
 
-def run_benchmark(base, config_name, scenes, out, seconds, half, test_every, command):
+def run_benchmark(base, config_name, scenes, out, seconds, half, test_every, command,
+                  overrides=()):
   """Train and score each of `scenes` (Scenes of `plan`) in OUT/<family>_<scene> with the
-  ConfigDict `base` (named `config_name` in the rows) for `seconds` each; writes
-  OUT/results.jsonl and OUT/results.md after each run. Returns the rows."""
+  ConfigDict `base` (named `config_name` in the rows; `overrides`: the fields the command line
+  set on it) for `seconds` each; writes OUT/results.jsonl and OUT/results.md after each run.
+  Returns the rows."""
   os.makedirs(out, exist_ok=True)
   results = os.path.join(out, "results.jsonl")
   open(results, "w").close()
@@ -352,10 +385,13 @@ def run_benchmark(base, config_name, scenes, out, seconds, half, test_every, com
       data_path = blender_view_folder(scene, os.path.join(out, "views", scene.name), test_every)
     print(f"{scene.family}/{scene.name}: training {seconds:g} s into {workdir}", flush=True)
     start = time.perf_counter()
-    train_lib.train_and_evaluate(run_config(base, scene, data_path, seconds, half), workdir)
+    train_lib.train_and_evaluate(run_config(base, scene, data_path, seconds, half, overrides),
+                                 workdir)
     with open(os.path.join(workdir, "metrics.json")) as f:
       metrics = json.load(f)
-    rows.append(make_row(scene, metrics, {
+    with open(os.path.join(workdir, "config.json")) as f:
+      choices = run_choices(json.load(f))
+    rows.append(make_row(scene, metrics, {**choices,
         "protocol": protocol(scene, half, test_every), "data": data_path,
         "wall_seconds": round(time.perf_counter() - start, 1), "device": where,
         "config": config_name, "workdir": workdir,
@@ -381,7 +417,8 @@ def define_standard_flags(values, argv):
     flags.DEFINE_string(family, "", f"The unpacked {ARCHIVES[family]} folder.",
                         flag_values=values)
   flags.DEFINE_float("seconds", 600.0, "Wall-clock training budget per scene "
-                     "(train.max_seconds).", flag_values=values, lower_bound=0.0)
+                     "(train.max_seconds; 0 = the config's steps).", flag_values=values,
+                     lower_bound=0.0)
   flags.DEFINE_list("scenes", [], "Scenes to run (default: every standard scene found in "
                     "the folders given).", flag_values=values)
   flags.DEFINE_integer("test_every", 1, "NeRF-synthetic: score test views 0, N, 2N, ... "
@@ -406,14 +443,14 @@ def standard(values, spec, argv):
     total += estimate
     line = protocol(scene, values.blender_half, values.test_every)["protocol"]
     print(f"  {scene.family}/{scene.name}: {line}; about {estimate / 60:.0f} min", flush=True)
-  print(f"about {total / 3600:.1f} h in all (scoring at an assumed "
+  print(f"about {total / 60:.0f} min in all (scoring at an assumed "
         f"{EVAL_PIXELS_PER_SECOND:,} pixels/s)", flush=True)
   if values.dry_run:
     return []
   name = os.path.splitext(os.path.basename(spec.split(":")[0]))[0] or "auto"
-  command = "python -m nerf_jax.bench.standard " + " ".join(argv[1:])
+  command = "python -m nerf_jax.bench.standard " + shlex.join(argv[1:])
   return run_benchmark(values["config"].value, name, scenes, values.out, values.seconds,
-                       values.blender_half, values.test_every, command)
+                       values.blender_half, values.test_every, command, cli.override_names(argv))
 
 
 HYPHENATED = ("--test-every", "--blender-half", "--noblender-half", "--dry-run", "--nodry-run")

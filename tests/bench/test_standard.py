@@ -26,7 +26,7 @@ from nerf_jax.bench import standard
 from nerf_jax.data import scenes
 from nerf_jax.data.export import export_blender
 from nerf_jax.data.llff import export_llff
-from tests.helpers import ROOT
+from tests.helpers import ROOT, small_config
 
 BLENDER_VIEWS, BLENDER_TRAIN = 9, 4  # 4 train views, 5 test views (0..4)
 LLFF_VIEWS, LLFF_SIZE = 17, 128  # held out: 0, 8, 16; images_8/ of 16 x 16
@@ -151,10 +151,15 @@ def test_dry_run_lists_the_runs_and_trains_nothing(archives, tmp_path, capsys):
     ("--llff={llff} --scenes=horns",
      "{llff}/horns/poses_bounds.npy: not found; expected the scene 'horns' of nerf_llff_data"),
     ("--blender={blender} --scenes=fern", "--scenes: 'fern' is no scene of the archives given"),
+    ("--llff={llff}/fern", "--llff={llff}/fern is one scene's folder; give the nerf_llff_data "
+     "folder that holds it ({llff}) and --scenes=fern"),
+    ("--blender={blender} --m360={empty}",
+     "{empty}/bicycle: not found; expected a scene folder of 360_v2"),
 ])
 def test_missing_folder_or_scene_is_one_line(archives, tmp_path, flag, expected):
   paths = {"missing": str(tmp_path / "nowhere"), "llff": archives["llff"],
-           "blender": archives["blender"]}
+           "blender": archives["blender"], "empty": str(tmp_path / "360_v2")}
+  (tmp_path / "360_v2").mkdir()
   result = subprocess.run(
       [sys.executable, "-m", "nerf_jax.bench.standard", *flag.format(**paths).split(),
        f"--out={tmp_path / 'out'}", "--seconds=1"],
@@ -175,3 +180,33 @@ def test_published_figures_agree_with_the_papers_means():
     # Table 1 rounds to 0.01 dB and 0.001: the means agree to half of that.
     for column, mean, digit in zip(table.T, means, (0.01, 0.001, 0.001)):
       np.testing.assert_allclose(column.mean(), mean, atol=0.5 * digit + 1e-9)
+
+
+def test_run_config_sets_the_protocol_and_auto_keeps_it():
+  base = small_config({"data.background": "black", "data.holdout_from": 10})
+  scene = standard.Scene("blender", "lego", "/data/nerf_synthetic/lego", 400, 400, 200, [0])
+  config = standard.run_config(base, scene, "/data/view", 7.0, True, ("train.batch_rays",))
+  assert (config.data.path, config.data.background, config.data.half_res) == (
+      "/data/view", "white", True)
+  assert config.data.holdout_from == -1 and config.train.max_seconds == 7.0
+  assert {"train.batch_rays", "data.background", "data.half_res", "data.path",
+          "train.max_seconds"} <= set(config.auto_flags)
+  assert base.data.background == "black" and base.data.path == ""  # the base is untouched
+  fern = standard.Scene("llff", "fern", "/data/nerf_llff_data/fern", 378, 504, 20, [0, 8, 16])
+  assert standard.run_config(base, fern, fern.path, 7.0, False).data.factor == 8
+
+
+def test_a_run_with_appearance_codes_says_how_its_views_were_scored():
+  saved = {"model": {"appearance_dims": 8}, "eval": {"appearance": "left_half"},
+           "auto_decisions": ["an object on a background"]}
+  choices = standard.run_choices(saved)
+  assert choices == {"appearance_codes": {"dims": 8, "held_out": "left_half"},
+                     "auto_decisions": ["an object on a background"]}
+  assert standard.run_choices({"model": {"appearance_dims": 0}, "eval": {}}) == {}
+  scene = standard.Scene("llff", "fern", "/data/fern", 378, 504, 20, [0, 8, 16])
+  metrics = {"psnr": 20.0, "ssim": 0.5, "steps": 10, "train_seconds": 3.0,
+             "lpips_skipped": "no weights", "per_view": [{}, {}, {}]}
+  row = standard.make_row(scene, metrics, {**choices, "protocol": standard.protocol(scene)})
+  assert row["protocol"].endswith("held-out views scored with eval.appearance=left_half")
+  assert row["lpips_missing"] == "no weights" and "lpips" not in row
+  assert row["held_out"] == [0, 8, 16] and row["test_views"] == 3
