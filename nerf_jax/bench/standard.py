@@ -236,8 +236,9 @@ def plan(roots, names=(), half=False, test_every=1):
 
 
 def protocol(scene, half=False, test_every=1):
-  """The row's protocol fields of `scene`: {'protocol' (one line), 'background', 'resolution',
-  and 'test_every' (blender) or 'held_out' (the others: held-out view indices)}."""
+  """The row's protocol fields of `scene`: {'protocol' (one line), 'resolution', and
+  'background', 'half_res', 'test_every' (blender) or 'held_out' (the others: held-out view
+  indices)}."""
   size = f"{scene.width}x{scene.height}"
   if scene.family == "blender":
     views = (f"test views 0, {test_every}, {2 * test_every}, ... ({len(scene.test_views)} of "
@@ -250,7 +251,7 @@ def protocol(scene, half=False, test_every=1):
   what = {"llff": "LLFF", "m360": "mip-NeRF 360", "fox": "instant-ngp fox as shipped"}
   text = (f"{what[scene.family]}: {factor}{size}, views 0, {HOLD_OUT_EVERY}, "
           f"{2 * HOLD_OUT_EVERY}, ... held out ({len(scene.test_views)} of {scene.views})")
-  return {"protocol": text, "background": "black", "resolution": [scene.height, scene.width],
+  return {"protocol": text, "resolution": [scene.height, scene.width],
           "held_out": scene.test_views}
 
 
@@ -305,11 +306,12 @@ def device():
 
 
 def run_choices(saved):
-  """What a run's config.json (`saved`, a dict) says about how it was scored beyond the
-  protocol: {'appearance_codes': {'dims', 'held_out'}} where it learnt per-photo codes (its
-  held-out views then scored by eval.appearance: 'left_half' is NeRF-W's fit, not the papers'
-  protocol), and 'auto_decisions' (auto's lines) where auto chose the config."""
-  choices = {}
+  """What a run's config.json (`saved`, a dict) says about how it was scored: {'background':
+  data.background, the colour it was scored on}, with 'appearance_codes': {'dims', 'held_out'}
+  where it learnt per-photo codes (its held-out views then scored by eval.appearance:
+  'left_half' is NeRF-W's fit, not the papers' protocol), and 'auto_decisions' (auto's lines)
+  where auto chose the config."""
+  choices = {"background": saved.get("data", {}).get("background")}
   dims = saved.get("model", {}).get("appearance_dims", 0)
   if dims:
     choices["appearance_codes"] = {"dims": dims,
@@ -323,7 +325,8 @@ def make_row(scene, metrics, extra):
   """One results.jsonl row: the scene, its protocol, the scores of metrics.json (LPIPS, or
   'lpips_missing' saying why) and `extra` (seconds, device, config, date, `run_choices`...);
   a run with appearance codes says so in its protocol line."""
-  fields = dict(extra["protocol"])
+  fields = {**extra["protocol"], **({"background": extra["background"]}
+                                    if "background" in extra else {})}
   codes = extra.get("appearance_codes")
   if codes:
     fields["protocol"] += (f"; per-photo appearance codes, held-out views scored with "
@@ -336,7 +339,7 @@ def make_row(scene, metrics, extra):
   else:
     row["lpips_missing"] = metrics.get("lpips_skipped", "not computed")
   row.update(steps=metrics["steps"], seconds=metrics["train_seconds"],
-             **{k: v for k, v in extra.items() if k != "protocol"})
+             **{k: v for k, v in extra.items() if k not in ("protocol", "background")})
   published = PUBLISHED.get((scene.family, scene.name))
   if published:
     row["published"] = dict(zip(("psnr", "ssim", "lpips"), published), source=NERF_SOURCE)

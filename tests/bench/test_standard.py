@@ -200,9 +200,10 @@ def test_a_run_with_appearance_codes_says_how_its_views_were_scored():
   saved = {"model": {"appearance_dims": 8}, "eval": {"appearance": "left_half"},
            "auto_decisions": ["an object on a background"]}
   choices = standard.run_choices(saved)
-  assert choices == {"appearance_codes": {"dims": 8, "held_out": "left_half"},
+  assert choices == {"background": None, "appearance_codes": {"dims": 8, "held_out": "left_half"},
                      "auto_decisions": ["an object on a background"]}
-  assert standard.run_choices({"model": {"appearance_dims": 0}, "eval": {}}) == {}
+  assert standard.run_choices({"data": {"background": "white"}, "model": {"appearance_dims": 0},
+                              "eval": {}}) == {"background": "white"}
   scene = standard.Scene("llff", "fern", "/data/fern", 378, 504, 20, [0, 8, 16])
   metrics = {"psnr": 20.0, "ssim": 0.5, "steps": 10, "train_seconds": 3.0,
              "lpips_skipped": "no weights", "per_view": [{}, {}, {}]}
