@@ -191,7 +191,6 @@ def find_scene(family, root, name, half=False, test_every=1):
   return _find_poses_bounds(family, root, name)
 
 
-
 def _check_archive(family, root):
   """FileNotFoundError with one line unless `root` is an archive folder of `family` (not, say,
   one scene's folder of it)."""
