@@ -63,6 +63,7 @@ def _command(argv, capsys):
   return rows, capsys.readouterr().out
 
 
+@pytest.mark.slow  # trains two tiny runs
 def test_runs_each_protocol_and_records_it(archives, tmp_path, capsys):
   out = tmp_path / "out"
   rows, printed = _command(
@@ -146,6 +147,7 @@ def test_dry_run_lists_the_runs_and_trains_nothing(archives, tmp_path, capsys):
   assert "min" in printed
 
 
+@pytest.mark.slow  # the command in a process of its own
 @pytest.mark.parametrize("flag, expected", [
     ("--blender={missing}", "{missing}: not found; expected the unpacked nerf_synthetic"),
     ("--llff={llff} --scenes=horns",
