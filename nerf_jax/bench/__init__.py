@@ -3,6 +3,7 @@
   python -m nerf_jax.bench --quick                      # sweeps of configs under equal budgets
   python -m nerf_jax.bench.render --workdir=runs/fast   # render speed and memory of a model
   python -m nerf_jax.bench.profile --config=fast        # where a train step's time goes
+  python -m nerf_jax.bench.standard --blender=DIR --out=runs/standard   # the papers' benchmarks
 
 command_line.py  how a command line runs (absl flags, --config and --config.FIELD overrides)
 cli.py           the sweep's command line (render.py and profile.py hold their own)
@@ -13,5 +14,7 @@ measure.py       the instruments: pausable clock, timed compiles and calls, matm
 report.py        results.md and the plots (matplotlib: the `bench` extra)
 render.py        frame, video and big-frame memory of a trained workdir
 profile.py       each stage of a train step timed alone
-docs/benchmark.md explains every number.
+standard.py      the standard benchmarks (NeRF-synthetic, LLFF, mip-NeRF 360, fox) by the papers'
+                 protocols on the archives as unpacked, beside the published figures
+docs/benchmark.md explains every number; docs/benchmarks.md the standard benchmarks.
 """

@@ -1,0 +1,215 @@
+"""The standard-benchmark command on tiny fake archives laid out as the real ones unpack:
+nerf_synthetic/lego (a built-in scene exported in the Blender format, with opacity) and
+nerf_llff_data/fern (a forward-facing scene exported in the LLFF format, with images_8/ cut
+here by block averages). Each run trains a few seconds of configs/debug.py.
+
+Checked: the rows' protocol fields (white background and test_every for NeRF-synthetic, the
+views every 8th held out for LLFF, the resolution the factor gives), that the runs scored the
+views the protocol names (metrics.json's per-view count), the results.md table with the
+published figures beside, one clear line for a missing folder or scene, and that --dry_run
+trains nothing.
+"""
+
+import json
+import os
+import subprocess
+import sys
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+from absl import flags
+
+from nerf_jax import cli
+from nerf_jax.backend import errors
+from nerf_jax.bench import standard
+from nerf_jax.data import scenes
+from nerf_jax.data.export import export_blender
+from nerf_jax.data.llff import export_llff
+from tests.helpers import ROOT, small_config
+
+BLENDER_VIEWS, BLENDER_TRAIN = 9, 4  # 4 train views, 5 test views (0..4)
+LLFF_VIEWS, LLFF_SIZE = 17, 128  # held out: 0, 8, 16; images_8/ of 16 x 16
+
+
+@pytest.fixture(scope="module")
+def archives(tmp_path_factory):
+  """{family: archive folder} of a fake nerf_synthetic (lego) and nerf_llff_data (fern)."""
+  root = tmp_path_factory.mktemp("archives")
+  lego = scenes.make_dataset("diffuse", BLENDER_VIEWS, 16, 16,
+                             focal=scenes.TINY_NERF_FOCAL * 16 / 100, pixel_center=0.5)
+  export_blender(lego, str(root / "nerf_synthetic" / "lego"), split_at=BLENDER_TRAIN,
+                 background=lego.background)  # alpha = opacity, as the real archive
+  fern = scenes.make_dataset("forward", LLFF_VIEWS, LLFF_SIZE, LLFF_SIZE,
+                             focal=scenes.TINY_NERF_FOCAL * LLFF_SIZE / 100, pixel_center=0.5)
+  folder = root / "nerf_llff_data" / "fern"
+  export_llff(fern, str(folder))
+  small = fern.images.reshape(LLFF_VIEWS, 16, 8, 16, 8, 3).mean((2, 4))  # 8 x 8 blocks
+  (folder / "images_8").mkdir()
+  for k, image in enumerate(small):
+    iio.imwrite(folder / "images_8" / f"{k:03d}.png", np.round(image * 255).astype(np.uint8))
+  return {"blender": str(root / "nerf_synthetic"), "llff": str(root / "nerf_llff_data")}
+
+
+def _command(argv, capsys):
+  """Run `python -m nerf_jax.bench.standard` with `argv` (its flags) in this process, on a
+  private FlagValues; (rows, printed text)."""
+  given = ["nerf_jax.bench.standard", *argv]
+  resolved, spec = cli.resolve_config_argv(standard.normalised_argv(given))
+  values = flags.FlagValues()
+  standard.define_standard_flags(values, resolved)
+  errors.parse_flags(resolved, values)
+  rows = standard.standard(values, spec, given)
+  return rows, capsys.readouterr().out
+
+
+@pytest.mark.slow  # trains two tiny runs
+def test_runs_each_protocol_and_records_it(archives, tmp_path, capsys):
+  out = tmp_path / "out"
+  rows, printed = _command(
+      [f"--blender={archives['blender']}", f"--llff={archives['llff']}", "--seconds=3",
+       "--test-every=2", "--config=configs/debug.py", f"--out={out}"], capsys)
+  lines = (out / "results.jsonl").read_text().splitlines()
+  assert [json.loads(l) for l in lines] == rows
+  lego, fern = rows
+  assert (lego["family"], lego["scene"], fern["family"], fern["scene"]) == (
+      "blender", "lego", "llff", "fern")
+
+  # NeRF-synthetic: test views 0, 2, 4 of the 5, scored on white, at full resolution.
+  assert lego["background"] == "white" and lego["test_every"] == 2
+  assert lego["half_res"] is False and lego["resolution"] == [16, 16]
+  assert lego["test_views"] == 3
+  with open(os.path.join(lego["workdir"], "config.json")) as f:
+    saved = json.load(f)
+  assert saved["data"]["background"] == "white" and saved["data"]["holdout_from"] == -1
+  assert 0 < saved["train"]["max_seconds"] == 3.0
+  with open(os.path.join(lego["workdir"], "metrics.json")) as f:
+    assert len(json.load(f)["per_view"]) == 3
+  with open(os.path.join(archives["blender"], "lego", "transforms_test.json")) as f:
+    test_frames = json.load(f)["frames"]
+  with open(os.path.join(lego["data"], "transforms_test.json")) as f:
+    chosen = json.load(f)["frames"]
+  # The subset names the archive's own images (nothing copied): test frames 0, 2 and 4.
+  expected = [os.path.join(archives["blender"], "lego", test_frames[k]["file_path"])
+              for k in (0, 2, 4)]
+  assert [os.path.normpath(f["file_path"]) for f in chosen] == [os.path.normpath(p)
+                                                               for p in expected]
+  assert not any(n.endswith(".png") for _, _, files in os.walk(out / "views") for n in files)
+
+  # LLFF: factor 8 (16 x 16 from 128 x 128), views 0, 8, 16 held out and scored.
+  assert fern["held_out"] == [0, 8, 16] and fern["test_views"] == 3
+  assert fern["resolution"] == [16, 16] and "test_every" not in fern
+  with open(os.path.join(fern["workdir"], "config.json")) as f:
+    assert json.load(f)["data"]["factor"] == 8
+
+  for row in rows:
+    assert row["seconds"] > 0 and row["steps"] >= 1
+    assert np.isfinite(row["psnr"]) and -1 <= row["ssim"] <= 1  # a few steps: any SSIM
+    assert "lpips" in row or row["lpips_missing"]  # 16-pixel images: LPIPS says why not
+    assert row["device"] and row["config"] == "debug" and row["date"]
+  assert "test views 0, 2, 4, ... (3 of 5) on white" in lego["protocol"]
+  assert "views 0, 8, 16, ... held out (3 of 17)" in fern["protocol"]
+  assert lego["published"] == {"psnr": 32.54, "ssim": 0.961, "lpips": 0.050,
+                               "source": standard.NERF_SOURCE}
+  assert fern["published"]["psnr"] == 25.17
+  table = (out / "results.md").read_text()
+  assert "| blender | lego |" in table and "| 32.54 |" in table and "| 25.17 |" in table
+  assert "fern" in printed
+
+
+def test_dry_run_lists_the_runs_and_trains_nothing(archives, tmp_path, capsys):
+  # A 360_v2/garden (images_4/) and instant-ngp's fox/transforms.json beside the fixture's two.
+  garden = tmp_path / "360_v2" / "garden"
+  garden.mkdir(parents=True)
+  table = np.load(os.path.join(archives["llff"], "fern", "poses_bounds.npy"))
+  np.save(garden / "poses_bounds.npy", table[:10])
+  (garden / "images_4").mkdir()
+  fox = tmp_path / "fox"
+  (fox / "images").mkdir(parents=True)
+  frames = []
+  for k in range(10):
+    iio.imwrite(garden / "images_4" / f"{k:03d}.png", np.zeros((24, 32, 3), np.uint8))
+    iio.imwrite(fox / "images" / f"{k:04d}.jpg", np.zeros((27, 48, 3), np.uint8))
+    frames.append({"file_path": f"images/{k:04d}.jpg", "transform_matrix": np.eye(4).tolist()})
+  (fox / "transforms.json").write_text(json.dumps({"camera_angle_x": 1.0, "frames": frames}))
+
+  out = tmp_path / "out"
+  rows, printed = _command([f"--llff={archives['llff']}", f"--blender={archives['blender']}",
+                            f"--m360={tmp_path / '360_v2'}", f"--fox={tmp_path}",
+                            "--scenes=fern,garden,fox", "--dry_run", f"--out={out}"], capsys)
+  assert rows == [] and not out.exists()
+  assert "blender/lego" not in printed
+  assert "llff/fern: LLFF: factor 8, 16x16, views 0, 8, 16, ... held out (3 of 17)" in printed
+  assert ("m360/garden: mip-NeRF 360: factor 4, 32x24, views 0, 8, 16, ... held out (2 of 10)"
+          in printed)
+  assert "fox/fox: instant-ngp fox as shipped: 48x27, views 0, 8, 16, ... held out (2 of 10)" \
+      in printed
+  assert "min" in printed
+
+
+@pytest.mark.slow  # the command in a process of its own
+@pytest.mark.parametrize("flag, expected", [
+    ("--blender={missing}", "{missing}: not found; expected the unpacked nerf_synthetic"),
+    ("--llff={llff} --scenes=horns",
+     "{llff}/horns/poses_bounds.npy: not found; expected the scene 'horns' of nerf_llff_data"),
+    ("--blender={blender} --scenes=fern", "--scenes: 'fern' is no scene of the archives given"),
+    ("--llff={llff}/fern", "--llff={llff}/fern is one scene's folder; give the nerf_llff_data "
+     "folder that holds it ({llff}) and --scenes=fern"),
+    ("--blender={blender} --m360={empty}",
+     "{empty}/bicycle: not found; expected a scene folder of 360_v2"),
+])
+def test_missing_folder_or_scene_is_one_line(archives, tmp_path, flag, expected):
+  paths = {"missing": str(tmp_path / "nowhere"), "llff": archives["llff"],
+           "blender": archives["blender"], "empty": str(tmp_path / "360_v2")}
+  (tmp_path / "360_v2").mkdir()
+  result = subprocess.run(
+      [sys.executable, "-m", "nerf_jax.bench.standard", *flag.format(**paths).split(),
+       f"--out={tmp_path / 'out'}", "--seconds=1"],
+      capture_output=True, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": ROOT},
+      check=False)
+  assert result.returncode == 1
+  lines = result.stderr.strip().splitlines()
+  assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
+  assert expected.format(**paths) in lines[0]
+  assert not (tmp_path / "out").exists()
+
+
+def test_published_figures_agree_with_the_papers_means():
+  """The per-scene figures average to NeRF's Table 1 (to its rounding)."""
+  for family, means in (("blender", (31.01, 0.947, 0.081)), ("llff", (26.50, 0.811, 0.250))):
+    table = np.array([v for (f, _), v in standard.PUBLISHED.items() if f == family])
+    assert table.shape == (8, 3)
+    # Table 1 rounds to 0.01 dB and 0.001: the means agree to half of that.
+    for column, mean, digit in zip(table.T, means, (0.01, 0.001, 0.001)):
+      np.testing.assert_allclose(column.mean(), mean, atol=0.5 * digit + 1e-9)
+
+
+def test_run_config_sets_the_protocol_and_auto_keeps_it():
+  base = small_config({"data.background": "black", "data.holdout_from": 10})
+  scene = standard.Scene("blender", "lego", "/data/nerf_synthetic/lego", 400, 400, 200, [0])
+  config = standard.run_config(base, scene, "/data/view", 7.0, True, ("train.batch_rays",))
+  assert (config.data.path, config.data.background, config.data.half_res) == (
+      "/data/view", "white", True)
+  assert config.data.holdout_from == -1 and config.train.max_seconds == 7.0
+  assert {"train.batch_rays", "data.background", "data.half_res", "data.path",
+          "train.max_seconds"} <= set(config.auto_flags)
+  assert base.data.background == "black" and base.data.path == ""  # the base is untouched
+  fern = standard.Scene("llff", "fern", "/data/nerf_llff_data/fern", 378, 504, 20, [0, 8, 16])
+  assert standard.run_config(base, fern, fern.path, 7.0, False).data.factor == 8
+
+
+def test_a_run_with_appearance_codes_says_how_its_views_were_scored():
+  saved = {"model": {"appearance_dims": 8}, "eval": {"appearance": "left_half"},
+           "auto_decisions": ["an object on a background"]}
+  choices = standard.run_choices(saved)
+  assert choices == {"background": None, "appearance_codes": {"dims": 8, "held_out": "left_half"},
+                     "auto_decisions": ["an object on a background"]}
+  assert standard.run_choices({"data": {"background": "white"}, "model": {"appearance_dims": 0},
+                              "eval": {}}) == {"background": "white"}
+  scene = standard.Scene("llff", "fern", "/data/fern", 378, 504, 20, [0, 8, 16])
+  metrics = {"psnr": 20.0, "ssim": 0.5, "steps": 10, "train_seconds": 3.0,
+             "lpips_skipped": "no weights", "per_view": [{}, {}, {}]}
+  row = standard.make_row(scene, metrics, {**choices, "protocol": standard.protocol(scene)})
+  assert row["protocol"].endswith("held-out views scored with eval.appearance=left_half")
+  assert row["lpips_missing"] == "no weights" and "lpips" not in row
+  assert row["held_out"] == [0, 8, 16] and row["test_views"] == 3
