@@ -13,7 +13,8 @@ coarsest, are open (BARF's coarse-to-fine α while poses are refined; None = all
 training).
 A field whose encoding reads cones (`cones`, from Rays.radii) is queried at the means of its
 samples' frustums with what the encoding reads of them, `per_sample` (`cone_inputs`): their
-Gaussians' diagonal variances (mip-NeRF's integrated encoding), or Zip-NeRF's six points and
+Gaussians' diagonal variances (mip-NeRF's integrated encoding; contracted from the full
+covariance, as mip-NeRF 360's), or Zip-NeRF's six points and
 their scales (antialiased lattices). Queried without them (the occupancy grid's, marching's and
 the viewer's probes: points with no interval) it sees points: variance 0, which is the point
 encoding exactly.
@@ -111,15 +112,18 @@ class Field:
   def gaussians(self, rays, t0, t1):
     """The Gaussians of the frustums [t0, t1) of `rays` [...] (with radii): (mean float32
     [..., S, 3] in world space, var float32 [..., S, 3] the covariances' diagonals in the
-    network's space: contracted by contraction.contract_gaussian_diagonal in an unbounded
-    scene). t0, t1: float32 [..., S]. Query `query(params, mean, ..., var=var)`."""
+    network's space: in an unbounded scene the diagonal of J Σ Jᵀ, the full covariance Σ
+    through the contraction's Jacobian J at the mean, as mip-NeRF 360's
+    (contraction.contract_frustum_gaussian)). t0, t1: float32 [..., S]. Query
+    `query(params, mean, ..., var=var)`."""
     if rays.radii is None:
       raise ValueError("a field of cones needs rays with radii (pixel_rays(..., with_radii=True))")
-    mean, var = cones.frustum_gaussians(rays.origins, rays.directions, rays.radii, t0, t1,
-                                        diagonal=True)
-    if self.contraction:
-      _, var = contraction.contract_gaussian_diagonal(mean, var, self.inner_radius,
-                                                      self.contraction)
+    if not self.contraction:
+      return cones.frustum_gaussians(rays.origins, rays.directions, rays.radii, t0, t1,
+                                     diagonal=True)
+    mean, t_var, r_var = cones.frustum_spreads(rays.origins, rays.directions, rays.radii, t0, t1)
+    _, var = contraction.contract_frustum_gaussian(mean, rays.directions[..., None, :], t_var,
+                                                   r_var, self.inner_radius, self.contraction)
     return mean, var
 
   def multisamples(self, rays, t0, t1):
