@@ -126,29 +126,36 @@ class Field:
                                                    r_var, self.inner_radius, self.contraction)
     return mean, var
 
-  def multisamples(self, rays, t0, t1):
+  def multisamples(self, rays, t0, t1, key=None):
     """Zip-NeRF's six points of each frustum [t0, t1) of `rays` [...] (with radii), or its mean
     alone (cones 'scales'), and their scales, in the network's space (contracted by
     contraction.contract_isotropic in an unbounded scene): (float32 [..., S, M, 3], float32
-    [..., S, M]), M = 6 or 1. t0, t1: float32 [..., S]."""
+    [..., S, M]), M = 6 or 1. t0, t1: float32 [..., S]. key: None (evaluation: every other
+    hexagon mirrored and turned by 30°, the same every time) or a PRNG key (training, Zip-NeRF's
+    jitter: each hexagon mirrored at random and turned by a uniform angle; cones.multisamples).
+    The mean alone has nothing to turn: 'scales' ignores the key."""
     if rays.radii is None:
       raise ValueError("a field of cones needs rays with radii (pixel_rays(..., with_radii=True))")
-    sampler = cones.centre_samples if self.cones == "scales" else cones.multisamples
-    points, std = sampler(rays.origins, rays.directions, rays.radii, t0, t1)
+    if self.cones == "scales":
+      points, std = cones.centre_samples(rays.origins, rays.directions, rays.radii, t0, t1)
+    else:
+      points, std = cones.multisamples(rays.origins, rays.directions, rays.radii, t0, t1, key)
     if self.contraction:
       points, std = contraction.contract_isotropic(points, std, self.inner_radius,
                                                    self.contraction)
     return points, std
 
-  def cone_inputs(self, rays, t0, t1):
+  def cone_inputs(self, rays, t0, t1, key=None):
     """(points float32 [..., S, 3], per_sample) of the frustums [t0, t1) of `rays` [...]: where
-    `query` queries them (their means, world space) and what the encoding reads of them."""
+    `query` queries them (their means, world space) and what the encoding reads of them.
+    key: PRNG key of the multisamples' random turns while training (`multisamples`), or None
+    (deterministic); a Gaussian has nothing random."""
     if self.cones == "gaussians":
       mean, var = self.gaussians(rays, t0, t1)
       return mean, {"var": var}
     t_mean = cones.frustum_moments(t0, t1)[0]
     mean = rays.origins[..., None, :] + rays.directions[..., None, :] * t_mean[..., None]
-    return mean, {"multisamples": self.multisamples(rays, t0, t1)}
+    return mean, {"multisamples": self.multisamples(rays, t0, t1, key)}
 
   def query(self, params, points, viewdirs, key=None, image=None, bands=None, per_sample=None):
     """Colour and density at sample points.
