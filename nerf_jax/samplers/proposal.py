@@ -204,9 +204,9 @@ class ProposalSampler(placement.Sampler):
   Each ray starts with settings.num_samples[0] intervals spaced as the Sampler's (linear in t
   inside the inner box and in disparity beyond with data.contraction, else stratified over the
   scene box); level k's density function weighs its intervals (volume/quadrature.weights),
-  and `resample`
-  draws the next level's edges from those weights (with a key as settings.resample says) (stop_gradient: no loss moves a proposal
-  through the placement); the last level's weights place the NeRF's `num_samples`. The levels'
+  and `resample` draws the next level's edges from those weights (with a key, as
+  settings.resample says; stop_gradient: no loss moves a proposal through the placement); the
+  last level's weights place the NeRF's `num_samples`. The levels'
   (t, weights) go to the renderer's outputs for `Interlevel`, which trains each level to bound
   the NeRF's weights; the NeRF's photometric loss gives the levels no gradient.
 
