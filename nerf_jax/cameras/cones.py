@@ -111,6 +111,22 @@ def frustum_gaussians(origins, directions, radii, t0, t1, diagonal=False):
   return mean + origins[..., None, :], cov
 
 
+def frustum_spreads(origins, directions, radii, t0, t1):
+  """mip-NeRF's Gaussian of each conical frustum in the ray's own axes: its mean, and its
+  variances along and across the ray, whose covariance `frustum_gaussians` forms as
+  t_var·d dᵀ + r_var·(I - d dᵀ/|d|^2) (`lift_gaussian`).
+
+  origins, directions: float32 [..., 3]. radii: float32 [...], base radii. t0, t1: float32
+  [..., S]. Returns (mean: float32 [..., S, 3], `frustum_gaussians`' bit for bit; t_var:
+  float32 [..., S], the variance of t; r_var: float32 [..., S], the offset's variance per axis
+  across the ray, times radii^2). contraction.contract_frustum_gaussian takes them.
+  """
+  t_mean, t_var, r_var = frustum_moments(t0, t1)
+  r_var = r_var * (radii * radii)[..., None]
+  mean = t_mean[..., None] * directions[..., None, :]  # as lift_gaussian, op for op
+  return mean + origins[..., None, :], t_var, r_var
+
+
 def centre_samples(origins, directions, radii, t0, t1):
   """Each frustum's mean as one multisample (Zip-NeRF's level weighting without multisampling).
 

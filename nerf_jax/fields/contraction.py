@@ -257,11 +257,51 @@ def contract_gaussian_diagonal(mean, var, radius=1.0, kind="l2"):
   Returns (contract(mean): float32 [..., 3], float32 [..., 3]): (J∘J)·var, a sum of
   non-negative terms, so >= 0 exactly. The off-diagonal terms J diag(var) Jᵀ would gain across
   the L2 contraction's curved shell are dropped: the integrated encoding reads only the
-  diagonal (each of its features depends on one coordinate).
+  diagonal (each of its features depends on one coordinate). Exact (to the linearisation) for a
+  Gaussian whose covariance is diagonal; for a frustum's, `contract_frustum_gaussian` keeps the
+  full covariance (what the Field uses).
   """
   jac = contraction_jacobian(mean, radius, kind)
   mean = _contract_outside(mean, _inside(mean, radius, kind), radius, kind)
   return mean, jnp.sum(jac * jac * var[..., None, :], axis=-1)
+
+
+def contract_frustum_gaussian(mean, directions, t_var, r_var, radius=1.0, kind="l2"):
+  """mip-NeRF 360's contracted Gaussian of a conical frustum, as the integrated encoding reads it.
+
+  The frustum's full covariance (cameras/cones.lift_gaussian) is
+    Σ = t_var·d dᵀ + r_var·(I - d dᵀ/|d|^2),
+  its spread along the ray and across it; through the contraction it becomes J Σ Jᵀ (J at the
+  mean, as `contract_gaussian`), and the integrated encoding reads its diagonal:
+    diag(J Σ Jᵀ)_i = t_var·(J d)_i^2 + r_var·|P_i|^2,  P = J - (J d) dᵀ/|d|^2,
+  P's rows those of J with their component along d removed (J times the projector across the
+  ray, which is its own square). Both terms are sums of squares: >= 0 exactly, with no 3x3
+  product formed and no matmul (elementwise float32, whatever the backend's matmul precision).
+
+  mean: float32 [..., 3], the frustum's mean (world space). directions: float32 [..., 3], the
+  ray's d (un-normalised; broadcast against mean). t_var, r_var: float32 [...], the variance of
+  t along the ray and of the offset across it per axis (cones.frustum_moments, r_var already
+  times radius^2), >= 0. radius, kind: as `contract`.
+  Returns (contract(mean): float32 [..., 3], the diagonal of J Σ Jᵀ: float32 [..., 3], >= 0).
+
+  Unlike `contract_gaussian_diagonal` of Σ's diagonal, this keeps Σ's off-diagonal terms: on a
+  ray oblique to the axes, far outside the inner region, the long axis of a frustum's Gaussian
+  (along the ray, nearly radial there) is squeezed by the radial ~1/|x|^2 of J, whereas its
+  diagonal alone spreads that variance over every axis, to be squeezed only by the tangential
+  ~1/|x| (tests/fields/test_contract_gaussians.py measures both against a Monte Carlo).
+  """
+  jac = contraction_jacobian(mean, radius, kind)  # [..., 3, 3], finite (see above)
+  d = jnp.broadcast_to(jnp.asarray(directions, jnp.float32), jac.shape[:-1])
+  jd = jnp.sum(jac * d[..., None, :], axis=-1)  # J d: [..., 3]
+  d_sq = jnp.sum(d * d, axis=-1)
+  # A zero direction has no axis: a double where divides by 1 there (P = J, the Gaussian
+  # isotropic, as lift_gaussian makes it) instead of by 0, whose gradient would be inf·0 = NaN.
+  d_sq = jnp.where(d_sq > 1e-18, d_sq, 1.0)  # cones.TINY_SQUARE (lengths below ~1e-9)
+  across = jac - jd[..., :, None] * (d / d_sq[..., None])[..., None, :]  # P: [..., 3, 3]
+  var = (t_var[..., None] * jd * jd
+         + r_var[..., None] * jnp.sum(across * across, axis=-1))
+  mean = _contract_outside(mean, _inside(mean, radius, kind), radius, kind)
+  return mean, var
 
 
 def contract_isotropic(mean, std, radius=1.0, kind="l2"):

@@ -13,8 +13,9 @@ coarsest, are open (BARF's coarse-to-fine α while poses are refined; None = all
 training).
 A field whose encoding reads cones (`cones`, from Rays.radii) is queried at the means of its
 samples' frustums with what the encoding reads of them, `per_sample` (`cone_inputs`): their
-Gaussians' diagonal variances (mip-NeRF's integrated encoding), or Zip-NeRF's six points and
-their scales (antialiased lattices). Queried without them (the occupancy grid's, marching's and
+Gaussians' diagonal variances (mip-NeRF's integrated encoding; contracted from the full
+covariance, as mip-NeRF 360's), or Zip-NeRF's six points and their scales (antialiased
+lattices; turned at random while training, with a key). Queried without them (the occupancy grid's, marching's and
 the viewer's probes: points with no interval) it sees points: variance 0, which is the point
 encoding exactly.
 """
@@ -111,42 +112,52 @@ class Field:
   def gaussians(self, rays, t0, t1):
     """The Gaussians of the frustums [t0, t1) of `rays` [...] (with radii): (mean float32
     [..., S, 3] in world space, var float32 [..., S, 3] the covariances' diagonals in the
-    network's space: contracted by contraction.contract_gaussian_diagonal in an unbounded
-    scene). t0, t1: float32 [..., S]. Query `query(params, mean, ..., var=var)`."""
+    network's space: in an unbounded scene the diagonal of J Σ Jᵀ, the full covariance Σ
+    through the contraction's Jacobian J at the mean, as mip-NeRF 360's
+    (contraction.contract_frustum_gaussian)). t0, t1: float32 [..., S]. Query
+    `query(params, mean, ..., var=var)`."""
     if rays.radii is None:
       raise ValueError("a field of cones needs rays with radii (pixel_rays(..., with_radii=True))")
-    mean, var = cones.frustum_gaussians(rays.origins, rays.directions, rays.radii, t0, t1,
-                                        diagonal=True)
-    if self.contraction:
-      _, var = contraction.contract_gaussian_diagonal(mean, var, self.inner_radius,
-                                                      self.contraction)
+    if not self.contraction:
+      return cones.frustum_gaussians(rays.origins, rays.directions, rays.radii, t0, t1,
+                                     diagonal=True)
+    mean, t_var, r_var = cones.frustum_spreads(rays.origins, rays.directions, rays.radii, t0, t1)
+    _, var = contraction.contract_frustum_gaussian(mean, rays.directions[..., None, :], t_var,
+                                                   r_var, self.inner_radius, self.contraction)
     return mean, var
 
-  def multisamples(self, rays, t0, t1):
+  def multisamples(self, rays, t0, t1, key=None):
     """Zip-NeRF's six points of each frustum [t0, t1) of `rays` [...] (with radii), or its mean
     alone (cones 'scales'), and their scales, in the network's space (contracted by
     contraction.contract_isotropic in an unbounded scene): (float32 [..., S, M, 3], float32
     [..., S, M]), M = 6 or 1; the scales times cones.UNSCENTED_SCALE_MULT, as Zip-NeRF's level
-    weights read them. t0, t1: float32 [..., S]."""
+    weights read them. t0, t1: float32 [..., S]. key: None (evaluation: every other hexagon
+    mirrored and turned by 30°, the same every time) or a PRNG key (training, Zip-NeRF's
+    jitter: each hexagon mirrored at random and turned by a uniform angle; cones.multisamples).
+    The mean alone has nothing to turn: 'scales' ignores the key."""
     if rays.radii is None:
       raise ValueError("a field of cones needs rays with radii (pixel_rays(..., with_radii=True))")
-    sampler = cones.centre_samples if self.cones == "scales" else cones.multisamples
-    points, std = sampler(rays.origins, rays.directions, rays.radii, t0, t1)
+    if self.cones == "scales":
+      points, std = cones.centre_samples(rays.origins, rays.directions, rays.radii, t0, t1)
+    else:
+      points, std = cones.multisamples(rays.origins, rays.directions, rays.radii, t0, t1, key)
     std = cones.UNSCENTED_SCALE_MULT * std  # a Python float: std stays float32
     if self.contraction:
       points, std = contraction.contract_isotropic(points, std, self.inner_radius,
                                                    self.contraction)
     return points, std
 
-  def cone_inputs(self, rays, t0, t1):
+  def cone_inputs(self, rays, t0, t1, key=None):
     """(points float32 [..., S, 3], per_sample) of the frustums [t0, t1) of `rays` [...]: where
-    `query` queries them (their means, world space) and what the encoding reads of them."""
+    `query` queries them (their means, world space) and what the encoding reads of them.
+    key: PRNG key of the multisamples' random turns while training (`multisamples`), or None
+    (deterministic); a Gaussian has nothing random."""
     if self.cones == "gaussians":
       mean, var = self.gaussians(rays, t0, t1)
       return mean, {"var": var}
     t_mean = cones.frustum_moments(t0, t1)[0]
     mean = rays.origins[..., None, :] + rays.directions[..., None, :] * t_mean[..., None]
-    return mean, {"multisamples": self.multisamples(rays, t0, t1)}
+    return mean, {"multisamples": self.multisamples(rays, t0, t1, key)}
 
   def query(self, params, points, viewdirs, key=None, image=None, bands=None, per_sample=None):
     """Colour and density at sample points.

@@ -33,6 +33,9 @@ from nerf_jax.samplers.placement import Sampler
 SAMPLER_KEY = 0x5A4D
 # fold_in(key, TRANSIENT_KEY) is the key of the transient head's parameters.
 TRANSIENT_KEY = 0x7A11
+# fold_in(key, MULTISAMPLE_KEY) of a pass's key turns its frustums' multisamples (Zip-NeRF's
+# training jitter; a fold_in, not a split, so the pass's density noise keeps its key).
+MULTISAMPLE_KEY = 0x6E7
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,7 +132,8 @@ class RayRenderer:
       if budget or (self.colour_fraction > 0 and self.field.splits_density):
         raise ValueError("a field of cones ('ipe', or a lattice's antialias) does not work with "
                          "config.train.sample_budget or config.model.colour_fraction yet")
-      points, per_sample = self.field.cone_inputs(rays, *sample_intervals(samples))
+      cone_key = None if key is None else jax.random.fold_in(key, MULTISAMPLE_KEY)
+      points, per_sample = self.field.cone_inputs(rays, *sample_intervals(samples), cone_key)
     if transient_params is not None and (budget or self.colour_fraction > 0):
       raise ValueError("config.model.transient does not work with config.train.sample_budget "
                        "or config.model.colour_fraction yet: set them to 0")
@@ -231,7 +235,8 @@ class RayRenderer:
 
     variables: see the module docstring. rays: Rays [...] (rays.image: each ray's training
     image, for its appearance code; None = the mean code). key: PRNG key for stratified jitter,
-    resampling and density noise; None renders deterministically. background: None or float32
+    resampling, density noise and the multisamples' turns (Field.cone_inputs); None renders
+    deterministically. background: None or float32
     broadcastable to [..., 3]. remat_chunk: rays per recomputed field chunk of a pass
     (Field.query_in_chunks; training sets it, 0 = one call). bands: float32 [] or None,
     positional-encoding bands open (BARF; None = all). See field.py.

@@ -103,26 +103,39 @@ def interlevel_loss(t, w, t_env, w_env):
   return jnp.sum(excess * excess / (w + _EPS), axis=-1)
 
 
-def resample(t, w, num_samples, key=None, padding=0.01):
+def resample(t, w, num_samples, key=None, padding=0.01, method="sorted_uniform"):
   """The next level's edges, drawn from the step function (t, w): float32 [..., N + 1].
 
   t: float32 [..., S + 1] sorted edges. w: float32 [..., S] weights >= 0. num_samples: int N >= 1.
   key: PRNG key, or None for deterministic edges. padding: float, added to every non-empty
   interval's weight before normalising (`spacing.sample_pdf`; 0.01 as nerfacto's).
+  method: how a key draws the points (RESAMPLE_METHODS; Settings.resample).
   Returns sorted edges with t_0 and t_S exactly at the ends, gradients stopped.
 
-  N points are drawn with `spacing.sample_pdf` (key None: at the quantiles (k + 1/2)/N; with a
-  key: at N sorted uniform draws) and the interior edges are the midpoints between consecutive
-  points: where both lie in one interval of (t, w), at the quantile k/N, so each new interval
-  holds ~1/N of the (padded) weight. Zero-width intervals get no points (sample_pdf), all-zero
+  N points are drawn with `spacing.sample_pdf` and the interior edges are the midpoints between
+  consecutive points. Key None: the points at the quantiles (k + 1/2)/N, so an edge whose two
+  points lie in one interval of (t, w) is at the quantile k/N. With a key, 'sorted_uniform'
+  (NeRF's): N uniform draws, sorted, whose gaps (and so the new intervals' weights) vary about
+  as much as their mean 1/N; 'jittered_grid' (mip-NeRF 360's, nerfacto's): the quantiles
+  (k + δ)/N with one δ ~ U[0, 1) per ray, so every interior interval holds 1/N of the (padded)
+  weight, as without a key (where its two points share an interval of (t, w); the first holds
+  (1/2 + δ)/N, the last (3/2 - δ)/N). Zero-width intervals get no points (sample_pdf), all-zero
   weights give points evenly spread over the intervals (padding > 0) or over t (padding = 0).
   """
+  if method not in RESAMPLE_METHODS:
+    raise ValueError(f"resample method {method!r} is not one of {', '.join(RESAMPLE_METHODS)}")
   t = jax.lax.stop_gradient(t)
-  points = spacing.sample_pdf(t, w, num_samples, key, padding)  # sorted, in [t_0, t_S]
+  points = spacing.sample_pdf(t, w, num_samples, key, padding,
+                              jittered_grid=method == "jittered_grid")  # sorted, in [t_0, t_S]
   # 0.5·(a + b) lies in [a, b] for floats a <= b (rounding is monotone, halving a normal float is
   # exact, no overflow for edges <= 1e10), so the edges stay sorted and inside [t_0, t_S].
   inner = 0.5 * (points[..., 1:] + points[..., :-1])
   return jnp.concatenate([t[..., :1], inner, t[..., -1:]], axis=-1)
+
+
+# How `resample` draws with a key (Settings.resample): NeRF's sorted uniforms, or mip-NeRF 360's
+# (and nerfacto's) evenly spaced grid shifted by one random offset per ray.
+RESAMPLE_METHODS = ("sorted_uniform", "jittered_grid")
 
 
 # The sampler.
@@ -143,6 +156,7 @@ class Settings:
   hidden: int = 16  # units of the density fields' one hidden layer
   loss_weight: float = 1.0  # weight of the interlevel loss that trains the proposals (0: never)
   padding: float = 0.01  # weight added to every interval before resampling the next level
+  resample: str = "sorted_uniform"  # 'sorted_uniform' (NeRF's) or 'jittered_grid' (mip-NeRF 360)
 
   def __post_init__(self):
     problem = _problem(self)
@@ -166,6 +180,8 @@ def _problem(s):
     return f"num_samples={s.num_samples}: one count >= 1 per proposal level, e.g. (256, 96)"
   if s.field not in FIELDS:
     return f"field={s.field!r}: use one of {', '.join(map(repr, FIELDS))}"
+  if s.resample not in RESAMPLE_METHODS:
+    return f"resample={s.resample!r}: use one of {', '.join(map(repr, RESAMPLE_METHODS))}"
   if len(s.max_resolution) != len(s.num_samples):
     return (f"max_resolution={s.max_resolution}: one per proposal level "
             f"({len(s.num_samples)}, as num_samples)")
@@ -188,9 +204,9 @@ class ProposalSampler(placement.Sampler):
   Each ray starts with settings.num_samples[0] intervals spaced as the Sampler's (linear in t
   inside the inner box and in disparity beyond with data.contraction, else stratified over the
   scene box); level k's density function weighs its intervals (volume/quadrature.weights),
-  and `resample`
-  draws the next level's edges from those weights (stop_gradient: no loss moves a proposal
-  through the placement); the last level's weights place the NeRF's `num_samples`. The levels'
+  and `resample` draws the next level's edges from those weights (with a key, as
+  settings.resample says; stop_gradient: no loss moves a proposal through the placement); the
+  last level's weights place the NeRF's `num_samples`. The levels'
   (t, weights) go to the renderer's outputs for `Interlevel`, which trains each level to bound
   the NeRF's weights; the NeRF's photometric loss gives the levels no gradient.
 
@@ -257,7 +273,7 @@ class ProposalSampler(placement.Sampler):
       sigma = density(placement.points(rays, spacing.midpoints(t)))
       w = quadrature.weights(placement.per_unit_t(sigma, rays), t, exact_derivative=False)
       levels.append({"t": t, "weights": w})
-      t = resample(t, w, count, level_key, self.settings.padding)
+      t = resample(t, w, count, level_key, self.settings.padding, self.settings.resample)
     return placement.on_edges(t), {"proposals": tuple(levels)}
 
   def _initial_edges(self, rays, count, key):

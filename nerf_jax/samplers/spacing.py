@@ -150,12 +150,15 @@ def unbounded_unit(t, near, t_inner, far, inner_fraction=0.5):
   return jnp.clip(jnp.where(t <= t_in, linear, disparity), 0.0, 1.0)
 
 
-def sample_pdf(t, weights, num_samples, key=None, padding=0.01):
+def sample_pdf(t, weights, num_samples, key=None, padding=0.01, jittered_grid=False):
   """Draw new distances by inverse-CDF sampling of a piecewise-constant density.
 
   t: float32 [..., S + 1] interval edges. weights: float32 [..., S] non-negative weight of each
   interval. num_samples: int N. key: PRNG key, or None for the deterministic quantiles
   (u = (k + 0.5)/N). padding: float, added to every weight before normalising.
+  jittered_grid: with a key, the quantiles u = (k + δ)/N, one δ ~ U[0, 1) per ray (the grid
+  shifted at random: mip-NeRF 360's and nerfacto's single jitter, multinerf's
+  stepfun.sample(single_jitter=True)); False: N independent uniforms, sorted (NeRF's).
   Returns float32 [..., N] sorted distances inside [t_0, t_S], with gradients stopped.
 
   Safety: `padding` keeps the density strictly positive, so all-zero weights give uniform samples
@@ -186,6 +189,11 @@ def sample_pdf(t, weights, num_samples, key=None, padding=0.01):
   if key is None:
     u = (jnp.arange(num_samples, dtype=jnp.float32) + 0.5) / num_samples
     u = jnp.broadcast_to(u, (*batch_shape, num_samples))
+  elif jittered_grid:
+    # (k + δ)/N < 1 for δ < 1; rounding can reach 1 at k = N - 1 for large N, which _invert_cdf
+    # takes (u == 1 lands on t_S).
+    offset = draws.uniform(key, (*batch_shape, 1), jnp.float32)
+    u = (jnp.arange(num_samples, dtype=jnp.float32) + offset) / num_samples
   else:
     u = draws.uniform(key, (*batch_shape, num_samples), jnp.float32)
   samples = _invert_cdf(u, t, cdf)

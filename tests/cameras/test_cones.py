@@ -64,6 +64,14 @@ def test_frustum_gaussian_matches_monte_carlo(frustum):
   np.testing.assert_array_less(np.abs(g_mean[0] - mean), mean_tol + 1e-6 * (1 + scale))
   np.testing.assert_array_less(np.abs(g_cov[0] - cov), cov_tol + 1e-6 * scale ** 2)
   np.testing.assert_allclose(g_var[0], np.diag(g_cov[0]), rtol=1e-6, atol=1e-12)
+  # frustum_spreads: the same mean bit for bit, and the same covariance lifted from its
+  # variances along and across the ray (what the contracted field takes).
+  s_mean, t_var, r_var = cones.frustum_spreads(*args)
+  np.testing.assert_array_equal(s_mean, g_mean)
+  d = np.asarray(direction, np.float64)
+  outer = np.outer(d, d)
+  lifted = t_var[0] * outer + r_var[0] * (np.eye(3) - outer / (d @ d))
+  np.testing.assert_allclose(lifted, g_cov[0], rtol=1e-5, atol=1e-6 * scale ** 2)
 
 
 def test_frustum_moments_match_the_expanded_formulas_and_stay_stable():

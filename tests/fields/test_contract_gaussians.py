@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from nerf_jax.cameras import cones
 from nerf_jax.fields import contraction
 
 pytestmark = pytest.mark.usefixtures("debug_nans")  # conftest.py: NaNs raise in this module
@@ -149,6 +150,20 @@ def test_gradients_are_finite_at_the_origin_the_boundary_and_far_away(kind):
     value, grads = jax.value_and_grad(fn, argnums=(0, 1))(means, second)
     assert np.isfinite(value) and all(np.all(np.isfinite(g)) for g in grads), fn.__name__
 
+  # The frustums' form, w.r.t. every input: oblique and axis-aligned rays, a zero direction,
+  # a needle (r_var = 0) and a point (both 0), out to 1e30.
+  dirs = jnp.float32([[0.8, -0.5, 0.45], [1, 0, 0], [0, 0, 0], [-0.3, 0.4, 1.0],
+                      [1, 0, 0], [-3, 4, 10], [1, 2, -1], [0.8, -0.5, 0.45]])
+  t_var = jnp.float32([1e-2, 0.0, 1.0, 1e3, 1e6, 1e2, 1e10, 1e-4])
+  r_var = jnp.float32([1e-4, 0.0, 1.0, 0.0, 1e-2, 1e-6, 1e4, 1e-6])
+
+  def frustum(m, d, a, b):
+    mean, out = contraction.contract_frustum_gaussian(m, d, a, b, RADIUS, kind)
+    return jnp.sum(mean) + jnp.sum(out)
+
+  value, grads = jax.value_and_grad(frustum, argnums=(0, 1, 2, 3))(means, dirs, t_var, r_var)
+  assert np.isfinite(value) and all(np.all(np.isfinite(g)) for g in grads)
+
 
 @pytest.mark.parametrize("kind", KINDS)
 def test_isotropic_scale_is_the_cube_root_of_the_jacobian_determinant(kind):
@@ -178,3 +193,76 @@ def test_isotropic_scale_is_the_cube_root_of_the_jacobian_determinant(kind):
   det = np.abs(np.linalg.det(reference_jacobian(means[ok], RADIUS, kind)))
   np.testing.assert_allclose(out[ok], std[ok] * np.cbrt(det), rtol=1e-4)
   assert out[3] < 1e-30  # |x| ~ 1e30: (2/|x|^2)^(1/3)·... ~ 1e-40, finite
+
+
+# mip-NeRF 360's contracted frustum Gaussians (contract_frustum_gaussian, what the Field uses):
+# the full covariance through J, against a Monte Carlo of the Gaussian's samples pushed through
+# `contract`, on rays oblique to the axes far outside the inner region. The cases: (distance of
+# the frustum's start along the ray, t1/t0, base radius). Thin cones and long intervals make
+# the Gaussian a needle along the ray (t_var/r_var from ~130 to ~3e4), which the contraction
+# squeezes by its radial ~1/|x|^2; Σ's diagonal alone spreads the needle over every axis,
+# squeezed only by the tangential ~1/|x| (27x to 3e4x too large, measured here).
+FRUSTUMS = [(10.0, 1.02, 1e-3), (100.0, 1.02, 1e-4), (1e4, 1.05, 1e-4)]
+OBLIQUE = np.float32([0.8, -0.5, 0.45])  # a ray direction (un-normalised) off every axis
+
+
+def frustum_covariance(directions, t_var, r_var):
+  """float64 [3, 3]: t_var·d dᵀ + r_var·(I - d dᵀ/|d|^2), written out."""
+  d = np.asarray(directions, np.float64)
+  dd = np.outer(d, d)
+  return t_var * dd + r_var * (np.eye(3) - dd / (d @ d))
+
+
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("distance, stretch, base_radius", FRUSTUMS)
+def test_frustum_gaussian_matches_monte_carlo_and_the_diagonal_form_does_not(
+    kind, distance, stretch, base_radius):
+  """Tolerance: 5 standard errors of the Monte Carlo variance plus 1% (the linearisation's
+  error is of relative order (std/distance)^2·(curvature)^2 < 1e-3 here; measured: within
+  0.75%). The old form (the diagonal of Σ through J) is more than 20x too large on some axis."""
+  origin = np.float32([0.3, -0.2, 0.1])
+  t0 = np.float32([distance / np.linalg.norm(OBLIQUE)])
+  mean, t_var, r_var = cones.frustum_spreads(origin, OBLIQUE, np.float32(base_radius), t0,
+                                             t0 * np.float32(stretch))
+  mean, t_var, r_var = mean[0], t_var[0], r_var[0]
+  cov = frustum_covariance(OBLIQUE, float(t_var), float(r_var))
+  rng = np.random.default_rng(4)
+  x = rng.multivariate_normal(np.asarray(mean, np.float64), cov, size=200_000)
+  y = np.asarray(contraction.contract(np.float32(x), RADIUS, kind), np.float64)
+  c = y - y.mean(0)
+  mc = np.mean(c * c, axis=0)
+  stderr = np.std(c * c, axis=0) / np.sqrt(len(y))
+  got_mean, got = contraction.contract_frustum_gaussian(mean, OBLIQUE, t_var, r_var, RADIUS,
+                                                        kind)
+  np.testing.assert_array_equal(got_mean, contraction.contract(mean, RADIUS, kind))
+  np.testing.assert_array_less(np.abs(np.asarray(got, np.float64) - mc), 5 * stderr + 1e-2 * mc)
+  _, old = contraction.contract_gaussian_diagonal(mean, np.float32(np.diag(cov)), RADIUS, kind)
+  assert np.max(np.asarray(old, np.float64) / mc) > 20.0
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_frustum_gaussian_is_the_diagonal_of_the_full_form(kind):
+  """Against diag(J Σ Jᵀ) with Σ written out and the product taken in float64 (J the library's
+  contraction_jacobian), over random means from the origin to 1e6·RADIUS and beyond, random
+  directions (one zero: Σ isotropic) and variances, needles (r_var = 0) among them; >= 0
+  exactly. (In float32 the full product is the less accurate one: for a needle far out, the
+  rounding of Σ's large t_var·d dᵀ, ~1e-7 of it, reaches the axes J squeezes only by 1/|x|.)"""
+  means, _ = random_gaussians(5)
+  rng = np.random.default_rng(5)
+  dirs = np.float32(rng.normal(size=means.shape) * 10.0 ** rng.uniform(-1, 1, (len(means), 1)))
+  dirs[7] = 0.0
+  t_var = np.float32(10.0 ** rng.uniform(-6, 2, len(means)))
+  r_var = np.float32(10.0 ** rng.uniform(-6, 2, len(means)))
+  r_var[::5] = 0.0  # a ray of radius 0: a needle
+  mean, var = contraction.contract_frustum_gaussian(means, dirs, t_var, r_var, RADIUS, kind)
+  np.testing.assert_array_equal(mean, contraction.contract(means, RADIUS, kind))
+  var = np.asarray(var, np.float64)
+  assert np.all(np.isfinite(var)) and np.all(var >= 0.0)
+  cov = np.stack([frustum_covariance(d, a, b) if np.any(d) else b * np.eye(3)
+                  for d, a, b in zip(dirs, t_var, r_var)])
+  jac = np.asarray(contraction.contraction_jacobian(means, RADIUS, kind), np.float64)
+  want = np.einsum("nij,njk,nik->ni", jac, cov, jac)
+  # Each term of the float32 sums is rounded to ~1e-7 relative: compared to the largest term,
+  # (J∘J)·(t_var·|d|^2 + r_var), per axis.
+  scale = np.sum(jac * jac, axis=-1) * (t_var * np.sum(np.float64(dirs) ** 2, -1) + r_var)[:, None]
+  np.testing.assert_array_less(np.abs(var - want), 1e-5 * scale + 1e-37)

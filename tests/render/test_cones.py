@@ -38,8 +38,9 @@ def _rays(num=6, radius=0.01, near=2.0, far=6.0, seed=0):
   return rays.replace(radii=jnp.full(rays.shape, radius, jnp.float32))
 
 
-def _frustum_reference(o, d, radius, t0, t1):
-  """float64 (mean [..., S, 3], diagonal variance [..., S, 3]) of each frustum, from the
+def _frustum_reference(o, d, radius, t0, t1, full=False):
+  """float64 (mean [..., S, 3], diagonal variance [..., S, 3], or with `full` the covariance
+  [..., S, 3, 3] t_var·d dᵀ + r_var·(I - d dᵀ/|d|^2)) of each frustum, from the
   expanded moments of t under the density t^2 on [t0, t1] (mip-NeRF's eq. 7 before its
   rewriting): E[t] = 3/4·(t1^4 - t0^4)/(t1^3 - t0^3), E[t^2] = 3/5·(t1^5 - t0^5)/(t1^3 - t0^3),
   and the offset across the ray of variance radius^2·E[t^2]/4 per axis (a disc of radius
@@ -50,10 +51,16 @@ def _frustum_reference(o, d, radius, t0, t1):
   t_mean = 0.75 * (t1 ** 4 - t0 ** 4) / cubes
   t_sq = 0.6 * (t1 ** 5 - t0 ** 5) / cubes
   r_var = np.asarray(radius, np.float64)[:, None] ** 2 * t_sq / 4.0
+  mean = o + t_mean[..., None] * d
+  if full:
+    outer = d[..., :, None] * d[..., None, :]
+    cov = ((t_sq - t_mean ** 2)[..., None, None] * outer
+           + r_var[..., None, None] * (np.eye(3) - outer / np.sum(d * d, axis=-1)[..., None, None]))
+    return mean, cov
   dd = d * d
   var = ((t_sq - t_mean ** 2)[..., None] * dd
          + r_var[..., None] * (1.0 - dd / np.sum(dd, axis=-1, keepdims=True)))
-  return o + t_mean[..., None] * d, var
+  return mean, var
 
 
 def _contract_reference(x, radius):
@@ -98,20 +105,25 @@ def test_field_gaussians_are_the_frustums_of_the_intervals():
 
 
 def test_field_gaussians_in_contracted_space_are_the_linearised_contraction():
+  """mip-NeRF 360's: the full covariance through J, then its diagonal (not Σ's diagonal
+  through J, which the thin far frustums here make up to ~30x too large)."""
   radius = 1.0
   field = _field(**{"data.contraction": "l2", "data.scene_bound": radius, "num_fine_samples": 0})
   rays = _rays(radius=0.02)
   t = jnp.asarray(np.geomspace(3.0, 40.0, 7)[None].repeat(6, 0), jnp.float32)
-  _, var = jax.jit(field.gaussians)(rays, t[:, :-1], t[:, 1:])
-  ref_mean, ref_var = _frustum_reference(rays.origins, rays.directions, rays.radii, t[:, :-1],
-                                         t[:, 1:])
-  # J by central differences of the float64 contraction: var' = sum_k J_ik^2 var_k.
+  mean, var = jax.jit(field.gaussians)(rays, t[:, :-1], t[:, 1:])
+  ref_mean, ref_cov = _frustum_reference(rays.origins, rays.directions, rays.radii, t[:, :-1],
+                                         t[:, 1:], full=True)
+  np.testing.assert_allclose(mean, ref_mean, rtol=1e-5, atol=1e-5)  # world space
+  # J by central differences of the float64 contraction: var'_i = (J Σ Jᵀ)_ii.
   h = 1e-6 * np.maximum(np.linalg.norm(ref_mean, axis=-1), 1.0)[..., None]
   jac = np.stack([(_contract_reference(ref_mean + h * e, radius)
                    - _contract_reference(ref_mean - h * e, radius)) / (2 * h)
                   for e in np.eye(3)], axis=-1)  # [..., i, k]
-  want = np.sum(jac ** 2 * ref_var[..., None, :], axis=-1)
+  want = np.einsum("...ik,...kl,...il->...i", jac, ref_cov, jac)
   np.testing.assert_allclose(var, want, rtol=2e-3, atol=1e-9)
+  diagonal = np.sum(jac ** 2 * np.diagonal(ref_cov, axis1=-2, axis2=-1)[..., None, :], axis=-1)
+  assert np.max(diagonal / want) > 3.0  # the form the Field no longer uses
 
 
 def test_renderer_queries_the_gaussians_of_its_samples():
@@ -322,13 +334,67 @@ def test_antialiased_grid_has_finite_gradients(contraction, multisample):
   variables = renderer.init(jax.random.PRNGKey(0))
   rays = _rays(radius=0.02)
 
-  def loss(params, radii):
-    out = renderer.render({**variables, "params": params}, rays.replace(radii=radii))
+  def loss(params, radii):  # as training renders: with a key (the multisamples turned)
+    out = renderer.render({**variables, "params": params}, rays.replace(radii=radii),
+                          jax.random.PRNGKey(2))
     return jnp.sum(renderer_lib.final(out)["rgb"])
   value, grads = jax.jit(jax.value_and_grad(loss, argnums=(0, 1)))(variables["params"],
                                                                     rays.radii)
   assert np.isfinite(value)
   assert all(np.all(np.isfinite(g)) for g in jax.tree_util.tree_leaves(grads))
+
+
+def test_multisamples_turn_at_random_while_training_and_not_at_evaluation():
+  """Zip-NeRF's training jitter through the Field: cone_inputs without a key (evaluation) is
+  the deterministic hexagons of cones.multisamples(key=None) bit for bit, and the same twice;
+  with a key each frustum's hexagon is mirrored and turned at random: the same for one key,
+  different for another, the scales unchanged. Whatever the key, the six points keep the
+  frustum's moments, against the float64 moments written here (_frustum_reference): their mean
+  (to float32 rounding), their variance along the ray and their mean squared offset across it
+  (exactly, to rounding), and their covariance within the hexagon's own 0.65·hw/mu in whitened
+  terms (tests/cameras/test_cones.py measures that bound)."""
+  config = small_config({**TINY_LATTICE, "model.grid.antialias": True}, base="fast")
+  field = builders.make_ray_renderer(config).field
+  assert field.cones == "multisamples"
+  rays = _rays(radius=0.1)
+  t = jnp.sort(jnp.asarray(np.random.default_rng(7).uniform(2.0, 6.0, (6, 9)), jnp.float32))
+  t0, t1 = t[:, :-1], t[:, 1:]
+  draw = jax.jit(lambda key: field.cone_inputs(rays, t0, t1, key)[1]["multisamples"])
+  evaluation = draw(None)
+  # Op by op (no jit on either side: one compilation may fuse and round otherwise).
+  eager = field.cone_inputs(rays, t0, t1)[1]["multisamples"]
+  want = cones.multisamples(rays.origins, rays.directions, rays.radii, t0, t1)
+  for a, b, c in zip(eager, want, evaluation):
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_allclose(c, b, rtol=0, atol=1e-6 * np.abs(b).max())
+  np.testing.assert_array_equal(draw(None)[0], evaluation[0])
+  first, again, other = draw(jax.random.PRNGKey(0)), draw(jax.random.PRNGKey(0)), draw(
+      jax.random.PRNGKey(1))
+  np.testing.assert_array_equal(first[0], again[0])
+  moved = lambda a, b: np.linalg.norm(np.asarray(a) - np.asarray(b), axis=-1) > 1e-4
+  assert np.mean(moved(first[0], other[0])) > 0.9  # nearly every point elsewhere
+  assert np.mean(moved(first[0], evaluation[0])) > 0.9
+  np.testing.assert_array_equal(first[1], evaluation[1])  # scales: radius·t_j/sqrt(2)
+
+  ref_mean, ref_cov = _frustum_reference(rays.origins, rays.directions, rays.radii, t0, t1,
+                                         full=True)
+  d = np.asarray(rays.directions, np.float64)[:, None, :]
+  hw_over_mu = np.asarray((t1 - t0) / (t1 + t0), np.float64)
+  for points in (evaluation[0], first[0], other[0]):
+    points = np.asarray(points, np.float64)  # [6 rays, 8 frustums, 6 points, 3]
+    mean = points.mean(axis=-2)
+    np.testing.assert_allclose(mean, ref_mean, rtol=0, atol=1e-5 * np.abs(ref_mean).max())
+    c = points - mean[..., None, :]
+    cov = np.einsum("...ji,...jk->...ik", c, c) / 6.0
+    along = lambda m: np.einsum("...i,...ij,...j->...", d, m, d) / np.sum(d * d, -1)
+    np.testing.assert_allclose(along(cov), along(ref_cov), rtol=1e-3)
+    np.testing.assert_allclose(np.trace(cov, axis1=-2, axis2=-1),
+                               np.trace(ref_cov, axis1=-2, axis2=-1), rtol=1e-3)
+    # Whitened: the largest |eigenvalue| of C^(-1/2) (cov - C) C^(-1/2), C the reference.
+    w, v = np.linalg.eigh(ref_cov)
+    inv_sqrt = v @ (w[..., None] ** -0.5 * np.swapaxes(v, -1, -2))
+    err = np.max(np.abs(np.linalg.eigvalsh(inv_sqrt @ (cov - ref_cov) @ inv_sqrt)), axis=-1)
+    assert np.all(err <= 0.65 * hw_over_mu + 1e-3), np.max(err / hw_over_mu)
 
 
 def test_image_renderer_compiles_and_draws_rays_with_radii():

@@ -20,7 +20,7 @@ pytestmark = pytest.mark.usefixtures("debug_nans")  # conftest.py: a NaN anywher
 EPS = proposal._EPS  # pylint: disable=protected-access
 outer = jax.jit(proposal.outer)
 loss = jax.jit(proposal.interlevel_loss)
-resample = jax.jit(proposal.resample, static_argnums=(2,))
+resample = jax.jit(proposal.resample, static_argnums=(2,), static_argnames=("method",))
 loss_grads = jax.jit(jax.grad(lambda *a: jnp.sum(proposal.interlevel_loss(*a)), (0, 1, 2, 3)))
 
 
@@ -250,12 +250,13 @@ def _check_edges(new, t, n):
 
 
 @pytest.mark.parametrize("name, args", list(_hard_cases()))
-@pytest.mark.parametrize("seed", [None, 0])
-def test_resample_sorted_inside_and_ends_kept(name, args, seed):
+@pytest.mark.parametrize("seed, method", [(None, "sorted_uniform"), (0, "sorted_uniform"),
+                                          (0, "jittered_grid")])
+def test_resample_sorted_inside_and_ends_kept(name, args, seed, method):
   key = None if seed is None else jax.random.PRNGKey(seed)
   t, w = args[:2]
   for n in (1, N_NEW):
-    new = np.asarray(resample(t, w, n, key))
+    new = np.asarray(resample(t, w, n, key, method=method))
     _check_edges(new, t, n)
     assert np.all(np.isfinite(new)), name
 
@@ -298,6 +299,43 @@ def test_resample_concentrates_where_the_weight_is(seed):
   new = np.asarray(resample(t, w, n, key))
   share = np.mean(inside(new[:, 1:-1]))
   assert share > 1.01 / 1.16 - (0.03 if seed is None else 0.1), share
+
+
+def test_resampled_intervals_hold_equal_weight_on_the_jittered_grid():
+  """In the spirit of multinerf's test_sample_intervals_accuracy: over random step functions
+  (16 intervals of exponential widths, weights exp(2·N(0, 1)), no padding), the mass of each of
+  N = 128 resampled intervals, times N, against 1 (its share). The metric, mean |N·mass - 1|
+  over 256 rays and all intervals, measured: 'jittered_grid' 0.033 (as the deterministic
+  quantiles, 0.030: only the intervals whose midpoint edge falls between two points in
+  different intervals of the step function miss 1/N), 'sorted_uniform' 0.55 (the gaps of
+  sorted uniforms, exponential about 1/N)."""
+  rng = np.random.default_rng(6)
+  rays, s, n = 256, 16, 128
+  widths = rng.exponential(size=(rays, s))
+  t = np.float32(2.0 + np.concatenate([np.zeros((rays, 1)), np.cumsum(widths, -1)], -1))
+  w = np.float32(np.exp(2.0 * rng.normal(size=(rays, s))))
+
+  def shares(key, method):
+    new = np.asarray(resample(t, w, n, key, 0.0, method=method))
+    _check_edges(new, t, n)
+    return n * np.diff(np.stack([_mass(a, b, e) for a, b, e in zip(t, w, new)]), axis=-1)
+
+  key = jax.random.PRNGKey(7)
+  grid, uniform = shares(key, "jittered_grid"), shares(key, "sorted_uniform")
+  fixed = shares(None, "jittered_grid")
+  np.testing.assert_array_equal(fixed, shares(None, "sorted_uniform"))  # key None: one path
+  error = {name: np.mean(np.abs(x - 1.0)) for name, x in
+           (("jittered_grid", grid), ("sorted_uniform", uniform), ("none", fixed))}
+  assert error["jittered_grid"] < 0.1, error
+  assert error["jittered_grid"] < error["none"] + 0.01, error
+  assert error["sorted_uniform"] > 0.4, error
+  # One offset δ per ray, uniform in [0, 1): the first interval holds (1/2 + δ)/N (where its
+  # two points share an interval of the step function), spread over the rays as U[0.5, 1.5).
+  first = grid[:, 0]
+  assert abs(np.median(first) - 1.0) < 0.1 and 0.2 < np.std(first) < 0.45, (first.mean(),
+                                                                              first.std())
+  with pytest.raises(ValueError, match="resample"):
+    proposal.Settings(resample="stratified")
 
 
 def test_resample_keys_and_stopped_gradients():

@@ -203,12 +203,30 @@ def test_photometric_loss_trains_the_nerf_and_interlevel_the_proposals_only(rend
   assert nonzero(colour["coarse"]) and not nonzero(interlevel["coarse"])
 
 
+def test_the_resample_setting_reaches_the_levels():
+  """proposal.resample = 'jittered_grid' (mip-NeRF 360's draws): without a key the samples are
+  the default's bit for bit (the deterministic quantiles); with a key they are not the sorted
+  uniforms' of the same key."""
+  samplers = [builders.make_ray_renderer(_config("linf", **fields)).sampler
+              for fields in ({}, {"proposal.resample": "jittered_grid"})]
+  assert [s.settings.resample for s in samplers] == ["sorted_uniform", "jittered_grid"]
+  rays = _rays()
+  density = lambda points: jnp.full(points.shape[:-1], 0.3, jnp.float32)
+  place = jax.jit(lambda key, s: s.generate_from(rays, [density, density], key)[0].t,
+                  static_argnums=1)
+  np.testing.assert_array_equal(place(None, samplers[0]), place(None, samplers[1]))
+  key = jax.random.PRNGKey(4)
+  default, grid = place(key, samplers[0]), place(key, samplers[1])
+  assert np.all(np.diff(np.asarray(grid), axis=-1) >= 0) and not np.allclose(default, grid)
+
+
 @pytest.mark.parametrize("fields, match", [
     ({"sampler": "nope"}, "config.sampler must be one of placement, proposal"),
     ({"proposal.max_resolution": (64,)}, "config.proposal.max_resolution"),
     ({"proposal.num_samples": (32, 0)}, "config.proposal.num_samples"),
     ({"proposal.padding": -1.0}, "config.proposal.padding"),
     ({"proposal.field": "mlp"}, "config.proposal.field"),
+    ({"proposal.resample": "stratified"}, "config.proposal.resample"),
     ({"occupancy.enabled": True}, "config.occupancy.enabled"),
     ({"num_fine_samples": 16}, "config.num_fine_samples"),
     ({"data.scene_bound": 0.0}, "config.data.scene_bound"),
