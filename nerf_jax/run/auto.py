@@ -86,7 +86,9 @@ def subject_effects(dataset, collection, contraction=""):
   the sparse points or the masks of `dataset` (one camera) mark a subject (subject.subject_box)
   whose largest half-extent is under SUBJECT_SHARE of the cameras' median distance from its
   centre, and the space beyond the inner region contracted (CONTRACTION) unless `contraction`
-  (the run's) already is: the cameras and the rest of the world lie outside it; else ({}, []
+  (the run's) already is: the cameras and the rest of the world lie outside it; where the
+  masks mark it (only its pixels train), each photo sampled within its depths (data.photo_bounds:
+  no sample between a camera and the subject to hold a cloud that explains one photo); else ({}, []
   where not a collection, or the line saying why the world stays)."""
   if not collection:
     return {}, []
@@ -106,6 +108,10 @@ def subject_effects(dataset, collection, contraction=""):
   if not contraction:
     effects["data.contraction"] = CONTRACTION
     beyond = f", the space beyond contracted (data.contraction={CONTRACTION!r})"
+  if box.source == "masks":  # only the subject's pixels train: nothing else on a ray is seen
+    effects["data.photo_bounds"] = True
+    beyond += (", each photo sampled within the subject's depths from it "
+               "(data.photo_bounds: its masks keep the subject alone)")
   return effects, [f"the world scaled and moved so the subject fills the inner region "
                    f"(data.subject='auto'){beyond}: {measured}"]
 

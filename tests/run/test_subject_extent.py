@@ -167,8 +167,14 @@ def test_auto_fills_a_small_subject_of_a_collection_only():
   poses = _sphere_cameras(distance=8.0)  # half-extent 0.6 < 0.25 * 8
   masked = _dataset(poses, masks=_box_masks(poses))
   assert auto.subject_effects(masked, True)[0] == {"data.subject": "auto",
-                                                   "data.contraction": auto.CONTRACTION}
-  assert auto.subject_effects(masked, True, "l2")[0] == {"data.subject": "auto"}
+                                                   "data.contraction": auto.CONTRACTION,
+                                                   "data.photo_bounds": True}
+  assert auto.subject_effects(masked, True, "l2")[0] == {"data.subject": "auto",
+                                                         "data.photo_bounds": True}
+  rng = np.random.default_rng(2)  # sparse points mark it, no masks: the background trains
+  points = rng.uniform(BOX_LO, BOX_HI, (2000, 3)).astype(np.float32)
+  assert auto.subject_effects(_dataset(poses, points=points), True)[0] == {
+      "data.subject": "auto", "data.contraction": auto.CONTRACTION}
   assert auto.subject_effects(masked, False) == ({}, [])
   near = _sphere_cameras(distance=2.0)  # 0.6 >= 0.25 * 2: the subject fills the photos
   assert auto.subject_effects(_dataset(near, masks=_box_masks(near)), True)[0] == {}
