@@ -1,5 +1,5 @@
-"""Dataset loaders: tiny_nerf .npz, NeRF-synthetic (Blender), mip-NeRF multiscale and LLFF
-folders, built-in scenes.
+"""Dataset loaders: tiny_nerf .npz, NeRF-synthetic (Blender), mip-NeRF multiscale, LLFF and
+COLMAP folders, built-in scenes.
 
 Every malformed input raises `DataError` with a one-line message naming the file and field.
 Every loader fills `Dataset.accs` and `Dataset.background` where the input tells them: RGBA
@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from nerf_jax.data import scenes
-from nerf_jax.data import masks as masks_lib, multicam, nerfstudio, validate
+from nerf_jax.data import colmap, masks as masks_lib, multicam, nerfstudio, validate
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.data.llff import load_llff
 from nerf_jax.data.validate import composite, parse_background
@@ -165,7 +165,7 @@ def load_blender(path, background=(0.0, 0.0, 0.0), half_res=False, split="train"
 class DataSettings:
   """What `load_dataset` loads: config.data's fields of the images and cameras (the rest of
   config.data, how rays see the scene, is run/settings.SceneSettings)."""
-  path: str = ""  # dataset: .npz, Blender, LLFF or transforms.json folder; empty = built-in scene
+  path: str = ""  # dataset: .npz, Blender, LLFF, transforms.json or COLMAP folder; '' = built-in
   scene: str = "diffuse"  # built-in scene name (data/scenes)
   num_views: int = 100  # built-in scene: number of rendered views
   image_size: int = 100  # built-in scene: height = width in pixels
@@ -174,7 +174,7 @@ class DataSettings:
   pixel_center: float = -1.0  # -1 = the data's own (0.5 centres; 0 corners for tiny_nerf .npz)
   background: Any = "black"  # 'black', 'white' or an RGB triple: rendered and scored on
   half_res: bool = False  # Blender data: load at half resolution
-  factor: int = 1  # LLFF and transforms.json data: downsample images by this integer factor
+  factor: int = 1  # LLFF, transforms.json and COLMAP data: downsample images by this factor
   bd_factor: float = 0.75  # LLFF data: scale so the nearest bound is 1/bd_factor (0 = keep units)
   recenter: bool = True  # LLFF data: move the mean camera pose to the origin
   min_sharpness: float = 0.0  # transforms.json: drop frames < this x neighbours' sharpness (0 = off)
@@ -191,11 +191,13 @@ def load_dataset(settings):
   1, world -z forward) rely on.
   holdout_from: views[holdout_from:] are the test views; -1 = the default split of the format:
   the reference's 80/20 for built-in scenes and .npz, every 8th view (0, 8, 16, ...) for LLFF
-  (the original NeRF's convention) and for transforms.json folders unless the file names its
-  test images (`nerfstudio.load_split`); Blender folders and mip-NeRF's multiscale folders
+  (the original NeRF's convention), for COLMAP folders (`colmap.load_split`) and for
+  transforms.json folders unless the file names its test images (`nerfstudio.load_split`); Blender folders and mip-NeRF's multiscale folders
   (metadata.json, `multicam.load`: per-image cameras) have their own test split and ignore it.
-  factor also downscales transforms.json folders (nerfstudio / nerf-process output), and
-  min_sharpness drops their blurry frames.
+  factor also downscales transforms.json folders (nerfstudio / nerf-process output) and COLMAP
+  folders (images/ and sparse/0/, `colmap.load`), and min_sharpness drops transforms.json's
+  blurry frames. A folder with poses_bounds.npy is read as LLFF even with a COLMAP model beside
+  it (LLFF's own data has both).
   """
   path, holdout_from = settings.path, settings.holdout_from
   background = parse_background(settings.background)
@@ -229,5 +231,8 @@ def load_dataset(settings):
     dataset = load_llff(path, factor=settings.factor or 1, bd_factor=settings.bd_factor or None,
                         recenter=settings.recenter)
     return dataset.split_every(8) if holdout_from == -1 else dataset.split(holdout_from)
+  if os.path.isdir(path) and colmap.model_dir(path):
+    return colmap.load_split(path, background, settings.factor or 1, holdout_from)
   raise DataError(f"unknown dataset format at {path} (expected a .npz file or a directory with "
-                  "transforms.json, transforms_train.json or poses_bounds.npy)")
+                  "transforms.json, transforms_train.json, poses_bounds.npy or a COLMAP model "
+                  f"in {' or '.join(colmap.MODEL_DIRS)})")
