@@ -172,7 +172,7 @@ class DataSettings:
   holdout_from: int = -1  # views[holdout_from:] are test views; -1 = the format's own split
   held_out_looks: str = "neutral"  # per-photo-look scenes: test views 'neutral' or 'own' looks
   pixel_center: float = -1.0  # -1 = the data's own (0.5 centres; 0 corners for tiny_nerf .npz)
-  background: Any = "black"  # 'black', 'white' or an RGB triple: rendered and scored on
+  background: Any = "auto"  # 'auto' (white for Blender data, else black), 'black', 'white' or RGB
   half_res: bool = False  # Blender data: load at half resolution
   factor: int = 1  # LLFF, transforms.json and COLMAP data: downsample images by this factor
   bd_factor: float = 0.75  # LLFF data: scale so the nearest bound is 1/bd_factor (0 = keep units)
@@ -180,13 +180,37 @@ class DataSettings:
   min_sharpness: float = 0.0  # transforms.json: drop frames < this x neighbours' sharpness (0 = off)
 
 
+def auto_background(path):
+  """(name, why): the background data.background='auto' means for the data at `path` ('' = a
+  built-in scene), the convention of its family: 'white' for a Blender (NeRF-synthetic) folder
+  of RGBA images (transforms_train.json; the first frame's image decides), on which every
+  published table scores that data; 'black' for everything else (built-in scenes, .npz, LLFF,
+  transforms.json, COLMAP and multiscale folders, Blender folders of RGB images)."""
+  meta_path = os.path.join(path, "transforms_train.json")
+  blender = (path and os.path.isdir(path) and os.path.isfile(meta_path)
+             and not os.path.isfile(os.path.join(path, nerfstudio.FILENAME))
+             and not os.path.isfile(os.path.join(path, multicam.FILENAME)))
+  if blender:
+    frames = validate.read_json(meta_path).get("frames")
+    if isinstance(frames, list) and frames:  # else load_blender says what is wrong
+      image_path = _frame_image_path(path, meta_path, 0, frames[0])
+      if validate.read_image(image_path).shape[-1] == 4:
+        return "white", "the convention of Blender (NeRF-synthetic) data"
+  return "black", "the convention of data other than Blender's RGBA folders"
+
+
+def is_auto(background):
+  """Whether a data.background value is 'auto' (resolved from the data: `auto_background`)."""
+  return isinstance(background, str) and background == "auto"
+
+
 def load_dataset(settings):
   """(train, test) Datasets as `settings` (DataSettings) say.
 
   path '' = the built-in `scene` (image_size, num_views and pixel_center apply, -1 = 0.5; focal
   keeps tiny_nerf's field of view; held_out_looks 'own' gives the test views of a scene with
-  per-photo looks their own, scenes/photos.py); background and half_res apply to .npz and
-  Blender; factor, bd_factor (0 = keep the file's units) and recenter to LLFF, see
+  per-photo looks their own, scenes/photos.py); background ('auto': `auto_background`) and
+  half_res apply to .npz and Blender; factor, bd_factor (0 = keep the file's units) and recenter to LLFF, see
   `load_llff`: the defaults are the original NeRF's LLFF pipeline, which NDC rays (near plane
   1, world -z forward) rely on.
   holdout_from: views[holdout_from:] are the test views; -1 = the default split of the format:
@@ -200,7 +224,8 @@ def load_dataset(settings):
   it (LLFF's own data has both).
   """
   path, holdout_from = settings.path, settings.holdout_from
-  background = parse_background(settings.background)
+  background = parse_background(auto_background(path)[0] if is_auto(settings.background)
+                                else settings.background)
   if not path:
     name, size = settings.scene, settings.image_size
     if name not in scenes.SCENES:

@@ -23,8 +23,9 @@ def setup(config):
   config = config_lib.upgrade(config)
   builders.make_ray_renderer(config)  # a bad model or sampler setting fails before the data
   train_ds, test_ds = loaders.load_dataset(builders.data_settings(config.data))
-  if config.auto:
+  if config.auto:  # before the background: auto sets its own from the data
     config = auto.auto_config(config, train_ds)
+  config = from_data.with_background(config)
   from_data.pixel_center(config, train_ds)  # a bad value fails here, naming the field
   config, train_ds, test_ds = subject.with_subject(config, train_ds, test_ds)
   near, far = from_data.bounds(config, train_ds)

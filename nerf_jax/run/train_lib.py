@@ -144,8 +144,9 @@ def _finish(exp, config, workdir, state, step, evaluate, writer, mesh, train_sec
   result.update(train_seconds=round(train_seconds, 3), steps=step)
   if not main:
     return result
-  checkpoints.atomic_write(os.path.join(workdir, "metrics.json"),
-                           json.dumps(result, indent=2).encode())
+  # With the background the views were scored on (data.background, 'auto' resolved).
+  checkpoints.atomic_write(os.path.join(workdir, "metrics.json"), json.dumps(
+      {**result, "background": config.data.background}, indent=2).encode())
   hooks_lib.append_json_line(os.path.join(workdir, "metrics.jsonl"), {
       "step": step, "wall_seconds": round(train_seconds, 3), "eval_psnr": result["psnr"],
       "eval_ssim": result["ssim"], **({"eval_lpips": result["lpips"]} if "lpips" in result else {}),
