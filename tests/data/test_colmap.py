@@ -60,13 +60,12 @@ def write_model(folder, cameras, images, points, binary):
       rot, trans = _world_to_camera(c2w)
       data += struct.pack("<i4d3di", image_id, *_quaternion(rot), *trans, cam_id)
       data += name.encode() + b"\0" + struct.pack("<Q", 2)
-      data += struct.pack("<ddq", 1.5, 2.5, 0) + struct.pack("<ddq", 3.0, 4.0, -1)
+      data += struct.pack("<ddq", 1.5, 2.5, -1) * 2  # 2D points seeing no 3D point
     with open(os.path.join(folder, "images.bin"), "wb") as f:
       f.write(data)
     data = struct.pack("<Q", len(points))
     for k, (p, c) in enumerate(zip(points, colours)):
-      data += struct.pack("<Q3d3Bd", k + 1, *p, *c, 0.5) + struct.pack("<Q", 2)
-      data += struct.pack("<iiii", images[0][0], 0, images[-1][0], 1)
+      data += struct.pack("<Q3d3Bd", k + 1, *p, *c, 0.5) + struct.pack("<Q", 0)  # no track
     with open(os.path.join(folder, "points3D.bin"), "wb") as f:
       f.write(data)
     return
@@ -83,14 +82,13 @@ def write_model(folder, cameras, images, points, binary):
     rot, trans = _world_to_camera(c2w)
     lines.append(" ".join([str(image_id)] + [repr(float(v)) for v in _quaternion(rot)] +
                           [repr(float(v)) for v in trans] + [str(cam_id), name]))
-    lines.append("" if k % 2 else "1.5 2.5 1 3.0 4.0 -1")  # an image without 2D points: a blank line
+    lines.append("" if k % 2 else "1.5 2.5 -1 3.0 4.0 -1")  # no 2D points: a blank line
   with open(os.path.join(folder, "images.txt"), "w") as f:
     f.write("\n".join(lines) + "\n")
   lines = ["# 3D point list with one line of data per point:",
            "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)"]
   lines += [" ".join([str(k + 1)] + [repr(float(v)) for v in p] + [str(int(v)) for v in c] +
-                     ["0.5", str(images[0][0]), "0", str(images[-1][0]), "1"])
-            for k, (p, c) in enumerate(zip(points, colours))]
+                     ["0.5"]) for k, (p, c) in enumerate(zip(points, colours))]  # no tracks
   with open(os.path.join(folder, "points3D.txt"), "w") as f:
     f.write("\n".join(lines) + "\n")
 
@@ -328,3 +326,26 @@ def test_llff_folder_with_a_model_stays_llff(tmp_path):
   assert load_data({"path": folder})[0].forward_facing
   os.remove(os.path.join(folder, "poses_bounds.npy"))
   assert load_data({"path": folder})[0].points is not None
+
+
+@pytest.mark.parametrize("write", ["write_binary", "write_text"])
+def test_files_that_colmap_itself_writes_load_alike(tmp_path, write):
+  """COLMAP (pycolmap, the optional `capture` extra) reads the model written here and writes it
+  out again, binary or text: the loader reads its files as it reads ours."""
+  pycolmap = pytest.importorskip("pycolmap")
+  folder, truth, _ = _scene_folder(tmp_path, binary=True)
+  model = pycolmap.Reconstruction(os.path.join(folder, "sparse", "0"))
+  for image in model.images.values():  # COLMAP reads this file's poses as written
+    rot, trans = _world_to_camera(truth.poses[int(image.name[:3])].astype(np.float64))
+    np.testing.assert_allclose(image.cam_from_world().matrix(),
+                               np.concatenate([rot, trans[:, None]], 1), atol=1e-6)
+  mine = load_data({"path": folder})[0]
+  getattr(model, write)(os.path.join(folder, "sparse", "0"))  # over ours (.bin) or beside it
+  if write == "write_text":
+    for name in colmap.FILES:
+      os.remove(os.path.join(folder, "sparse", "0", name + ".bin"))
+  theirs = load_data({"path": folder})[0]
+  np.testing.assert_allclose(theirs.poses, mine.poses, atol=1e-6)
+  np.testing.assert_array_equal(theirs.images, mine.images)
+  np.testing.assert_allclose(theirs.points, mine.points, atol=1e-6)
+  assert theirs.intrinsics == pytest.approx(mine.intrinsics, abs=1e-9)
