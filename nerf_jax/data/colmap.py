@@ -4,8 +4,9 @@ all three binary (`.bin`) or all three text (`.txt`), in COLMAP's documented for
 (https://colmap.github.io/format.html). Pure numpy: pycolmap is not needed to read them.
 
 cameras: CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[] (binary: int32 id, int32 model id, uint64
-  width, uint64 height, float64 params). The models read are `lens.COLMAP_PARAMS`' (SIMPLE_PINHOLE,
-  PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV); an image of another model is a DataError naming it.
+  width, uint64 height, float64 params). The models read are `lens.COLMAP_PARAMS`'
+  (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV); an image of another model is a
+  DataError naming it.
 images: IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME, then the 2D points (not read):
   the rotation (a unit quaternion) and translation of world-to-camera with OpenCV axes (x right,
   y down, z forward); NAME is the file under DIR/images/.
@@ -13,12 +14,13 @@ points3D: POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] (binary: uint64 id, 3 flo
   float64 error, uint64 track length, then (int32, int32) pairs): the sparse points.
 
 `load` turns the model into a Dataset the way `nerfstudio.load` turns a transforms.json folder
-nobody normalised into one: poses to camera-to-world with OpenGL axes (`sfm.c2w_from_cam_from_world`),
-lens distortion removed at load (`nerfstudio.undistort_frames`: one shared pinhole, or per-image
-cameras where the images' COLMAP cameras differ), the scene re-oriented (z up) and scaled into
-[-1, 1]^3 from the points (`orient`), near and far from the points' depths, `Dataset.points`,
-`aabb` and `core` the points' box. data.factor reads DIR/images_{factor}/ where it exists (as
-LLFF's and nerfstudio's tools write it), else block-averages DIR/images/.
+nobody normalised into one: poses to camera-to-world with OpenGL axes
+(`sfm.c2w_from_cam_from_world`); lens distortion removed at load
+(`nerfstudio.undistort_frames`: one shared pinhole, or per-image cameras where the images'
+COLMAP cameras differ); the scene re-oriented (z up) and scaled into [-1, 1]^3 from the points
+(`orient`); near and far from the points' depths; `Dataset.points`, and `aabb` and `core` the
+points' box. data.factor reads DIR/images_{factor}/ where it exists (as LLFF's and
+nerfstudio's tools write it), else block-averages DIR/images/.
 """
 
 import os
@@ -38,6 +40,7 @@ MODELS = {0: ("SIMPLE_PINHOLE", 3), 1: ("PINHOLE", 4), 2: ("SIMPLE_RADIAL", 4), 
           4: ("OPENCV", 8), 5: ("OPENCV_FISHEYE", 8), 6: ("FULL_OPENCV", 12), 7: ("FOV", 5),
           8: ("SIMPLE_RADIAL_FISHEYE", 4), 9: ("RADIAL_FISHEYE", 5),
           10: ("THIN_PRISM_FISHEYE", 12), 11: ("RAD_TAN_THIN_PRISM_FISHEYE", 16)}
+_PARAM_COUNTS = dict(MODELS.values())  # model name -> number of parameters
 _IMAGE_FIELDS = 10  # IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME
 
 
@@ -125,9 +128,8 @@ def read_cameras(path):
     except (ValueError, IndexError):
       raise DataError(f"{path}: line {n} is not 'CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]'"
                       ) from None
-    counts = {model: count for model, count in MODELS.values()}
-    if name in counts and len(params) != counts[name]:
-      raise DataError(f"{path}: line {n}: {name} takes {counts[name]} parameters, not "
+    if name in _PARAM_COUNTS and len(params) != _PARAM_COUNTS[name]:
+      raise DataError(f"{path}: line {n}: {name} takes {_PARAM_COUNTS[name]} parameters, not "
                       f"{len(params)}")
     cameras[camera_id] = (name, width, height, params)
   return cameras
@@ -192,15 +194,22 @@ def read_points(path):
   return xyz, np.array(rgb, np.uint8).reshape(-1, 3)
 
 
-def read_model(folder):
-  """(cameras, images, (points, colours)) of the model in `folder` (read_cameras, read_images,
-  read_points): the three .bin files, else the three .txt files."""
+def model_files(folder):
+  """The paths of the model's cameras, images and points3D files in `folder`: the three .bin
+  files, else the three .txt files; DataError when neither set is complete."""
   for ext in (".bin", ".txt"):
     paths = [os.path.join(folder, name + ext) for name in FILES]
     if all(os.path.isfile(p) for p in paths):
-      return read_cameras(paths[0]), read_images(paths[1]), read_points(paths[2])
+      return paths
   raise DataError(f"{folder}: a COLMAP model needs {', '.join(FILES)} all .bin or all .txt "
                   f"(has: {', '.join(sorted(os.listdir(folder)))})")
+
+
+def read_model(folder):
+  """(cameras, images, (points, colours)) of the model in `folder` (`model_files`; read_cameras,
+  read_images, read_points)."""
+  cameras_file, images_file, points_file = model_files(folder)
+  return read_cameras(cameras_file), read_images(images_file), read_points(points_file)
 
 
 def rotation(quaternion):
@@ -212,15 +221,15 @@ def rotation(quaternion):
 
 
 def _image(path, name, factor):
-  """(float64 [H, W, 3|4] image `name` from images_{factor}/, else images/ block-averaged by
-  `factor`; its path)."""
+  """float64 [H, W, 3|4]: image `name` from images_{factor}/, else images/ block-averaged by
+  `factor`."""
   scaled = os.path.join(path, f"images_{factor}", name)
   if factor > 1 and os.path.isfile(scaled):
-    return validate.read_image(scaled), scaled
+    return validate.read_image(scaled)
   full = os.path.join(path, "images", name)
   if not os.path.isfile(full):
     raise DataError(f"{full}: image {name!r} of the COLMAP model not found")
-  return nerfstudio.downscale(validate.read_image(full), factor), full
+  return nerfstudio.downscale(validate.read_image(full), factor)
 
 
 def _camera(camera, camera_id, image_size, where):
@@ -254,8 +263,7 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1):
     raise DataError(f"{path}: factor={factor} must be an integer >= 1")
   factor = int(factor)
   cameras, images, (points, _) = read_model(folder)
-  ext = ".bin" if os.path.isfile(os.path.join(folder, "images.bin")) else ".txt"
-  cameras_file, images_file = (os.path.join(folder, n + ext) for n in FILES[:2])
+  cameras_file, images_file, _ = model_files(folder)
   if not images:
     raise DataError(f"{images_file}: no registered images")
   frames, poses, lenses, names = [], [], [], []
@@ -263,10 +271,10 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1):
     if camera_id not in cameras:
       raise DataError(f"{images_file}: image {name!r} has camera {camera_id}, which "
                       f"{cameras_file} does not list")
-    image, image_path = _image(path, name, factor)
-    lenses.append(_camera(cameras[camera_id], camera_id, image.shape[:2], cameras_file))
     if not np.all(np.isfinite(quaternion)) or not np.linalg.norm(quaternion) > 0:
       raise DataError(f"{images_file}: image {name!r} has no valid rotation {quaternion}")
+    image = _image(path, name, factor)
+    lenses.append(_camera(cameras[camera_id], camera_id, image.shape[:2], cameras_file))
     w2c = np.concatenate([rotation(quaternion), translation[:, None]], axis=1)
     poses.append(sfm.c2w_from_cam_from_world(w2c))
     frames.append(image.astype(np.float32))  # float64 for all frames would be 2x the memory

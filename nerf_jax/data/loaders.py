@@ -210,14 +210,15 @@ def load_dataset(settings):
   path '' = the built-in `scene` (image_size, num_views and pixel_center apply, -1 = 0.5; focal
   keeps tiny_nerf's field of view; held_out_looks 'own' gives the test views of a scene with
   per-photo looks their own, scenes/photos.py); background ('auto': `auto_background`) and
-  half_res apply to .npz and Blender; factor, bd_factor (0 = keep the file's units) and recenter to LLFF, see
-  `load_llff`: the defaults are the original NeRF's LLFF pipeline, which NDC rays (near plane
-  1, world -z forward) rely on.
+  half_res apply to .npz and Blender; factor, bd_factor (0 = keep the file's units) and
+  recenter to LLFF, see `load_llff`: the defaults are the original NeRF's LLFF pipeline, which
+  NDC rays (near plane 1, world -z forward) rely on.
   holdout_from: views[holdout_from:] are the test views; -1 = the default split of the format:
   the reference's 80/20 for built-in scenes and .npz, every 8th view (0, 8, 16, ...) for LLFF
   (the original NeRF's convention), for COLMAP folders (`colmap.load_split`) and for
-  transforms.json folders unless the file names its test images (`nerfstudio.load_split`); Blender folders and mip-NeRF's multiscale folders
-  (metadata.json, `multicam.load`: per-image cameras) have their own test split and ignore it.
+  transforms.json folders unless the file names its test images (`nerfstudio.load_split`);
+  Blender folders and mip-NeRF's multiscale folders (metadata.json, `multicam.load`:
+  per-image cameras) have their own test split and ignore it.
   factor also downscales transforms.json folders (nerfstudio / nerf-process output) and COLMAP
   folders (images/ and sparse/0/, `colmap.load`), and min_sharpness drops transforms.json's
   blurry frames. A folder with poses_bounds.npy is read as LLFF even with a COLMAP model beside

@@ -33,7 +33,8 @@ def _quaternion(rot):
     s = 2 * np.sqrt(1 + rot[i, i] - rot[j, j] - rot[l, l])
     q = [0.0] * 4
     q[0] = (rot[l, j] - rot[j, l]) / s
-    q[1 + i], q[1 + j], q[1 + l] = 0.25 * s, (rot[j, i] + rot[i, j]) / s, (rot[l, i] + rot[i, l]) / s
+    q[1 + i], q[1 + j] = 0.25 * s, (rot[j, i] + rot[i, j]) / s
+    q[1 + l] = (rot[l, i] + rot[i, l]) / s
   return np.array(q) * (1 if q[0] >= 0 else -1)
 
 
