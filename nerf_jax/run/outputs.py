@@ -83,7 +83,7 @@ def final_render_line(exp, rays_per_second, long_seconds=None):
     return None
   every = max(2, math.ceil(config.eval.test_every * seconds / max(long_seconds, 1e-9)))
   video = f" and a {frames}-frame video" if frames else ""
-  shorten = f"--config.eval.test_every={every} (every {every}th test view)" + (
+  shorten = f"--config.eval.test_every={every} (test views 0, {every}, {2 * every}, ...)" + (
       " and --config.render.video_frames=0 (no video)" if frames else "")
   return (f"final evaluation: about {_duration(seconds)} to render {len(views)} test views"
           f"{video} ({test_pixels + frames * height * width:,} rays at training's "
