@@ -20,7 +20,9 @@ nobody normalised into one: poses to camera-to-world with OpenGL axes
 COLMAP cameras differ); the scene re-oriented (z up) and scaled into [-1, 1]^3 from the points
 (`orient`); near and far from the points' depths; `Dataset.points`, and `aabb` and `core` the
 points' box. data.factor reads DIR/images_{factor}/ where it exists (as LLFF's and
-nerfstudio's tools write it), else block-averages DIR/images/.
+nerfstudio's tools write it), else block-averages DIR/images/. Masks (optional): DIR/masks/,
+one per image under the image's name (or with '.png'), white = keep (`nerf_jax.data.masks`),
+min-pooled by data.factor and resampled with their images.
 """
 
 import os
@@ -29,7 +31,7 @@ import struct
 import numpy as np
 
 from nerf_jax.cameras.cameras import Cameras
-from nerf_jax.data import lens, nerfstudio, orient, sfm, validate
+from nerf_jax.data import lens, masks as masks_lib, nerfstudio, orient, sfm, validate
 from nerf_jax.data.dataset import DataError, Dataset
 
 MODEL_DIRS = ("sparse/0", "sparse", "colmap/sparse/0")  # where a model is looked for, in order
@@ -279,7 +281,8 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1):
     poses.append(sfm.c2w_from_cam_from_world(w2c))
     frames.append(image.astype(np.float32))  # float64 for all frames would be 2x the memory
     names.append(name)
-  frames, intrinsics, _ = nerfstudio.undistort_frames(frames, lenses, [None] * len(frames))
+  masks = _masks(path, names, [f.shape for f in frames], factor)
+  frames, intrinsics, masks = nerfstudio.undistort_frames(frames, lenses, masks)
   points = points if len(points) else None
   transform = orient.normalize(np.stack(poses), points)
   poses, points = orient.apply(transform, np.stack(poses), points)
@@ -297,8 +300,24 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1):
                     pixel_center=0.0,  # the intrinsics hold cx - 0.5: rays through centres
                     aabb=None if box is None else box.astype(np.float32),
                     core=None if box is None else box.astype(np.float32),
-                    points=None if points is None else points.astype(np.float32))
+                    points=None if points is None else points.astype(np.float32),
+                    masks=None if masks[0] is None else (
+                        np.stack(masks) if len(set(sizes)) == 1 else masks))
   return dataset, names
+
+
+def _masks(path, names, shapes, factor):
+  """Each image's mask from DIR/masks/ (`masks.folder_masks`: the image's name, white = keep),
+  float32 [H_i, W_i] at its image's shape (`shapes`; a full-size mask min-pooled by `factor`),
+  or a list of None without masks/."""
+  masks = masks_lib.folder_masks(path, names)
+  if masks is None:
+    return [None] * len(names)
+  out = []
+  for name, mask, shape in zip(names, masks, shapes):
+    scaled = mask if mask.shape == shape[:2] else masks_lib.downscale(mask, factor)
+    out.append(masks_lib.check(scaled, shape, os.path.join(path, masks_lib.MASKS_DIR, name)))
+  return out
 
 
 def load_split(path, background=(0.0, 0.0, 0.0), factor=1, holdout_from=-1):

@@ -350,3 +350,22 @@ def test_files_that_colmap_itself_writes_load_alike(tmp_path, write):
   np.testing.assert_array_equal(theirs.images, mine.images)
   np.testing.assert_allclose(theirs.points, mine.points, atol=1e-6)
   assert theirs.intrinsics == pytest.approx(mine.intrinsics, abs=1e-9)
+
+
+def test_masks_beside_the_images_are_read_and_scaled(tmp_path):
+  """masks/<image name>: white keeps; with data.factor a block is kept only if all of it is."""
+  folder, _, _ = _scene_folder(tmp_path, binary=True)
+  names = sorted(os.listdir(os.path.join(folder, "images")))
+  truth = np.ones((VIEWS, HEIGHT, WIDTH), np.float32)
+  os.makedirs(os.path.join(folder, "masks"))
+  for k, name in enumerate(names):
+    truth[k, k:k + 3, 2 * k + 1:2 * k + 4] = 0.0  # a 3 x 3 patch ignored, different per view
+    iio.imwrite(os.path.join(folder, "masks", name), (truth[k] * 255).astype(np.uint8))
+  train, test = load_data({"path": folder})
+  np.testing.assert_array_equal(test.masks, truth[[0, 8]])
+  np.testing.assert_array_equal(train.masks, truth[[k for k in range(VIEWS) if k % 8]])
+  _, test = load_data({"path": folder, "factor": 2})
+  pooled = truth.reshape(VIEWS, HEIGHT // 2, 2, WIDTH // 2, 2).min((2, 4))
+  np.testing.assert_array_equal(test.masks, pooled[[0, 8]])
+  os.remove(os.path.join(folder, "masks", names[3]))
+  assert_data_error(["masks", names[3]], load_data, {"path": folder})
