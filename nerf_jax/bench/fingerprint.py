@@ -3,6 +3,7 @@ changes no behaviour (the same seeds give bit-identical parameters and images).
 
   python -m nerf_jax.bench.fingerprint                 # every shipped config, a line each
   python -m nerf_jax.bench.fingerprint fast llff       # some of them
+  python -m nerf_jax.bench.fingerprint --help          # this text
 
 Each config trains a few steps on a shrunken built-in scene (the configs that need a folder get
 the built-in scene of their kind), then renders one test view. A line is the config's name, the
@@ -55,11 +56,20 @@ def fingerprint(name):
 
 
 def main(argv):
+  if any(arg in ("-h", "--help") for arg in argv[1:]):
+    print(__doc__.strip())
+    return 0
   names = argv[1:] or config_lib.available()
+  for name in names:
+    try:
+      config_lib.resolve(name)
+    except config_lib.ConfigError as e:
+      print(f"error: {e}", file=sys.stderr)
+      return 1
   for name in names:
     digest, psnr = fingerprint(name)
     print(f"{name:18s} {digest} {psnr:.4f}", flush=True)
 
 
 if __name__ == "__main__":
-  main(sys.argv)
+  sys.exit(main(sys.argv))

@@ -1,4 +1,5 @@
-"""Datasets: the tiny_nerf .npz, Blender and LLFF loaders, exporters and the built-in scenes."""
+"""Datasets: the tiny_nerf .npz, Blender, LLFF, transforms.json and COLMAP loaders, exporters and
+the built-in scenes."""
 
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.data.llff import export_llff, load_llff

@@ -1,5 +1,5 @@
-"""Dataset loaders: tiny_nerf .npz, NeRF-synthetic (Blender), mip-NeRF multiscale and LLFF
-folders, built-in scenes.
+"""Dataset loaders: tiny_nerf .npz, NeRF-synthetic (Blender), mip-NeRF multiscale, LLFF and
+COLMAP folders, built-in scenes.
 
 Every malformed input raises `DataError` with a one-line message naming the file and field.
 Every loader fills `Dataset.accs` and `Dataset.background` where the input tells them: RGBA
@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from nerf_jax.data import scenes
-from nerf_jax.data import masks as masks_lib, multicam, nerfstudio, validate
+from nerf_jax.data import colmap, masks as masks_lib, multicam, nerfstudio, validate
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.data.llff import load_llff
 from nerf_jax.data.validate import composite, parse_background
@@ -165,20 +165,44 @@ def load_blender(path, background=(0.0, 0.0, 0.0), half_res=False, split="train"
 class DataSettings:
   """What `load_dataset` loads: config.data's fields of the images and cameras (the rest of
   config.data, how rays see the scene, is run/settings.SceneSettings)."""
-  path: str = ""  # dataset: .npz, Blender, LLFF or transforms.json folder; empty = built-in scene
+  path: str = ""  # dataset: .npz, Blender, LLFF, transforms.json or COLMAP folder; '' = built-in
   scene: str = "diffuse"  # built-in scene name (data/scenes)
   num_views: int = 100  # built-in scene: number of rendered views
   image_size: int = 100  # built-in scene: height = width in pixels
   holdout_from: int = -1  # views[holdout_from:] are test views; -1 = the format's own split
   held_out_looks: str = "neutral"  # per-photo-look scenes: test views 'neutral' or 'own' looks
   pixel_center: float = -1.0  # -1 = the data's own (0.5 centres; 0 corners for tiny_nerf .npz)
-  background: Any = "black"  # 'black', 'white' or an RGB triple: rendered and scored on
+  background: Any = "auto"  # 'auto' (white for Blender data, else black), 'black', 'white' or RGB
   half_res: bool = False  # Blender data: load at half resolution
-  factor: int = 1  # LLFF and transforms.json data: downsample images by this integer factor
+  factor: int = 1  # LLFF, transforms.json and COLMAP data: downsample images by this factor
   bd_factor: float = 0.75  # LLFF data: scale so the nearest bound is 1/bd_factor (0 = keep units)
   recenter: bool = True  # LLFF data: move the mean camera pose to the origin
   min_sharpness: float = 0.0  # transforms.json: drop frames < this x neighbours' sharpness (0 = off)
   without: str = ""  # built-in scene: capture effects left out, e.g. 'zoom,distortion' (the truth)
+
+
+def auto_background(path):
+  """(name, why): the background data.background='auto' means for the data at `path` ('' = a
+  built-in scene), the convention of its family: 'white' for a Blender (NeRF-synthetic) folder
+  of RGBA images (transforms_train.json; the first frame's image decides), on which every
+  published table scores that data; 'black' for everything else (built-in scenes, .npz, LLFF,
+  transforms.json, COLMAP and multiscale folders, Blender folders of RGB images)."""
+  meta_path = os.path.join(path, "transforms_train.json")
+  blender = (path and os.path.isdir(path) and os.path.isfile(meta_path)
+             and not os.path.isfile(os.path.join(path, nerfstudio.FILENAME))
+             and not os.path.isfile(os.path.join(path, multicam.FILENAME)))
+  if blender:
+    frames = validate.read_json(meta_path).get("frames")
+    if isinstance(frames, list) and frames:  # else load_blender says what is wrong
+      image_path = _frame_image_path(path, meta_path, 0, frames[0])
+      if validate.read_image(image_path).shape[-1] == 4:
+        return "white", "the convention of Blender (NeRF-synthetic) data"
+  return "black", "the convention of data other than Blender's RGBA folders"
+
+
+def is_auto(background):
+  """Whether a data.background value is 'auto' (resolved from the data: `auto_background`)."""
+  return isinstance(background, str) and background == "auto"
 
 
 def load_dataset(settings):
@@ -186,20 +210,24 @@ def load_dataset(settings):
 
   path '' = the built-in `scene` (image_size, num_views and pixel_center apply, -1 = 0.5; focal
   keeps tiny_nerf's field of view; held_out_looks 'own' gives the test views of a scene with
-  per-photo looks their own, scenes/photos.py); background and half_res apply to .npz and
-  Blender; factor, bd_factor (0 = keep the file's units) and recenter to LLFF, see
-  `load_llff`: the defaults are the original NeRF's LLFF pipeline, which NDC rays (near plane
-  1, world -z forward) rely on.
+  per-photo looks their own, scenes/photos.py); background ('auto': `auto_background`) and
+  half_res apply to .npz and Blender; factor, bd_factor (0 = keep the file's units) and
+  recenter to LLFF, see `load_llff`: the defaults are the original NeRF's LLFF pipeline, which
+  NDC rays (near plane 1, world -z forward) rely on.
   holdout_from: views[holdout_from:] are the test views; -1 = the default split of the format:
   the reference's 80/20 for built-in scenes and .npz, every 8th view (0, 8, 16, ...) for LLFF
-  (the original NeRF's convention) and for transforms.json folders unless the file names its
-  test images (`nerfstudio.load_split`); Blender folders and mip-NeRF's multiscale folders
-  (metadata.json, `multicam.load`: per-image cameras) have their own test split and ignore it.
-  factor also downscales transforms.json folders (nerfstudio / nerf-process output), and
-  min_sharpness drops their blurry frames.
+  (the original NeRF's convention), for COLMAP folders (`colmap.load_split`) and for
+  transforms.json folders unless the file names its test images (`nerfstudio.load_split`);
+  Blender folders and mip-NeRF's multiscale folders (metadata.json, `multicam.load`:
+  per-image cameras) have their own test split and ignore it.
+  factor also downscales transforms.json folders (nerfstudio / nerf-process output) and COLMAP
+  folders (images/ and sparse/0/, `colmap.load`), and min_sharpness drops transforms.json's
+  blurry frames. A folder with poses_bounds.npy is read as LLFF even with a COLMAP model beside
+  it (LLFF's own data has both).
   """
   path, holdout_from = settings.path, settings.holdout_from
-  background = parse_background(settings.background)
+  background = parse_background(auto_background(path)[0] if is_auto(settings.background)
+                                else settings.background)
   if not path:
     name, size = settings.scene, settings.image_size
     if name not in scenes.SCENES:
@@ -233,5 +261,8 @@ def load_dataset(settings):
     dataset = load_llff(path, factor=settings.factor or 1, bd_factor=settings.bd_factor or None,
                         recenter=settings.recenter)
     return dataset.split_every(8) if holdout_from == -1 else dataset.split(holdout_from)
+  if os.path.isdir(path) and colmap.model_dir(path):
+    return colmap.load_split(path, background, settings.factor or 1, holdout_from)
   raise DataError(f"unknown dataset format at {path} (expected a .npz file or a directory with "
-                  "transforms.json, transforms_train.json or poses_bounds.npy)")
+                  "transforms.json, transforms_train.json, poses_bounds.npy or a COLMAP model "
+                  f"in {' or '.join(colmap.MODEL_DIRS)})")

@@ -111,7 +111,7 @@ def _camera(frame, meta, image_size, full_size, where):
   return (fx * sx, fy * sy, cx * sx, cy * sy), dist
 
 
-def _downscale(image, factor):
+def downscale(image, factor):
   """Block average of float [H, W, C] by an integer factor (odd edges are cropped)."""
   if factor == 1:
     return image
@@ -264,14 +264,14 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
     where = f"{meta_path}: frames[{k}]"
     image = validate.read_image(image_path)
     full_size = tuple(n * (factor if prescaled else 1) for n in image.shape[:2])
-    image = image if prescaled else _downscale(image, factor)
+    image = image if prescaled else downscale(image, factor)
     masks.append(_mask(root, frame, factor, full_size, image.shape, where))
     poses.append(validate.poses(np.asarray(frame["transform_matrix"], np.float64)[None],
                                 f"{where}.transform_matrix")[0])
     cameras.append(_camera(frame, meta, image.shape[:2], full_size, where))
     images.append(image.astype(np.float32))  # float64 for all frames would be 2x the memory
     names.append(frame["file_path"])
-  images, intrinsics, masks = _undistort(images, cameras, masks)
+  images, intrinsics, masks = undistort_frames(images, cameras, masks)
   poses = np.stack(poses)
   near, far = meta.get("near"), meta.get("far")
   points, transform = _points(root, meta, meta_path), np.eye(4)
@@ -284,24 +284,16 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
   box, unit = ngp_box(meta, meta_path), ngp_box(meta, meta_path, unit=True)
   aabb = orient.points_box(points) if box is None else orient.carry_box(transform, box)
   core = orient.points_box(points) if unit is None else orient.carry_box(transform, unit)
-  has_alpha = any(im.shape[-1] == 4 for im in images)
   bg = parse_background(background)
   sizes = [im.shape[:2] for im in images]
   one_size = len(set(sizes)) == 1
-  rgb = np.empty((len(images), *sizes[0], 3), np.float32) if one_size else [None] * len(images)
-  accs = np.ones(rgb.shape[:-1], np.float32) if one_size else [np.ones(n, np.float32)
-                                                                for n in sizes]
-  for k, image in enumerate(images):  # frame by frame: no stacked float64 copy of them all
-    rgb[k] = composite(image, bg)
-    if image.shape[-1] == 4:
-      accs[k] = image[..., 3]
-    images[k] = None
+  rgb, accs = composite_frames(images, bg)
   own = None if isinstance(intrinsics, tuple) else Cameras.stack(
       [(*size, lens.dataset_intrinsics(k)) for size, k in zip(sizes, intrinsics)])
   dataset = Dataset(rgb, poses.astype(np.float32),
                     lens.dataset_intrinsics(intrinsics if own is None else intrinsics[0]),
                     near=near, far=far, name=root, image_cameras=own,
-                    accs=accs if has_alpha else None,  # RGB: unknown
+                    accs=accs,
                     background=tuple(bg.tolist()),
                     pixel_center=0.0,  # the intrinsics hold cx - 0.5: rays through centres
                     aabb=None if aabb is None else aabb.astype(np.float32),
@@ -309,6 +301,26 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
                     masks=_stack_masks(masks, sizes, one_size),
                     points=None if points is None else points.astype(np.float32))
   return dataset, names, _test_names(meta, names)
+
+
+def composite_frames(images, background):
+  """(rgb, accs) of the frames `images` (a list of float [H_i, W_i, 3 or 4], emptied as it is
+  read: no stacked float64 copy of them all) composited on `background` (float64 [3]): rgb
+  float32 [N, H, W, 3] when the frames have one size, else a list of [H_i, W_i, 3]; accs the
+  frames' alpha likewise ([N, H, W] or a list, 1 for RGB frames), None when no frame has alpha
+  (RGB: the opacity is unknown)."""
+  has_alpha = any(im.shape[-1] == 4 for im in images)
+  sizes = [im.shape[:2] for im in images]
+  one_size = len(set(sizes)) == 1
+  rgb = np.empty((len(images), *sizes[0], 3), np.float32) if one_size else [None] * len(images)
+  accs = np.ones(rgb.shape[:-1], np.float32) if one_size else [np.ones(n, np.float32)
+                                                                for n in sizes]
+  for k, image in enumerate(images):
+    rgb[k] = composite(image, background)
+    if image.shape[-1] == 4:
+      accs[k] = image[..., 3]
+    images[k] = None
+  return rgb, accs if has_alpha else None
 
 
 def _mask(root, frame, factor, full_size, image_shape, where):
@@ -350,7 +362,7 @@ def _points(root, meta, meta_path):
   return pointcloud.read_ply(ply)[0]
 
 
-def _undistort(images, cameras, masks):
+def undistort_frames(images, cameras, masks):
   """Images with their lens distortion removed (module docstring): (list of float32 [H_i, W_i,
   C], COLMAP-convention intrinsics, masks): one (fx, fy, cx, cy) tuple, the shared pinhole, for
   frames of one camera; a list of each frame's own for frames of several. masks: each frame's

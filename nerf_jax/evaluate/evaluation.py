@@ -40,6 +40,7 @@ class Settings:
   fit_steps: int = 100  # left_half: Adam steps fitting each test image's code on its left half
   fit_rays: int = 1024  # left_half: rays drawn (with replacement) from the left half each step
   fit_lr: float = 1e-2  # left_half: Adam's step size for the code
+  test_every: int = 1  # score test views 0, N, 2N, ... (1 = all): a shorter evaluation
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,7 +62,8 @@ def make_evaluator(exp, settings):
   views (`protocols`) and, where the data knows the true poses, `pose_scores`.
 
   Evaluates the test views of `exp` (an experiment_parts.Experiment) as `settings`
-  (EvalSettings) say. With `out_dir`, writes per view a PNG of [prediction | depth | ground
+  (EvalSettings) say: views 0, N, 2N, ... with eval.test_every = N (`scored_views`; max_views
+  takes the first of those). With `out_dir`, writes per view a PNG of [prediction | depth | ground
   truth] and depth `.npy`. on_view(index, out, truth) is called for every view with the
   rendered numpy dict (rgb [H, W, 3], depth [H, W], acc [H, W]) and the true image float32
   [H, W, 3] on settings.background (see `background.images_on_background`; the trainer sends
@@ -76,6 +78,9 @@ def make_evaluator(exp, settings):
   'masks' (MASK_RULE) and 'masked_pixels', the share of the scored pixels that were masked; a
   view whose windows are all centred on masked pixels has no 'ssim'.
   """
+  every = settings.held_out.test_every
+  if int(every) != every or every < 1:
+    raise ValueError(f"config.eval.test_every={every!r}: use an integer >= 1 (1 = every view)")
   make_draw = image_renderer.make_image_renderer(exp.renderer, exp.image)
   bg = np.asarray(settings.background, np.float32)
   protocol = settings.held_out.appearance
@@ -97,11 +102,11 @@ def make_evaluator(exp, settings):
     return lpips_reasons[size]
 
   def evaluate(variables, max_views=None, out_dir=None, on_view=None):
-    count = len(test_ds) if max_views is None else min(max_views, len(test_ds))
+    views = scored_views(len(test_ds), every, max_views)
     per_view, lpips_skipped = [], None
     draw = make_draw(variables)
     poses = held_out_poses(exp, variables)
-    for i in range(count):
+    for i in views:
       rays = exp.rays(poses[i], camera(i))
       if settings.photo_bounds:  # this view's own near and far (data.photo_bounds)
         rays = rays.replace(near=jnp.full_like(rays.near, test_ds.bounds[i][0]),
@@ -139,7 +144,7 @@ def make_evaluator(exp, settings):
       result.setdefault("ssim", float("nan"))  # no view had a kept window centre
       result["masks"] = MASK_RULE
       result["masked_pixels"] = 1.0 - masks_lib.kept_share(
-          [scored(test_ds.mask(i)) for i in range(count)])
+          [scored(test_ds.mask(i)) for i in views])
     result.update(protocols(exp, variables, protocol))
     result.update(pose_scores(exp, variables))
     result["per_view"] = per_view
@@ -149,6 +154,13 @@ def make_evaluator(exp, settings):
     return result
 
   return evaluate
+
+
+def scored_views(num_views, every=1, max_views=None):
+  """The test views an evaluation scores: list of int, 0, every, 2 every, ... below num_views,
+  the first max_views of them (None = all)."""
+  views = list(range(0, num_views, int(every)))
+  return views if max_views is None else views[:max_views]
 
 
 SCALE_SCORES = ("psnr", "ssim", "lpips")  # what by_scale gives per label

@@ -32,8 +32,9 @@ def setup(config):
     factor = resolution.factor_effects(config, jax.default_backend())
     settings = dataclasses.replace(settings, factor=factor[0].get("data.factor", settings.factor))
   train_ds, test_ds = loaders.load_dataset(settings)
-  if config.auto:
+  if config.auto:  # before the background: auto sets its own from the data
     config = auto.auto_config(config, train_ds, before_loading=factor)
+  config = from_data.with_background(config)
   from_data.pixel_center(config, train_ds)  # a bad value fails here, naming the field
   config, train_ds, test_ds = subject.with_subject(config, train_ds, test_ds)
   near, far = from_data.bounds(config, train_ds)

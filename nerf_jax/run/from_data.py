@@ -1,4 +1,5 @@
-"""The config completed from the data, once, before anything is built: the world centred on
+"""The config completed from the data, once, before anything is built: the background of the
+data's family (data.background = 'auto'), the world centred on
 what the cameras look at (data.focus), the scene's extent (data.scene_bound = -1), the grids'
 box in NDC and from the visual hull, the ray bounds and pixel centres; and the one line that
 warns when the scene box cuts the training rays (`cut_share`, which auto reads too).
@@ -10,9 +11,24 @@ import jax.numpy as jnp
 import ml_collections
 import numpy as np
 
+from nerf_jax.data import loaders
 from nerf_jax.samplers import visual_hull
 from nerf_jax.cameras.rays import pixel_rays, ray_box_bounds
 from nerf_jax.run import characterise
+
+
+def with_background(config):
+  """`config` with data.background = 'auto' resolved to the convention of the data's family
+  (loaders.auto_background: white for Blender's RGBA folders, else black), and one line saying
+  which and why; the value is recorded in config.json (and metrics.json); `config` itself when
+  data.background is not 'auto'."""
+  if not loaders.is_auto(config.data.background):
+    return config
+  name, why = loaders.auto_background(config.data.path)
+  config = ml_collections.ConfigDict(config.to_dict())
+  config.data.background = name
+  print(f"background: {name}, {why} (data.background='auto')", flush=True)
+  return config
 
 
 def with_focus(config, train_ds, test_ds):

@@ -8,6 +8,7 @@ ray parameter in [0, 1] instead.
 """
 
 import importlib.util
+import math
 import os
 import warnings
 
@@ -15,7 +16,7 @@ import imageio.v2 as imageio
 import numpy as np
 
 from nerf_jax.cameras import camera_paths
-from nerf_jax.evaluate import lpips, visuals
+from nerf_jax.evaluate import evaluation, lpips, visuals
 from nerf_jax.render import background, image_renderer, surface
 from nerf_jax.run import builders, experiment
 from nerf_jax.train import progress
@@ -48,6 +49,52 @@ def video_writer_missing():
   if importlib.util.find_spec("imageio_ffmpeg") is None:
     return "no mp4 writer: imageio-ffmpeg is not installed (pip install imageio-ffmpeg)"
   return None
+
+
+LONG_FINAL_SECONDS = 120.0  # a final evaluation + video expected to last longer says so first
+
+
+def final_render_seconds(test_pixels, video_frames, frame_pixels, rays_per_second):
+  """Seconds the final evaluation and video are expected to take: every ray of the test views
+  scored (test_pixels: int, their pixels) and of the video's frames (video_frames frames of
+  frame_pixels pixels each) at the training's measured rate (rays_per_second: rays a second
+  through a training step). A training step's ray costs a backward pass a render does not
+  pay, a render's ray render.num_samples (and the fine samples) that training may not: a rough
+  guide, not a promise."""
+  return (test_pixels + video_frames * frame_pixels) / max(rays_per_second, 1e-9)
+
+
+def final_render_line(exp, rays_per_second, long_seconds=None):
+  """One line announcing a final evaluation (+ video) expected to last more than long_seconds
+  (None = LONG_FINAL_SECONDS), with the flags that shorten it; None when it is expected to be
+  short or the rate is unknown. exp: experiment_parts.Experiment; rays_per_second: the
+  training's last measured rate."""
+  if not rays_per_second:
+    return None
+  long_seconds = LONG_FINAL_SECONDS if long_seconds is None else long_seconds
+  config, test_ds = exp.config, exp.test_ds
+  views = evaluation.scored_views(len(test_ds), config.eval.test_every)
+  test_pixels = int(sum(test_ds.cameras.num_pixels()[views]))
+  frames = config.render.video_frames if (config.render.after_training and
+                                          video_writer_missing() is None) else 0
+  height, width, _ = exp.camera()
+  seconds = final_render_seconds(test_pixels, frames, height * width, rays_per_second)
+  if seconds <= long_seconds:
+    return None
+  every = max(2, math.ceil(config.eval.test_every * seconds / max(long_seconds, 1e-9)))
+  video = f" and a {frames}-frame video" if frames else ""
+  shorten = f"--config.eval.test_every={every} (test views 0, {every}, {2 * every}, ...)" + (
+      " and --config.render.video_frames=0 (no video)" if frames else "")
+  return (f"final evaluation: about {_duration(seconds)} to render {len(views)} test views"
+          f"{video} ({test_pixels + frames * height * width:,} rays at training's "
+          f"{rays_per_second:,.0f} rays/s); to shorten it: {shorten}")
+
+
+def _duration(seconds):
+  """'45 s', '12 min' or '2.5 h'."""
+  if seconds < 90:
+    return f"{seconds:.0f} s"
+  return f"{seconds / 60:.0f} min" if seconds < 5400 else f"{seconds / 3600:.1f} h"
 
 
 def render_video(exp, variables, out_dir, depth_npy=False, show_progress=True, scale=1.0,

@@ -93,7 +93,8 @@ def train_and_evaluate(config, workdir, watchers=()):
   if signum:
     raise KeyboardInterrupt(f"stopped by signal {signum} at step {step}; "
                             f"checkpoint saved in {checkpoints.checkpoint_dir(workdir)}")
-  return _finish(exp, config, workdir, state, step, evaluate, writer, mesh, elapsed())
+  rate = next((h.rays_per_second for h in loop_hooks if isinstance(h, hooks_lib.Record)), None)
+  return _finish(exp, config, workdir, state, step, evaluate, writer, mesh, elapsed(), rate)
 
 
 def _keep(cached, train_step):
@@ -126,12 +127,17 @@ def _loop_hooks(exp, config, workdir, signature, evaluate, writer, mesh, start_s
   return [hook for hook in found if hook is not None]
 
 
-def _finish(exp, config, workdir, state, step, evaluate, writer, mesh, train_seconds):
+def _finish(exp, config, workdir, state, step, evaluate, writer, mesh, train_seconds,
+            rays_per_second=None):
   """After the last step: score the test views (their images into workdir/eval with
   render.after_training), write metrics.json and the final metrics.jsonl record, render the
-  video; returns the final metrics."""
+  video; returns the final metrics. A long evaluation (+ video) is announced first, with how to
+  shorten it (outputs.final_render_line, from the training's last rays_per_second)."""
   main = parallel.is_main_process()
   _check_finite(state, workdir)
+  line = outputs.final_render_line(exp, rays_per_second) if main else None
+  if line:
+    print(line, flush=True)
   variables = _variables_on(mesh)(state)
   images = {}
   result = evaluate(
@@ -144,8 +150,9 @@ def _finish(exp, config, workdir, state, step, evaluate, writer, mesh, train_sec
   result.update(train_seconds=round(train_seconds, 3), steps=step)
   if not main:
     return result
-  checkpoints.atomic_write(os.path.join(workdir, "metrics.json"),
-                           json.dumps(result, indent=2).encode())
+  # With the background the views were scored on (data.background, 'auto' resolved).
+  checkpoints.atomic_write(os.path.join(workdir, "metrics.json"), json.dumps(
+      {**result, "background": config.data.background}, indent=2).encode())
   hooks_lib.append_json_line(os.path.join(workdir, "metrics.jsonl"), {
       "step": step, "wall_seconds": round(train_seconds, 3), "eval_psnr": result["psnr"],
       "eval_ssim": result["ssim"], **({"eval_lpips": result["lpips"]} if "lpips" in result else {}),

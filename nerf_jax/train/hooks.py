@@ -70,6 +70,7 @@ class Record(Hook):
   def __init__(self, log_every, window, rays_per_step, elapsed, check):
     self.log_every, self.window, self.rays_per_step = log_every, window, rays_per_step
     self.elapsed, self.check = elapsed, check
+    self.rays_per_second = None  # the last record's: what the final evaluation's estimate uses
 
   def due(self, end):
     return every(end.step, self.log_every) or end.final
@@ -78,6 +79,7 @@ class Record(Hook):
     # The window ends when the device has done every step dispatched (progress.RateWindow).
     jax.block_until_ready((end.state, end.stats))
     end.rays_per_second = self.window.rate(end.step) * self.rays_per_step
+    self.rays_per_second = end.rays_per_second
     stats = jax.device_get(end.stats)
     self.check(end.state)
     end.record = {"step": end.step, "wall_seconds": round(self.elapsed(), 3),
