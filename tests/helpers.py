@@ -360,3 +360,15 @@ def tensorboard_scalars(workdir):
         if value.WhichOneof("value") == "simple_value":
           tags.setdefault(value.tag, []).append((event.step, value.simple_value))
   return tags
+
+
+def similarity(source, target):
+  """(s, R, t) with target ~ s R source + t for points float [N, 3] (least squares, Umeyama):
+  the similarity between two reconstructions of the same cameras."""
+  mu_s, mu_t = source.mean(0), target.mean(0)
+  cov = (target - mu_t).T @ (source - mu_s) / len(source)
+  u, sing, vt = np.linalg.svd(cov)
+  sign = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+  rot = u @ sign @ vt
+  scale = np.trace(np.diag(sing) @ sign) / ((source - mu_s) ** 2).sum(-1).mean()
+  return scale, rot, mu_t - scale * rot @ mu_s

@@ -11,7 +11,7 @@ import pytest
 
 from nerf_jax.data import colmap, scenes
 from nerf_jax.data.llff import export_llff
-from tests.helpers import assert_data_error, load_data
+from tests.helpers import assert_data_error, load_data, similarity
 
 # COLMAP's model ids (src/colmap/sensor/models.h), for the writer.
 MODEL_IDS = {"SIMPLE_PINHOLE": 0, "PINHOLE": 1, "SIMPLE_RADIAL": 2, "RADIAL": 3, "OPENCV": 4,
@@ -117,17 +117,6 @@ def _scene_folder(tmp_path, binary, keep_llff=False):
   return folder, truth, points
 
 
-def _similarity(source, target):
-  """(s, R, t) with target ~ s R source + t (least squares, Umeyama)."""
-  mu_s, mu_t = source.mean(0), target.mean(0)
-  cov = (target - mu_t).T @ (source - mu_s) / len(source)
-  u, sing, vt = np.linalg.svd(cov)
-  sign = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-  rot = u @ sign @ vt
-  scale = np.trace(np.diag(sing) @ sign) / ((source - mu_s) ** 2).sum(1).mean()
-  return scale, rot, mu_t - scale * rot @ mu_s
-
-
 @pytest.mark.parametrize("binary", [True, False], ids=["bin", "txt"])
 def test_model_loads_with_the_scenes_poses_intrinsics_images_and_points(tmp_path, binary):
   folder, truth, points = _scene_folder(tmp_path, binary)
@@ -147,7 +136,7 @@ def test_model_loads_with_the_scenes_poses_intrinsics_images_and_points(tmp_path
   # The loader moves the world (z up, points in [-1, 1]^3): a similarity that takes the true
   # camera centres to the loaded ones must also take each camera's axes and every point there.
   true_poses = truth.poses[order].astype(np.float64)
-  scale, rot, offset = _similarity(true_poses[:, :3, 3], poses[:, :3, 3])
+  scale, rot, offset = similarity(true_poses[:, :3, 3], poses[:, :3, 3])
   np.testing.assert_allclose(poses[:, :3, 3], scale * true_poses[:, :3, 3] @ rot.T + offset,
                              atol=1e-4 * scale)
   np.testing.assert_allclose(poses[:, :3, :3], rot @ true_poses[:, :3, :3], atol=1e-5)

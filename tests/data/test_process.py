@@ -17,7 +17,7 @@ import scipy.optimize
 import scipy.spatial.transform
 
 from nerf_jax.data.scenes import capture as capture_scene
-from tests.helpers import assert_data_error
+from tests.helpers import assert_data_error, similarity
 from nerf_jax.run import experiment
 from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.bench import capture as capture_bench
@@ -51,17 +51,6 @@ def processed(tmp_path_factory):
   return root, poses, summary
 
 
-def _similarity(src, dst):
-  """Umeyama: scale s, rotation R, translation t minimising |s R src + t - dst|^2."""
-  mu_s, mu_d = src.mean(0), dst.mean(0)
-  cov = (dst - mu_d).T @ (src - mu_s) / len(src)
-  u, sing, vt = np.linalg.svd(cov)
-  sign = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-  rot = u @ sign @ vt
-  scale = np.trace(np.diag(sing) @ sign) / ((src - mu_s) ** 2).sum(-1).mean()
-  return scale, rot, mu_d - scale * rot @ mu_s
-
-
 def test_recovers_the_cameras(processed):
   root, truth, summary = processed
   meta = json.loads((root / "out" / "transforms.json").read_text())
@@ -69,7 +58,7 @@ def test_recovers_the_cameras(processed):
   index = [int(f["file_path"][-6:-4]) for f in meta["frames"]]
   poses = np.array([f["transform_matrix"] for f in meta["frames"]])
   true = truth[index].astype(np.float64)
-  scale, rot, trans = _similarity(poses[:, :3, 3], true[:, :3, 3])
+  scale, rot, trans = similarity(poses[:, :3, 3], true[:, :3, 3])
   centres = scale * poses[:, :3, 3] @ rot.T + trans
   centre_err = np.linalg.norm(centres - true[:, :3, 3], axis=-1) / np.linalg.norm(
       true[:, :3, 3], axis=-1)
