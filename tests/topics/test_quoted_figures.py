@@ -27,7 +27,7 @@ def source(path, key, decimals, **where):
 
 
 DEFAULT_RUN = "default_run/metrics.json"
-SUITE = "suite/results.jsonl"
+SUITE = "suite/suite.jsonl"
 CI_RUN = (("tests", 0), ("minutes", 1))  # the suite as .ci/run measures it
 FIGURES = [
     ("README.md", r"test PSNR ([\d.]+) dB after (\d+) steps",
