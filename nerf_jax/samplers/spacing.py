@@ -126,7 +126,12 @@ def stratified_unbounded(near, t_inner, far, num_samples, batch_shape, key=None,
   inv_start = 1.0 / jnp.maximum(t_in, _MIN_NEAR_LINDISP)
   inv_far = 1.0 / jnp.maximum(far, _MIN_NEAR_LINDISP)
   # v <= 1 keeps the denominator >= inv_far > 0; v < 0 (the discarded branch) makes it larger.
-  disparity = jnp.clip(1.0 / (inv_start + (inv_far - inv_start) * v), t_in, far)
+  # In float32, inv_start + (inv_far - inv_start)·1 can round to 0 (inv_far = 1e-10 is below
+  # inv_start's last bit): 1/0 = inf, clipped, but its derivative -1/0² times a zero cotangent is
+  # a NaN gradient for the rays (pose and intrinsics refinement). The floor at inv_far, its exact
+  # value, changes no edge otherwise.
+  denominator = jnp.maximum(inv_start + (inv_far - inv_start) * v, inv_far)
+  disparity = jnp.clip(1.0 / denominator, t_in, far)
   t = jnp.where(s <= f, linear, disparity)
   return t.at[..., 0].set(near[..., 0]).at[..., -1].set(far[..., 0])
 

@@ -273,3 +273,29 @@ def test_unbounded_share_and_edge_cases():
   # near = 0, a miss: in disparity from 1e-3 (the clamp); near = far: all edges at near.
   assert t[4, 0] == 0.0 and 1e-3 <= t[4, 1] <= 1.1e-3
   np.testing.assert_array_equal(t[6], 3.0)
+
+
+@pytest.mark.parametrize("t_inner", [2.0, 3.0, 7.5, 40.0])
+def test_unbounded_edges_give_finite_gradients_to_the_rays_with_an_infinite_far(t_inner):
+  # Far = inf becomes 1e10: at the last edge 1/t_inner + (1e-10 - 1/t_inner)·1 rounds to 0 in
+  # float32 (e.g. 0.5 + (-0.5) for t_inner = 2). That edge is pinned to far, but the division's
+  # derivative there once gave NaN gradients to t_inner, i.e. to the rays' directions under
+  # pose or intrinsics refinement (a run stopped at step 141).
+  def edges(t_in):
+    return spacing.stratified_unbounded(jnp.float32(0.5), t_in, jnp.float32(jnp.inf), 16, (),
+                                        None, 0.5)
+  grad = jax.grad(lambda t_in: jnp.sum(jnp.log(edges(t_in))))(jnp.float32(t_inner))
+  assert np.isfinite(grad)
+  # The linear part's edges move as s/f with t_inner: d/dt_in sum(log t) over s in (0, f] is
+  # sum(s/f / t); checked against a central difference in float64 of the same formula.
+  t = np.asarray(edges(jnp.float32(t_inner)), np.float64)
+  assert np.all(np.isfinite(t)) and t[-1] == 1e10 and np.all(np.diff(t) >= 0)
+  s = np.arange(17) / 16.0
+  inner = (s > 0) & (s <= 0.5)
+  want = np.sum((s[inner] / 0.5) / t[inner])
+  beyond = (s > 0.5) & (s < 1)
+  v = (s[beyond] - 0.5) / 0.5
+  inv = lambda ti: 1.0 / ti + (1e-10 - 1.0 / ti) * v
+  h = 1e-6 * t_inner
+  want += np.sum(-(np.log(inv(t_inner + h)) - np.log(inv(t_inner - h))) / (2 * h))
+  np.testing.assert_allclose(grad, want, rtol=2e-3)
