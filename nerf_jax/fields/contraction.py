@@ -184,7 +184,7 @@ def inner_exit(origins, directions, radius=1.0, kind="l2"):
 # Gaussians through the contraction (mip-NeRF 360, Barron et al. 2022, eq. 8-9): a Gaussian
 # N(mean, cov) maps to N(contract(mean), J cov Jᵀ), J the Jacobian of `contract` at the mean
 # (a linearisation: exact for the inner region, where contract is the identity and J = I).
-#   mean: float32 [..., 3]; cov: float32 [..., 3, 3]; var: float32 [..., 3] (a diagonal);
+#   mean: float32 [..., 3]; cov: float32 [..., 3, 3];
 #   std: float32 [...] (an isotropic Gaussian's standard deviation).
 # Numerics: J is finite everywhere (see the module doc: ~2/|x| across the ray and ~1/|x|^2 along
 # it at large |x|, 0 at infinity), and so are its derivatives, which the gradients of J cov Jᵀ
@@ -250,22 +250,6 @@ def contract_gaussian(mean, cov, radius=1.0, kind="l2"):
   return mean, 0.5 * (out + jnp.swapaxes(out, -1, -2))
 
 
-def contract_gaussian_diagonal(mean, var, radius=1.0, kind="l2"):
-  """A Gaussian with diagonal covariance through the contraction: the diagonal of J diag(var) Jᵀ.
-
-  mean: float32 [..., 3]. var: float32 [..., 3], >= 0. radius, kind: as `contract`.
-  Returns (contract(mean): float32 [..., 3], float32 [..., 3]): (J∘J)·var, a sum of
-  non-negative terms, so >= 0 exactly. The off-diagonal terms J diag(var) Jᵀ would gain across
-  the L2 contraction's curved shell are dropped: the integrated encoding reads only the
-  diagonal (each of its features depends on one coordinate). Exact (to the linearisation) for a
-  Gaussian whose covariance is diagonal; for a frustum's, `contract_frustum_gaussian` keeps the
-  full covariance (what the Field uses).
-  """
-  jac = contraction_jacobian(mean, radius, kind)
-  mean = _contract_outside(mean, _inside(mean, radius, kind), radius, kind)
-  return mean, jnp.sum(jac * jac * var[..., None, :], axis=-1)
-
-
 def contract_frustum_gaussian(mean, directions, t_var, r_var, radius=1.0, kind="l2"):
   """mip-NeRF 360's contracted Gaussian of a conical frustum, as the integrated encoding reads it.
 
@@ -284,7 +268,7 @@ def contract_frustum_gaussian(mean, directions, t_var, r_var, radius=1.0, kind="
   times radius^2), >= 0. radius, kind: as `contract`.
   Returns (contract(mean): float32 [..., 3], the diagonal of J Σ Jᵀ: float32 [..., 3], >= 0).
 
-  Unlike `contract_gaussian_diagonal` of Σ's diagonal, this keeps Σ's off-diagonal terms: on a
+  Unlike (J∘J)·diag(Σ) (the form the field used before), this keeps Σ's off-diagonal terms: on a
   ray oblique to the axes, far outside the inner region, the long axis of a frustum's Gaussian
   (along the ray, nearly radial there) is squeezed by the radial ~1/|x|^2 of J, whereas its
   diagonal alone spreads that variance over every axis, to be squeezed only by the tangential

@@ -15,9 +15,9 @@ A field whose encoding reads cones (`cones`, from Rays.radii) is queried at the 
 samples' frustums with what the encoding reads of them, `per_sample` (`cone_inputs`): their
 Gaussians' diagonal variances (mip-NeRF's integrated encoding; contracted from the full
 covariance, as mip-NeRF 360's), or Zip-NeRF's six points and their scales (antialiased
-lattices; turned at random while training, with a key). Queried without them (the occupancy grid's, marching's and
-the viewer's probes: points with no interval) it sees points: variance 0, which is the point
-encoding exactly.
+lattices; turned at random while training, with a key). Queried without them (the occupancy
+grid's, marching's and the viewer's probes: points with no interval) it sees points: variance 0,
+which is the point encoding exactly.
 """
 
 import dataclasses
