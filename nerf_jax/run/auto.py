@@ -130,8 +130,9 @@ def box_effects(result, dataset, user):
   leave that box (from_data.cut_share, the share the run's warning reads; on the user's
   data.scene_bound if `user`, {field: value} of their flags, sets one) decides: above
   from_data.CUT_SHARE the space beyond is contracted (data.contraction=CONTRACTION), so the
-  warning never contradicts auto (a data.contraction in `user` is theirs: not measured). Where the space beyond is contracted and the cameras look at
-  one point (characterise.focus), the world is centred there (data.focus), the inner region
+  warning never contradicts auto (a data.contraction in `user` is theirs: not measured). Where
+  the space beyond is contracted and the cameras look at one point (characterise.focus), the
+  world is centred there (data.focus), the inner region
   sized from the sparse points' box where the data has one, else from the cameras' distances
   (from_data.scene_box). `dataset`: the training views of one camera."""
   effects, lines = {}, []

@@ -120,8 +120,9 @@ def _pixels(points, pose, height, width, intrinsics, pixel_center):
 
 def from_masks(dataset, region):
   """SubjectBox where at least MASK_VOTE of the photos that see a point (at least MASK_SEEN of
-  them all) keep its pixel, carved in `region`; None where the masks keep no such region or one at least MASK_SUBJECT of the
-  region's size on its largest axis (masks of passers-by, not of a subject)."""
+  them all) keep its pixel, carved in `region`; None where the masks keep no such region or one
+  at least MASK_SUBJECT of the region's size on its largest axis (masks of passers-by, not of a
+  subject)."""
   poses = np.asarray(dataset.poses, np.float64)
   def keep(points):
     seen, kept = np.zeros(len(points)), np.zeros(len(points))
@@ -205,9 +206,10 @@ def with_subject(config, train_ds, test_ds):
   """(config, train_ds, test_ds) with data.subject on: the world moved and scaled (`moved`) so
   that the subject's box (`subject_box` of the training views) is centred at the origin with
   its largest half-extent times MARGIN at data.scene_bound (1 where that is 0 or -1; -1 then
-  becomes 1, as the box found); each training photo's bounds (Dataset.bounds) cover the subject's box from it,
-  and near, far cover those of every photo (the samplers read one near and far). One line says
-  the source, the box and the scale. As given with '' or in NDC (the cameras' frame)."""
+  becomes 1, as the box found); each training photo's bounds (Dataset.bounds) cover the
+  subject's box from it, and near, far cover those of every photo; with data.photo_bounds the
+  held-out views get theirs too (each view is then sampled within its own). One line says the
+  source, the box and the scale. As given with '' or in NDC (the cameras' frame)."""
   source = config.data.subject
   if not source or config.data.ndc:
     return config, train_ds, test_ds
