@@ -49,9 +49,12 @@ def skip_grid(density_fn, resolution, bound, threshold, probes):
   return occupancy.density_grid(density_fn, resolution, bound, probes) >= threshold
 
 
-def occupied_ranks(mask, points, bound):
-  """(occupied bool [C, S], rank int32 [C, S]) of sample points float32 [C, S, 3] in `mask`."""
+def occupied_ranks(mask, points, bound, keep=None):
+  """(occupied bool [C, S], rank int32 [C, S]) of sample points float32 [C, S, 3] in `mask`
+  (and where `keep`, bool [C, S] or None, is True)."""
   occupied = occupancy.lookup(mask, points, bound)
+  if keep is not None:
+    occupied = occupied & keep
   rank = jnp.cumsum(occupied, axis=-1, dtype=jnp.int32) - 1
   return occupied, rank
 

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from nerf_jax.render import compositing, empty_space, renderer
-from nerf_jax.samplers import placement, spacing
+from nerf_jax.samplers import placement, spacing, visual_hull
 from nerf_jax.cameras.rays import Rays
 
 
@@ -240,14 +240,16 @@ class _Marcher:
     self.query_round = empty_space.make_query_round(query)
 
     @jax.jit
-    def plan(mask, rays):
+    def plan(mask, hull, rays):
       """(t, t_world, points, occupied, rank): the plain path's edges t (z-depth) and the same
       edges in world length (for the stop test), float32 [C, S + 1]; the rest as in
-      empty_space.occupied_ranks."""
+      empty_space.occupied_ranks, with a visual hull (float32 [R, R, R] or None) the samples
+      outside it left out as the plain path gives them no density."""
       t = rs.stratified(rays)
       points = placement.points(rays, spacing.midpoints(t))
+      keep = None if hull is None else visual_hull.gate(hull, points, rs.scene_bound) > 0
       return (t, placement.world_t(t, rays),
-              points, *empty_space.occupied_ranks(mask, points, rs.scene_bound))
+              points, *empty_space.occupied_ranks(mask, points, rs.scene_bound, keep))
 
     @jax.jit
     def finish(sigma, rgb, t, rays, background):
@@ -260,17 +262,17 @@ class _Marcher:
   def bind(self, variables):
     """The Draw of `make_image_renderer` for `variables`."""
     params = jax.device_put(variables["params"])  # once, not with every query
-    mask = self.skip_grid(params)
-    return Draw(functools.partial(self.draw, params, mask),
-                functools.partial(self.compile_steps, params, mask), self.settings.chunk)
+    grids = (self.skip_grid(params), variables.get("hull"))  # plan's mask and hull
+    return Draw(functools.partial(self.draw, params, grids),
+                functools.partial(self.compile_steps, params, grids), self.settings.chunk)
 
-  def compile_steps(self, params, mask):
+  def compile_steps(self, params, grids):
     """Draw.compile_steps: the per-chunk functions, then the query round at every buffer size,
     called as `draw` calls them. A call of n rays selects at most min(n, chunk)·g samples per
     round (g samples of each ray: the group, or all S when fewer)."""
     rc, chunk = self.settings, self.settings.chunk
     _, part = _padded(_probe_ray(self.ray_renderer), chunk)
-    t, t_world, points, occupied, rank = self.plan(mask, part)
+    t, t_world, points, occupied, rank = self.plan(*grids, part)
     sigma = jnp.zeros(occupied.shape, jnp.float32)
     rgb = jnp.zeros((*occupied.shape, 3), jnp.float32)
     depth = jnp.zeros(occupied.shape[:1], jnp.float32)
@@ -285,7 +287,7 @@ class _Marcher:
                                            rgb)
       yield math.inf if size == sizes[-1] else size // group
 
-  def draw(self, params, mask, rays, background=(0.0, 0.0, 0.0)):
+  def draw(self, params, grids, rays, background=(0.0, 0.0, 0.0)):
     rc, chunk = self.settings, self.settings.chunk
     num_rays, flat = _padded(rays, chunk)
     live = np.arange(len(flat.origins)) < num_rays  # padding rays query nothing
@@ -293,7 +295,7 @@ class _Marcher:
     pieces = []
     for i in range(0, len(flat.origins), chunk):
       part = _rows(flat, i, chunk)
-      t, t_world, points, occupied, rank = self.plan(mask, part)
+      t, t_world, points, occupied, rank = self.plan(*grids, part)
       sigma, rgb, _ = empty_space.march(self.query_round, params, t_world, points,
                                         part.viewdirs, occupied, rank, live[i:i + chunk],
                                         rc.march_group, rc.min_transmittance)

@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 
 from nerf_jax.render import compositing
-from nerf_jax.samplers import occupancy, placement, spacing
+from nerf_jax.samplers import occupancy, placement, spacing, visual_hull
 from nerf_jax.fields.field import Field
 from nerf_jax.samplers.placement import Sampler
 
@@ -119,14 +119,17 @@ class RayRenderer:
     return variables["params"][self.networks[-1]]
 
   def _shade(self, params, rays, samples, background, key, remat_chunk=0, bands=None,
-             transient_params=None):
+             transient_params=None, hull=None):
     """One pass over `samples` (placement.Samples) with one network's `params`, and the
-    transient head's `transient_params` (None: the static field alone)."""
+    transient head's `transient_params` (None: the static field alone); with a visual `hull`
+    (float32 [R, R, R] over the scene box), no density outside it."""
     budget = self.sample_budget if samples.gapped and rays.near.ndim == 1 else 0
     distances = samples.distances
     if samples.gapped and not budget:  # not recomputed in every reader (occupancy.computed_once)
       distances = occupancy.computed_once(distances)
     points = placement.points(rays, distances)
+    gated = lambda sigma: sigma if hull is None else sigma * visual_hull.gate(
+        hull, points, self.sampler.scene_bound)
     per_sample = None
     if self.field.cones:  # the frustums of the samples' intervals, queried at their means
       if budget or (self.colour_fraction > 0 and self.field.splits_density):
@@ -145,7 +148,7 @@ class RayRenderer:
                           slots, points)
       else:
         sigma = self.field.query_density(params, points, key)
-      out = self._shade_where_it_matters(params, rays, samples, points, sigma, background,
+      out = self._shade_where_it_matters(params, rays, samples, points, gated(sigma), background,
                                          complete if budget else None)
     else:
       if budget:
@@ -153,6 +156,7 @@ class RayRenderer:
       else:
         rgb, sigma = self.field.query_in_chunks(params, points, rays.viewdirs, key,
                                                 remat_chunk, rays.image, bands, per_sample)
+      sigma = gated(sigma)
       if transient_params is not None:
         return self._shade_with_transient(transient_params, rays, samples, points, rgb, sigma,
                                           background)
@@ -233,7 +237,8 @@ class RayRenderer:
   def render(self, variables, rays, key=None, background=None, remat_chunk=0, bands=None):
     """Render a batch of rays with the coarse and (optionally) fine passes.
 
-    variables: see the module docstring. rays: Rays [...] (rays.image: each ray's training
+    variables: see the module docstring (with 'hull', the visual hull float32 [R, R, R] of the
+    scene box: every pass has no density outside it). rays: Rays [...] (rays.image: each ray's training
     image, for its appearance code; None = the mean code). key: PRNG key for stratified jitter,
     resampling, density noise and the multisamples' turns (Field.cone_inputs); None renders
     deterministically. background: None or float32
@@ -251,15 +256,16 @@ class RayRenderer:
     transient = (params["transient"] if self.transient is not None and rays.image is not None
                  else None)
     has_fine = self.num_fine_samples > 0
+    hull = variables.get("hull")
     outputs = {"coarse": self._shade(params["coarse"], rays, samples, background, keys[1],
-                                     remat_chunk, bands, None if has_fine else transient)}
+                                     remat_chunk, bands, None if has_fine else transient, hull)}
     if self.num_fine_samples > 0:
       t = samples.t
       extra = spacing.sample_pdf(t, outputs["coarse"]["weights"], self.num_fine_samples,
                                   keys[2])
       fine = placement.on_edges(spacing.merge_edges(t, extra))
       outputs["fine"] = self._shade(self.final_params(variables), rays, fine, background,
-                                    keys[3], remat_chunk, bands, transient)
+                                    keys[3], remat_chunk, bands, transient, hull)
     if self.sampler.scene_bound > 0:
       for out in outputs.values():
         out["depth"] = empty_depth_is_far(out, rays.far)

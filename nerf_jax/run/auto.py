@@ -88,7 +88,9 @@ def subject_effects(dataset, collection, contraction=""):
   centre, and the space beyond the inner region contracted (CONTRACTION) unless `contraction`
   (the run's) already is: the cameras and the rest of the world lie outside it; where the
   masks mark it (only its pixels train), each photo sampled within its depths (data.photo_bounds:
-  no sample between a camera and the subject to hold a cloud that explains one photo); else ({}, []
+  no sample between a camera and the subject to hold a cloud that explains one photo) and no
+  density in the space around it that the masks' vote rules out (data.visual_hull: a halo there
+  explains some photos and spoils the rest); else ({}, []
   where not a collection, or the line saying why the world stays)."""
   if not collection:
     return {}, []
@@ -109,9 +111,10 @@ def subject_effects(dataset, collection, contraction=""):
     effects["data.contraction"] = CONTRACTION
     beyond = f", the space beyond contracted (data.contraction={CONTRACTION!r})"
   if box.source == "masks":  # only the subject's pixels train: nothing else on a ray is seen
-    effects["data.photo_bounds"] = True
+    effects.update({"data.photo_bounds": True, "data.visual_hull": True})
     beyond += (", each photo sampled within the subject's depths from it "
-               "(data.photo_bounds: its masks keep the subject alone)")
+               "(data.photo_bounds: its masks keep the subject alone), no density where the "
+               "masks' vote rules it out (data.visual_hull: no pixel says that space is empty)")
   return effects, [f"the world scaled and moved so the subject fills the inner region "
                    f"(data.subject='auto'){beyond}: {measured}"]
 

@@ -100,3 +100,54 @@ def bounding_box(hull, bound, margin=1):
   low = -bound + (kept.min(axis=0) - margin) * cell
   high = -bound + (kept.max(axis=0) + 1 + margin) * cell
   return np.clip(np.stack([low, high]), -bound, bound).astype(np.float32)
+
+
+def dilated(mask, radius):
+  """float32 [H, W]: the largest value of `mask` float32 [H, W] within `radius` pixels (a
+  (2·radius + 1)^2 window), the image's edge padded with zeros."""
+  height, width = mask.shape
+  padded = np.pad(np.asarray(mask, np.float32), radius)
+  out = np.zeros((height, width), np.float32)
+  for dy in range(2 * radius + 1):
+    for dx in range(2 * radius + 1):
+      out = np.maximum(out, padded[dy:dy + height, dx:dx + width])
+  return out
+
+
+def carve_vote(masks, poses, cameras, bound, resolution, vote, pixel_center=0.5):
+  """The hull of masks that keep a subject (a photo collection's, run/subject.py) on the R^3
+  cells of the box [-bound, bound]^3: float32 [R, R, R], 1 where at least `vote` (a share) of
+  the photos that see a cell's centre keep it, 0 elsewhere; a cell no photo sees is kept.
+
+  Unlike `carve`, one photo does not decide: passers-by hide part of the subject in some photos
+  and a zoom that the stored camera lacks moves its edges. Each mask is dilated by the radius
+  in pixels that a cell projects to from that photo (`dilation_radius`), so a cell the subject
+  touches counts as kept wherever the subject is seen; a photo taken from inside the box's
+  circumscribed sphere has no such radius and does not vote.
+  masks: float32 [N, H, W] or a list of [H_i, W_i] (1 = the subject). poses: float [N, 4, 4].
+  cameras: Cameras (`camera(k)` gives photo k's size and intrinsics). vote: float in (0, 1].
+  """
+  centres = np.asarray(occupancy.cell_centres(resolution, bound), np.float64).reshape(-1, 3)
+  seen, kept = np.zeros(len(centres)), np.zeros(len(centres))
+  for k, pose in enumerate(np.asarray(poses, np.float64)):
+    height, width, intrinsics = cameras.camera(k)
+    radius = dilation_radius(pose[None], intrinsics, bound, resolution)
+    if radius is None:
+      continue
+    cover = dilated(masks[k], radius) > 0
+    column, row, depth = (np.asarray(a) for a in project(centres, pose, intrinsics,
+                                                          pixel_center))
+    i, j = np.floor(column + 0.5).astype(np.int64), np.floor(row + 0.5).astype(np.int64)
+    inside = (depth > 0) & (i >= 0) & (i < width) & (j >= 0) & (j < height)
+    seen += inside
+    kept += inside & cover[np.clip(j, 0, height - 1), np.clip(i, 0, width - 1)]
+  return (kept >= vote * seen).reshape((resolution,) * 3).astype(np.float32)
+
+
+def gate(hull, points, bound):
+  """float32 [...]: 0 where points float32 [..., 3] lie in a carved cell of `hull` float32
+  [R, R, R] over the box [-bound, bound]^3, else 1: outside the box nothing was carved, so
+  nothing is ruled out (a subject's box found from photos with wrong focal lengths can leave
+  part of it outside: run/subject.py)."""
+  inside = jnp.all(jnp.abs(points) <= bound, axis=-1)
+  return jnp.where(inside, occupancy.lookup(hull, points, bound), 1.0)

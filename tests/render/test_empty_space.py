@@ -178,9 +178,30 @@ def test_marching_skips_most_samples_of_a_trained_model(trained_fast):
   marcher = image_renderer._Marcher(exp.renderer, exp.image)  # pylint: disable=protected-access
   mask = marcher.skip_grid(params)
   rays = exp.rays(exp.test_ds.poses[0]).reshape(-1)
-  _, t_world, points, occupied, rank = marcher.plan(mask, rays)
+  _, t_world, points, occupied, rank = marcher.plan(mask, None, rays)
   _, _, queried = empty_space.march(marcher.query_round, params, t_world, points, rays.viewdirs,
                                  occupied, rank, np.ones(t_world.shape[0], bool),
                                  config.render.march_group, config.render.min_transmittance)
   assert 0.0 < float(jnp.mean(mask)) < 0.5  # the trained toy field: about 12% non-empty
   assert queried < 0.4 * occupied.size
+
+
+def test_marching_with_a_visual_hull_renders_the_plain_image_with_it(trained_fast):
+  # Half the box ruled out (x > 0): the marcher leaves those samples out as the plain path
+  # gives them no density, and both agree within the documented skip bound above.
+  exp, variables = trained_fast
+  config = exp.config
+  hull = np.ones((16, 16, 16), np.float32)
+  hull[8:] = 0.0
+  gated = {**variables, "hull": jnp.asarray(hull)}
+  bg = background.parse(config.data.background)
+  rays = exp.rays(exp.test_ds.poses[0])
+  plain_chunk = image_renderer.make_chunk_renderer(exp.renderer)
+  a = image_renderer.render_image(plain_chunk, gated, rays, bg, config.render.chunk)
+  b = image_renderer.make_image_renderer(exp.renderer, exp.image)(gated)(rays, bg)
+  whole = image_renderer.render_image(plain_chunk, variables, rays, bg, config.render.chunk)
+  assert np.mean(np.abs(a["acc"] - whole["acc"])) > 1e-2  # the hull removed something
+  rc = config.render
+  bound = 1.0 - np.exp(-rc.march_threshold * 2.0 * np.sqrt(3.0) * config.data.scene_bound)
+  assert np.max(np.abs(a["acc"] - b["acc"])) <= bound + rc.min_transmittance
+  assert np.mean(np.abs(a["rgb"] - b["rgb"])) < 2e-3

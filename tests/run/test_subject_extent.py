@@ -168,9 +168,11 @@ def test_auto_fills_a_small_subject_of_a_collection_only():
   masked = _dataset(poses, masks=_box_masks(poses))
   assert auto.subject_effects(masked, True)[0] == {"data.subject": "auto",
                                                    "data.contraction": auto.CONTRACTION,
-                                                   "data.photo_bounds": True}
+                                                   "data.photo_bounds": True,
+                                                   "data.visual_hull": True}
   assert auto.subject_effects(masked, True, "l2")[0] == {"data.subject": "auto",
-                                                         "data.photo_bounds": True}
+                                                         "data.photo_bounds": True,
+                                                         "data.visual_hull": True}
   rng = np.random.default_rng(2)  # sparse points mark it, no masks: the background trains
   points = rng.uniform(BOX_LO, BOX_HI, (2000, 3)).astype(np.float32)
   assert auto.subject_effects(_dataset(poses, points=points), True)[0] == {

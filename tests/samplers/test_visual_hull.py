@@ -1,6 +1,8 @@
 """The visual hull: projection inverts the camera rays; carving a sphere's masks keeps every cell
-the sphere touches and removes what no view covers; transient masks never carve; grids over a
-tighter, non-cubic box interpolate as brute force; a run with data.visual_hull samples only inside the hull."""
+the sphere touches and removes what no view covers; transient masks never carve; a subject's
+masks, hidden in some photos by passers-by, carved by vote; the gate and every rendering path
+give no density outside the hull (closed-form optical depths); grids over a tighter, non-cubic
+box interpolate as brute force; a run with data.visual_hull samples only inside the hull."""
 
 import jax
 import jax.numpy as jnp
@@ -8,13 +10,17 @@ import numpy as np
 import pytest
 
 from nerf_jax.cameras import rays
+from nerf_jax.cameras.cameras import Cameras
+from nerf_jax.cameras.rays import Rays
+from nerf_jax.data.dataset import Dataset
+from nerf_jax.render import image_renderer, renderer
 from nerf_jax.fields.networks import lattice
 from nerf_jax.fields.encodings import grid
 from nerf_jax.fields.protocol import NetworkSettings
-from nerf_jax.run import builders, experiment
+from nerf_jax.run import builders, experiment, from_data
 from nerf_jax.run.signature import init_state, model_signature
 from nerf_jax.samplers import occupancy, placement, visual_hull
-from tests.helpers import TINY_GRID, jitted, small_config
+from tests.helpers import StandInNetwork, TINY_GRID, jitted, ray_renderer, small_config
 from tests.helpers import trilinear_brute
 
 
@@ -99,6 +105,70 @@ def test_carving_keeps_everything_when_a_camera_is_inside_the_box():
   assert float(jnp.min(hull)) == 1.0
 
 
+def test_a_subjects_vote_keeps_what_passers_by_hide_and_carves_around_it():
+  size, focal, ball, bound, res = 48, 60.0, 0.5, 1.0, 24
+  poses = _views(30)
+  masks = _sphere_masks(poses, size, focal, ball)
+  masks[::4, :, : size // 2] = 0.0  # a passer-by hides the subject's left in 8 photos of 30
+  intrinsics = (focal, focal, size / 2, size / 2)
+  cameras = Cameras.shared(len(poses), size, size, intrinsics)
+  hull = visual_hull.carve_vote(masks, poses, cameras, bound, res, vote=0.6)
+  centres = np.asarray(occupancy.cell_centres(res, bound))
+  cell = 2 * bound / res
+  nearest = np.linalg.norm(np.maximum(np.abs(centres) - cell / 2, 0.0), axis=-1)
+  assert hull.shape == (res,) * 3 and hull[nearest < ball].min() == 1.0  # none of it carved
+  assert hull[nearest > 0.8].max() == 0.0  # 22 clean photos rule out what lies well outside
+  # Every photo's veto (`carve`) loses part of the subject to the passers-by; the vote does not.
+  strict = np.asarray(visual_hull.carve(masks, poses, intrinsics, bound, res))
+  assert strict[nearest < ball].min() == 0.0
+  # A vote of all the photos is the strict carving (each mask dilated alike).
+  np.testing.assert_array_equal(visual_hull.carve_vote(masks, poses, cameras, bound, res, 1.0),
+                                strict)
+
+
+def test_the_gate_is_the_cell_lookup_inside_the_box_and_one_outside():
+  rng = np.random.default_rng(3)
+  hull = (rng.random((5, 5, 5)) > 0.5).astype(np.float32)
+  bound = 1.5
+  points = rng.uniform(-2.0, 2.0, (500, 3)).astype(np.float32)
+  got = np.asarray(visual_hull.gate(jnp.asarray(hull), jnp.asarray(points), bound))
+  expected = []
+  for p in points:  # the cell holding each point, by hand
+    if np.any(np.abs(p) > bound):
+      expected.append(1.0)
+      continue
+    i, j, k = (min(int((v + bound) / (2 * bound) * 5), 4) for v in p)
+    expected.append(hull[i, j, k])
+  np.testing.assert_array_equal(got, expected)
+
+
+# 'grid' so positions reach the stand-in as they are, 'relu' so its density passes unchanged.
+UNIFORM = {"model.encoding": "grid", "model.density_activation": "relu", "render.chunk": 8,
+           "num_samples": 512, "data.scene_bound": 1.5, "render.march_grid": 16}
+
+
+@pytest.mark.parametrize("path", ["plain", "march"])
+def test_no_density_outside_the_hull_on_every_rendering_path(path):
+  # Density 1 everywhere; the hull keeps the cells of x > 0 of the box ±1.5. A ray along x
+  # crosses 1.5 of kept length, one along y at x = 0.7 the whole chord 3, at x = -0.7 none.
+  config = small_config(UNIFORM, **{"render.march": path == "march"})
+  rr = ray_renderer(config, StandInNetwork(lambda p: (jnp.ones_like(p) * 0.5,
+                                                      jnp.ones(p.shape[:-1], jnp.float32))))
+  hull = np.zeros((4, 4, 4), np.float32)
+  hull[2:] = 1.0
+  variables = {"params": {"coarse": {}}, "hull": jnp.asarray(hull)}
+  origins = np.array([[-3.0, 0.1, 0.1], [0.7, -3.0, 0.1], [-0.7, -3.0, 0.1]], np.float32)
+  directions = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 1.0, 0]], np.float32)
+  rays = Rays.create(origins, directions, 1.0, 5.0)
+  if path == "march":
+    settings = builders.image_settings(config)
+    assert image_renderer.marches(rr, settings)
+    out = image_renderer.make_image_renderer(rr, settings)(variables)(rays)
+  else:
+    out = renderer.final(jitted(rr.render)(variables, rays))
+  np.testing.assert_allclose(out["acc"], [1 - np.exp(-1.5), 1 - np.exp(-3.0), 0.0], atol=1e-2)
+
+
 def test_bounding_box_of_a_block_of_cells():
   hull = np.zeros((10, 10, 10), np.float32)
   hull[2:5, 3:4, 6:10] = 1.0
@@ -181,3 +251,24 @@ def test_a_run_with_the_visual_hull_samples_only_inside_it():
   in_hull = jitted(occupancy.lookup, bound=exp.config.data.scene_bound)(
       jnp.asarray(hull > 0), jnp.asarray(points))
   assert bool(jnp.all(in_hull))
+
+
+def test_a_run_on_a_subjects_masks_carves_their_vote_whatever_the_box():
+  # data.subject on and masks that keep the subject: the hull is the vote (from_data.HULL_VOTE)
+  # of the moved photos on 64^3 cells of the scene box, contracted or not, kept for the renderer
+  # alone (no occupancy grid); without data.subject the masks are a passer-by's and carve nothing.
+  size, focal, ball = 48, 60.0, 0.5
+  poses = _views(30)
+  masks = _sphere_masks(poses, size, focal, ball)
+  dataset = Dataset(np.zeros((30, size, size, 3), np.float32), poses,
+                    (focal, focal, size / 2, size / 2), near=1.0, far=8.0, masks=masks)
+  config = small_config(base="capture", **{"data.visual_hull": True, "data.subject": "masks",
+                                           "data.scene_bound": 1.0, "data.contraction": "linf"})
+  out, hull = from_data.with_visual_hull(config, dataset)
+  cameras = Cameras.shared(30, size, size, (focal, focal, size / 2, size / 2))
+  np.testing.assert_array_equal(hull, visual_hull.carve_vote(
+      masks, poses, cameras, 1.0, from_data.HULL_RESOLUTION, from_data.HULL_VOTE,
+      from_data.pixel_center(config, dataset)))
+  assert out is config and 0.05 < float(jnp.mean(hull)) < 0.3  # the ball: 6.5% of the box
+  config.data.subject = ""
+  assert from_data.with_visual_hull(config, dataset)[1] is None
