@@ -243,11 +243,11 @@ class _Marcher:
     def plan(mask, hull, rays):
       """(t, t_world, points, occupied, rank): the plain path's edges t (z-depth) and the same
       edges in world length (for the stop test), float32 [C, S + 1]; the rest as in
-      empty_space.occupied_ranks, with a visual hull (float32 [R, R, R] or None) the samples
+      empty_space.occupied_ranks, with a visual hull (renderer.hull_of, or None) the samples
       outside it left out as the plain path gives them no density."""
       t = rs.stratified(rays)
       points = placement.points(rays, spacing.midpoints(t))
-      keep = None if hull is None else visual_hull.gate(hull, points, rs.scene_bound) > 0
+      keep = None if hull is None else visual_hull.gate(hull[0], points, hull[1]) > 0
       return (t, placement.world_t(t, rays),
               points, *empty_space.occupied_ranks(mask, points, rs.scene_bound, keep))
 
@@ -262,7 +262,8 @@ class _Marcher:
   def bind(self, variables):
     """The Draw of `make_image_renderer` for `variables`."""
     params = jax.device_put(variables["params"])  # once, not with every query
-    grids = (self.skip_grid(params), variables.get("hull"))  # plan's mask and hull
+    grids = (self.skip_grid(params),  # plan's mask and hull
+             renderer.hull_of(variables, self.ray_renderer.sampler.scene_bound))
     return Draw(functools.partial(self.draw, params, grids),
                 functools.partial(self.compile_steps, params, grids), self.settings.chunk)
 

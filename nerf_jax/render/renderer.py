@@ -122,14 +122,15 @@ class RayRenderer:
              transient_params=None, hull=None):
     """One pass over `samples` (placement.Samples) with one network's `params`, and the
     transient head's `transient_params` (None: the static field alone); with a visual `hull`
-    (float32 [R, R, R] over the scene box), no density outside it."""
+    (`hull_of`), no density outside it."""
     budget = self.sample_budget if samples.gapped and rays.near.ndim == 1 else 0
     distances = samples.distances
     if samples.gapped and not budget:  # not recomputed in every reader (occupancy.computed_once)
       distances = occupancy.computed_once(distances)
     points = placement.points(rays, distances)
-    gated = lambda sigma: sigma if hull is None else sigma * visual_hull.gate(
-        hull, points, self.sampler.scene_bound)
+    # The gate of the samples' world points, before the frustums' inputs replace them.
+    gate = None if hull is None else visual_hull.gate(hull[0], points, hull[1])
+    gated = lambda sigma: sigma if gate is None else sigma * gate
     per_sample = None
     if self.field.cones:  # the frustums of the samples' intervals, queried at their means
       if budget or (self.colour_fraction > 0 and self.field.splits_density):
@@ -237,8 +238,8 @@ class RayRenderer:
   def render(self, variables, rays, key=None, background=None, remat_chunk=0, bands=None):
     """Render a batch of rays with the coarse and (optionally) fine passes.
 
-    variables: see the module docstring (with 'hull', the visual hull float32 [R, R, R] of the
-    scene box: every pass has no density outside it). rays: Rays [...] (rays.image: each ray's training
+    variables: see the module docstring (with 'hull', a visual hull: every pass has no density
+    outside it, `hull_of`). rays: Rays [...] (rays.image: each ray's training
     image, for its appearance code; None = the mean code). key: PRNG key for stratified jitter,
     resampling, density noise and the multisamples' turns (Field.cone_inputs); None renders
     deterministically. background: None or float32
@@ -256,7 +257,7 @@ class RayRenderer:
     transient = (params["transient"] if self.transient is not None and rays.image is not None
                  else None)
     has_fine = self.num_fine_samples > 0
-    hull = variables.get("hull")
+    hull = hull_of(variables, self.sampler.scene_bound)
     outputs = {"coarse": self._shade(params["coarse"], rays, samples, background, keys[1],
                                      remat_chunk, bands, None if has_fine else transient, hull)}
     if self.num_fine_samples > 0:
@@ -282,6 +283,15 @@ class RayRenderer:
       # the cube an NDC box is mapped onto: probe the points the field sees there
       density = lambda cells, fn=density: fn(rs.grid_points(cells))
     return occupancy.density_grid(density, oc.resolution, rs.grid_bound, oc.probes, key)
+
+
+def hull_of(variables, scene_bound):
+  """(hull float32 [R, R, R], bound) of `variables`' visual hull over the box [-bound, bound]^3:
+  variables['hull'], over variables['hull_bound'] where the run keeps one (a subject's hull)
+  else over the scene box; None without a hull."""
+  if "hull" not in variables:
+    return None
+  return variables["hull"], variables.get("hull_bound", scene_bound)
 
 
 def sample_intervals(samples):

@@ -133,8 +133,9 @@ def with_visual_hull(config, dataset):
   """(config, hull): with data.visual_hull on data with opacity, the training masks are carved
   (visual_hull.py) on the occupancy grid's cells (else 64^3 cells of the grids' cube), the grid
   encodings' box (model.grid_box, recorded in config.json) becomes the hull's bounding box and
-  `hull` (float32 [R, R, R]) is returned for the occupancy grid; on a photo collection whose
-  masks keep the subject (data.subject on), `subject_hull`; else (config, None)."""
+  `hull` (float32 [R, R, R], bound: the scene box's) is returned for the occupancy grid; on a
+  photo collection whose masks keep the subject (data.subject on), `subject_hull`; else
+  (config, None)."""
   if not config.data.visual_hull:
     return config, None
   if dataset.masks is not None and config.data.subject:  # masks that keep the subject
@@ -156,24 +157,29 @@ def with_visual_hull(config, dataset):
   corner = lambda c: "(" + ", ".join(f"{float(v):.3f}" for v in c) + ")"
   print(f"visual hull: {100 * share:.1f}% of the box's cells; the grids cover "
         f"{corner(box[0])} to {corner(box[1])} (model.grid_box)", flush=True)
-  return config, hull if occupied else None
+  return config, (hull, bound) if occupied else None
 
 
 HULL_VOTE = 0.6  # a subject's hull keeps a cell that 60% of the photos seeing it keep (landmark,
-#   its stored pinhole: 0.8 carves 3% of the monument, 0.6 none; 0.32 -> 0.47 of the box kept with
-#   the true cameras)
+#   its stored pinhole: 0.8 carves 3% of the monument, 0.6 none)
+SUBJECT_HULL_EXTENT = 2.0  # a subject's hull covers twice the box found for it: found from
+#   photos whose stored camera lacks their zoom, that box leaves 25% of landmark's monument out
+SUBJECT_HULL_CELLS = 96  # cells per side of a subject's hull (0.04 of the box's half-size)
 
 
 def subject_hull(dataset, bound, pixel_center):
-  """float32 [R, R, R]: the hull of masks that keep the subject (visual_hull.carve_vote with
-  HULL_VOTE) on 64^3 cells of the box [-bound, bound]^3 the subject fills (run/subject.py); the
-  renderers give no density in the cells it carves. One line says how much it keeps."""
-  hull = visual_hull.carve_vote(dataset.masks, dataset.poses, dataset.cameras, bound,
-                                HULL_RESOLUTION, HULL_VOTE, pixel_center)
-  print(f"visual hull: {100 * float(np.mean(hull)):.1f}% of the subject's box ±{bound:g}, where "
-        f"{100 * HULL_VOTE:.0f}% of the photos that see a cell keep it; no density outside it "
-        "(data.visual_hull)", flush=True)
-  return jnp.asarray(hull)
+  """(float32 [R, R, R], its half-size): the hull of masks that keep the subject
+  (visual_hull.carve_vote with HULL_VOTE) on SUBJECT_HULL_CELLS^3 cells of the box
+  SUBJECT_HULL_EXTENT times the box [-bound, bound]^3 the subject was found to fill
+  (run/subject.py); the renderers give no density in the cells it carves nor outside it. One
+  line says how much it keeps."""
+  extent = SUBJECT_HULL_EXTENT * bound
+  hull = visual_hull.carve_vote(dataset.masks, dataset.poses, dataset.cameras, extent,
+                                SUBJECT_HULL_CELLS, HULL_VOTE, pixel_center)
+  print(f"visual hull: {100 * float(np.mean(hull)):.1f}% of the box ±{extent:g} about the "
+        f"subject, where {100 * HULL_VOTE:.0f}% of the photos that see a cell keep it; no "
+        "density outside it (data.visual_hull)", flush=True)
+  return jnp.asarray(hull), extent
 
 
 CUT_SHARE = 0.25  # a run warns when more training rays than this leave the box before far

@@ -82,10 +82,11 @@ def init_state(exp):
   if exp.config.train.intrinsics_refinement:  # focal scales and a lens, zeros = as given
     params["intrinsics"] = intrinsics_refinement.initial(len(exp.train_ds))
   if exp.hull is not None:  # no density outside the hull (renderer.py), from the first step
-    buffers.update(hull=jnp.array(exp.hull))
-    if exp.config.occupancy.enabled:  # and samples only inside it
+    grid, bound = exp.hull
+    buffers.update(hull=jnp.array(grid), hull_bound=jnp.asarray(bound, jnp.float32))
+    if exp.config.occupancy.enabled:  # and samples only inside it (a grid of the scene box)
       # Two arrays, not one: the train step donates its state, and a buffer is donated once.
-      buffers.update(occupancy=jnp.array(exp.hull))
+      buffers.update(occupancy=jnp.array(grid))
   ema = {}
   if exp.config.train.ema_decay > 0:  # the average starts at the initial weights
     # Copies, not the same arrays: the train step donates its state, and a buffer once.

@@ -145,9 +145,8 @@ def carve_vote(masks, poses, cameras, bound, resolution, vote, pixel_center=0.5)
 
 
 def gate(hull, points, bound):
-  """float32 [...]: 0 where points float32 [..., 3] lie in a carved cell of `hull` float32
-  [R, R, R] over the box [-bound, bound]^3, else 1: outside the box nothing was carved, so
-  nothing is ruled out (a subject's box found from photos with wrong focal lengths can leave
-  part of it outside: run/subject.py)."""
+  """float32 [...]: 1 where points float32 [..., 3] lie in a kept cell of `hull` float32
+  [R, R, R] over the box [-bound, bound]^3, 0 in a carved cell or outside the box (a subject's
+  hull covers twice the box the subject was found to fill: run/from_data.subject_hull)."""
   inside = jnp.all(jnp.abs(points) <= bound, axis=-1)
-  return jnp.where(inside, occupancy.lookup(hull, points, bound), 1.0)
+  return jnp.where(inside, occupancy.lookup(hull, points, bound), 0.0)

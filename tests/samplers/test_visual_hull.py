@@ -126,7 +126,7 @@ def test_a_subjects_vote_keeps_what_passers_by_hide_and_carves_around_it():
                                 strict)
 
 
-def test_the_gate_is_the_cell_lookup_inside_the_box_and_one_outside():
+def test_the_gate_is_the_cell_lookup_inside_the_box_and_zero_outside():
   rng = np.random.default_rng(3)
   hull = (rng.random((5, 5, 5)) > 0.5).astype(np.float32)
   bound = 1.5
@@ -135,7 +135,7 @@ def test_the_gate_is_the_cell_lookup_inside_the_box_and_one_outside():
   expected = []
   for p in points:  # the cell holding each point, by hand
     if np.any(np.abs(p) > bound):
-      expected.append(1.0)
+      expected.append(0.0)
       continue
     i, j, k = (min(int((v + bound) / (2 * bound) * 5), 4) for v in p)
     expected.append(hull[i, j, k])
@@ -156,7 +156,8 @@ def test_no_density_outside_the_hull_on_every_rendering_path(path):
                                                       jnp.ones(p.shape[:-1], jnp.float32))))
   hull = np.zeros((4, 4, 4), np.float32)
   hull[2:] = 1.0
-  variables = {"params": {"coarse": {}}, "hull": jnp.asarray(hull)}
+  variables = {"params": {"coarse": {}}, "hull": jnp.asarray(hull),
+               "hull_bound": jnp.float32(1.5)}
   origins = np.array([[-3.0, 0.1, 0.1], [0.7, -3.0, 0.1], [-0.7, -3.0, 0.1]], np.float32)
   directions = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 1.0, 0]], np.float32)
   rays = Rays.create(origins, directions, 1.0, 5.0)
@@ -231,8 +232,9 @@ def test_a_run_with_the_visual_hull_samples_only_inside_it():
                         **{"data.image_size": 24, "data.num_views": 12,
                            "occupancy.resolution": 16, "model.grid.resolutions": (8, 16)})
   exp = experiment.setup(config)
-  hull = np.asarray(exp.hull)
-  assert hull.shape == (16, 16, 16) and 0.0 < hull.mean() < 1.0
+  hull, hull_bound = exp.hull
+  hull = np.asarray(hull)
+  assert hull_bound == exp.config.data.scene_bound and hull.shape == (16, 16, 16) and 0.0 < hull.mean() < 1.0
   box = np.reshape(exp.config.model.grid_box, (2, 3))
   assert np.all(box[0] > -exp.config.data.scene_bound - 1e-6) and np.all(box[1] > box[0])
   state = init_state(exp)
@@ -255,20 +257,21 @@ def test_a_run_with_the_visual_hull_samples_only_inside_it():
 
 def test_a_run_on_a_subjects_masks_carves_their_vote_whatever_the_box():
   # data.subject on and masks that keep the subject: the hull is the vote (from_data.HULL_VOTE)
-  # of the moved photos on 64^3 cells of the scene box, contracted or not, kept for the renderer
-  # alone (no occupancy grid); without data.subject the masks are a passer-by's and carve nothing.
+  # of the moved photos on the cells of twice the scene box, contracted or not; without
+  # data.subject the masks are a passer-by's and carve nothing.
   size, focal, ball = 48, 60.0, 0.5
   poses = _views(30)
   masks = _sphere_masks(poses, size, focal, ball)
   dataset = Dataset(np.zeros((30, size, size, 3), np.float32), poses,
                     (focal, focal, size / 2, size / 2), near=1.0, far=8.0, masks=masks)
   config = small_config(base="capture", **{"data.visual_hull": True, "data.subject": "masks",
-                                           "data.scene_bound": 1.0, "data.contraction": "linf"})
-  out, hull = from_data.with_visual_hull(config, dataset)
+                                           "data.scene_bound": 0.8, "data.contraction": "linf"})
+  out, (hull, bound) = from_data.with_visual_hull(config, dataset)
   cameras = Cameras.shared(30, size, size, (focal, focal, size / 2, size / 2))
+  assert bound == 1.6 and hull.shape == (from_data.SUBJECT_HULL_CELLS,) * 3
   np.testing.assert_array_equal(hull, visual_hull.carve_vote(
-      masks, poses, cameras, 1.0, from_data.HULL_RESOLUTION, from_data.HULL_VOTE,
+      masks, poses, cameras, 1.6, from_data.SUBJECT_HULL_CELLS, from_data.HULL_VOTE,
       from_data.pixel_center(config, dataset)))
-  assert out is config and 0.05 < float(jnp.mean(hull)) < 0.3  # the ball: 6.5% of the box
+  assert out is config and 0.02 < float(jnp.mean(hull)) < 0.1  # the ball: 3.2% of the box
   config.data.subject = ""
   assert from_data.with_visual_hull(config, dataset)[1] is None
