@@ -37,9 +37,10 @@ class Settings:
   """config.eval: the held-out views' appearance codes. The fit's defaults are nerfbaselines'
   "nerfw" protocol as NeRF-W runs it (Adam on the left half, the field frozen)."""
   appearance: str = "mean"  # held-out codes: 'mean' (training codes' mean), 'left_half' (NeRF-W)
-  fit_steps: int = 100  # left_half: Adam steps fitting each test image's code on its left half
+  fit_steps: int = 1000  # left_half: Adam steps fitting each test image's code on its left half
   fit_rays: int = 1024  # left_half: rays drawn (with replacement) from the left half each step
-  fit_lr: float = 1e-2  # left_half: Adam's step size for the code
+  fit_lr: float = 1e-2  # left_half: Adam's first step size for the code
+  fit_decay_every: int = 333  # left_half: the step size x0.1 every this many steps (0 = constant)
   test_every: int = 1  # score test views 0, N, 2N, ... (1 = all): a shorter evaluation
 
 
@@ -224,12 +225,13 @@ def with_codes(variables, codes):
 def make_code_fitter(ray_renderer, settings):
   """fn(variables, rays: Rays [P], target float32 [P, 3], background float32 [3], weight=None)
   -> variables showing the codes (one per network) fitted to `target` from the training codes'
-  mean by least squares: settings.fit_steps Adam steps (settings: Settings) of step size fit_lr
-  on fit_rays rays drawn from the P each step, the field frozen (NeRF-W's protocol for held-out
-  views; jitted once for every view of one size). weight: float32 [P] or None, each pixel's
+  mean by least squares: settings.fit_steps Adam steps (settings: Settings) of step size fit_lr,
+  times 0.1 after every fit_decay_every steps (`fit_schedule`), on fit_rays rays drawn from the
+  P each step, the field frozen (NeRF-W's protocol for held-out views as nerfbaselines runs it;
+  jitted once for every view of one size). weight: float32 [P] or None, each pixel's
   mask (0: never fitted on, nor drawn). `ray_renderer` needs `render(variables, rays,
   background=)` returning {'coarse': {'rgb'}, ...} (RayRenderer's)."""
-  tx = optax.adam(settings.fit_lr)
+  tx = optax.adam(fit_schedule(settings))
 
   @jax.jit
   def fit(variables, rays, target, bg, weight=None):
@@ -257,6 +259,14 @@ def make_code_fitter(ray_renderer, settings):
     (codes, _), _ = jax.lax.scan(step, (codes, tx.init(codes)), keys)
     return with_codes(variables, codes)
   return fit
+
+
+def fit_schedule(settings):
+  """The fit's step size (an optax schedule, or a float where it is constant): fit_lr, times
+  0.1 after every fit_decay_every steps (nerfbaselines' 1000 steps, x0.1 every 333)."""
+  if settings.fit_decay_every <= 0:
+    return settings.fit_lr
+  return optax.exponential_decay(settings.fit_lr, settings.fit_decay_every, 0.1, staircase=True)
 
 
 def refined_poses(exp, variables):

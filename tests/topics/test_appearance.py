@@ -146,6 +146,7 @@ def test_codes_absorb_known_per_photo_gains(tmp_path, monkeypatch):
   assert corr > 0.8, (corr, brightness, gains)
 
   config.eval.appearance = "left_half"
+  config.eval.fit_steps = 100  # a tenth of the protocol's fit (its step size constant so far)
   exp = experiment.setup(config)
   exp.test_ds.images[:] = np.clip(1.5 * exp.test_ds.images, 0, 1)
   variables = restored_variables(workdir)
