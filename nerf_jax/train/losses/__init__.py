@@ -7,8 +7,8 @@ terms' losses in their order (`total`) and logs every stat as '<name>/<stat>' (t
 
 A term is one module defining `LOSS = losses.Loss(name, Settings, build)` (a `Loss` record):
 `config.loss.terms` lists the run's terms, in the order they are added, by their registered
-name (`REGISTRY`: colour, distortion, pose_prior, total_variation, transient, robust, the
-modules of this package) or the dotted path of any importable module; each term's settings are
+name (`REGISTRY`: colour, distortion, pose_prior, total_variation, transient, robust,
+masked_empty, the modules of this package) or the dotted path of any importable module; each term's settings are
 its own section, `config.loss.<name>` (docs/extending.md, "Adding a loss term"). The entry layer
 builds them (run/builders.loss_terms), adds 'transient' where the field has a transient head,
 and appends the sampler's own terms (its `loss_terms()`). A term whose class has
@@ -92,7 +92,7 @@ class Loss(components.Component):
 class Settings:
   """config.loss's own field (each term's settings are its section, config.loss.<name>)."""
   terms: Tuple[str, ...] = ("colour", "distortion", "pose_prior", "total_variation", "transient",
-                            "robust")  # added in this order
+                            "robust", "masked_empty")  # added in this order
 
 
 def check_weight(weight, term, example):
@@ -111,6 +111,7 @@ REGISTRY = components.Registry("loss term", "config.loss.terms", "LOSS", "loss",
     "total_variation": "nerf_jax.train.losses.total_variation",
     "transient": "nerf_jax.train.losses.transient",
     "robust": "nerf_jax.train.losses.robust",
+    "masked_empty": "nerf_jax.train.losses.masked_empty",
 })
 
 
