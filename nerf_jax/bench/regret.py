@@ -93,16 +93,28 @@ def score(record):
   return record.get("mean_over_scales_psnr", record.get("psnr"))
 
 
-def make_record(run, metrics, scene, machine):
+def seconds_per_step(log, metrics):
+  """A run's seconds per training step: between its first and last logged steps
+  (metrics.jsonl records with 'loss', the compile before the first left out), else its
+  train_seconds over its steps. log: [dict], metrics.jsonl's records; metrics: metrics.json."""
+  logged = [r for r in log if "loss" in r and "wall_seconds" in r]
+  if len(logged) >= 2 and logged[-1]["step"] > logged[0]["step"]:
+    return ((logged[-1]["wall_seconds"] - logged[0]["wall_seconds"]) /
+            (logged[-1]["step"] - logged[0]["step"]))
+  return metrics["train_seconds"] / max(metrics["steps"], 1)
+
+
+def make_record(run, metrics, scene, machine, log=()):
   """One results.jsonl record of `run` (a regret_plan.Run) from its metrics.json `metrics`
-  (or {'error': ...}); the step-cost ratio and gain come later (`with_regret`)."""
+  (or {'error': ...}) and metrics.jsonl `log` ([dict]); the step-cost ratio and gain come
+  later (`with_regret`)."""
   record = {"scene": scene, "run": run.name, "flipped": run.flipped, "base": run.base,
             "overrides": run.overrides, "machine": machine}
   if "error" in metrics:
     return {**record, "error": metrics["error"]}
   record.update(psnr=metrics["psnr"], ssim=metrics.get("ssim"), lpips=metrics.get("lpips"),
                 steps=metrics["steps"], seconds=metrics["train_seconds"])
-  record["seconds_per_step"] = record["seconds"] / max(record["steps"], 1)
+  record["seconds_per_step"] = seconds_per_step(log, metrics)
   if "by_scale" in metrics:
     record["by_scale_psnr"] = {k: v["psnr"] for k, v in metrics["by_scale"].items()}
     record["mean_over_scales_psnr"] = metrics["mean_over_scales"]["psnr"]
@@ -164,7 +176,7 @@ def write_results(records, regret, out, command):
 
 
 def read_results(path):
-  """The records of a results.jsonl."""
+  """The records of a JSON-lines file (results.jsonl, a run's metrics.jsonl)."""
   with open(path) as f:
     return [json.loads(line) for line in f if line.strip()]
 
@@ -214,7 +226,9 @@ def run_plan(runs, scene, out, command):
     workdir = os.path.join(out, run.name.replace("/", "_"))
     print(f"[{i + 1}/{len(runs)}] {run.name}: training into {workdir}", flush=True)
     start = time.perf_counter()
-    record = make_record(run, train_isolated(run.config, workdir), scene, machine)
+    metrics = train_isolated(run.config, workdir)
+    record = make_record(run, metrics, scene, machine, read_results(
+        os.path.join(workdir, "metrics.jsonl")) if "error" not in metrics else ())
     record.update(workdir=workdir, wall_seconds=round(time.perf_counter() - start, 1))
     records.append(record)
     scored, regret = with_regret(records)
