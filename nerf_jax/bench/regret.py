@@ -30,6 +30,9 @@ from nerf_jax.data.scenes import builtin
 from nerf_jax.run import config_lib, experiment, train_lib
 
 LOG_NAME = "log.txt"  # each run's output, in its workdir
+# Every process takes the device memory it uses, not 75% of it at start: the command's own
+# process (which decided auto's config) holds some while each run trains in its own.
+NO_PREALLOCATION = {"XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
 
 
 def command_config(config, scene, data_path, seconds, overrides=()):
@@ -42,8 +45,8 @@ def command_config(config, scene, data_path, seconds, overrides=()):
   if not data_path:
     builtin.get_scene(scene)  # ValueError naming the valid scenes
   config = regret_plan.copy(config)
-  fields = {"data.scene": scene, "data.path": data_path, "train.max_seconds": float(seconds),
-            "render.after_training": False}
+  fields = {**({"data.path": data_path} if data_path else {"data.scene": scene}),
+            "train.max_seconds": float(seconds), "render.after_training": False}
   for name, value in fields.items():
     config_lib.set_field(config, name, value)
   names = tuple(dict.fromkeys((*overrides, *fields)))
@@ -58,7 +61,7 @@ def train_isolated(config, workdir):
   spec = os.path.join(workdir, "regret_config.json")
   with open(spec, "w") as f:
     f.write(config.to_json())
-  env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+  env = {**os.environ, **NO_PREALLOCATION, "PYTHONPATH": os.pathsep.join(
       p for p in (runner.ROOT, os.environ.get("PYTHONPATH")) if p)}
   code = ("import sys; from nerf_jax.bench import regret; "
           "sys.exit(regret.worker(sys.argv[1], sys.argv[2]))")
@@ -153,7 +156,7 @@ def table(records, regret, command):
   lines = [f"# Auto's regret on {scene}", "", "```", command, "```", "",
            f"Auto's regret: {_cell(regret, '.2f')} dB (best: {best.get('run', '-')}).", "",
            "| run | flipped | overrides | PSNR | mean over scales | gain | SSIM | LPIPS | steps "
-           "| s/step | step-cost ratio | error |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "| s/step | step-cost ratio | error |", "|---" * 12 + "|"]
   for r in records:
     overrides = ", ".join(f"{k}={v!r}" for k, v in r["overrides"].items()) or "-"
     lines.append(
@@ -283,6 +286,7 @@ def regret(values, spec, argv):
 def regret_main(argv=None):
   """`python -m nerf_jax.bench.regret`."""
   given = list(sys.argv if argv is None else argv)
+  os.environ.update(NO_PREALLOCATION)  # before JAX starts its backend
   command_line.run_command(define_regret_flags, regret, standard.normalised_argv(given),
                            with_config=True)
 

@@ -235,3 +235,13 @@ def test_two_tiny_runs_end_to_end(tmp_path):
       (log[2]["wall_seconds"] - log[0]["wall_seconds"]) / 2)  # steps 1 to 3: no compile
   assert value == max(0.0, records[1]["psnr"] - records[0]["psnr"])
   assert len(regret.read_results(str(tmp_path / "results.jsonl"))) == 2
+
+
+def test_a_data_folder_replaces_the_scene_and_must_exist(tmp_path):
+  base = config_lib.load("auto")
+  config, user = regret.command_config(base, "mine", str(tmp_path), 5.0)
+  assert config.data.path == str(tmp_path) and config.data.scene == base.data.scene
+  assert user == {"data.path": str(tmp_path), "train.max_seconds": 5.0,
+                  "render.after_training": False}
+  with pytest.raises(FileNotFoundError, match="--data_path=.*nowhere: not found"):
+    regret.command_config(base, "mine", str(tmp_path / "nowhere"), 5.0)
