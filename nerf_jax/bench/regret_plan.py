@@ -176,11 +176,14 @@ def flip_runs(result, chosen, height, width):
 
 
 def candidates(chosen, backend):
-  """The config names of REPRESENTATIONS on `backend` ('cpu', 'gpu'...; auto.for_backend),
-  less `chosen`, in order, each once."""
-  names = [auto.for_backend(n, backend)[0] if n in auto.GPU_CONFIGS else n
-           for n in REPRESENTATIONS]
-  return [n for n in dict.fromkeys(names) if n != chosen]
+  """{config name: its CPU name in REPRESENTATIONS} of REPRESENTATIONS on `backend` ('cpu',
+  'gpu'...; auto.for_backend: 'fast' and 'detail' are both 'gpu/lego' there, named 'fast'),
+  less `chosen`, in order."""
+  names = {}
+  for kind in REPRESENTATIONS:
+    name = auto.for_backend(kind, backend)[0] if kind in auto.GPU_CONFIGS else kind
+    names.setdefault(name, kind)
+  return {name: kind for name, kind in names.items() if name != chosen}
 
 
 def representation_runs(result, chosen, user, backend):
@@ -191,8 +194,7 @@ def representation_runs(result, chosen, user, backend):
   representation's own config."""
   forward = bool(result.data.ndc)
   runs, skipped = [], []
-  for name in candidates(chosen, backend):
-    kind = name.split("/")[-1]
+  for name, kind in candidates(chosen, backend).items():
     why = (kind in FORWARD_ONLY and not forward and "grids in NDC, for forward-facing cameras"
            or kind in NO_FORWARD and forward and "a box around an object: not for NDC rays"
            or kind in NO_CONES and has_cones(result) and "takes no cones yet")
