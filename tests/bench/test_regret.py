@@ -74,6 +74,24 @@ def test_each_flip_changes_one_decision_alone(result):
     assert not run.config.auto and run.config.auto_decisions == ()
 
 
+def test_autos_own_result_on_a_forward_scene():
+  """auto_config itself on a tiny forward-facing scene (not a collection: no warm-up)."""
+  config = config_lib.load("auto")
+  for name, value in {"data.scene": "forward", "data.image_size": 16,
+                      "data.num_views": 8}.items():
+    config_lib.set_field(config, name, value)
+  result, train_ds, _ = experiment.load_decided(config)
+  assert regret_plan.chosen_config(result) == "llff" and result.data.ndc
+  runs, skipped = regret_plan.plan(result, USER, train_ds.height, train_ds.width, "cpu")
+  flips = {r.flipped: r for r in runs if r.name.startswith("flip/")}
+  assert flips["forward"].overrides == {"data.ndc": False}
+  for run in flips.values():
+    changed = _diff(run.config, result)
+    assert changed and changed <= FIELDS[run.flipped], (run.name, changed)
+  assert [r.name for r in runs if r.flipped == "representation"] == ["config/capture"]
+  assert "flip/contraction: not run (NDC rays take no contraction)" in skipped
+
+
 def test_flips_turn_what_auto_set_the_other_way():
   flips = {r.flipped: r.overrides for r in regret_plan.plan(COLLECTION, USER, 16, 16, "cpu")[0]
            if r.name.startswith("flip/")}
