@@ -65,6 +65,8 @@ def has_cones(config):
 
 
 def _cones(result, base, context):
+  """Cones off (the representation's own encoding and marching), or on as auto.cone_effects
+  turns them on."""
   if has_cones(result):
     off = ({"model.encoding": "posenc"} if result.model.encoding == "ipe" else
            {f"model.{result.model.encoding}.antialias": False})
@@ -72,7 +74,9 @@ def _cones(result, base, context):
   if context["chosen"] in NO_CONES:
     return None, f"configs/{context['chosen']}.py takes no cones yet"
   effects = auto.cone_effects(result)
-  return (effects or None), "" if effects else f"{result.model.encoding!r} has no cones"
+  if not effects:
+    return None, f"model.encoding={result.model.encoding!r} has no cones yet"
+  return effects, ""
 
 
 def _switch(field):
