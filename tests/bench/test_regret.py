@@ -1,8 +1,9 @@
-"""The regret benchmark (nerf_jax/bench/regret.py, regret_plan.py) on hand-made auto results:
-each flip run differs from auto's config in one decision's fields alone (a table written here),
-the other representations keep auto's effects, the regret arithmetic, the records and table
-written and read back, the command's dry run and its one-line error, and one tiny end-to-end
-run of two configs in their own processes.
+"""The regret benchmark (nerf_jax/bench/regret.py, regret_plan.py) on hand-made auto results
+and on auto_config's own on a tiny forward-facing scene: each flip run differs from auto's
+config in one decision's fields alone (a table written here), the other representations keep
+auto's effects, the regret arithmetic, the records and table written and read back, the
+picture or the line naming its extra, the command's dry run and its one-line error, and one
+tiny end-to-end run of two configs in their own processes.
 """
 
 import json
@@ -202,6 +203,14 @@ def test_picture_or_the_line_naming_the_extra(tmp_path):
     assert (tmp_path / "regret_s.png").stat().st_size > 0
 
 
+def test_no_matplotlib_names_the_extra(monkeypatch, tmp_path):
+  monkeypatch.setattr(regret.report, "missing_dependency", lambda: regret.report.MISSING_MATPLOTLIB)
+  records, value = regret.with_regret([_record("auto", 20.0, 0.1)])
+  assert regret.picture(records, value, str(tmp_path / "p.png")) == (
+      'plots need matplotlib: pip install -e ".[bench]"')
+  assert not (tmp_path / "p.png").exists()
+
+
 def test_dry_run_prints_the_plan_and_trains_nothing(monkeypatch, tmp_path, capsys):
   seen = {}
 
@@ -225,6 +234,19 @@ def test_dry_run_prints_the_plan_and_trains_nothing(monkeypatch, tmp_path, capsy
   assert "  flip/appearance (fast): --config.model.appearance_dims=0" in printed
   assert "config/llff: not run" in printed
   assert os.listdir(tmp_path) == []
+
+
+def test_dry_run_from_the_command_line_exits_0():
+  proc = subprocess.run([sys.executable, "-m", "nerf_jax.bench.regret", "--scene=forward",
+                         "--config.data.image_size=16", "--config.data.num_views=8",
+                         "--seconds=5", "--out=unused", "--dry_run"], cwd=ROOT,
+                        capture_output=True, text=True, check=False,
+                        env={**os.environ, "PYTHONPATH": ROOT})
+  assert proc.returncode == 0, proc.stderr
+  assert "auto: representation: configs/llff.py" in proc.stdout
+  assert "runs of 5 s of training each, into unused:" in proc.stdout
+  assert "  flip/forward (llff): --config.data.ndc=False" in proc.stdout
+  assert not os.path.exists(os.path.join(ROOT, "unused"))
 
 
 def test_bad_scene_is_one_line_and_status_1():
