@@ -121,7 +121,7 @@ def make_record(run, metrics, scene, machine, log=()):
   if "by_scale" in metrics:
     record["by_scale_psnr"] = {k: v["psnr"] for k, v in metrics["by_scale"].items()}
     record["mean_over_scales_psnr"] = metrics["mean_over_scales"]["psnr"]
-  for key in ("masks", "appearance"):  # how the views were scored, where it says
+  for key in ("masks", "appearance", "held_out_poses"):  # how the views were scored, if said
     if key in metrics:
       record[f"scored_{key}"] = metrics[key]
   return record

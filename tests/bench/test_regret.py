@@ -159,6 +159,25 @@ def test_seconds_per_step_leaves_the_compile_out():
   assert regret.seconds_per_step(log[:1], metrics) == pytest.approx(1.1)
 
 
+def test_record_reads_the_scores_the_data_calls_for():
+  run = regret_plan.Run("flip/cones", "cones", "fast", {"render.march": True}, None)
+  multiscale = {"psnr": 24.0, "ssim": 0.8, "steps": 100, "train_seconds": 10.0,
+                "by_scale": {"0": {"psnr": 26.0, "views": 2}, "1": {"psnr": 22.0, "views": 2}},
+                "mean_over_scales": {"psnr": 24.5}}
+  record = regret.make_record(run, multiscale, "multiscale", {"backend": "cpu"})
+  assert record["by_scale_psnr"] == {"0": 26.0, "1": 22.0}
+  assert regret.score(record) == 24.5 and record["lpips"] is None
+  assert record["seconds_per_step"] == pytest.approx(0.1)
+  collection = {"psnr": 20.0, "ssim": 0.7, "lpips": 0.3, "steps": 10, "train_seconds": 5.0,
+                "appearance": "left half: ...", "masks": "masked pixels not scored: ..."}
+  record = regret.make_record(run, collection, "crowd", {"backend": "cpu"})
+  assert (record["scored_appearance"], record["scored_masks"]) == (
+      "left half: ...", "masked pixels not scored: ...")
+  assert regret.score(record) == 20.0 and "by_scale_psnr" not in record
+  failed = regret.make_record(run, {"error": "exit status 1: boom"}, "crowd", {})
+  assert failed["error"] == "exit status 1: boom" and regret.score(failed) is None
+
+
 def test_regret_is_best_minus_auto_and_zero_when_auto_is_best():
   records, value = regret.with_regret([_record("auto", 20.0, 0.1), _record("flip/a", 21.5, 0.2),
                                        _record("config/b", 19.0, 0.05)])
