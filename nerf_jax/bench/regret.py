@@ -220,13 +220,29 @@ def print_plan(runs, skipped, seconds, out):
     print(f"  {line}", flush=True)
 
 
+def workdir_of(run, out):
+  """OUT/<run name with '_' for '/'>: where `run` trains."""
+  return os.path.join(out, run.name.replace("/", "_"))
+
+
+def check_fresh(runs, out):
+  """ValueError with one line where a run's workdir under `out` holds files already: a run
+  would resume an earlier one's checkpoint, not train for the budget from the start."""
+  used = [workdir_of(r, out) for r in runs
+          if os.path.isdir(workdir_of(r, out)) and os.listdir(workdir_of(r, out))]
+  if used:
+    raise ValueError(f"{used[0]} holds an earlier run (a run would resume it): give a new "
+                     "--out or remove it")
+
+
 def run_plan(runs, scene, out, command):
   """Train every Run of `runs` (auto's first) into OUT/<run name>; records and results written
   after each. Returns (records, regret)."""
+  check_fresh(runs, out)
   machine = {"backend": jax.default_backend(), "device": standard.device()}
   records = []
   for i, run in enumerate(runs):
-    workdir = os.path.join(out, run.name.replace("/", "_"))
+    workdir = workdir_of(run, out)
     print(f"[{i + 1}/{len(runs)}] {run.name}: training into {workdir}", flush=True)
     start = time.perf_counter()
     metrics = train_isolated(run.config, workdir)

@@ -301,6 +301,8 @@ def test_two_tiny_runs_end_to_end(tmp_path):
       (log[2]["wall_seconds"] - log[0]["wall_seconds"]) / 2)  # steps 1 to 3: no compile
   assert value == max(0.0, records[1]["psnr"] - records[0]["psnr"])
   assert len(regret.read_results(str(tmp_path / "results.jsonl"))) == 2
+  with pytest.raises(ValueError, match="auto holds an earlier run"):  # it would resume
+    regret.run_plan(runs, "diffuse", str(tmp_path), "test")
 
 
 def test_a_data_folder_replaces_the_scene_and_must_exist(tmp_path):
