@@ -285,7 +285,7 @@ def regret(values, spec, argv):
     raise ValueError("regret measures auto's decisions: leave --config=auto")
   result, train_ds, _ = experiment.load_decided(config)
   runs, skipped = regret_plan.plan(result, user, train_ds.height, train_ds.width,
-                                   jax.default_backend())
+                                   jax.default_backend(), train_ds.image_cameras is None)
   print_plan(runs, skipped, values.seconds, values.out)
   if values.dry_run:
     return [], None

@@ -124,14 +124,19 @@ def _on_subject(field):
 
 
 def _transients(result, base, context):
+  """RobustNeRF's trimmed loss off, or on with patches that fit the images (one camera: the
+  patch batches need it)."""
   if result.loss.robust.weight > 0:
     return {"loss.robust.weight": 0.0, "train.patch_size": int(base.train.patch_size)}, ""
+  if not context["one_camera"]:
+    return None, "its patch batches need images of one camera"
   patch = int(min(result.train.patch_size, context["height"], context["width"]))
   return {"loss.robust.weight": 1.0, "train.patch_size": patch}, ""
 
 
 # decision name -> flip(result, base, context) -> (overrides or None, why none). context:
-# {'chosen': config name, 'height', 'width': the training images' pixels}.
+# {'chosen': config name, 'height', 'width': the training images' pixels, 'one_camera': whether
+# they share one camera}.
 FLIPS = {
     "background": _switch("train.random_background"),
     "forward": _forward,
@@ -162,11 +167,12 @@ def with_fields(config, overrides):
   return out
 
 
-def flip_runs(result, chosen, height, width):
+def flip_runs(result, chosen, height, width, one_camera=True):
   """([Run] of every decision FLIPS can flip on `result`, [line] for each it cannot).
-  chosen: auto's config name; height, width: int, the training images' pixels."""
+  chosen: auto's config name; height, width: int, the training images' pixels (image 0's);
+  one_camera: whether every training image shares one camera."""
   base = config_lib.load(chosen)
-  context = {"chosen": chosen, "height": height, "width": width}
+  context = {"chosen": chosen, "height": height, "width": width, "one_camera": one_camera}
   runs, skipped = [], []
   for decision, flip in FLIPS.items():
     overrides, why = flip(result, base, context)
@@ -218,12 +224,13 @@ def representation_runs(result, chosen, user, backend):
   return runs, skipped
 
 
-def plan(result, user, height, width, backend):
+def plan(result, user, height, width, backend, one_camera=True):
   """([Run]: auto's run first, then its flips, then the other representations; [line] for each
   run left out). result: auto's ConfigDict; user: {field: value} the command set; height,
-  width: int, the training images' pixels; backend: jax.default_backend()."""
+  width: int, the training images' pixels (image 0's); backend: jax.default_backend();
+  one_camera: whether every training image shares one camera."""
   chosen = chosen_config(result)
   runs = [Run("auto", "", chosen, {}, with_fields(result, {}))]
-  flips, skipped = flip_runs(result, chosen, height, width)
+  flips, skipped = flip_runs(result, chosen, height, width, one_camera)
   others, left_out = representation_runs(result, chosen, user, backend)
   return runs + flips + others, skipped + left_out

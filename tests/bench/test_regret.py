@@ -112,6 +112,11 @@ def test_flips_turn_what_auto_set_the_other_way():
   assert on["cones"]["model.grid.antialias"] is True and on["appearance"] == {
       "model.appearance_dims": 0}
   assert on["transients"] == {"loss.robust.weight": 1.0, "train.patch_size": 16}
+  small = {r.flipped: r.overrides for r in regret_plan.plan(OBJECT, USER, 12, 9, "cpu")[0]}
+  assert small["transients"]["train.patch_size"] == 9  # a patch lies in one photo
+  runs, skipped = regret_plan.plan(OBJECT, USER, 16, 16, "cpu", one_camera=False)
+  assert "flip/transients" not in {r.name for r in runs}  # patches need one camera
+  assert "flip/transients: not run (its patch batches need images of one camera)" in skipped
 
 
 def test_representations_that_apply_keep_autos_effects():
@@ -235,7 +240,7 @@ def test_dry_run_prints_the_plan_and_trains_nothing(monkeypatch, tmp_path, capsy
 
   def decided(config):  # auto's decision stands in for the data's (its warm-up takes minutes)
     seen["config"] = config
-    return OBJECT, type("Data", (), {"height": 16, "width": 16})(), None
+    return OBJECT, type("Data", (), {"height": 16, "width": 16, "image_cameras": None})(), None
 
   monkeypatch.setattr(experiment, "load_decided", decided)
   given = ["nerf_jax.bench.regret", "--scene=glossy", "--seconds=3", f"--out={tmp_path}",
