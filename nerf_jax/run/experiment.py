@@ -22,9 +22,9 @@ class TrainingError(RuntimeError):
   """Training cannot go on (non-finite loss, bad config); the message says why and what to do."""
 
 
-def setup(config):
-  """The Experiment (experiment_parts.py) of `config`: loads the data, completes the config,
-  builds the renderer and the optimiser."""
+def load_decided(config):
+  """(config, train Dataset, test Dataset): the data of `config` loaded, and with config.auto
+  the config auto decides from it (auto.auto_config; auto off in the result)."""
   config = config_lib.upgrade(config)
   builders.make_ray_renderer(config)  # a bad model or sampler setting fails before the data
   settings = builders.data_settings(config.data)
@@ -34,6 +34,13 @@ def setup(config):
   train_ds, test_ds = loaders.load_dataset(settings)
   if config.auto:  # before the background: auto sets its own from the data
     config = auto.auto_config(config, train_ds, before_loading=factor)
+  return config, train_ds, test_ds
+
+
+def setup(config):
+  """The Experiment (experiment_parts.py) of `config`: loads the data, completes the config,
+  builds the renderer and the optimiser."""
+  config, train_ds, test_ds = load_decided(config)
   config = from_data.with_background(config)
   from_data.pixel_center(config, train_ds)  # a bad value fails here, naming the field
   config, train_ds, test_ds = subject.with_subject(config, train_ds, test_ds)
