@@ -30,7 +30,7 @@ class Experiment:
   test_ds: Dataset
   near: float
   far: float
-  hull: Any = None  # (float32 [R, R, R], bound): a visual hull over [-bound, bound]^3 (data.visual_hull)
+  hull: Any = None  # (float32 [R, R, R], bound): visual hull on [-bound, bound]^3, data.visual_hull
 
   def camera(self, scale=1.0, image=None, dataset=None):
     """(height, width, intrinsics) of the training camera with `scale` times its pixels per side

@@ -25,7 +25,7 @@ class SceneSettings:
   near: float = 0.0  # near bound override (0 = the dataset's, 2 for tiny_nerf)
   far: float = 0.0  # far bound override (0 = the dataset's, 6 for tiny_nerf)
   scene_bound: float = 0.0  # half-size of the box sampled (0 = none, -1 = found from the data)
-  visual_hull: bool = False  # carve the masks' hull (opacity; a subject's masks): no density outside
+  visual_hull: bool = False  # carve the masks' hull (opacity, a subject's masks): empty outside
   contraction: str = ""  # unbounded scene: 'linf' or 'l2' contracts the space beyond the box
   inner_fraction: float = 0.5  # unbounded scene: share of samples inside the box (the rest beyond)
   focus: bool = False  # move the world so that the point the cameras look at is the origin

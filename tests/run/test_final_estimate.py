@@ -36,11 +36,28 @@ def test_the_line_of_a_long_evaluation():
   line = outputs.final_render_line(exp, 1.0, long_seconds=seconds - 1)
   every = -(-2 * seconds // (seconds - 1))  # ceil(test_every * seconds / long_seconds)
   assert line.startswith("final evaluation: about ")
-  assert f"render 3 test views" in line and f"({seconds:,} rays at training's 1 rays/s)" in line
+  assert "render 3 test views" in line
+  assert f"({seconds:,} rays' worth at training's 1 rays/s)" in line
   assert f"--config.eval.test_every={max(2, every)}" in line
   assert ("--config.render.video_frames=0" in line) == bool(frames)
   assert outputs.final_render_line(exp, 1.0, long_seconds=seconds) is None
   assert outputs.final_render_line(exp, None) is None
+
+
+def test_the_codes_fit_counts_in_the_estimate():
+  # Codes fitted on each left half: 3 views x 7 steps x 12 rays = 252 fit rays, each a sixth of
+  # a training ray's cost (42), beside the 3 x 64 pixels rendered.
+  config = small_config(SMALL, **{"eval.test_every": 2, "eval.appearance": "left_half",
+                                  "eval.fit_steps": 7, "eval.fit_rays": 12,
+                                  "model.appearance_dims": 2})
+  exp = experiment.setup(config)
+  seconds = 3 * 64 + 42
+  line = outputs.final_render_line(exp, 1.0, long_seconds=seconds - 1)
+  assert "and fit their codes (252 rays)" in line and f"({seconds:,} rays' worth" in line
+  assert "--config.eval.fit_steps=100" in line
+  assert outputs.final_render_line(exp, 1.0, long_seconds=seconds) is None
+  config.model.appearance_dims = 0  # no codes: nothing to fit
+  assert outputs.fit_rays(config, 3) == 0
 
 
 @pytest.mark.slow  # trains a 1-step run
