@@ -73,15 +73,12 @@ def carve(accs, poses, intrinsics, bound, resolution, pixel_center=0.5, masks=No
     return jnp.ones((resolution,) * 3, jnp.float32)
   centres = occupancy.cell_centres(resolution, bound).reshape(-1, 3)
   height, width = accs.shape[1:]
-  window = (2 * radius + 1, 2 * radius + 1)
 
   def keep_in_view(args):  # one view: bool [R^3], False where it rules the cell out
     acc, pose = args
-    covered = jax.lax.reduce_window(acc, -jnp.inf, jax.lax.max, window, (1, 1), "SAME") > OPAQUE
-    column, row, depth = project(centres, pose, intrinsics, pixel_center)
-    i, j = jnp.floor(column + 0.5).astype(jnp.int32), jnp.floor(row + 0.5).astype(jnp.int32)
-    seen = (depth > 0) & (i >= 0) & (i < width) & (j >= 0) & (j < height)
-    return ~seen | covered[jnp.clip(j, 0, height - 1), jnp.clip(i, 0, width - 1)]
+    covered = dilated(acc, radius) > OPAQUE
+    j, i, seen = pixels_seen(centres, pose, intrinsics, height, width, pixel_center)
+    return ~seen | covered[j, i]
 
   keep = jax.jit(lambda a, p: jnp.all(jax.lax.map(keep_in_view, (a, p)), axis=0))(
       jnp.asarray(accs, jnp.float32), jnp.asarray(poses, jnp.float32))
@@ -104,14 +101,19 @@ def bounding_box(hull, bound, margin=1):
 
 def dilated(mask, radius):
   """float32 [H, W]: the largest value of `mask` float32 [H, W] within `radius` pixels (a
-  (2·radius + 1)^2 window), the image's edge padded with zeros."""
-  height, width = mask.shape
-  padded = np.pad(np.asarray(mask, np.float32), radius)
-  out = np.zeros((height, width), np.float32)
-  for dy in range(2 * radius + 1):
-    for dx in range(2 * radius + 1):
-      out = np.maximum(out, padded[dy:dy + height, dx:dx + width])
-  return out
+  (2·radius + 1)^2 window; outside the image counts as nothing)."""
+  window = (2 * radius + 1, 2 * radius + 1)
+  return jax.lax.reduce_window(jnp.asarray(mask, jnp.float32), -jnp.inf, jax.lax.max, window,
+                               (1, 1), "SAME")
+
+
+def pixels_seen(points, pose, intrinsics, height, width, pixel_center):
+  """(row, column) int32 [...] of the pixel each point float32 [..., 3] falls in (clamped to
+  the image) and bool [...], whether it is in front of the camera and inside the image."""
+  column, row, depth = project(points, pose, intrinsics, pixel_center)
+  i, j = jnp.floor(column + 0.5).astype(jnp.int32), jnp.floor(row + 0.5).astype(jnp.int32)
+  seen = (depth > 0) & (i >= 0) & (i < width) & (j >= 0) & (j < height)
+  return jnp.clip(j, 0, height - 1), jnp.clip(i, 0, width - 1), seen
 
 
 def carve_vote(masks, poses, cameras, bound, resolution, vote, pixel_center=0.5):
@@ -134,13 +136,11 @@ def carve_vote(masks, poses, cameras, bound, resolution, vote, pixel_center=0.5)
     radius = dilation_radius(pose[None], intrinsics, bound, resolution)
     if radius is None:
       continue
-    cover = dilated(masks[k], radius) > 0
-    column, row, depth = (np.asarray(a) for a in project(centres, pose, intrinsics,
-                                                          pixel_center))
-    i, j = np.floor(column + 0.5).astype(np.int64), np.floor(row + 0.5).astype(np.int64)
-    inside = (depth > 0) & (i >= 0) & (i < width) & (j >= 0) & (j < height)
+    cover = np.asarray(dilated(masks[k], radius)) > 0
+    j, i, inside = (np.asarray(a) for a in pixels_seen(centres, pose, intrinsics, height, width,
+                                                        pixel_center))
     seen += inside
-    kept += inside & cover[np.clip(j, 0, height - 1), np.clip(i, 0, width - 1)]
+    kept += inside & cover[j, i]
   return (kept >= vote * seen).reshape((resolution,) * 3).astype(np.float32)
 
 
