@@ -220,6 +220,18 @@ def print_plan(runs, skipped, seconds, out):
     print(f"  {line}", flush=True)
 
 
+def chosen(runs, names):
+  """The Runs of `runs` named in `names` (all where `names` is empty), in the plan's order;
+  ValueError with one line naming a run the plan does not hold."""
+  if not names:
+    return runs
+  unknown = sorted(set(names) - {r.name for r in runs})
+  if unknown:
+    raise ValueError(f"--runs: {unknown[0]} is not a planned run (planned: "
+                     f"{', '.join(r.name for r in runs)})")
+  return [r for r in runs if r.name in names]
+
+
 def workdir_of(run, out):
   """OUT/<run name with '_' for '/'>: where `run` trains."""
   return os.path.join(out, run.name.replace("/", "_"))
@@ -273,6 +285,9 @@ def define_regret_flags(values, argv):
                       "picture and one workdir per run.", flag_values=values)
   flags.DEFINE_bool("dry_run", False, "Decide auto's config and list the runs; train nothing.",
                     flag_values=values)
+  flags.DEFINE_list("runs", [], "Only these of the planned runs (e.g. auto,flip/cones): a "
+                    "part of the table, or one run again; default every run.",
+                    flag_values=values)
 
 
 def regret(values, spec, argv):
@@ -286,6 +301,7 @@ def regret(values, spec, argv):
   result, train_ds, _ = experiment.load_decided(config)
   runs, skipped = regret_plan.plan(result, user, train_ds.height, train_ds.width,
                                    jax.default_backend(), train_ds.image_cameras is None)
+  runs = chosen(runs, values.runs)
   print_plan(runs, skipped, values.seconds, values.out)
   if values.dry_run:
     return [], None

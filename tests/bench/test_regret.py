@@ -260,6 +260,17 @@ def test_dry_run_prints_the_plan_and_trains_nothing(monkeypatch, tmp_path, capsy
   assert os.listdir(tmp_path) == []
 
 
+def test_runs_keeps_the_named_runs_in_the_plans_order():
+  runs, _ = regret_plan.plan(OBJECT, USER, 16, 16, "cpu")
+  names = [r.name for r in runs]
+  assert regret.chosen(runs, []) == runs
+  picked = regret.chosen(runs, ["flip/background", "auto"])
+  assert [r.name for r in picked] == ["auto", "flip/background"]
+  assert [r.name for r in regret.chosen(runs, [names[-1]])] == [names[-1]]
+  with pytest.raises(ValueError, match="--runs: flip/nope is not a planned run"):
+    regret.chosen(runs, ["auto", "flip/nope"])
+
+
 def test_dry_run_from_the_command_line_exits_0():
   proc = subprocess.run([sys.executable, "-m", "nerf_jax.bench.regret", "--scene=forward",
                          "--config.data.image_size=16", "--config.data.num_views=8",
