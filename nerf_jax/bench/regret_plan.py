@@ -30,7 +30,6 @@ EFFECT_FIELDS = ("data.background", "train.random_background", "data.ndc", "data
 REPRESENTATIONS = ("fast", "detail", "hash", "llff", "capture")
 FORWARD_ONLY = ("llff",)  # grids in NDC: only for forward-facing cameras
 NO_FORWARD = ("fast", "detail", "hash")  # a box around an object: not for NDC rays
-NO_CONES = ("detail",)  # density grids and a sample budget that take no cones (auto.py)
 
 
 @dataclasses.dataclass
@@ -71,8 +70,6 @@ def _cones(result, base, context):
     off = ({"model.encoding": "posenc"} if result.model.encoding == "ipe" else
            {f"model.{result.model.encoding}.antialias": False})
     return {**off, "render.march": bool(base.render.march)}, ""
-  if context["chosen"] in NO_CONES:
-    return None, f"configs/{context['chosen']}.py takes no cones yet"
   effects = auto.cone_effects(result)
   if not effects:
     return None, f"model.encoding={result.model.encoding!r} has no cones yet"
@@ -206,8 +203,7 @@ def representation_runs(result, chosen, user, backend):
   runs, skipped = [], []
   for name, kind in candidates(chosen, backend).items():
     why = (kind in FORWARD_ONLY and not forward and "grids in NDC, for forward-facing cameras"
-           or kind in NO_FORWARD and forward and "a box around an object: not for NDC rays"
-           or kind in NO_CONES and has_cones(result) and "takes no cones yet")
+           or kind in NO_FORWARD and forward and "a box around an object: not for NDC rays")
     if why:
       skipped.append(f"config/{name}: not run ({why})")
       continue

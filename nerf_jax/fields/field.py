@@ -192,21 +192,24 @@ class Field:
       raw_sigma = raw_sigma + self.density_noise * draws.normal(key, raw_sigma.shape)
     return activations.density_activation(self.density_activation)(raw_sigma)
 
-  def query_density(self, params, points, key=None):
+  def query_density(self, params, points, key=None, per_sample=None):
     """sigma float32 [...] at points float32 [..., 3]: the density half alone where the network
-    has one (`splits_density`), else `query`'s density (direction-independent)."""
+    has one (`splits_density`), else `query`'s density (direction-independent). per_sample:
+    None, or `cone_inputs`' dict for these points (arrays [..., ...])."""
     if not self.splits_density:
       dirs = jnp.zeros(points.shape[:-2] + (3,), points.dtype)
-      return self.query(params, points, dirs, key)[1]
-    raw = self.network.apply({"params": params}, self.network_points(points), part="density")
+      return self._query(params, points, dirs, key, None, None, per_sample)[1]
+    raw = self.network.apply({"params": params}, self.network_points(points), part="density",
+                             **(per_sample or {}))
     return self._activate(raw, key)
 
-  def query_colour(self, params, points, viewdirs):
+  def query_colour(self, params, points, viewdirs, per_sample=None):
     """rgb float32 [P, 3] at points float32 [P, 3] seen along unit directions float32 [P, 3]:
-    the colour half alone (needs `splits_density`)."""
+    the colour half alone (needs `splits_density`). per_sample: None, or `cone_inputs`' dict
+    for these points (arrays [P, ...])."""
     dir_features = self.encode_directions(viewdirs) if self.view_dependent else None
     return self.network.apply({"params": params}, self.network_points(points), dir_features,
-                              part="colour")
+                              part="colour", **(per_sample or {}))
 
   def query_in_chunks(self, params, points, viewdirs, key=None, chunk=0, image=None,
                       bands=None, per_sample=None):

@@ -133,9 +133,6 @@ class RayRenderer:
     gated = lambda sigma: sigma if gate is None else sigma * gate
     per_sample = None
     if self.field.cones:  # the frustums of the samples' intervals, queried at their means
-      if budget or (self.colour_fraction > 0 and self.field.splits_density):
-        raise ValueError("a field of cones ('ipe', or a lattice's antialias) does not work with "
-                         "config.train.sample_budget or config.model.colour_fraction yet")
       cone_key = None if key is None else jax.random.fold_in(key, MULTISAMPLE_KEY)
       points, per_sample = self.field.cone_inputs(rays, *sample_intervals(samples), cone_key)
     if transient_params is not None and (budget or self.colour_fraction > 0):
@@ -145,15 +142,15 @@ class RayRenderer:
       slots, complete = budgeted_slots(samples.valid, budget)
     if self.colour_fraction > 0 and self.field.splits_density:
       if budget:
-        sigma = _at_slots(lambda p: self.field.query_density(params, p[:, None], key)[:, 0],
-                          slots, points)
+        sigma = _at_slots(lambda p, c: self.field.query_density(
+            params, p[:, None], key, with_sample_axis(c))[:, 0], slots, points, per_sample)
       else:
-        sigma = self.field.query_density(params, points, key)
+        sigma = self.field.query_density(params, points, key, per_sample)
       out = self._shade_where_it_matters(params, rays, samples, points, gated(sigma), background,
-                                         complete if budget else None)
+                                         complete if budget else None, per_sample)
     else:
       if budget:
-        rgb, sigma = self._query_at_slots(params, rays, points, slots, key, bands)
+        rgb, sigma = self._query_at_slots(params, rays, points, slots, key, bands, per_sample)
       else:
         rgb, sigma = self.field.query_in_chunks(params, points, rays.viewdirs, key,
                                                 remat_chunk, rays.image, bands, per_sample)
@@ -186,23 +183,26 @@ class RayRenderer:
     out["transient_density"] = jnp.where(samples.valid, sigma_t, 0.0)
     return out
 
-  def _query_at_slots(self, params, rays, points, slots, key, bands):
+  def _query_at_slots(self, params, rays, points, slots, key, bands, per_sample=None):
     """`Field.query` at the compacted `slots` (int32 [B], from `budgeted_slots`) of points
-    float32 [R, S, 3] only. Returns rgb float32 [R, S, 3] and sigma float32 [R, S], zero at
-    every other slot."""
+    float32 [R, S, 3] only (and of per_sample, `Field.cone_inputs`' dict of arrays [R, S, ...],
+    or None). Returns rgb float32 [R, S, 3] and sigma float32 [R, S], zero at every other
+    slot."""
     num_samples = points.shape[1]
     ray = jnp.minimum(slots, points.shape[0] * num_samples - 1) // num_samples
     image = rays.image
     images = None if image is None or not self.field.uses_images else image[ray][:, None]
 
-    def query(p):
-      rgb, sigma = self.field.query(params, p[:, None], rays.viewdirs[ray], key, images, bands)
+    def query(p, cone):
+      cone = {} if cone is None else {"per_sample": with_sample_axis(cone)}
+      rgb, sigma = self.field.query(params, p[:, None], rays.viewdirs[ray], key, images, bands,
+                                    **cone)
       return jnp.concatenate([rgb[:, 0], sigma], axis=-1)
-    both = _at_slots(query, slots, points)
+    both = _at_slots(query, slots, points, per_sample)
     return both[..., :3], both[..., 3]
 
   def _shade_where_it_matters(self, params, rays, samples, points, sigma, background,
-                              complete=None):
+                              complete=None, per_sample=None):
     """`_shade` with colour only where it counts (TensoRF's and DVGO's saving): density for all
     samples first; then the K = ceil(colour_fraction · samples) samples of largest compositing
     weight (over the whole batch, a fixed K so the shapes stay static) get their colour, and
@@ -211,7 +211,8 @@ class RayRenderer:
     (tests/fields/networks/test_grid.py).
     sigma: float32 [R, S], the field's density at `points`. complete: bool [R] or None,
     the rays whose density is whole (a sample budget: K is then a share of the budget, and
-    incomplete rays get no colour).
+    incomplete rays get no colour). per_sample: None, or `Field.cone_inputs`' dict of arrays
+    [R, S, ...] (a field of cones: the chosen samples' frustums are read).
     """
     sigma = placement.per_unit_t(sigma, rays)
     black = jnp.zeros(points.shape, jnp.float32)
@@ -228,7 +229,8 @@ class RayRenderer:
     _, chosen = jax.lax.top_k(flat_weights, count)  # [K] flat sample indices
     per_ray = points.shape[-2]
     viewdirs = rays.viewdirs.reshape(-1, 3)[chosen // per_ray]
-    colour = self.field.query_colour(params, points.reshape(-1, 3)[chosen], viewdirs)
+    cone = None if per_sample is None else _at_flat(per_sample, chosen, points.shape[:2])
+    colour = self.field.query_colour(params, points.reshape(-1, 3)[chosen], viewdirs, cone)
     rgb = black.reshape(-1, 3).at[chosen].set(colour).reshape(points.shape)
     rgb, sigma = samples.intervals(rgb, sigma)
     out = compositing.composite(rgb, sigma, samples.t, background)
@@ -318,17 +320,35 @@ def budgeted_slots(valid, budget):
   return slots, valid_through <= budget
 
 
-def _at_slots(fn, slots, points):
+def _at_slots(fn, slots, points, per_sample=None):
   """fn's values at the points of `slots` only, scattered back to every slot (zero elsewhere).
 
-  fn: points float32 [B, 3] -> float32 [B, ...]. slots: int32 [B] flat indices into points
-  float32 [R, S, 3], R·S where unused (those are dropped). Returns float32 [R, S, ...].
+  fn: (points float32 [B, 3], per-sample inputs at them or None) -> float32 [B, ...]. slots:
+  int32 [B] flat indices into points float32 [R, S, 3], R·S where unused (those are dropped).
+  per_sample: None, or a dict of arrays [R, S, ...] (`Field.cone_inputs`). Returns float32
+  [R, S, ...].
   """
   num_rays, num_samples = points.shape[:2]
   total = num_rays * num_samples
-  values = fn(points.reshape(total, 3)[jnp.minimum(slots, total - 1)])
+  index = jnp.minimum(slots, total - 1)
+  cone = None if per_sample is None else _at_flat(per_sample, index, points.shape[:2])
+  values = fn(points.reshape(total, 3)[index], cone)
   out = jnp.zeros((total,) + values.shape[1:], values.dtype)
   return out.at[slots].set(values, mode="drop").reshape(num_rays, num_samples, *values.shape[1:])
+
+
+def _at_flat(per_sample, index, leading):
+  """The entries of a dict of arrays [R, S, ...] (`leading` = (R, S)) at flat sample indices
+  int32 [B] (r·S + s): arrays [B, ...]."""
+  total = leading[0] * leading[1]
+  return jax.tree_util.tree_map(lambda a: a.reshape(total, *a.shape[2:])[index], per_sample)
+
+
+def with_sample_axis(per_sample):
+  """A dict of arrays [B, ...] (one sample each) as [B, 1, ...], the sample axis `Field.query`
+  reads; None stays None."""
+  return None if per_sample is None else jax.tree_util.tree_map(lambda a: a[:, None],
+                                                                 per_sample)
 
 
 def empty_depth_is_far(out, far):

@@ -220,10 +220,6 @@ def auto_config(config, dataset, backend=None, before_loading=({}, [])):
       effects.update({"data.ndc": True, "data.lindisp": False})
     elif found["background"].found:
       chosen = "detail" if max(dataset.height, dataset.width) >= LARGE_IMAGES else "fast"
-      if chosen == "detail" and found["scales"].found:
-        chosen = "fast"
-        lines.append("configs/fast.py, not detail.py: detail.py's density grids and sample "
-                     "budget do not take cones yet")
       effects["train.random_background"] = True
     else:
       chosen = "capture"

@@ -124,7 +124,7 @@ def test_representations_that_apply_keep_autos_effects():
   assert {"config/detail", "config/hash", "config/capture"} <= names(OBJECT)
   assert not {"config/fast", "config/llff"} & names(OBJECT)  # auto's own; NDC's
   assert {n for n in names(FORWARD) if n.startswith("config/")} == {"config/capture"}
-  assert "config/detail" not in names(CONES)  # takes no cones
+  assert "config/detail" in names(CONES)  # its density grids take cones too
   assert {n for n in names(OBJECT) if n.startswith("config/")} == {
       "config/detail", "config/hash", "config/capture"}
   for result in (OBJECT, CONES, COLLECTION):

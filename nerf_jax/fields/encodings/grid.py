@@ -165,9 +165,6 @@ class Settings:
   multisample: bool = True  # with antialias: the 6 points (False: the frustum's mean alone)
 
   def __post_init__(self):
-    if self.antialias and self.density_resolutions:
-      raise ValueError("config.model.grid.antialias works with the lattice head: it needs "
-                       "config.model.grid.density_resolutions = ()")
     if not self.density_resolutions and (self.density_hash_resolution
                                          or self.colour_hash_resolution):
       raise ValueError("config.model.grid.density_hash_resolution and colour_hash_resolution "

@@ -20,6 +20,8 @@ class DensityGridNeRF(lattice.LatticeHead):
   of one-channel grids at several resolutions, so coarse shapes form in few steps and fine ones
   on top. Colour comes from the feature grids (`encoding`, a grid.DenseGrid) and the tiny MLP
   (the lattice head's `shared` settings, protocol.NetworkSettings; no appearance codes yet).
+  With the grid's antialias (Zip-NeRF) every level, density and colour, dense and hashed, is
+  weighted by its cell size against each sample's scale (`multisamples`, Field.cone_inputs).
 
   The two halves can be evaluated alone (`part`): the density of every sample is a single
   trilinear read, and the renderer computes colour only where the weights say it matters
@@ -30,20 +32,36 @@ class DensityGridNeRF(lattice.LatticeHead):
   part: 'all' -> (rgb, raw_sigma); 'density' -> raw_sigma; 'colour' -> rgb.
   """
 
-  def _raw_density(self, unit):
+  def _raw_density(self, unit, scales=None):
     """Raw density float32 [...] at unit-box positions float32 [..., 3]: the sum of the dense
     levels and, if set, the hashed level (instant-ngp's hash: its rows cost memory and Adam's
-    update in proportion to 2^log2_size, not to its resolution cubed)."""
+    update in proportion to 2^log2_size, not to its resolution cubed). With `scales` (a
+    frustum's M multisamples: unit float32 [..., M, 3], scales float32 [..., M], world units),
+    each level is read at the M points weighted by Zip-NeRF's weight of its cell size and
+    averaged (`_level`)."""
     s, space = self.encoding.settings, self.encoding.space
     hashed = bool(s.density_hash_resolution)
     start = INITIAL_RAW_DENSITY / DENSITY_GAIN / (len(s.density_resolutions) + hashed)
     levels = [self.param(f"density_{r}", nn.initializers.constant(start), (*space.shape(r), 1))
               for r in s.density_resolutions]
-    raw = sum(grid.trilinear(g, unit)[..., 0] for g in levels)
+    raw = sum(self._level(grid.trilinear(g, unit), r, scales)[..., 0]
+              for g, r in zip(levels, s.density_resolutions))
     if hashed:
-      raw = raw + self._hashed_level("hashed_density", nn.initializers.constant(start), 1, unit,
-                                     s.density_hash_resolution, s.density_hash_log2_size)[..., 0]
+      fine = self._hashed_level("hashed_density", nn.initializers.constant(start), 1, unit,
+                                s.density_hash_resolution, s.density_hash_log2_size)
+      raw = raw + self._level(fine, s.density_hash_resolution, scales)[..., 0]
     return DENSITY_GAIN * raw
+
+  def _level(self, features, resolution, scales):
+    """One level's features float32 [..., F] at points, or, with `scales` (float32 [..., M]:
+    features float32 [..., M, F] at a frustum's M multisamples), their mean weighted by
+    Zip-NeRF's weight of the level's cell size against each multisample's scale
+    (grid.antialiased): a level whose cells are finer than the frustum fades out, so the raw
+    density and colour of a wide frustum come from the coarse levels alone."""
+    if scales is None:
+      return features
+    cells = self.encoding.space.cell_sizes((resolution,))
+    return grid.antialiased(features[..., None, :], scales, cells)
 
   def _hashed_level(self, name, init, features, unit, resolution, log2_size):
     """Features float32 [..., features] of a one-level hash grid (hash.py) of `resolution`
@@ -53,19 +71,23 @@ class DensityGridNeRF(lattice.LatticeHead):
     return hashgrid.encode(table, unit, (resolution,), log2_size)
 
   @nn.compact
-  def __call__(self, points, dir_features=None, part="all"):
+  def __call__(self, points, dir_features=None, part="all", multisamples=None):
     s = self.encoding.settings
-    unit = self.encoding.space.unit(points)
+    # A frustum (the encoding's antialias) is read at its multisamples, each level weighted by
+    # its scale; its mean `points` still says whether it lies inside the box.
+    centre = self.encoding.space.unit(points)
+    unit = centre if multisamples is None else self.encoding.space.unit(multisamples[0])
+    scales = None if multisamples is None else multisamples[1]
     raw_sigma = rgb = None
     if part in ("all", "density"):
-      raw = self._raw_density(unit)
-      raw_sigma = jnp.where(grid.inside_box(unit), raw, -1e5)
+      raw = self._raw_density(unit, scales)
+      raw_sigma = jnp.where(grid.inside_box(centre), raw, -1e5)
     if part in ("all", "colour"):
-      h = self.encoding.features(self, points)
+      h = self.encoding.features(self, points, None, multisamples)
       if s.colour_hash_resolution:  # read only by the samples that get colour
         fine = self._hashed_level("hashed_colour", draws.normal_init(1e-2), s.features, unit,
                                   s.colour_hash_resolution, s.colour_hash_log2_size)
-        h = jnp.concatenate([h, fine], axis=-1)
+        h = jnp.concatenate([h, self._level(fine, s.colour_hash_resolution, scales)], axis=-1)
       shared = self.shared
       h = nn.relu(heads.dense(shared, shared.width, "hidden")(h.astype(jnp.dtype(shared.dtype))))
       if shared.view_dependent:

@@ -2,6 +2,9 @@
 the split network equals the whole; a full colour budget renders exactly what the plain pass
 renders; a partial one errs by no more than the weight it leaves out (a closed-form bound)."""
 
+import dataclasses
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -184,3 +187,87 @@ def test_a_hashed_level_needs_the_dense_density_levels(part):
   variables = jitted(builders.make_ray_renderer(config).init)(jax.random.PRNGKey(0))
   table = variables["params"]["coarse"][f"hashed_{part}"]
   assert table.shape[0] == 2 ** 15  # 32^3 points fit 2^20 rows: indexed densely, as grid.py
+
+
+def _antialiased_network(multisample):
+  """The split network with Zip-NeRF's antialias on (levels 4 and 8 a side on the 1.5 cube)."""
+  return _split_network(True, resolutions=(4, 8), features=2, density_resolutions=(4, 8),
+                        antialias=True, multisample=multisample)
+
+
+def _random_levels(net, points, dirs):
+  variables = net.init(jax.random.PRNGKey(2), points, dirs)
+  params = dict(variables["params"])
+  for i, name in enumerate(("density_4", "density_8")):
+    params[name] = jax.random.normal(jax.random.PRNGKey(10 + i), params[name].shape)
+  return {"params": params}
+
+
+def test_antialiased_density_weighs_each_level_by_its_cells_against_the_scale():
+  net = _antialiased_network(False)
+  points = jax.random.uniform(jax.random.PRNGKey(0), (4, 3), minval=-1.0, maxval=1.0)
+  dirs = jax.random.normal(jax.random.PRNGKey(1), (4, 27))
+  variables = _random_levels(net, points, dirs)
+  std = np.array([0.0, 0.05, 0.3, np.inf], np.float32)
+  raw = net.apply(variables, points, part="density",
+                  multisamples=(points[:, None], jnp.asarray(std)[:, None]))
+  unit = grid.to_unit_cube(points, 1.5)
+  want = 0.0
+  for r in (4, 8):
+    cell = 3.0 / (r - 1)  # the cube's side over its cells
+    weight = np.array([1.0 if s == 0 else math.erf(cell / (math.sqrt(8.0) * s)) for s in std])
+    level = np.asarray(grid.trilinear(variables["params"][f"density_{r}"], unit)[..., 0])
+    want = want + weight * level
+  np.testing.assert_allclose(raw, density_grid.DENSITY_GAIN * want, rtol=1e-5, atol=1e-5)
+  assert raw[3] == 0.0 and abs(float(raw[0] - raw[2])) > 0.1  # the test has teeth
+  point = net.apply(variables, points, part="density")
+  np.testing.assert_array_equal(raw[0], point[0])  # scale 0: the point's density
+
+
+def test_antialiased_frustum_averages_its_six_points_and_fades_to_the_featureless_colour():
+  net = _antialiased_network(True)
+  points = jax.random.uniform(jax.random.PRNGKey(0), (5, 3), minval=-1.0, maxval=1.0)
+  dirs = jax.random.normal(jax.random.PRNGKey(1), (5, 27))
+  variables = _random_levels(net, points, dirs)
+  six = points[:, None] + 0.1 * jax.random.normal(jax.random.PRNGKey(3), (5, 6, 3))
+  raw = net.apply(variables, points, part="density", multisamples=(six, jnp.zeros((5, 6))))
+  each = jnp.stack([net.apply(variables, six[:, i], part="density") for i in range(6)], -1)
+  np.testing.assert_allclose(raw, each.mean(-1), rtol=1e-5, atol=1e-5)
+  wide = (six, jnp.full((5, 6), jnp.inf))
+  rgb = net.apply(variables, points, dirs, part="colour", multisamples=wide)
+  featureless = jax.tree_util.tree_map(jnp.zeros_like, variables)
+  featureless["params"] = {**variables["params"], **{
+      k: jnp.zeros_like(v) for k, v in variables["params"].items() if k.startswith("grid_")}}
+  np.testing.assert_allclose(rgb, net.apply(featureless, points, dirs, part="colour"),
+                             rtol=1e-6, atol=1e-7)
+  assert np.all(np.asarray(net.apply(variables, points, part="density", multisamples=wide)) == 0)
+
+
+@pytest.mark.parametrize("multisample", [False, True])
+def test_cones_render_alike_through_the_colour_share_and_the_sample_budget(multisample):
+  config = small_config(SPLIT_GRID, base="fast", **{
+      "model.colour_fraction": 1.0, "model.grid.antialias": True,
+      "model.grid.multisample": multisample, "occupancy.enabled": True,
+      "occupancy.resolution": 16})
+  split = builders.make_ray_renderer(config)
+  plain = renderer.RayRenderer(split.field, split.sampler)  # every sample's colour, no budget
+  variables = jitted(split.init)(jax.random.PRNGKey(0))
+  variables["params"]["coarse"] = ball_in_first_density_level(variables["params"]["coarse"])
+  variables["occupancy"] = jitted(split.occupancy_grid)(variables)
+  rays = small_view_rays()
+  # Footprints ~0.4 wide at the ball: the weight of its level (cells of 3/7) drops to ~0.4.
+  rays = rays.replace(radii=jnp.full(rays.near.shape, 0.1))
+  valid = np.asarray(jitted(split.sampler.place)(rays, None, variables["occupancy"]).valid)
+  want = jitted(plain.render)(variables, rays)["coarse"]
+  for budget in (int(valid.sum()), int(valid.sum()) // 2):
+    got = jitted(dataclasses.replace(split, sample_budget=budget).render)(variables, rays)
+    complete = np.asarray(got["coarse"]["complete"])
+    np.testing.assert_array_equal(complete, np.cumsum(valid.sum(-1)) <= budget)
+    for name in ("rgb", "acc"):
+      np.testing.assert_allclose(np.asarray(got["coarse"][name])[complete],
+                                 np.asarray(want[name])[complete], atol=2e-6, err_msg=name)
+  points = renderer.RayRenderer(builders.make_ray_renderer(small_config(SPLIT_GRID, base="fast", **{
+      "occupancy.enabled": True, "occupancy.resolution": 16})).field, split.sampler)
+  as_points = jitted(points.render)(variables, rays)["coarse"]
+  assert float(jnp.abs(as_points["acc"] - want["acc"]).max()) > 0.01  # the cones are read
+  assert float(want["acc"].max()) > 0.3  # rays cross the ball
