@@ -56,8 +56,15 @@ class Scene:
     return self.config.render.chunk or image_renderer.FALLBACK_CHUNK
 
   def fov(self):
-    """Vertical field of view (radians) of the training cameras."""
+    """Vertical field of view (radians) of the first training camera."""
     return camera.vertical_fov(self.height, self.intrinsics[1])
+
+  def camera_views(self):
+    """[(vertical fov in radians, width / height)] of each training image's own camera
+    (Dataset.cameras: images of several sizes or focal lengths each keep theirs)."""
+    cams = self.dataset.cameras
+    return [(camera.vertical_fov(int(h), float(fy)), float(w) / float(h))
+            for h, w, fy in zip(cams.height, cams.width, cams.fy)]
 
   def frame_rays(self, c2w, height, width, fov):
     """rays.Rays [height, width] (numpy) of camera `c2w` float [4, 4] with vertical `fov`

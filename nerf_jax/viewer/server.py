@@ -189,8 +189,9 @@ class Viewer:
     sc.set_up_direction(tuple(float(u) for u in up))
     positions = scene.poses[:, :3, 3] * self.scale
     size = 0.08 * float(np.median(np.linalg.norm(positions - positions.mean(0), axis=1)) or 1.0)
-    fov, aspect = scene.fov(), scene.width / scene.height
-    for i, pose in enumerate(scene.poses):  # no thumbnails: from a camera's apex they'd cover
+    views = scene.camera_views()  # each image's own field of view and shape
+    for i, (pose, (fov, aspect)) in enumerate(zip(scene.poses, views)):
+      # No thumbnails: seen from a camera's apex they would cover the view.
       wxyz, position = camera.c2w_to_viewer(pose, self.scale)
       frustum = sc.add_camera_frustum(
           f"/cameras/{i}", fov=fov, aspect=aspect, scale=size, wxyz=wxyz, position=position,
@@ -205,7 +206,7 @@ class Viewer:
     look_at = position + reach * forward
     initial = self.server.initial_camera  # behind the first training camera, looking past it
     initial.position, initial.look_at = look_at + 1.3 * (position - look_at), look_at
-    initial.up, initial.fov = up, fov
+    initial.up, initial.fov = up, views[0][0]
 
   def _jump_to(self, wxyz, position, fov):
     def jump(event):

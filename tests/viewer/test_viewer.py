@@ -375,3 +375,46 @@ def test_server_sends_frames_of_ready_heights_before_the_warm_up_ends(tiny_run, 
     assert viewer.warmed.wait(60) and viewer.ready_rays == math.inf and viewer.warm_s > 0
   finally:
     viewer.close()
+
+
+class _Recorder:
+  """A stand-in for viser's scene and initial camera: records the frustums added."""
+
+  def __init__(self):
+    self.frustums = []
+
+  def set_up_direction(self, up):
+    del up
+
+  def add_line_segments(self, *args, **kwargs):
+    del args, kwargs
+
+  def add_camera_frustum(self, name, fov, aspect, **kwargs):
+    del kwargs
+    self.frustums.append((name, fov, aspect))
+    return type("Frustum", (), {"on_click": lambda self, fn: None})()
+
+
+def test_each_training_camera_is_drawn_with_its_own_field_of_view_and_shape():
+  from nerf_jax.cameras.cameras import Cameras  # pylint: disable=import-outside-toplevel
+  # Two images of mip-NeRF's multiscale kind (full and half size, focal halved: one field of
+  # view), and a third zoomed in at the first's size: vertical fields of view 2·atan(h / 2fy).
+  cams = Cameras(fx=np.array([100.0, 50.0, 300.0]), fy=np.array([100.0, 50.0, 300.0]),
+                 cx=np.array([80.0, 40.0, 80.0]), cy=np.array([60.0, 30.0, 60.0]),
+                 width=np.array([160, 80, 160]), height=np.array([120, 60, 120]))
+  poses = np.stack([pose_spherical(a, -30.0, 4.0) for a in (0.0, 90.0, 180.0)])
+  data = type("Data", (), {"poses": poses, "cameras": cams, "height": 120, "width": 160,
+                           "intrinsics": (100.0, 100.0, 80.0, 60.0)})()
+  config = small_config(TINY_GRID, base="fast")
+  view = scene.Scene(config, None, data, 2.0, 6.0, np.zeros(3, np.float32))
+  viewer = server.Viewer.__new__(server.Viewer)
+  recorder, initial = _Recorder(), type("Camera", (), {})()
+  viewer.server = type("Server", (), {"scene": recorder, "initial_camera": initial})()
+  viewer.scene, viewer.scale = view, 1.0
+  viewer._add_scene()  # pylint: disable=protected-access
+  want = [2.0 * math.atan(60.0 / 100.0), 2.0 * math.atan(30.0 / 50.0),
+          2.0 * math.atan(60.0 / 300.0)]
+  got = [f for f in recorder.frustums if f[0].startswith("/cameras/")]
+  np.testing.assert_allclose([f[1] for f in got], want, rtol=1e-6)
+  np.testing.assert_allclose([f[2] for f in got], [4.0 / 3.0] * 3, rtol=1e-6)
+  assert initial.fov == pytest.approx(want[0])
