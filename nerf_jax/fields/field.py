@@ -170,8 +170,11 @@ class Field:
     """
     dir_features = None
     if self.view_dependent:
-      dirs = jnp.broadcast_to(viewdirs[..., None, :], points.shape)
-      dir_features = self.encode_directions(dirs)
+      # Encoded once per ray, then given to each of its samples: the same values as encoding
+      # every sample's copy of the direction, without S times the sines and cosines.
+      encoded = self.encode_directions(viewdirs)
+      dir_features = jnp.broadcast_to(encoded[..., None, :],
+                                      points.shape[:-1] + encoded.shape[-1:])
     args = (self.network_points(points), dir_features)
     if self.uses_images:
       args += (image,)
