@@ -86,3 +86,4 @@ def test_transients_set_the_robust_switch_alone(monkeypatch, side, effects):
   assert decided == effects
   assert line.startswith(f"transients left out: RobustNeRF's trimmed loss on {min(side, 16)} x")
   assert auto.transient_effects(dataset, False, 16)[0] == {}
+

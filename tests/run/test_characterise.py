@@ -195,6 +195,27 @@ def test_nanmedian_matches_numpys():
   np.testing.assert_array_equal(characterise._nanmedian(a, axis=0), expected)
 
 
+def test_large_images_at_several_scales_keep_detail_py_with_its_levels_weighted(monkeypatch,
+                                                                                  capsys):
+  monkeypatch.setattr(auto, "LARGE_IMAGES", 16)  # the 24 px scene counts as large
+  # Its sparse views differ in mean colour (the appearance rule fires), and detail.py's density
+  # grids take no appearance codes: fast.py, saying why; with the codes turned off, detail.py.
+  assert _auto("multiscale").auto_decisions[-1] == "representation: configs/fast.py"
+  assert ("auto: configs/fast.py, not detail.py: detail.py's density grids take no appearance "
+          "codes yet") in capsys.readouterr().out
+  decided = _auto("multiscale", model__appearance_dims=0,
+                  auto__flags=("model.appearance_dims",))
+  assert "representation: configs/detail.py" in decided.auto_decisions
+  assert decided.model.appearance_dims == 0
+  assert (decided.model.grid.antialias, decided.model.grid.multisample,
+          decided.render.march) == (True, auto.ANTIALIAS_MULTISAMPLE, False)
+  assert decided.model.grid.density_resolutions == config_lib.load(
+      "detail").model.grid.density_resolutions
+  assert builders.make_ray_renderer(decided).field.cones == (
+      "multisamples" if auto.ANTIALIAS_MULTISAMPLE else "scales")
+  assert "auto: cameras at several scales: cones" in capsys.readouterr().out
+
+
 def _auto(scene, capsys=None, **fields):
   config = config_lib.load("auto")
   config.data.scene, config.data.image_size, config.data.num_views = scene, 24, 40
