@@ -132,8 +132,8 @@ def _transients(result, base, context):
 
 
 # decision name -> flip(result, base, context) -> (overrides or None, why none). context:
-# {'chosen': config name, 'height', 'width': the training images' pixels, 'one_camera': whether
-# they share one camera}.
+# {'height', 'width': the training images' pixels, 'one_camera': whether they share one
+# camera}.
 FLIPS = {
     "background": _switch("train.random_background"),
     "forward": _forward,
@@ -169,7 +169,7 @@ def flip_runs(result, chosen, height, width, one_camera=True):
   chosen: auto's config name; height, width: int, the training images' pixels (image 0's);
   one_camera: whether every training image shares one camera."""
   base = config_lib.load(chosen)
-  context = {"chosen": chosen, "height": height, "width": width, "one_camera": one_camera}
+  context = {"height": height, "width": width, "one_camera": one_camera}
   runs, skipped = [], []
   for decision, flip in FLIPS.items():
     overrides, why = flip(result, base, context)
