@@ -226,21 +226,22 @@ def test_antialiased_density_weighs_each_level_by_its_cells_against_the_scale():
 
 def test_antialiased_frustum_averages_its_six_points_and_fades_to_the_featureless_colour():
   net = _antialiased_network(True)
+  apply = jax.jit(net.apply, static_argnames="part")
   points = jax.random.uniform(jax.random.PRNGKey(0), (5, 3), minval=-1.0, maxval=1.0)
   dirs = jax.random.normal(jax.random.PRNGKey(1), (5, 27))
   variables = _random_levels(net, points, dirs)
   six = points[:, None] + 0.1 * jax.random.normal(jax.random.PRNGKey(3), (5, 6, 3))
-  raw = net.apply(variables, points, part="density", multisamples=(six, jnp.zeros((5, 6))))
-  each = jnp.stack([net.apply(variables, six[:, i], part="density") for i in range(6)], -1)
+  raw = apply(variables, points, part="density", multisamples=(six, jnp.zeros((5, 6))))
+  each = jnp.stack([apply(variables, six[:, i], part="density") for i in range(6)], -1)
   np.testing.assert_allclose(raw, each.mean(-1), rtol=1e-5, atol=1e-5)
   wide = (six, jnp.full((5, 6), jnp.inf))
-  rgb = net.apply(variables, points, dirs, part="colour", multisamples=wide)
+  rgb = apply(variables, points, dirs, part="colour", multisamples=wide)
   featureless = jax.tree_util.tree_map(jnp.zeros_like, variables)
   featureless["params"] = {**variables["params"], **{
       k: jnp.zeros_like(v) for k, v in variables["params"].items() if k.startswith("grid_")}}
-  np.testing.assert_allclose(rgb, net.apply(featureless, points, dirs, part="colour"),
+  np.testing.assert_allclose(rgb, apply(featureless, points, dirs, part="colour"),
                              rtol=1e-6, atol=1e-7)
-  assert np.all(np.asarray(net.apply(variables, points, part="density", multisamples=wide)) == 0)
+  assert np.all(np.asarray(apply(variables, points, part="density", multisamples=wide)) == 0)
 
 
 @pytest.mark.parametrize("multisample", [False, True])
