@@ -17,7 +17,7 @@ import sys
 from absl import app, flags
 from ml_collections import config_flags
 
-from nerf_jax.backend import errors
+from nerf_jax.backend import determinism, errors
 from nerf_jax.data import DataError
 from nerf_jax.run import config_lib, experiment, outputs, train_lib
 from nerf_jax.train import checkpoints, parallel
@@ -100,6 +100,8 @@ def prepare(config, workdir, config_spec="", overrides=()):
   on the command line, which config.auto keeps as they are (config.auto_flags)."""
   if config.auto:
     config.auto_flags = tuple(overrides)
+  if config.train.get("deterministic", False):
+    determinism.require()  # before anything below starts jax's backends (is_main_process does)
   parallel.initialize_distributed()
   workdir = workdir or default_workdir(config, config_spec)
   if parallel.is_main_process():

@@ -151,3 +151,28 @@ def test_tests_run_with_deterministic_ops_inherited_by_subprocesses():
                        check=True, env=os.environ.copy())
   assert out.stdout.strip() == "True"
   determinism.require()  # already on: nothing to do, no error once jax has started
+
+
+def test_the_deterministic_flag_is_set_before_the_cli_starts_jax(tmp_path):
+  """nerf-train's set-up asks jax for the process index, which starts its backends: on a GPU the
+  flag set after that was refused (train.deterministic failed on an H200). So the flag must be in
+  XLA_FLAGS when the first backend starts; a spy on jax's backend start records XLA_FLAGS then."""
+  script = (
+      "import os\n"
+      "from jax._src import xla_bridge\n"
+      "seen, start = [], xla_bridge.backends\n"
+      "def spy():\n"
+      "  seen.append(os.environ.get('XLA_FLAGS', ''))\n"
+      "  return start()\n"
+      "xla_bridge.backends = spy\n"
+      "from nerf_jax import cli\n"
+      "from nerf_jax.run import config_lib\n"
+      "config = config_lib.load('default')\n"
+      "config.train.deterministic = True\n"
+      f"cli.prepare(config, {str(tmp_path)!r})\n"
+      "print(repr(seen[0]))\n")
+  env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+  out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env,
+                       cwd=os.path.dirname(os.path.dirname(os.path.dirname(__file__))))
+  assert out.returncode == 0, out.stderr[-2000:]
+  assert determinism.FLAG in out.stdout.splitlines()[-1]
