@@ -71,3 +71,11 @@ def trained_run(tmp_path_factory):
 def config():
   """A fresh `small_config()` (configs/debug.py, no rendering after training) for each test."""
   return small_config()
+
+
+@pytest.fixture
+def cpu_decisions(monkeypatch):
+  """auto's CPU decisions whatever backend the suite runs on: on a GPU auto takes configs/gpu/
+  (its GPU branch is tested with backend='gpu' passed in, tests/run/test_auto.py)."""
+  import jax  # pylint: disable=import-outside-toplevel
+  monkeypatch.setattr(jax, "default_backend", lambda: "cpu")

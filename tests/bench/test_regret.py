@@ -20,6 +20,9 @@ from nerf_jax.bench import regret, regret_plan
 from nerf_jax.run import auto, config_lib, experiment
 from tests.helpers import ROOT
 
+# auto's choices as on a CPU, also when the suite runs on a GPU (conftest.cpu_decisions).
+pytestmark = pytest.mark.usefixtures("cpu_decisions")
+
 # The fields each decision may touch, written out here (not read from regret_plan).
 CONE_FIELDS = {"model.encoding", "model.grid.antialias", "model.grid.multisample",
                "model.hash.antialias", "model.hash.multisample", "render.march"}
@@ -275,8 +278,8 @@ def test_dry_run_from_the_command_line_exits_0():
   proc = subprocess.run([sys.executable, "-m", "nerf_jax.bench.regret", "--scene=forward",
                          "--config.data.image_size=16", "--config.data.num_views=8",
                          "--seconds=5", "--out=unused", "--dry_run"], cwd=ROOT,
-                        capture_output=True, text=True, check=False,
-                        env={**os.environ, "PYTHONPATH": ROOT})
+                        capture_output=True, text=True, check=False,  # auto's CPU plan:
+                        env={**os.environ, "PYTHONPATH": ROOT, "JAX_PLATFORMS": "cpu"})
   assert proc.returncode == 0, proc.stderr
   assert "auto: representation: configs/llff.py" in proc.stdout
   assert "runs of 5 s of training each, into unused:" in proc.stdout

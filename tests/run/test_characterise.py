@@ -15,6 +15,9 @@ from nerf_jax.data.dataset import Dataset
 from nerf_jax.data.scenes import photos
 from tests.helpers import load_data
 
+# auto's choices as on a CPU, also when the suite runs on a GPU (conftest.cpu_decisions).
+pytestmark = pytest.mark.usefixtures("cpu_decisions")
+
 
 def _capture(poses, accs=None, images=None):
   """A capture of `poses` with flat grey 8 x 8 photos (or `images`) and opacity `accs`."""

@@ -10,6 +10,9 @@ import pytest
 
 from nerf_jax.run import auto, characterise, config_lib, experiment, from_data
 
+# auto's choices as on a CPU, also when the suite runs on a GPU (conftest.cpu_decisions).
+pytestmark = pytest.mark.usefixtures("cpu_decisions")
+
 TARGET = np.array([3.0, -1.5, 2.0])  # the point the cameras look at, off the origin
 
 
