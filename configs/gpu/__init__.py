@@ -1,2 +1,2 @@
-"""Configs chosen for one GPU (instant-ngp-like sizes), unmeasured until a GPU session measures
-them: docs/gpu.md#gpu-configurations-unmeasured."""
+"""Configs chosen for one GPU (instant-ngp-like sizes); their measurements on one H200 are in
+docs/gpu.md#measured-on-one-h200-2026-11-28."""

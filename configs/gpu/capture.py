@@ -3,9 +3,10 @@ contracted (nerfacto's L-infinity contraction), a larger hash field over it (ner
 2^21 rows, finest level 4096, 128-wide networks), an occupancy grid over the contracted space
 and a budget of 2^18 samples per step (nerfacc), and configs/capture.py's measured effects.
 
-These settings are chosen for a GPU and are UNMEASURED: no session has trained them on a GPU
-yet (docs/gpu.md, section "GPU configurations (unmeasured)", gives the source of each and the
-command that measures them). On a CPU they build and train
+FAILED on one H200 (docs/gpu.md, "Measured on one H200"): on fox in 60 s the training PSNR
+reached 31.7 dB while the test views stayed at 16.4 (19.57 dB at the end), where capture.py
+made 27.36 dB; `--config=auto` takes capture.py for captures on a GPU. docs/gpu.md, section
+"GPU configurations", gives the source of each value. On a CPU they build and train
 (tests/topics/test_gpu_configs.py, shrunk) but are far too large to pay: there, use
 configs/capture.py.
 

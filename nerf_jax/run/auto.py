@@ -23,10 +23,12 @@ TRANSIENT_SHARE = 0.01
 # distance from it (landmark: 0.5 of ~4.2; crowd's masks mark passers-by, no subject).
 SUBJECT_SHARE = 0.25
 _OWN = ("auto", "auto_decisions", "auto_flags")  # auto's own fields, set by auto_config itself
-# On a GPU backend, the config of configs/gpu/ that takes each CPU choice's place (docs/gpu.md:
-# chosen for a GPU, unmeasured there until a GPU session measures them).
+# On a GPU backend, the config that takes each CPU choice's place: the configs/gpu/ one where it
+# won on an H200 (docs/gpu.md, 2026-11-28: gpu/lego 32.63 dB on lego in 60 s against detail.py's
+# 30.45 in 120 s; gpu/llff 23.85 on fern against llff.py's 23.34), the CPU's own where it lost
+# (gpu/capture 19.57 dB on fox in 60 s against capture.py's 27.36).
 GPU_CONFIGS = {"fast": "gpu/lego", "detail": "gpu/lego", "llff": "gpu/llff",
-               "capture": "gpu/capture"}
+               "capture": "capture"}
 
 
 def for_backend(chosen, backend):
@@ -37,8 +39,11 @@ def for_backend(chosen, backend):
     return chosen, (f"backend {backend}: configs/{chosen}.py, the configs measured on a CPU "
                     "(a GPU backend takes configs/gpu/)")
   gpu = GPU_CONFIGS[chosen]
-  return gpu, (f"backend gpu: configs/{gpu}.py, sized for a GPU (unmeasured: docs/gpu.md), "
-               f"in place of the CPU's configs/{chosen}.py")
+  if gpu == chosen:
+    return gpu, (f"backend gpu: configs/{gpu}.py, as on a CPU: it beat configs/gpu/'s "
+                 "config of its kind on an H200 (docs/gpu.md)")
+  return gpu, (f"backend gpu: configs/{gpu}.py, sized for a GPU (measured on an H200: "
+               f"docs/gpu.md), in place of the CPU's configs/{chosen}.py")
 
 
 def cone_effects(config):

@@ -144,12 +144,12 @@ def test_representations_that_apply_keep_autos_effects():
 
 def test_gpu_backend_plans_gpu_configs():
   assert regret_plan.candidates("gpu/lego", "gpu") == {"hash": "hash", "gpu/llff": "llff",
-                                                       "gpu/capture": "capture"}
-  assert regret_plan.candidates("gpu/capture", "gpu") == {"gpu/lego": "fast", "hash": "hash",
-                                                          "gpu/llff": "llff"}
+                                                       "capture": "capture"}
+  assert regret_plan.candidates("capture", "gpu") == {"gpu/lego": "fast", "hash": "hash",
+                                                      "gpu/llff": "llff"}
   forward = _decided("gpu/llff", {"data.ndc": True})
   runs, skipped = regret_plan.plan(forward, USER, 16, 16, "gpu")
-  assert [r.name for r in runs if r.flipped == "representation"] == ["config/gpu/capture"]
+  assert [r.name for r in runs if r.flipped == "representation"] == ["config/capture"]
   assert "config/gpu/lego: not run (a box around an object: not for NDC rays)" in skipped
 
 

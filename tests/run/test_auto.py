@@ -13,7 +13,7 @@ from tests.helpers import load_data
 # below 400 px -> fast.py, forward-facing -> llff.py, a frame-filling scene -> capture.py), and
 # the GPU config that takes its place.
 CPU_CHOICE = {"diffuse": "fast", "forward": "llff", "garden": "capture"}
-GPU_CHOICE = {"diffuse": "gpu/lego", "forward": "gpu/llff", "garden": "gpu/capture"}
+GPU_CHOICE = {"diffuse": "gpu/lego", "forward": "gpu/llff", "garden": "capture"}
 # What auto sets from the data (its effects) and what _decide sets as the user: not the config's.
 NOT_THE_CONFIGS = {"data.background", "model.appearance_dims", "model.view_dependent",
                    "data.ndc", "data.lindisp", "train.random_background", "eval.appearance",
@@ -59,9 +59,11 @@ def test_a_gpu_backend_picks_the_gpu_configs(scene, capsys):
   assert _same_fields(decided, GPU_CHOICE[scene]) == []
   assert decided.auto_decisions[-1] == f"representation: configs/{GPU_CHOICE[scene]}.py"
   out = capsys.readouterr().out.splitlines()
-  assert [l for l in out if "backend" in l] == [
-      f"auto: backend gpu: configs/{GPU_CHOICE[scene]}.py, sized for a GPU (unmeasured: "
-      f"docs/gpu.md), in place of the CPU's configs/{CPU_CHOICE[scene]}.py"]
+  why = (f"in place of the CPU's configs/{CPU_CHOICE[scene]}.py" if GPU_CHOICE[scene] !=
+         CPU_CHOICE[scene] else "as on a CPU")  # capture.py beat gpu/capture on an H200
+  line = [l for l in out if "backend" in l]
+  assert len(line) == 1 and line[0].startswith(f"auto: backend gpu: configs/{GPU_CHOICE[scene]}.py")
+  assert why in line[0] and "docs/gpu.md" in line[0]
   # The effects decided from the data are the CPU branch's.
   cpu = _decide(scene, "cpu")
   assert (decided.data.ndc, decided.data.background, decided.train.random_background) == (
@@ -70,8 +72,9 @@ def test_a_gpu_backend_picks_the_gpu_configs(scene, capsys):
 
 def test_every_cpu_choice_has_a_gpu_config():
   assert set(auto.GPU_CONFIGS) == {"fast", "detail", "llff", "capture"}
-  for name in auto.GPU_CONFIGS.values():
-    assert config_lib.load(name).render.chunk == 0  # and each loads
+  for name in auto.GPU_CONFIGS.values():  # each loads; those of configs/gpu/ size their renders
+    assert config_lib.load(name).render.chunk == 0 or not name.startswith("gpu/")
+  assert auto.GPU_CONFIGS["capture"] == "capture"  # gpu/capture lost on fox (docs/gpu.md)
 
 
 @pytest.mark.parametrize("side,effects", [
