@@ -206,13 +206,16 @@ class Field:
                              **(per_sample or {}))
     return self._activate(raw, key)
 
-  def query_colour(self, params, points, viewdirs, per_sample=None):
+  def query_colour(self, params, points, viewdirs, per_sample=None, image=None):
     """rgb float32 [P, 3] at points float32 [P, 3] seen along unit directions float32 [P, 3]:
     the colour half alone (needs `splits_density`). per_sample: None, or `cone_inputs`' dict
-    for these points (arrays [P, ...])."""
+    for these points (arrays [P, ...]). image: int32 [P], each point's training image (its
+    appearance code), or None (the mean code); ignored without appearance codes."""
     dir_features = self.encode_directions(viewdirs) if self.view_dependent else None
-    return self.network.apply({"params": params}, self.network_points(points), dir_features,
-                              part="colour", **(per_sample or {}))
+    args = (self.network_points(points), dir_features)
+    if self.uses_images:
+      args += (image,)
+    return self.network.apply({"params": params}, *args, part="colour", **(per_sample or {}))
 
   def query_in_chunks(self, params, points, viewdirs, key=None, chunk=0, image=None,
                       bands=None, per_sample=None):

@@ -230,7 +230,10 @@ class RayRenderer:
     per_ray = points.shape[-2]
     viewdirs = rays.viewdirs.reshape(-1, 3)[chosen // per_ray]
     cone = None if per_sample is None else _at_flat(per_sample, chosen, points.shape[:2])
-    colour = self.field.query_colour(params, points.reshape(-1, 3)[chosen], viewdirs, cone)
+    image = (None if rays.image is None or not self.field.uses_images else
+             rays.image.reshape(-1)[chosen // per_ray])  # each chosen sample's ray's image
+    colour = self.field.query_colour(params, points.reshape(-1, 3)[chosen], viewdirs, cone,
+                                     image)
     rgb = black.reshape(-1, 3).at[chosen].set(colour).reshape(points.shape)
     rgb, sigma = samples.intervals(rgb, sigma)
     out = compositing.composite(rgb, sigma, samples.t, background)

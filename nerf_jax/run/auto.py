@@ -225,11 +225,6 @@ def auto_config(config, dataset, backend=None, before_loading=({}, [])):
       effects.update({"data.ndc": True, "data.lindisp": False})
     elif found["background"].found:
       chosen = "detail" if max(dataset.height, dataset.width) >= LARGE_IMAGES else "fast"
-      codes = found["appearance"].found and user.get("model.appearance_dims", 1) != 0
-      if chosen == "detail" and codes:
-        chosen = "fast"
-        lines.append("configs/fast.py, not detail.py: detail.py's density grids take no "
-                     "appearance codes yet")
       effects["train.random_background"] = True
     else:
       chosen = "capture"

@@ -203,11 +203,12 @@ def test_large_images_at_several_scales_keep_detail_py_with_its_levels_weighted(
   monkeypatch.setattr(auto, "LARGE_IMAGES", 16)  # the 24 px scene counts as large
   # Not what this test asks: the transients' warm-up (half a minute a call) is left out.
   monkeypatch.setattr(auto, "transient_effects", lambda *a: ({}, "no transients: not asked"))
-  # Its sparse views differ in mean colour (the appearance rule fires), and detail.py's density
-  # grids take no appearance codes: fast.py, saying why; with the codes turned off, detail.py.
-  assert _auto("multiscale").auto_decisions[-1] == "representation: configs/fast.py"
-  assert ("auto: configs/fast.py, not detail.py: detail.py's density grids take no appearance "
-          "codes yet") in capsys.readouterr().out
+  # Its sparse views differ in mean colour (the appearance rule fires): detail.py, whose density
+  # grids take appearance codes too; with the codes turned off, detail.py without them.
+  with_codes = _auto("multiscale")
+  assert with_codes.auto_decisions[-1] == "representation: configs/detail.py"
+  assert with_codes.model.appearance_dims > 0
+  assert builders.make_ray_renderer(with_codes).field.uses_images  # it builds, with codes
   decided = _auto("multiscale", model__appearance_dims=0,
                   auto__flags=("model.appearance_dims",))
   assert "representation: configs/detail.py" in decided.auto_decisions

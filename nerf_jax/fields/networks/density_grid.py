@@ -19,7 +19,8 @@ class DensityGridNeRF(lattice.LatticeHead):
   interpolated, then activated (by the Field), so it stays sharp inside a cell; it is the sum
   of one-channel grids at several resolutions, so coarse shapes form in few steps and fine ones
   on top. Colour comes from the feature grids (`encoding`, a grid.DenseGrid) and the tiny MLP
-  (the lattice head's `shared` settings, protocol.NetworkSettings; no appearance codes yet).
+  (the lattice head's `shared` settings, protocol.NetworkSettings), with a per-image
+  appearance code joining the direction where shared.appearance_dims is set (colour only).
   With the grid's antialias (Zip-NeRF) every level, density and colour, dense and hashed, is
   weighted by its cell size against each sample's scale (`multisamples`, Field.cone_inputs).
 
@@ -29,7 +30,9 @@ class DensityGridNeRF(lattice.LatticeHead):
   everywhere: a faint haze (DVGO's low initial opacity), so no early floaters block the rays,
   yet dense enough that the colour MLP's first gradients come from the surfaces. The density
   levels and the hashed levels are encoding.settings' (density_resolutions...).
-  part: 'all' -> (rgb, raw_sigma); 'density' -> raw_sigma; 'colour' -> rgb.
+  part: 'all' -> (rgb, raw_sigma); 'density' -> raw_sigma; 'colour' -> rgb. image: int32 [...]
+  leading the points' axes (each ray's [R] for points [R, S, 3], each point's [P] for [P, 3]),
+  or None (the mean code), read only with appearance codes.
   """
 
   def _raw_density(self, unit, scales=None):
@@ -71,7 +74,7 @@ class DensityGridNeRF(lattice.LatticeHead):
     return hashgrid.encode(table, unit, (resolution,), log2_size)
 
   @nn.compact
-  def __call__(self, points, dir_features=None, part="all", multisamples=None):
+  def __call__(self, points, dir_features=None, image=None, part="all", multisamples=None):
     s = self.encoding.settings
     # A frustum (the encoding's antialias) is read at its multisamples, each level weighted by
     # its scale; its mean `points` still says whether it lies inside the box.
@@ -90,8 +93,12 @@ class DensityGridNeRF(lattice.LatticeHead):
         h = jnp.concatenate([h, self._level(fine, s.colour_hash_resolution, scales)], axis=-1)
       shared = self.shared
       h = nn.relu(heads.dense(shared, shared.width, "hidden")(h.astype(jnp.dtype(shared.dtype))))
+      extra = [dir_features] if shared.view_dependent else []
+      if shared.appearance_dims:  # as the lattice head's: the code joins after the hidden layer
+        extra.append(heads.appearance_codes(self, shared, image, h.shape))
+      if extra:
+        h = jnp.concatenate([h, *(e.astype(h.dtype) for e in extra)], axis=-1)
       if shared.view_dependent:
-        h = jnp.concatenate([h, dir_features.astype(h.dtype)], axis=-1)
         h = heads.colour_layers(shared, h)
       rgb = nn.sigmoid(heads.dense(shared, 3, "rgb")(h).astype(jnp.float32))
     return {"all": (rgb, raw_sigma), "density": raw_sigma, "colour": rgb}[part]
@@ -130,9 +137,6 @@ def build(encoding, settings, shared):
     raise ValueError("config.model.grid.density_resolutions needs "
                      "config.model.density_activation 'softplus' or 'exp': the density "
                      "grid starts below zero, where relu has no gradient")
-  if shared.appearance_dims:
-    raise ValueError("config.model.grid.density_resolutions does not take appearance codes "
-                     "yet: set config.model.appearance_dims=0 or density_resolutions=()")
   return DensityGridNeRF(encoding, shared)
 
 

@@ -13,12 +13,15 @@ from nerf_jax.backend import precision
 def appearance_codes(module, shared, image, shape):
   """Per-training-image appearance codes (GLO, as NeRF-W and nerfacto): `module`'s parameter
   'appearance', a table float32 [shared.appearance_images, shared.appearance_dims] (zeros at the
-  start). Returns codes [*shape[:-1], dims] for rays' images int32 [...] (shape = the features'
-  [..., S, F]: each ray's code goes to all its samples), or the mean code for image None.
+  start). Returns codes [*shape[:-1], dims] for images int32 [...] whose axes lead `shape`'s
+  (rays' images [R] for features [R, S, F]: each ray's code goes to all its samples; samples'
+  own images [P] for features [P, F]), or the mean code for image None.
   A code conditions colour only, never density."""
   table = module.param("appearance", nn.initializers.zeros,
                        (shared.appearance_images, shared.appearance_dims))
-  code = jnp.mean(table, axis=0) if image is None else table[image][..., None, :]
+  code = jnp.mean(table, axis=0) if image is None else table[image]
+  spread = (1,) * (len(shape) - code.ndim)  # the axes the code is shared along
+  code = code.reshape(code.shape[:-1] + spread + code.shape[-1:])
   return jnp.broadcast_to(code, (*shape[:-1], shared.appearance_dims))
 
 

@@ -272,3 +272,59 @@ def test_cones_render_alike_through_the_colour_share_and_the_sample_budget(multi
   as_points = jitted(points.render)(variables, rays)["coarse"]
   assert float(jnp.abs(as_points["acc"] - want["acc"]).max()) > 0.01  # the cones are read
   assert float(want["acc"].max()) > 0.3  # rays cross the ball
+
+
+def test_appearance_codes_change_colour_alone_and_read_each_points_image():
+  """Each point's code is row `image` of the table, joined after the hidden layer as the lattice
+  head's; density never sees it; image None is the table's mean row."""
+  net = density_grid.DensityGridNeRF(
+      grid.DenseGrid(grid.Settings(resolutions=(4, 8), features=2, density_resolutions=(8,)),
+                     grid.Space(1.5)),
+      NetworkSettings(view_dependent=True, appearance_dims=3, appearance_images=5))
+  points = jax.random.uniform(jax.random.PRNGKey(0), (6, 4, 3), minval=-1.4, maxval=1.4)
+  dirs = jax.random.normal(jax.random.PRNGKey(1), (6, 4, 27))
+  rays_image = jnp.array([0, 1, 2, 3, 4, 1])
+  variables = net.init(jax.random.PRNGKey(2), points, dirs, rays_image)
+  table = jax.random.normal(jax.random.PRNGKey(3), (5, 3))
+  variables["params"]["appearance"] = table
+  rgb, raw = net.apply(variables, points, dirs, rays_image)
+  # Each point alone with its ray's image ([P] images for [P, 3] points): the same colours.
+  flat_image = jnp.repeat(rays_image, 4)
+  colour = net.apply(variables, points.reshape(-1, 3), dirs.reshape(-1, 27), flat_image,
+                     part="colour")
+  np.testing.assert_allclose(colour, rgb.reshape(-1, 3), rtol=1e-6, atol=1e-7)
+  # A brute-force reference: the image's row given as the table's only row (image 0 of 1).
+  for ray in (0, 3):
+    alone = dict(variables["params"], appearance=table[rays_image[ray]][None])
+    single = dataclasses.replace(net, shared=dataclasses.replace(net.shared, appearance_images=1))
+    want = single.apply({"params": alone}, points[ray], dirs[ray], jnp.zeros(4, jnp.int32),
+                        part="colour")
+    np.testing.assert_allclose(rgb[ray], want, rtol=1e-6, atol=1e-7)
+  mean = dict(variables["params"], appearance=jnp.mean(table, 0, keepdims=True))
+  np.testing.assert_allclose(
+      net.apply(variables, points[0], dirs[0], None, part="colour"),
+      single.apply({"params": mean}, points[0], dirs[0], jnp.zeros(4, jnp.int32), part="colour"),
+      rtol=1e-6, atol=1e-7)
+  # Density ignores the code; colour does not (teeth).
+  np.testing.assert_array_equal(net.apply(variables, points, dirs, rays_image[::-1])[1], raw)
+  assert float(jnp.abs(net.apply(variables, points, dirs, rays_image[::-1])[0] - rgb).max()) > 1e-3
+
+
+def test_appearance_codes_render_alike_through_the_colour_share_and_the_plain_pass():
+  config = small_config(SPLIT_GRID, base="fast", **{
+      "model.colour_fraction": 1.0, "model.appearance_dims": 4})
+  split = builders.make_ray_renderer(config, num_images=3)
+  plain = renderer.RayRenderer(split.field, split.sampler)  # every sample's colour
+  variables = jitted(split.init)(jax.random.PRNGKey(0))
+  variables["params"]["coarse"] = ball_in_first_density_level(variables["params"]["coarse"])
+  table = variables["params"]["coarse"]["appearance"]
+  variables["params"]["coarse"]["appearance"] = jax.random.normal(jax.random.PRNGKey(5),
+                                                                  table.shape)
+  rays = small_view_rays()
+  rays = rays.replace(image=jnp.arange(rays.near.shape[0], dtype=jnp.int32) % 3)
+  want = jitted(plain.render)(variables, rays)["coarse"]
+  got = jitted(split.render)(variables, rays)["coarse"]
+  for name in ("rgb", "acc"):
+    np.testing.assert_allclose(got[name], want[name], atol=2e-6, err_msg=name)
+  other = jitted(split.render)(variables, rays.replace(image=(rays.image + 1) % 3))["coarse"]
+  assert float(jnp.abs(other["rgb"] - got["rgb"]).max()) > 1e-3  # the codes are read
