@@ -142,8 +142,12 @@ def test_dry_run_lists_the_runs_and_trains_nothing(archives, tmp_path, capsys):
   assert "llff/fern: LLFF: factor 8, 16x16, views 0, 8, 16, ... held out (3 of 17)" in printed
   assert ("m360/garden: mip-NeRF 360: factor 4, 32x24, views 0, 8, 16, ... held out (2 of 10)"
           in printed)
-  assert "fox/fox: instant-ngp fox as shipped: 48x27, views 0, 8, 16, ... held out (2 of 10)" \
-      in printed
+  # fox's 48 x 27 photos block-averaged 4x (FOX_FACTOR): 12 x 6 (floor), as the loader's.
+  assert ("fox/fox: instant-ngp fox as shipped: factor 4, 12x6, views 0, 8, 16, ... held out "
+          "(2 of 10)") in printed
+  fox_scene = standard.find_scene("fox", str(tmp_path), "fox")
+  assert standard.run_config(small_config(base="capture"), fox_scene, fox_scene.path, 7.0,
+                             False).data.factor == standard.FOX_FACTOR == 4
   assert "min" in printed
 
 
