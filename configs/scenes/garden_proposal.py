@@ -19,6 +19,7 @@ def get_config():
   config.proposal.base_resolution = 16  # 16^3: coarse, but enough to find the surfaces
   config.proposal.max_resolution = (16,)  # (one level: the base resolution)
   config.proposal.num_samples = (64,)  # one proposal level of 64 samples per ray
+  config.proposal.resample = "jittered_grid"  # +0.36, +0.48 dB on two seeds (docs/proposal.md)
   config.num_samples = 32  # NeRF samples drawn from the proposal's weights
   config.train.batch_rays = 4096  # as the contracted occupancy run it is measured against
   config.train.lr = 2e-2  # likewise
