@@ -93,14 +93,7 @@ class DensityGridNeRF(lattice.LatticeHead):
         h = jnp.concatenate([h, self._level(fine, s.colour_hash_resolution, scales)], axis=-1)
       shared = self.shared
       h = nn.relu(heads.dense(shared, shared.width, "hidden")(h.astype(jnp.dtype(shared.dtype))))
-      extra = [dir_features] if shared.view_dependent else []
-      if shared.appearance_dims:  # as the lattice head's: the code joins after the hidden layer
-        extra.append(heads.appearance_codes(self, shared, image, h.shape))
-      if extra:
-        h = jnp.concatenate([h, *(e.astype(h.dtype) for e in extra)], axis=-1)
-      if shared.view_dependent:
-        h = heads.colour_layers(shared, h)
-      rgb = nn.sigmoid(heads.dense(shared, 3, "rgb")(h).astype(jnp.float32))
+      rgb = heads.colour(self, shared, h, dir_features, image)  # the lattice head's branch
     return {"all": (rgb, raw_sigma), "density": raw_sigma, "colour": rgb}[part]
 
   coarse_to_fine_stages = 0  # its density grids take no coarse-to-fine window

@@ -25,6 +25,20 @@ def appearance_codes(module, shared, image, shape):
   return jnp.broadcast_to(code, (*shape[:-1], shared.appearance_dims))
 
 
+def colour(module, shared, h, dir_features, image):
+  """rgb float32 [..., 3] in (0, 1) from the hidden features h [..., C] of `module` (inside its
+  compact call): the encoded direction (shared.view_dependent) and the appearance code
+  (shared.appearance_dims; `appearance_codes`) joined, the colour layers, then 'rgb'."""
+  extra = [dir_features] if shared.view_dependent else []
+  if shared.appearance_dims:  # colour only: the code joins h after density is taken from it
+    extra.append(appearance_codes(module, shared, image, h.shape))
+  if extra:
+    h = jnp.concatenate([h, *(e.astype(h.dtype) for e in extra)], axis=-1)
+  if shared.view_dependent:
+    h = colour_layers(shared, h)
+  return nn.sigmoid(dense(shared, 3, "rgb")(h).astype(jnp.float32))
+
+
 def colour_layers(shared, h):
   """The colour branch after the direction (and appearance code) joined h float [..., C]:
   `shared.view_depth` ReLU layers of `shared.view_width`, named 'view', 'view_1', ... (the

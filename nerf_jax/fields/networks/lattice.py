@@ -28,15 +28,7 @@ def head(network, h, inside, dir_features, image=None):
   raw_sigma = heads.dense(s, 1, "sigma")(h)[..., 0].astype(jnp.float32)
   if inside is not None:
     raw_sigma = jnp.where(inside, raw_sigma, -1e5)
-  extra = [dir_features] if s.view_dependent else []
-  if s.appearance_dims:  # colour only: the code joins h after density is taken from it
-    extra.append(heads.appearance_codes(network, s, image, h.shape))
-  if extra:
-    h = jnp.concatenate([h, *(e.astype(h.dtype) for e in extra)], axis=-1)
-  if s.view_dependent:
-    h = heads.colour_layers(s, h)
-  rgb = heads.dense(s, 3, "rgb")(h).astype(jnp.float32)
-  return nn.sigmoid(rgb), raw_sigma
+  return heads.colour(network, s, h, dir_features, image), raw_sigma
 
 
 class LatticeHead(nn.Module):
