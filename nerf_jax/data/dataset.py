@@ -6,6 +6,9 @@ from typing import Optional
 import numpy as np
 
 from nerf_jax.cameras.cameras import Cameras
+from nerf_jax.data import one_camera as one_camera_lib
+
+MIN_SHARED = 3  # fewer images than this sharing image 0's camera: a camera per photo
 
 
 class DataError(ValueError):
@@ -162,16 +165,10 @@ class Dataset:
   def one_camera(self):
     """The images that share image 0's camera, as a Dataset of one camera (`images` an [M, H,
     W, 3] array, image_cameras None): what code that reads the images of one camera takes
-    (config=auto's measurements, the visual hull); `self` when it has one camera."""
-    if self.image_cameras is None:
-      return self
-    first = self.image_cameras.camera(0)
-    part = self.subset(np.flatnonzero([self.image_cameras.camera(k) == first
-                                       for k in range(len(self))]))
-    stack = lambda a: a if a is None or not isinstance(a, list) else np.stack(a)
-    return dataclasses.replace(part, images=stack(part.images), accs=stack(part.accs),
-                               depths=stack(part.depths), masks=stack(part.masks),
-                               image_cameras=None)
+    (config=auto's measurements, the visual hull); `self` when it has one camera. Where fewer
+    than MIN_SHARED images share it (a photo collection: a camera per photo), every image
+    resampled into one pinhole instead (data/one_camera.py)."""
+    return one_camera_lib.shared_or_resampled(self, MIN_SHARED)
 
   def __len__(self):
     return len(self.images)
