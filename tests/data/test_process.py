@@ -1,5 +1,6 @@
 """nerf-process on a small rendered capture: poses, focal and the conventions of what it writes
-(against pycolmap's own projection), one line for every bad input; and the capture benchmark's
+(against pycolmap's own projection), one line for every bad input; photos of several sizes and
+cameras (--nosingle_camera), each frame with its own; and the capture benchmark's
 fair comparison: true poses mapped into the processed frame, the folder that differs only in them,
 scoring a run at given poses."""
 
