@@ -24,9 +24,9 @@ from nerf_jax.data.dataset import DataError
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png")
 
 
-def list_images(image_dir):
-  """Sorted image file names in `image_dir`; DataError if there is none or one is unreadable
-  or the sizes differ."""
+def list_images(image_dir, single_camera=True):
+  """Sorted image file names in `image_dir`; DataError if there is none or one is unreadable,
+  or (single_camera: the photos share one camera) the sizes differ."""
   if not os.path.isdir(image_dir):
     raise DataError(f"--images={image_dir}: no such directory")
   names = sorted(n for n in os.listdir(image_dir) if n.lower().endswith(IMAGE_EXTENSIONS))
@@ -36,11 +36,11 @@ def list_images(image_dir):
   for name in names:
     shape = validate.read_image(os.path.join(image_dir, name)).shape
     sizes.setdefault(shape[:2], name)
-  if len(sizes) > 1:
+  if single_camera and len(sizes) > 1:
     (s1, n1), (s2, n2) = list(sizes.items())[:2]
     raise DataError(f"--images={image_dir}: images have different sizes ({n1} is "
                     f"{s1[1]}x{s1[0]}, {n2} is {s2[1]}x{s2[0]}); use photos from one camera "
-                    "at one resolution")
+                    "at one resolution, or pass --nosingle_camera for photos from many cameras")
   return names
 
 
@@ -70,6 +70,8 @@ def sample_video(video, num_frames, image_dir):
 
 
 def _camera_fields(intrinsics, dist, size):
+  """transforms.json's camera fields of intrinsics float [4] (fx, fy, cx, cy), dist float [4]
+  (k1, k2, p1, p2) and size (height, width)."""
   fx, fy, cx, cy = (float(v) for v in intrinsics)
   k1, k2, p1, p2 = (float(v) for v in dist)
   return {"fl_x": fx, "fl_y": fy, "cx": cx, "cy": cy, "w": int(size[1]), "h": int(size[0]),
@@ -88,7 +90,8 @@ def write_dataset(out_dir, rec, image_subdir="images", mask_paths=None):
   near, far = orient.depth_bounds(poses, points)
   radius, phi = orient.orbit(poses)
   shared = len(set(rec.camera_ids.tolist())) == 1
-  cameras = [_camera_fields(k, d, rec.size) for k, d in zip(rec.intrinsics, rec.dist)]
+  cameras = [_camera_fields(k, d, size)
+             for k, d, size in zip(rec.intrinsics, rec.dist, rec.image_sizes())]
   pointcloud.write_ply(os.path.join(out_dir, "sparse_pc.ply"), points, rec.colors)
   frames = [(f"{image_subdir}/{name}", pose) for name, pose in zip(rec.names, poses)]
   extra = {"applied_transform": transform[:3].tolist(), "ply_file_path": "sparse_pc.ply",
@@ -106,14 +109,15 @@ def _fresh(folder):
   os.makedirs(folder)
 
 
-def _gather(image_dir, images, video, num_frames, log):
-  """Fill `image_dir` with the photos or the video's frames; returns their sorted names."""
+def _gather(image_dir, images, video, num_frames, log, single_camera=True):
+  """Fill `image_dir` with the photos or the video's frames; returns their sorted names.
+  single_camera: the photos must share one size (`list_images`)."""
   if video:
     log(f"[1/4] sampling {num_frames} frames of {video}")
     _fresh(image_dir)
     sample_video(video, num_frames, image_dir)
     return list_images(image_dir)
-  names = list_images(images)
+  names = list_images(images, single_camera)
   log(f"[1/4] {len(names)} images in {images}")
   if os.path.realpath(images) != os.path.realpath(image_dir):
     _fresh(image_dir)
@@ -146,6 +150,8 @@ def process(out_dir, images="", video="", num_frames=100, matcher="auto",
             num_threads=-1):
   """Photos (`images`, a directory) or a `video` -> a posed dataset in `out_dir`.
 
+  single_camera: bool, all photos share one camera (and size); False: one camera per photo,
+  photos of different sizes accepted, each frame of transforms.json with its own camera.
   min_registered: float, the fraction of images that must be registered (else SfmError).
   num_threads: COLMAP's threads (-1 = all cores; 1 = the same result on every run: with
   several threads the order of matches and registrations varies, and so can the outcome).
@@ -162,7 +168,7 @@ def process(out_dir, images="", video="", num_frames=100, matcher="auto",
     if os.path.isfile(os.path.join(out_dir, stale)):
       os.remove(os.path.join(out_dir, stale))
   image_dir = os.path.join(out_dir, "images")
-  names = _gather(image_dir, images, video, num_frames, log)
+  names = _gather(image_dir, images, video, num_frames, log, single_camera)
   mask_paths = None if video else pass_masks(images, names, out_dir)
   if mask_paths is not None:
     log(f"      {len(mask_paths)} masks passed through to "
@@ -218,7 +224,8 @@ def main():
                               f"{sfm.EXHAUSTIVE_MAX} photos, sequential for more or a video.")
   camera_model = flags.DEFINE_enum("camera_model", "SIMPLE_RADIAL",
                                    list(nerfstudio.lens.COLMAP_PARAMS), "COLMAP camera model.")
-  single_camera = flags.DEFINE_bool("single_camera", True, "All photos share one camera.")
+  single_camera = flags.DEFINE_bool("single_camera", True, "All photos share one camera; "
+                                    "--nosingle_camera: one per photo (sizes may differ).")
   min_registered = flags.DEFINE_float("min_registered", 0.5, "Fail unless this fraction of "
                                       "the images is registered.")
 

@@ -43,9 +43,10 @@ class Reconstruction:
   names: list of str, image file names. poses: float64 [N, 4, 4], camera-to-world, OpenGL axes.
   intrinsics: float64 [N, 4], (fx, fy, cx, cy) of each image, COLMAP pixel convention.
   dist: float64 [N, 4], (k1, k2, p1, p2). camera_ids: int [N], COLMAP camera of each image.
-  size: (height, width). points: float64 [P, 3]; colors: uint8 [P, 3]; point_errors: float64
-  [P], reprojection error of each point in pixels. mean_error: float, over all observations.
-  colmap: the pycolmap.Reconstruction itself.
+  size: (height, width) of the first image. points: float64 [P, 3]; colors: uint8 [P, 3];
+  point_errors: float64 [P], reprojection error of each point in pixels. mean_error: float, over
+  all observations. colmap: the pycolmap.Reconstruction itself. sizes: None (every image is
+  `size`) or int [N, 2], (height, width) of each image (photos of several cameras).
   """
   names: list
   poses: np.ndarray
@@ -58,6 +59,13 @@ class Reconstruction:
   point_errors: np.ndarray
   mean_error: float
   colmap: object
+  sizes: np.ndarray = None
+
+  def image_sizes(self):
+    """(height, width) of each image: int [N, 2]."""
+    if self.sizes is None:
+      return np.tile(np.asarray(self.size, int), (len(self.names), 1))
+    return np.asarray(self.sizes, int)
 
 
 def c2w_from_cam_from_world(matrix):
@@ -151,4 +159,10 @@ def convert(model):
       points=np.array([p.xyz for p in point_list], np.float64).reshape(-1, 3),
       colors=np.array([p.color for p in point_list], np.uint8).reshape(-1, 3),
       point_errors=np.array([p.error for p in point_list], np.float64),
-      mean_error=float(model.compute_mean_reprojection_error()), colmap=model)
+      mean_error=float(model.compute_mean_reprojection_error()), colmap=model,
+      sizes=np.array([_size(model.cameras[im.camera_id]) for im in images], int))
+
+
+def _size(camera):
+  """(height, width) of a pycolmap camera."""
+  return camera.height, camera.width

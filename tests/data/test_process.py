@@ -1,5 +1,6 @@
 """nerf-process on a small rendered capture: poses, focal and the conventions of what it writes
-(against pycolmap's own projection), one line for every bad input; and the capture benchmark's
+(against pycolmap's own projection), one line for every bad input; photos of several sizes and
+cameras (--nosingle_camera), each frame with its own; and the capture benchmark's
 fair comparison: true poses mapped into the processed frame, the folder that differs only in them,
 scoring a run at given poses."""
 
@@ -17,8 +18,8 @@ import scipy.optimize
 import scipy.spatial.transform
 
 from nerf_jax.data.scenes import capture as capture_scene
-from tests.helpers import assert_data_error, similarity
-from nerf_jax.run import experiment
+from tests.helpers import assert_data_error, load_data, similarity
+from nerf_jax.run import config_lib, experiment
 from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.bench import capture as capture_bench
 from nerf_jax.data import lens, nerfstudio, pointcloud, process, sfm
@@ -297,3 +298,81 @@ def test_evaluate_at_scores_the_given_poses(trained_run):
   turn[:3, :3] = scipy.spatial.transform.Rotation.from_euler("x", 10, degrees=True).as_matrix()
   moved = dataclasses.replace(test_ds, poses=test_ds.poses @ turn)  # about the camera's x axis
   assert capture_bench.evaluate_at(str(workdir), moved)["psnr"] < result["psnr"] - 1.0
+
+
+
+# Photos from many cameras: (width, height, focal) of each, the principal point at the centre;
+# the same field of view across, focal lengths 20-25% apart.
+CAMERAS = ((128, 128, 160.0), (192, 144, 240.0), (128, 176, 200.0))
+
+
+def _photograph_cameras(folder, num_views=NUM_VIEWS):
+  """The ring of `_photograph` taken in turn by each of CAMERAS; returns each view's camera:
+  int [num_views], an index into CAMERAS."""
+  os.makedirs(folder, exist_ok=True)
+  which = np.arange(num_views) % len(CAMERAS)
+  for k, pose in enumerate(capture_scene.ring_poses(num_views)):
+    width, height, focal = CAMERAS[which[k]]
+    image = capture_scene.render(pose, height, width, (focal, focal, width / 2, height / 2))
+    iio.imwrite(os.path.join(folder, f"view_{k:02d}.jpg"),
+                (image * 255).round().astype(np.uint8), quality=95)
+  return which
+
+
+def test_photos_of_different_sizes_need_nosingle_camera(tmp_path):
+  """--nosingle_camera poses photos of three sizes and focal lengths: each frame carries its own
+  camera, the run's loader keeps each photo's size, and each recovered focal is its own."""
+  which = _photograph_cameras(str(tmp_path / "photos"))
+  assert_data_error(["different sizes", "--nosingle_camera"], process.process,
+                    str(tmp_path / "out"), images=str(tmp_path / "photos"), log=lambda _: None)
+  summary = process.process(str(tmp_path / "out"), images=str(tmp_path / "photos"),
+                            single_camera=False, log=lambda _: None, num_threads=1)
+  assert summary["num_registered"] == NUM_VIEWS
+  meta = json.loads((tmp_path / "out" / "transforms.json").read_text())
+  assert "fl_x" not in meta and "w" not in meta  # no shared camera: every frame has its own
+  own = np.array([which[int(f["file_path"][-6:-4])] for f in meta["frames"]])
+  truth = np.array([CAMERAS[c] for c in own])
+  got = np.array([[f[k] for k in ("w", "h", "fl_x", "fl_y")] for f in meta["frames"]])
+  np.testing.assert_array_equal(got[:, :2], truth[:, :2])
+  assert all(k in f for f in meta["frames"] for k in ("cx", "cy", "k1", "k2", "p1", "p2"))
+  # Each focal within 8% (128-pixel photos; at most 4% seen), each camera's median within 3%
+  # (1.1% seen): a frame given another camera's focal would be 17% or more off.
+  np.testing.assert_allclose(got[:, 2:], truth[:, 2:3].repeat(2, 1), rtol=0.08)
+  medians = np.array([np.median(got[own == c, 2]) for c in range(len(CAMERAS))])
+  focals = np.array([focal for _, _, focal in CAMERAS])
+  np.testing.assert_allclose(medians / medians[0], focals / focals[0], rtol=0.03)
+  data = config_lib.load("capture").data
+  data.path = str(tmp_path / "out")
+  train, test = load_data(data)  # as `train.py --config=capture` loads it
+  for dataset in (train, test):
+    sizes = [im.shape[:2] for im in dataset.images]
+    assert sizes == list(zip(dataset.cameras.height, dataset.cameras.width))
+  assert {s for d in (train, test) for s in zip(d.cameras.width, d.cameras.height)} == {
+      (w, h) for w, h, _ in CAMERAS}
+
+
+def test_writer_gives_each_frame_its_camera(tmp_path):
+  """write_dataset of a Reconstruction with a camera per image (sizes, focals, principal points
+  and distortion all differ) writes each frame's fields exactly, and the loader reads them."""
+  rng = np.random.default_rng(0)
+  names = [f"p{k}.jpg" for k in range(4)]
+  sizes = np.array([[120, 160], [90, 120], [160, 160], [120, 160]])  # (height, width)
+  intrinsics = np.column_stack([rng.uniform(100, 200, (4, 2)), sizes[:, ::-1] / 2 + 3])
+  dist = np.column_stack([rng.uniform(-0.05, 0.05, (4, 2)), np.zeros((4, 2))])
+  (tmp_path / "images").mkdir()
+  for name, size in zip(names, sizes):
+    iio.imwrite(tmp_path / "images" / name, np.full((*size, 3), 90, np.uint8))
+  rec = sfm.Reconstruction(
+      names=names, poses=np.asarray(capture_scene.ring_poses(4), np.float64),
+      intrinsics=intrinsics, dist=dist, camera_ids=np.arange(4), size=tuple(sizes[0]),
+      points=rng.uniform(-1, 1, (50, 3)), colors=np.zeros((50, 3), np.uint8),
+      point_errors=np.zeros(50), mean_error=0.0, colmap=None, sizes=sizes)
+  process.write_dataset(str(tmp_path), rec)
+  frames = json.loads((tmp_path / "transforms.json").read_text())["frames"]
+  for frame, k, d, (h, w) in zip(frames, intrinsics, dist, sizes):
+    assert [frame[f] for f in ("fl_x", "fl_y", "cx", "cy")] == k.tolist()
+    assert [frame[f] for f in ("k1", "k2", "p1", "p2")] == d.tolist()
+    assert (frame["w"], frame["h"]) == (w, h)
+  dataset, _, _ = nerfstudio.load(str(tmp_path))
+  assert [im.shape[:2] for im in dataset.images] == [tuple(s) for s in sizes]
+  np.testing.assert_allclose(dataset.cameras.fx, intrinsics[:, 0])
