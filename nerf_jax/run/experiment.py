@@ -44,6 +44,7 @@ def setup(config):
   config = from_data.with_background(config)
   from_data.pixel_center(config, train_ds)  # a bad value fails here, naming the field
   config, train_ds, test_ds = subject.with_subject(config, train_ds, test_ds)
+  train_ds = from_data.with_photo_zoom(config, train_ds)
   near, far = from_data.bounds(config, train_ds)
   train_ds, test_ds = from_data.with_focus(config, train_ds, test_ds)
   config = from_data.with_scene_extent(config, train_ds)

@@ -14,7 +14,7 @@ import numpy as np
 from nerf_jax.data import loaders
 from nerf_jax.samplers import visual_hull
 from nerf_jax.cameras.rays import pixel_rays, ray_box_bounds
-from nerf_jax.run import characterise
+from nerf_jax.run import characterise, photo_zoom
 
 
 def with_background(config):
@@ -180,6 +180,20 @@ def subject_hull(dataset, bound, pixel_center):
         f"subject, where {100 * HULL_VOTE:.0f}% of the photos that see a cell keep it; no "
         "density outside it (data.visual_hull)", flush=True)
   return jnp.asarray(hull), extent
+
+
+def with_photo_zoom(config, dataset):
+  """`dataset` (the training views, moved by data.subject) with data.photo_zoom on: a camera per
+  photo, each focal fitted to the photo's mask against the masks' hull over the box a subject's
+  hull covers (run/photo_zoom.py); as given when off. ValueError where nothing marks the
+  subject to fit against (masks and data.subject on, photos of one size)."""
+  if not config.data.photo_zoom:
+    return dataset
+  if dataset.masks is None or not config.data.subject or dataset.mixed_sizes:
+    raise ValueError("config.data.photo_zoom: fits each photo's focal to masks that keep the "
+                     "subject: it needs data.subject on, masks and photos of one size")
+  return photo_zoom.with_photo_zoom(dataset, SUBJECT_HULL_EXTENT * config.data.scene_bound,
+                                    HULL_VOTE, pixel_center(config, dataset))
 
 
 CUT_SHARE = 0.25  # a run warns when more training rays than this leave the box before far

@@ -31,6 +31,7 @@ class SceneSettings:
   focus: bool = False  # move the world so that the point the cameras look at is the origin
   subject: str = ""  # 'auto': scale, move the world so the subject's box fills ±scene_bound ('' off)
   photo_bounds: bool = False  # sample each photo's rays within its own near/far (Dataset.bounds)
+  photo_zoom: bool = False  # data.subject's masks: each photo's focal fitted to the masks' hull
   subject_box: tuple = ()  # data.subject='box': the subject's (x, y, z centre, x, y, z half-extent)
 
 

@@ -4,10 +4,11 @@ Training data live on the device as flat per-pixel arrays (see `TrainData`); eve
 own batch inside the jitted step from a key folded with the step number, so there is no host
 work or host-device transfer per step and a resumed run draws exactly the batches it would have.
 
-Images of one camera are rows of P pixels each. Images with cameras of their own (sizes or
-intrinsics that differ, `Dataset.image_cameras`) are one flat run of every pixel, image after
-image: a drawn pixel's image is found from `offsets` and its ray is made through that image's
-camera (`cameras`); only random rays can be drawn from them (batching='rays').
+Images of one size are rows of P pixels each; where their intrinsics differ
+(`Dataset.image_cameras`: a photo collection posed a camera per photo) each drawn pixel's ray is
+made through its image's camera (`cameras`). Images of different sizes are one flat run of every
+pixel, image after image: a drawn pixel's image is found from `offsets`; only random rays can be
+drawn from them (batching='rays').
 
 With batching='patches' a batch is square patches of P x P neighbouring pixels, each from one
 image, patch after patch, each row-major (RobustNeRF's patches: a loss term can look at a
@@ -77,10 +78,11 @@ class TrainData:
   image, pixel: int32 [B], in a drawn batch (`draw_batch`) the training image of each ray (for
     its appearance code and its camera's correction) and the pixel's row-major index in it.
   camera: static (height, width, intrinsics, near, far, pixel_center, use_ndc): the arguments
-    of `rays.pixel_rays` that every image shares (with rays None); with per-image cameras
-    height, width and intrinsics are None.
-  offsets: int32 [N] or None: with per-image cameras, the flat index of each image's first
-    pixel; rgb is then float32 [T, 3] and acc float32 [T], T the pixels of all images.
+    of `rays.pixel_rays` that every image shares (with rays None); with images of different
+    sizes height, width and intrinsics are None; with per-image cameras of one size the
+    intrinsics are image 0's (`cameras` makes the rays).
+  offsets: int32 [N] or None: with images of different sizes, the flat index of each image's
+    first pixel; rgb is then float32 [T, 3] and acc float32 [T], T the pixels of all images.
   cameras: float32 [N, 6] or None: with per-image cameras, (fx, fy, cx, cy, width, height).
   lossmult: float32 [N] or None, each image's weight in the colour loss (Dataset.lossmult).
   weight: float32 [B] or None, in a drawn batch each ray's loss weight (its image's lossmult).
@@ -126,7 +128,7 @@ def make_train_data(ds, camera, rgb_background, with_radii=False, photo_bounds=F
     raise ValueError("config.data.photo_bounds: the data has no per-photo bounds (LLFF's, or "
                      "data.subject's)")
   bounds = jnp.asarray(ds.bounds, jnp.float32) if photo_bounds else None
-  if ds.image_cameras is not None:
+  if ds.mixed_sizes:
     data = _flat_train_data(ds, (None, None, None, float(near), float(far),
                                  float(pixel_center), bool(use_ndc)), rgb_background, lossmult,
                             with_radii)
@@ -137,7 +139,8 @@ def make_train_data(ds, camera, rgb_background, with_radii=False, photo_bounds=F
   data = TrainData(rays=None, rgb=jnp.asarray(rgb, jnp.float32).reshape(len(ds), -1, 3),
                    acc=jnp.asarray(acc, jnp.float32).reshape(len(ds), -1),
                    poses=jnp.asarray(ds.poses, jnp.float32), camera=camera, lossmult=lossmult,
-                   with_radii=bool(with_radii), bounds=bounds)
+                   with_radii=bool(with_radii), bounds=bounds,
+                   cameras=None if ds.image_cameras is None else _camera_table(ds.cameras))
   return _with_masks(data, ds)
 
 
@@ -151,13 +154,18 @@ def _with_masks(data, ds):
                       mask=jnp.asarray(mask.reshape(data.rgb.shape[:-1]), jnp.float32))
 
 
+def _camera_table(cams):
+  """float32 [N, 6] of Cameras `cams`: (fx, fy, cx, cy, width, height) of each image."""
+  table = np.concatenate([cams.table(), np.stack([cams.width, cams.height], -1)], -1)
+  return jnp.asarray(table, jnp.float32)
+
+
 def _flat_train_data(ds, camera, rgb_background, lossmult, with_radii):
-  """TrainData of `ds`'s images with their own cameras: every pixel in one flat run."""
+  """TrainData of `ds`'s images of different sizes: every pixel in one flat run."""
   acc, rgb = _targets(ds, rgb_background)
   cams = ds.cameras
   counts = cams.num_pixels()
   offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
-  table = np.concatenate([cams.table(), np.stack([cams.width, cams.height], -1)], -1)
   return TrainData(rays=None,
                    rgb=jnp.asarray(np.concatenate([np.reshape(a, (-1, 3)) for a in rgb]),
                                    jnp.float32),
@@ -165,7 +173,7 @@ def _flat_train_data(ds, camera, rgb_background, lossmult, with_radii):
                                    jnp.float32),
                    poses=jnp.asarray(ds.poses, jnp.float32), camera=camera,
                    offsets=jnp.asarray(offsets, jnp.int32),
-                   cameras=jnp.asarray(table, jnp.float32), lossmult=lossmult,
+                   cameras=_camera_table(cams), lossmult=lossmult,
                    with_radii=bool(with_radii))
 
 
@@ -186,9 +194,9 @@ def _pixel_rays(data, image, pixel, poses, intrinsics):
   """pixel_rays_of's rays between the shared camera's near and far."""
   poses = data.poses if poses is None else poses
   height, width, pinhole, near, far, pixel_center, use_ndc = data.camera
-  if intrinsics is not None and data.offsets is not None:
+  if intrinsics is not None and data.cameras is not None:
     raise ValueError(INTRINSICS_NEED_ONE_CAMERA)
-  if data.offsets is not None:  # each ray through its own image's camera
+  if data.cameras is not None:  # each ray through its own image's camera
     cams = data.cameras[image]
     widths = cams[:, 4].astype(jnp.int32)
     i = (pixel % widths).astype(jnp.float32)
@@ -230,7 +238,8 @@ def draw_batch(data, settings, key, step=0, run_key=None):
   the run's PRNG key, used by image_order='epochs' (whole-image batching), where every epoch
   visits each training image once in an order drawn from the epoch number, dropping the
   remainder (as the Keras reference's batch(drop_remainder=True) epochs do).
-  With per-image cameras (TrainData.offsets) every pixel of every image is equally likely.
+  With images of different sizes (TrainData.offsets) every pixel of every image is equally
+  likely.
   """
   if data.offsets is not None:
     return _draw_flat(data, settings, key)
@@ -319,11 +328,11 @@ def _draw_patches(data, num_images, settings, key):
 
 
 def _draw_flat(data, settings, key):
-  """draw_batch of per-image cameras: batch_rays pixels drawn uniformly over all images."""
+  """draw_batch of images of different sizes: batch_rays pixels drawn uniformly over all
+  images."""
   if settings.batching != "rays":
-    raise ValueError(f"config.train.batching={settings.batching!r}: images with cameras of "
-                     "their own (sizes or intrinsics that differ) train on random rays: use "
-                     "'rays'")
+    raise ValueError(f"config.train.batching={settings.batching!r}: images of different sizes "
+                     "train on random rays: use 'rays'")
   idx = _random_pixels(data, key, settings.batch_rays, data.rgb.shape[0])
   image = (jnp.searchsorted(data.offsets, idx, side="right") - 1).astype(jnp.int32)
   pixel = (idx - data.offsets[image]).astype(jnp.int32)

@@ -54,6 +54,21 @@ def test_cameras_within_a_cone_are_forward_facing():
     assert _found(_capture(turned))["forward"] == expected
 
 
+def test_forward_facing_cameras_stand_near_one_plane():
+  """NDC starts every ray on the near plane: cameras within the cone but far apart along their
+  mean direction (tourists on the steps and across the square) are not forward-facing."""
+  dirs = -np.asarray(AHEAD)[:, :3, 2]
+  mean = dirs.mean(0) / np.linalg.norm(dirs.mean(0))
+  flat = np.array(AHEAD, np.float64)
+  flat[:, :3, 3] -= np.outer(flat[:, :3, 3] @ mean, mean)  # every centre on one plane across it
+  near = _capture(AHEAD).near
+  for share, expected in ((0.4, True), (0.6, False)):  # either side of FORWARD_DEPTH_SHARE
+    moved = flat.copy()
+    moved[0, :3, 3] += share * near * mean  # camera 0 steps forward along the mean direction
+    assert characterise.depth_spread(moved) == pytest.approx(share * near, abs=1e-5)
+    assert _found(_capture(moved))["forward"] == expected
+
+
 def test_cameras_around_a_frame_filling_scene_are_unbounded():
   assert _found(_capture(AROUND)) == {"background": False, "forward": False, "unbounded": True,
                                       "appearance": False, "view_dependence": None,

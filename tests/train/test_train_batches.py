@@ -111,3 +111,25 @@ def test_each_photos_rays_are_sampled_within_its_own_bounds(own_cameras):
     train_batches.make_train_data(dataclasses.replace(ds, bounds=None),
                                   (6, 8, CAMS[0][2], 2.0, 6.0, 0.5, False),
                                   np.zeros(3, np.float32), photo_bounds=True)
+
+
+def test_patches_of_one_size_with_cameras_of_their_own_use_each_images_camera():
+  """A collection posed a camera per photo, all of one size (zooms differ): rows of pixels,
+  patches allowed (the trimmed loss), each ray through its own photo's focal and centre."""
+  cams = [(6, 8, (9.0, 7.5, 4.0, 3.0)), (6, 8, (18.0, 15.0, 3.0, 2.5)), (6, 8, (5.0, 5.0, 4.5, 3.0))]
+  rng = np.random.default_rng(1)
+  ds = Dataset(rng.uniform(size=(3, 6, 8, 3)).astype(np.float32), _dataset().poses, cams[0][2],
+               image_cameras=Cameras.stack(cams))
+  data = _data(ds)
+  assert data.offsets is None and data.rgb.shape == (3, 48, 3)
+  settings = train_batches.BatchSettings(batch_rays=64, batching="patches", patch_size=4)
+  batch = jax.tree_util.tree_map(np.asarray, train_batches.draw_batch(data, settings,
+                                                                      jax.random.PRNGKey(3)))
+  assert len(batch.image) == 64 and len(set(batch.image.tolist())) > 1
+  for n in range(64):
+    k, (row, col) = int(batch.image[n]), divmod(int(batch.pixel[n]), 8)
+    _, _, (fx, fy, cx, cy) = cams[k]
+    np.testing.assert_array_equal(batch.rgb[n], ds.images[k][row, col])
+    cam = np.array([(col + 0.5 - cx) / fx, -(row + 0.5 - cy) / fy, -1.0])
+    np.testing.assert_allclose(batch.rays.directions[n], ds.poses[k, :3, :3].astype(np.float64)
+                               @ cam, rtol=1e-5, atol=1e-6)
