@@ -23,7 +23,8 @@ from nerf_jax.run import auto, config_lib
 EFFECT_FIELDS = ("data.background", "train.random_background", "data.ndc", "data.lindisp",
                  "data.contraction", "data.focus", "model.appearance_dims", "eval.appearance",
                  "model.view_dependent", "data.subject", "data.photo_bounds",
-                 "data.visual_hull", "loss.robust.weight", "train.pose_refinement",
+                 "data.visual_hull", "data.photo_zoom", "loss.robust.weight",
+                 "train.pose_refinement",
                  "data.factor")
 # The representations auto chooses from (auto.auto_config) and configs/hash.py, the lattice
 # it could take instead of fast.py's dense grids; on a GPU, auto.GPU_CONFIGS's counterparts.
@@ -107,7 +108,8 @@ def _appearance(result, base, context):
 
 def _subject(result, base, context):
   if result.data.subject:
-    return {"data.subject": "", "data.photo_bounds": False, "data.visual_hull": False}, ""
+    return {"data.subject": "", "data.photo_bounds": False, "data.visual_hull": False,
+            "data.photo_zoom": False}, ""
   return None, "no sparse points or masks marked a subject to fill the inner region"
 
 
@@ -145,6 +147,7 @@ FLIPS = {
     "subject": _subject,
     "photo_bounds": _on_subject("data.photo_bounds"),
     "visual_hull": _on_subject("data.visual_hull"),
+    "photo_zoom": _on_subject("data.photo_zoom"),
     "transients": _transients,
     "pose_refinement": _switch("train.pose_refinement"),
 }

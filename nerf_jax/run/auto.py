@@ -86,7 +86,7 @@ def transient_effects(dataset, collection, patch_size):
           f"(loss.robust): {reason}")
 
 
-def subject_effects(dataset, collection, contraction=""):
+def subject_effects(dataset, collection, contraction="", stored_camera=True):
   """({field: value}, [line]): for a photo collection (`collection`), data.subject='auto' where
   the sparse points or the masks of `dataset` (one camera) mark a subject (subject.subject_box)
   whose largest half-extent is under SUBJECT_SHARE of the cameras' median distance from its
@@ -95,7 +95,8 @@ def subject_effects(dataset, collection, contraction=""):
   masks mark it (only its pixels train), each photo sampled within its depths (data.photo_bounds:
   no sample between a camera and the subject to hold a cloud that explains one photo) and no
   density in the space around it that the masks' vote rules out (data.visual_hull: a halo there
-  explains some photos and spoils the rest); else ({}, []
+  explains some photos and spoils the rest) and, where the data stores one camera for every
+  photo (`stored_camera`), each photo's focal fitted to its mask (data.photo_zoom); else ({}, []
   where not a collection, or the line saying why the world stays)."""
   if not collection:
     return {}, []
@@ -120,6 +121,10 @@ def subject_effects(dataset, collection, contraction=""):
     beyond += (", each photo sampled within the subject's depths from it "
                "(data.photo_bounds: its masks keep the subject alone), no density where the "
                "masks' vote rules it out (data.visual_hull: no pixel says that space is empty)")
+    if stored_camera:  # one focal stored for photos taken at many zooms
+      effects["data.photo_zoom"] = True
+      beyond += (", each photo's focal fitted to its mask (data.photo_zoom: the data stores "
+                 "one camera for every photo)")
   return effects, [f"the world scaled and moved so the subject fills the inner region "
                    f"(data.subject='auto'){beyond}: {measured}"]
 
@@ -211,6 +216,7 @@ def auto_config(config, dataset, backend=None, before_loading=({}, [])):
   given = _flat(config)
   user = {k: v for k, v in given.items()
           if (base.get(k) != v or k in config.auto_flags) and k not in _OWN}
+  stored_camera = dataset.image_cameras is None  # one camera stored for every photo
   decisions = characterise.decide(dataset)  # scales from every camera, the rest from image 0's
   dataset = dataset.one_camera()
   effects, lines = dict(before_loading[0]), list(before_loading[1])
@@ -265,7 +271,8 @@ def auto_config(config, dataset, backend=None, before_loading=({}, [])):
     lines += box_lines
     fill, fill_lines = subject_effects(
         dataset, found["appearance"].found,
-        user.get("data.contraction", effects.get("data.contraction", result.data.contraction)))
+        user.get("data.contraction", effects.get("data.contraction", result.data.contraction)),
+        stored_camera)
     effects.update(fill)
     lines += fill_lines
     transient, transient_line = transient_effects(

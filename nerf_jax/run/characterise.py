@@ -15,7 +15,8 @@ found (True / False), and the measured reason, one line:
               over focal length) differ by FOOTPRINT_SPREAD or more (max over min): cameras at
               several distances or resolutions, the case for cones (cameras/cones.py).
   appearance  photos of nearly the same view (each with its nearest camera) differ in mean
-              colour by more than APPEARANCE_LOG_RATIO (log of the ratio, median over pairs):
+              colour by more than APPEARANCE_LOG_RATIO (log of the ratio, median over pairs),
+              or the photos' focal lengths differ ZOOM_SPREAD times or more (many lenses):
               per-photo exposure or white balance.
   view_dependence  highlights that move between views (`highlight_excess`): a fifth of the
               surface points look more than HIGHLIGHT_LOG_RATIO brighter (log) from two views
@@ -44,6 +45,9 @@ FORWARD_DEPTH_SHARE = 0.5  # and the cameras within this share of the near bound
 # of a facade, taken from the steps and from across the square: 9.6)
 EMPTY_ALPHA, EMPTY_SHARE = 0.01, 0.01  # an object capture: >= 1% of pixels with alpha < 0.01
 APPEARANCE_LOG_RATIO = 0.1  # a photo-to-photo colour change of ~10% (0.14 stops) or more
+ZOOM_SPREAD = 1.5  # or focal lengths (over the image's diagonal) that differ this much between
+# photos with cameras of their own: many lenses and zooms, a collection taken by many (ten
+# tourist photos of Sacre-Coeur: 3.3x; mip-NeRF's multiscale lego: 1x)
 HIGHLIGHT_QUANTILE = 0.8  # highlight_excess: of the points, the 20% most lit from some views
 HIGHLIGHT_LOG_RATIO = 0.2  # view dependence above this excess, e^0.2 = 1.22x (built-in scenes
 #   at 24-100 px: Lambertian <= 0.19, glossy >= 0.21; docs/appearance_and_poses.md)
@@ -61,6 +65,14 @@ class Decision:
   #   'focus' (`focus`, asked for by auto where the space beyond the box is contracted)
   found: Optional[bool]  # whether the capture calls for it; None: the data cannot tell
   reason: str  # one line: what was measured
+
+
+def zoom_spread(dataset):
+  """The ratio of the largest to the smallest focal length over the image's diagonal among
+  `dataset`'s cameras (1 for one camera)."""
+  cams = dataset.cameras
+  angular = cams.fx / np.hypot(cams.width, cams.height)
+  return float(angular.max() / angular.min())
 
 
 def view_directions(poses):
@@ -290,6 +302,7 @@ def decide(dataset):
                     f"pixel footprints at the scene's centre differ {ratio:.2f}x between "
                     f"cameras ({'>=' if ratio >= FOOTPRINT_SPREAD else '<'} "
                     f"{FOOTPRINT_SPREAD:g}x)")
+  zooms = zoom_spread(dataset)
   dataset = dataset.one_camera()
   if len(dataset) < MIN_CAMERAS:
     return None
@@ -314,10 +327,13 @@ def decide(dataset):
                       "subject" if unbounded else
                       "an object on a background" if background else "forward-facing"))
   spread = colour_spread(dataset)
-  out.append(Decision("appearance", spread > APPEARANCE_LOG_RATIO,
-                      f"neighbouring photos differ in mean colour by {100 * spread:.0f}% "
-                      f"(median; {'>' if spread > APPEARANCE_LOG_RATIO else '<='} "
-                      f"{100 * APPEARANCE_LOG_RATIO:.0f}%)"))
+  looks = spread > APPEARANCE_LOG_RATIO
+  reason = (f"neighbouring photos differ in mean colour by {100 * spread:.0f}% (median; "
+            f"{'>' if looks else '<='} {100 * APPEARANCE_LOG_RATIO:.0f}%)")
+  if not looks and zooms >= ZOOM_SPREAD:
+    reason += (f", but their focal lengths differ {zooms:.2f}x (>= {ZOOM_SPREAD:g}x): many "
+               "lenses and zooms, a collection taken by many")
+  out.append(Decision("appearance", looks or zooms >= ZOOM_SPREAD, reason))
   excess = highlight_excess(dataset)
   if excess is None:
     out.append(Decision("view_dependence", None, "not measured: the views have no depth to "

@@ -26,12 +26,13 @@ pytestmark = pytest.mark.usefixtures("cpu_decisions")
 # The fields each decision may touch, written out here (not read from regret_plan).
 CONE_FIELDS = {"model.encoding", "model.grid.antialias", "model.grid.multisample",
                "model.hash.antialias", "model.hash.multisample", "render.march"}
-SUBJECT_FIELDS = {"data.subject", "data.photo_bounds", "data.visual_hull"}
+SUBJECT_FIELDS = {"data.subject", "data.photo_bounds", "data.visual_hull", "data.photo_zoom"}
 FIELDS = {"background": {"train.random_background"}, "forward": {"data.ndc"},
           "contraction": {"data.contraction"}, "focus": {"data.focus"},
           "appearance": {"model.appearance_dims"}, "view_dependence": {"model.view_dependent"},
           "cones": CONE_FIELDS, "subject": SUBJECT_FIELDS,
           "photo_bounds": {"data.photo_bounds"}, "visual_hull": {"data.visual_hull"},
+          "photo_zoom": {"data.photo_zoom"},
           "transients": {"loss.robust.weight", "train.patch_size"},
           "pose_refinement": {"train.pose_refinement"}}
 USER = {"data.scene": "diffuse", "data.image_size": 16, "train.max_seconds": 2.0}
@@ -55,8 +56,8 @@ FORWARD = _decided("llff", {"data.ndc": True, "data.lindisp": False})
 CONES = _decided("fast", auto.cone_effects(config_lib.load("fast")))
 COLLECTION = _decided("capture", {
     "data.subject": "auto", "data.contraction": "linf", "data.focus": True,
-    "data.photo_bounds": True, "data.visual_hull": True, "model.appearance_dims": 8,
-    "loss.robust.weight": 1.0, "train.patch_size": 8})
+    "data.photo_bounds": True, "data.visual_hull": True, "data.photo_zoom": True,
+    "model.appearance_dims": 8, "loss.robust.weight": 1.0, "train.patch_size": 8})
 
 
 def _diff(a, b):
@@ -100,7 +101,8 @@ def test_flips_turn_what_auto_set_the_other_way():
   flips = {r.flipped: r.overrides for r in regret_plan.plan(COLLECTION, USER, 16, 16, "cpu")[0]
            if r.name.startswith("flip/")}
   assert flips["subject"] == {"data.subject": "", "data.photo_bounds": False,
-                              "data.visual_hull": False}
+                              "data.visual_hull": False, "data.photo_zoom": False}
+  assert flips["photo_zoom"] == {"data.photo_zoom": False}
   assert flips["contraction"] == {"data.contraction": ""}
   assert flips["focus"] == {"data.focus": False}
   assert flips["appearance"] == {"model.appearance_dims": 0}

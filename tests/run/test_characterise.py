@@ -141,6 +141,20 @@ def test_per_photo_gains_call_for_appearance_codes():
   assert characterise.colour_spread(gained) > 2 * characterise.colour_spread(train)
 
 
+def test_photos_at_many_zooms_are_a_collection_taken_by_many():
+  """Cameras of their own whose focal lengths (over the image's diagonal) differ 1.5x or more:
+  many lenses and zooms. The same looks, so only the zooms can call for the codes."""
+  for focals, sizes, expected in (([8.0, 10.0, 12.0, 16.0] * 5, [8] * 20, True),
+                                  ([8.0, 9.0, 10.0, 11.0] * 5, [8] * 20, False),  # 1.375x
+                                  ([8.0, 16.0, 4.0, 2.0] * 5, [8, 16, 4, 2] * 5, False)):  # scales
+    cams = Cameras.stack([(s, s, (f, f, s / 2, s / 2)) for f, s in zip(focals, sizes)])
+    images = [np.full((s, s, 3), 0.5, np.float32) for s in sizes]
+    data = Dataset(images, np.asarray(AROUND, np.float32), cams.camera(0)[2], image_cameras=cams)
+    spread = max(focals[:4]) / min(focals[:4]) if sizes[0] == sizes[1] else 1.0
+    assert characterise.zoom_spread(data) == pytest.approx(spread)
+    assert _found(data)["appearance"] == expected
+
+
 def test_highlights_that_move_call_for_view_dependence():
   """glossy's Blinn-Phong highlights against diffuse's Lambertian objects (the same scene
   without them), also with per-photo gains, which are exposure, not highlights."""

@@ -169,10 +169,14 @@ def test_auto_fills_a_small_subject_of_a_collection_only():
   assert auto.subject_effects(masked, True)[0] == {"data.subject": "auto",
                                                    "data.contraction": auto.CONTRACTION,
                                                    "data.photo_bounds": True,
-                                                   "data.visual_hull": True}
+                                                   "data.visual_hull": True,
+                                                   "data.photo_zoom": True}
   assert auto.subject_effects(masked, True, "l2")[0] == {"data.subject": "auto",
                                                          "data.photo_bounds": True,
-                                                         "data.visual_hull": True}
+                                                         "data.visual_hull": True,
+                                                         "data.photo_zoom": True}
+  # a camera per photo (structure from motion fitted each focal): no zoom fitted again
+  assert "data.photo_zoom" not in auto.subject_effects(masked, True, "l2", False)[0]
   rng = np.random.default_rng(2)  # sparse points mark it, no masks: the background trains
   points = rng.uniform(BOX_LO, BOX_HI, (2000, 3)).astype(np.float32)
   assert auto.subject_effects(_dataset(poses, points=points), True)[0] == {
