@@ -81,21 +81,28 @@ def view_directions(poses):
   return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
+def mean_direction(poses):
+  """float64 [3], the unit mean of the viewing directions of cameras float [N, 4, 4]; None
+  where they look every way (the mean is shorter than 1e-9)."""
+  mean = view_directions(poses).mean(0)
+  norm = np.linalg.norm(mean)
+  return None if norm < 1e-9 else mean / norm
+
+
 def cone_degrees(poses):
   """The largest angle in degrees between a camera's viewing direction and their mean."""
-  dirs = view_directions(poses)
-  mean = dirs.mean(0)
-  norm = np.linalg.norm(mean)
-  if norm < 1e-9:
+  mean = mean_direction(poses)
+  if mean is None:
     return 180.0
-  return float(np.degrees(np.arccos(np.clip(dirs @ (mean / norm), -1.0, 1.0))).max())
+  return float(np.degrees(np.arccos(np.clip(view_directions(poses) @ mean, -1.0, 1.0))).max())
 
 
 def depth_spread(poses):
   """How far apart (max - min) the camera centres of `poses` float [N, 4, 4] stand along their
-  mean viewing direction."""
-  dirs = view_directions(poses)
-  mean = dirs.mean(0) / max(float(np.linalg.norm(dirs.mean(0))), 1e-9)
+  mean viewing direction (infinite where they look every way: not near one plane across it)."""
+  mean = mean_direction(poses)
+  if mean is None:
+    return float("inf")
   along = np.asarray(poses, np.float64)[:, :3, 3] @ mean
   return float(along.max() - along.min())
 
@@ -313,12 +320,12 @@ def decide(dataset):
                   f"{100 * share:.1f}% of pixels are empty (alpha < {EMPTY_ALPHA})")]
   cone = cone_degrees(dataset.poses)
   within = cone <= FORWARD_CONE_DEGREES
-  spread = depth_spread(dataset.poses) / max(float(dataset.near), 1e-9)
-  forward = within and spread <= FORWARD_DEPTH_SHARE
+  apart = depth_spread(dataset.poses) / max(float(dataset.near), 1e-9)
+  forward = within and apart <= FORWARD_DEPTH_SHARE
   reason = (f"every camera looks within {cone:.1f}° of their mean direction "
             f"({'<=' if within else '>'} {FORWARD_CONE_DEGREES:g}°)")
   if within and not forward:
-    reason += (f", but the cameras stand {spread:.2f}x the near bound apart along it (> "
+    reason += (f", but the cameras stand {apart:.2f}x the near bound apart along it (> "
                f"{FORWARD_DEPTH_SHARE:g}x): NDC rays need them near one plane")
   out.append(Decision("forward", forward, reason))
   unbounded = not background and not forward
