@@ -222,9 +222,17 @@ def print_plan(runs, skipped, seconds, out):
 
 def chosen(runs, names):
   """The Runs of `runs` named in `names` (all where `names` is empty), in the plan's order;
-  ValueError with one line naming a run the plan does not hold."""
+  ValueError with one line naming a run the plan does not hold. Names that all start with '-'
+  leave those runs out of the plan instead (absent ones too: one list for every scene's plan,
+  e.g. -config/hash); a list mixing both is refused."""
   if not names:
     return runs
+  left_out = [n[1:] for n in names if n.startswith("-")]
+  if left_out:
+    if len(left_out) != len(names):
+      raise ValueError(f"--runs={','.join(names)}: name the runs to train, or the runs to leave "
+                       "out each with a leading '-', not both")
+    return [r for r in runs if r.name not in left_out]
   unknown = sorted(set(names) - {r.name for r in runs})
   if unknown:
     raise ValueError(f"--runs: {unknown[0]} is not a planned run (planned: "
@@ -286,7 +294,8 @@ def define_regret_flags(values, argv):
   flags.DEFINE_bool("dry_run", False, "Decide auto's config and list the runs; train nothing.",
                     flag_values=values)
   flags.DEFINE_list("runs", [], "Only these of the planned runs (e.g. auto,flip/cones): a "
-                    "part of the table, or one run again; default every run.",
+                    "part of the table, or one run again; default every run. Names each with "
+                    "a leading '-' (e.g. -config/hash) leave those out instead.",
                     flag_values=values)
 
 

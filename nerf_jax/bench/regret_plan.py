@@ -65,12 +65,11 @@ def has_cones(config):
 
 
 def _cones(result, base, context):
-  """Cones off (the representation's own encoding and marching), or on as auto.cone_effects
-  turns them on."""
+  """Cones off (the representation's own encoding), or on as auto.cone_effects turns them
+  on."""
   if has_cones(result):
-    off = ({"model.encoding": "posenc"} if result.model.encoding == "ipe" else
-           {f"model.{result.model.encoding}.antialias": False})
-    return {**off, "render.march": bool(base.render.march)}, ""
+    return ({"model.encoding": "posenc"} if result.model.encoding == "ipe" else
+            {f"model.{result.model.encoding}.antialias": False}), ""
   effects = auto.cone_effects(result)
   if not effects:
     return None, f"model.encoding={result.model.encoding!r} has no cones yet"

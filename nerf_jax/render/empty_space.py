@@ -100,22 +100,29 @@ def buffer_sizes(max_count):
 
 
 def make_query_round(field_fn):
-  """A jitted fn(params, t, points, viewdirs, index, sigma, rgb) -> (sigma, rgb, optical_depth)
-  querying the samples at flat indices `index` and scattering the results back.
+  """A jitted fn(params, t, points, viewdirs, index, sigma, rgb, per_sample=None) ->
+  (sigma, rgb, optical_depth) querying the samples at flat indices `index` and scattering the
+  results back.
 
   field_fn(params, points float32 [B, 3], viewdirs float32 [B, 3]) -> (rgb float32 [B, 3],
-  sigma float32 [B], per unit of world length). t: float32 [C, S + 1], the interval edges in
+  sigma float32 [B], per unit of world length); called with a third argument, the queried
+  samples' per_sample, where per_sample is given. t: float32 [C, S + 1], the interval edges in
   world length (t·|d|), for the optical depth. points: float32 [C, S, 3].
   viewdirs: float32 [C, 3]. index: int32 [B], flat indices into [C, S];
   entries equal to C·S are padding (queried at a clamped index, dropped by the scatter).
   sigma: float32 [C, S], rgb: float32 [C, S, 3] (updated in place: their buffers are donated).
+  per_sample: None, or a pytree of arrays [C, S, ...] (a field of cones: each sample's frustum,
+  `Field.cone_inputs`), gathered at `index` as the points are.
   """
   @functools.partial(jax.jit, donate_argnums=(5, 6))
-  def query_round(params, t, points, viewdirs, index, sigma, rgb):
+  def query_round(params, t, points, viewdirs, index, sigma, rgb, per_sample=None):
     num_rays, num_samples = sigma.shape
     safe = jnp.minimum(index, num_rays * num_samples - 1)
-    rgb_q, sigma_q = field_fn(params, points.reshape(-1, 3)[safe],
-                              viewdirs[safe // num_samples])
+    args = (params, points.reshape(-1, 3)[safe], viewdirs[safe // num_samples])
+    if per_sample is not None:
+      args += (jax.tree_util.tree_map(
+          lambda a: a.reshape(num_rays * num_samples, *a.shape[2:])[safe], per_sample),)
+    rgb_q, sigma_q = field_fn(*args)
     sigma = sigma.reshape(-1).at[index].set(sigma_q.astype(jnp.float32), mode="drop")
     rgb = rgb.reshape(-1, 3).at[index].set(rgb_q.astype(jnp.float32), mode="drop")
     sigma = sigma.reshape(num_rays, num_samples)
@@ -137,12 +144,13 @@ def optical_depth(sigma, t):
 
 
 def march(query_round, params, t, points, viewdirs, occupied, rank, live_rays, group,
-          min_transmittance):
+          min_transmittance, per_sample=None):
   """Query the field where it matters (see the module docstring) for one chunk of rays.
 
   query_round: from `make_query_round`. t: float32 [C, S + 1], edges in world length (see
-  `optical_depth`). points: float32 [C, S, 3]. viewdirs: float32 [C, 3]. occupied, rank: from
-  `occupied_ranks`. live_rays: bool [C]. Returns (sigma float32 [C, S], rgb float32 [C, S, 3],
+  `optical_depth`). points: float32 [C, S, 3], where the field is queried. viewdirs: float32
+  [C, 3]. occupied, rank: from `occupied_ranks`. live_rays: bool [C]. per_sample: None, or the
+  samples' frustums, arrays [C, S, ...] (`make_query_round`). Returns (sigma float32 [C, S], rgb float32 [C, S, 3],
   queried int: samples queried, not counting the buffers' padding).
   """
   num_rays, num_samples = occupied.shape
@@ -157,7 +165,8 @@ def march(query_round, params, t, points, viewdirs, occupied, rank, live_rays, g
     for offset, size in buffers(len(index)):
       part = index[offset:offset + size]
       padded = np.pad(part, (0, size - len(part)), constant_values=num_rays * num_samples)
-      sigma, rgb, depth = query_round(params, t, points, viewdirs, padded, sigma, rgb)
+      sigma, rgb, depth = query_round(params, t, points, viewdirs, padded, sigma, rgb,
+                                      per_sample)
     queried += len(index)
     if not more:
       break

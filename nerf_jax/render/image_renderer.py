@@ -233,7 +233,14 @@ class _Marcher:
   def __init__(self, ray_renderer, settings):
     self.settings, self.ray_renderer = settings, ray_renderer
     rs, field = ray_renderer.sampler, ray_renderer.field
-    query = lambda params, points, viewdirs: field.at_points(params["coarse"], points, viewdirs)
+
+    def query(params, points, viewdirs, per_sample=None):
+      """The field at single samples [B]; a field of cones reads their frustums too."""
+      if per_sample is None:
+        return field.at_points(params["coarse"], points, viewdirs)
+      rgb, sigma = field.query(params["coarse"], points[:, None], viewdirs,
+                               per_sample=renderer.with_sample_axis(per_sample))
+      return rgb[:, 0], sigma[:, 0]
     self.skip_grid = jax.jit(lambda params: empty_space.skip_grid(
         field.density(params["coarse"]), settings.march_grid, rs.scene_bound,
         settings.march_threshold, settings.march_probes))
@@ -241,15 +248,21 @@ class _Marcher:
 
     @jax.jit
     def plan(mask, hull, rays):
-      """(t, t_world, points, occupied, rank): the plain path's edges t (z-depth) and the same
-      edges in world length (for the stop test), float32 [C, S + 1]; the rest as in
-      empty_space.occupied_ranks, with a visual hull (renderer.hull_of, or None) the samples
-      outside it left out as the plain path gives them no density."""
+      """(t, t_world, points, occupied, rank, per_sample): the plain path's edges t (z-depth)
+      and the same edges in world length (for the stop test), float32 [C, S + 1]; where the
+      field is queried, float32 [C, S, 3]; occupied and rank as in empty_space.occupied_ranks
+      of the samples' midpoints, with a visual hull (renderer.hull_of, or None) the samples
+      outside it left out as the plain path gives them no density. A field of cones is
+      queried, as on the plain path (RayRenderer._shade), at its frustums' means with
+      per_sample (Field.cone_inputs, deterministic); else per_sample is None."""
       t = rs.stratified(rays)
       points = placement.points(rays, spacing.midpoints(t))
       keep = None if hull is None else visual_hull.gate(hull[0], points, hull[1]) > 0
-      return (t, placement.world_t(t, rays),
-              points, *empty_space.occupied_ranks(mask, points, rs.scene_bound, keep))
+      occupied, rank = empty_space.occupied_ranks(mask, points, rs.scene_bound, keep)
+      per_sample = None
+      if field.cones:
+        points, per_sample = field.cone_inputs(rays, t[..., :-1], t[..., 1:])
+      return t, placement.world_t(t, rays), points, occupied, rank, per_sample
 
     @jax.jit
     def finish(sigma, rgb, t, rays, background):
@@ -273,7 +286,7 @@ class _Marcher:
     round (g samples of each ray: the group, or all S when fewer)."""
     rc, chunk = self.settings, self.settings.chunk
     _, part = _padded(_probe_ray(self.ray_renderer), chunk)
-    t, t_world, points, occupied, rank = self.plan(*grids, part)
+    t, t_world, points, occupied, rank, per_sample = self.plan(*grids, part)
     sigma = jnp.zeros(occupied.shape, jnp.float32)
     rgb = jnp.zeros((*occupied.shape, 3), jnp.float32)
     depth = jnp.zeros(occupied.shape[:1], jnp.float32)
@@ -285,7 +298,7 @@ class _Marcher:
     for size in sizes:
       index = np.full(size, sigma.size, np.int32)  # all padding: nothing is written
       sigma, rgb, depth = self.query_round(params, t_world, points, part.viewdirs, index, sigma,
-                                           rgb)
+                                           rgb, per_sample)
       yield math.inf if size == sizes[-1] else size // group
 
   def draw(self, params, grids, rays, background=(0.0, 0.0, 0.0)):
@@ -296,9 +309,9 @@ class _Marcher:
     pieces = []
     for i in range(0, len(flat.origins), chunk):
       part = _rows(flat, i, chunk)
-      t, t_world, points, occupied, rank = self.plan(*grids, part)
+      t, t_world, points, occupied, rank, per_sample = self.plan(*grids, part)
       sigma, rgb, _ = empty_space.march(self.query_round, params, t_world, points,
                                         part.viewdirs, occupied, rank, live[i:i + chunk],
-                                        rc.march_group, rc.min_transmittance)
+                                        rc.march_group, rc.min_transmittance, per_sample)
       pieces.append(self.finish(sigma, rgb, t, part, background))
     return _joined(pieces, num_rays, rays.shape)

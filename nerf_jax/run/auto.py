@@ -49,14 +49,15 @@ def for_backend(chosen, backend):
 def cone_effects(config):
   """{field: value} that make the representation `config` read cones (docs/multiscale.md): the
   integrated positional encoding for 'posenc', Zip-NeRF's anti-aliasing for a lattice (its
-  multisampling as ANTIALIAS_MULTISAMPLE says), and rendering without marching (which queries
-  points). {} for an encoding without cones (TensoRF)."""
+  multisampling as ANTIALIAS_MULTISAMPLE says). Rendering keeps the representation's marching,
+  which queries each sample's frustum as the plain path does. {} for an encoding without cones
+  (TensoRF)."""
   encoding = config.model.encoding
   if encoding == "posenc":
-    return {"model.encoding": "ipe", "render.march": False}
+    return {"model.encoding": "ipe"}
   if encoding in ("grid", "hash"):
     return {f"model.{encoding}.antialias": True,
-            f"model.{encoding}.multisample": ANTIALIAS_MULTISAMPLE, "render.march": False}
+            f"model.{encoding}.multisample": ANTIALIAS_MULTISAMPLE}
   return {}
 
 

@@ -111,8 +111,7 @@ def test_flips_turn_what_auto_set_the_other_way():
   assert flips["pose_refinement"] == {"train.pose_refinement": True}
   assert "forward" not in flips  # NDC on cameras that do not face one way: left out
   cones = {r.flipped: r.overrides for r in regret_plan.plan(CONES, USER, 16, 16, "cpu")[0]}
-  assert cones["cones"] == {"model.grid.antialias": False,
-                            "render.march": config_lib.load("fast").render.march}
+  assert cones["cones"] == {"model.grid.antialias": False}
   on = {r.flipped: r.overrides for r in regret_plan.plan(OBJECT, USER, 16, 16, "cpu")[0]}
   assert on["cones"]["model.grid.antialias"] is True and on["appearance"] == {
       "model.appearance_dims": 0}
@@ -274,6 +273,15 @@ def test_runs_keeps_the_named_runs_in_the_plans_order():
   assert [r.name for r in regret.chosen(runs, [names[-1]])] == [names[-1]]
   with pytest.raises(ValueError, match="--runs: flip/nope is not a planned run"):
     regret.chosen(runs, ["auto", "flip/nope"])
+
+
+def test_runs_with_a_minus_leave_those_out_even_where_the_plan_has_none():
+  runs, _ = regret_plan.plan(OBJECT, USER, 16, 16, "cpu")
+  names = [r.name for r in runs]
+  kept = regret.chosen(runs, [f"-{names[1]}", "-flip/not_in_this_plan"])
+  assert [r.name for r in kept] == names[:1] + names[2:]
+  with pytest.raises(ValueError, match="not both"):
+    regret.chosen(runs, ["auto", f"-{names[1]}"])
 
 
 def test_dry_run_from_the_command_line_exits_0():

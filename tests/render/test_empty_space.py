@@ -178,7 +178,7 @@ def test_marching_skips_most_samples_of_a_trained_model(trained_fast):
   marcher = image_renderer._Marcher(exp.renderer, exp.image)  # pylint: disable=protected-access
   mask = marcher.skip_grid(params)
   rays = exp.rays(exp.test_ds.poses[0]).reshape(-1)
-  _, t_world, points, occupied, rank = marcher.plan(mask, None, rays)
+  _, t_world, points, occupied, rank, _ = marcher.plan(mask, None, rays)
   _, _, queried = empty_space.march(marcher.query_round, params, t_world, points, rays.viewdirs,
                                  occupied, rank, np.ones(t_world.shape[0], bool),
                                  config.render.march_group, config.render.min_transmittance)

@@ -114,7 +114,7 @@ def test_auto_turns_cones_on_for_the_multiscale_scene_and_off_for_one_scale(caps
   multi = _auto("multiscale")
   assert multi.model.encoding == "grid" and multi.model.grid.antialias
   assert multi.model.grid.multisample == auto.ANTIALIAS_MULTISAMPLE
-  assert not multi.render.march  # marching queries points
+  assert multi.render.march == config_lib.load("fast").render.march  # marching reads cones
   out = capsys.readouterr().out
   assert "auto: cameras at several scales: cones" in out
   for scene in ("diffuse", "forward", "garden"):
@@ -124,7 +124,7 @@ def test_auto_turns_cones_on_for_the_multiscale_scene_and_off_for_one_scale(caps
 
 def test_cone_effects_follow_the_encoding():
   config = config_lib.load("default")
-  assert auto.cone_effects(config) == {"model.encoding": "ipe", "render.march": False}
+  assert auto.cone_effects(config) == {"model.encoding": "ipe"}
   config.model.encoding = "hash"
   assert auto.cone_effects(config)["model.hash.antialias"]
   config.model.encoding = "tensorf"
@@ -243,7 +243,8 @@ def test_large_images_at_several_scales_keep_detail_py_with_its_levels_weighted(
   assert "representation: configs/detail.py" in decided.auto_decisions
   assert decided.model.appearance_dims == 0
   assert (decided.model.grid.antialias, decided.model.grid.multisample,
-          decided.render.march) == (True, auto.ANTIALIAS_MULTISAMPLE, False)
+          decided.render.march) == (True, auto.ANTIALIAS_MULTISAMPLE,
+                                    config_lib.load("detail").render.march)
   assert decided.model.grid.density_resolutions == config_lib.load(
       "detail").model.grid.density_resolutions
   assert builders.make_ray_renderer(decided).field.cones == (

@@ -91,7 +91,7 @@ def test_the_marchers_stop_test_counts_world_length():
       ray_renderer(config, _medium_alone(medium)), builders.image_settings(config))
   rays = Rays.create(origins, directions, NEAR, FAR)
   mask = jnp.ones((4, 4, 4), bool)
-  t, t_world, points, occupied, rank = marcher.plan(mask, None, rays)
+  t, t_world, points, occupied, rank, _ = marcher.plan(mask, None, rays)
   _, _, queried = empty_space.march(marcher.query_round, {"coarse": {}}, t_world, points,
                                     rays.viewdirs, occupied, rank, np.ones(len(origins), bool),
                                     4, 1e-2)

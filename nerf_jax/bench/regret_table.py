@@ -1,0 +1,210 @@
+"""The regret table: auto's regret (bench/regret.py) on many scenes, run side by side on the
+machine's cores, and one table of every scene's gains (docs/regret.md).
+
+  python -m nerf_jax.bench.regret_table --seconds=60 --out=runs/regret_table
+  python -m nerf_jax.bench.regret_table --scenes=crowd,glossy --workers=1 --out=runs/rt
+  python -m nerf_jax.bench.regret_table --summarize --out=runs/regret_table
+
+Each scene's `python -m nerf_jax.bench.regret` runs in its own process into OUT/<scene>/ (its
+output in OUT/<scene>.log). `--workers` scenes run at once, worker i pinned to core i where the
+machine has that many (os.sched_setaffinity): every run then trains on one core beside the
+same kind of neighbour, so the runs of a scene stay comparable at equal time. The command's
+--config.FIELD=VALUE overrides and --runs go to every scene's command.
+
+Writes OUT/table.md and OUT/summary.jsonl from every OUT/*/results.jsonl (so scenes run apart,
+e.g. real data at a longer budget into the same OUT, join the table): one row per scene with
+auto's config and score, the best run, auto's regret, and each flip's and each other
+representation's gain over auto.
+"""
+
+import json
+import os
+import subprocess
+import sys
+import threading
+
+from absl import flags
+
+from nerf_jax.bench import command_line, regret, regret_plan, standard
+
+# The built-in scenes of the table (docs/regret.md), the slowest first: landmark's runs carve a
+# hull and fit zooms before training; the collections fit held-out codes after it.
+SCENES = ("landmark", "crowd", "garden", "exposure", "forward", "glossy", "multiscale",
+          "diffuse", "fog", "white", "perturbed")
+DEFAULT_RUNS = ("-config/hash",)  # 5x auto's step on a CPU; lost 4.5 dB at 120 s (regret.md)
+
+
+def scene_command(scene, seconds, out, passed):
+  """argv of one scene's regret command. passed: the table command's own arguments that go to
+  every scene (--config overrides, --runs)."""
+  return [sys.executable, "-m", "nerf_jax.bench.regret", f"--scene={scene}",
+          f"--seconds={seconds:g}", f"--out={os.path.join(out, scene)}", *passed]
+
+
+def passed_on(argv, runs):
+  """The arguments of `argv` (the table command's) for every scene's command: --config and
+  its --config.FIELD overrides, and --runs (`runs`, default DEFAULT_RUNS)."""
+  own = [a for a in argv[1:] if a.startswith("--config")]
+  return own + [f"--runs={','.join(runs or DEFAULT_RUNS)}"]
+
+
+def cores(workers):
+  """[set of one core] for each worker where the process may use that many cores, else
+  [None] * workers (not pinned)."""
+  allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+  if len(allowed) < workers:
+    return [None] * workers
+  return [{core} for core in allowed[:workers]]
+
+
+def run_scenes(commands, out, workers):
+  """Run `commands` ({scene: argv}) in order, `workers` at a time, each worker pinned to its
+  core (`cores`); each scene's output in OUT/<scene>.log. Returns {scene: exit status}."""
+  os.makedirs(out, exist_ok=True)
+  queue, status, lock = list(commands), {}, threading.Lock()
+
+  def work(core):
+    while True:
+      with lock:
+        if not queue:
+          return
+        scene = queue.pop(0)
+      print(f"{scene}: {' '.join(commands[scene][1:])}", flush=True)
+      pin = None if core is None else (lambda: os.sched_setaffinity(0, core))
+      with open(os.path.join(out, f"{scene}.log"), "w") as log:
+        code = subprocess.call(commands[scene], stdout=log, stderr=subprocess.STDOUT,
+                               preexec_fn=pin)
+      print(f"{scene}: done (exit {code}), {os.path.join(out, scene, 'table.md')}", flush=True)
+      status[scene] = code
+
+  threads = [threading.Thread(target=work, args=(core,)) for core in cores(workers)]
+  for thread in threads:
+    thread.start()
+  for thread in threads:
+    thread.join()
+  return status
+
+
+def turned_on(record):
+  """Whether a flip record's run turned its decision on (auto had it off): its first
+  override is set to a true value other than the plain encoding ('posenc': cones off)."""
+  value = next(iter(record["overrides"].values()), None)
+  return bool(value) and value != "posenc"
+
+
+def scene_summary(records):
+  """One summary.jsonl row of a scene's results.jsonl `records` (with gains and regret)."""
+  auto_run = next((r for r in records if r["run"] == "auto"), {})
+  scored = [r for r in records if regret.score(r) is not None]
+  best = max(scored, key=regret.score, default={})
+  row = {"scene": records[0]["scene"], "auto_config": auto_run.get("base"),
+         "auto_score": regret.score(auto_run), "auto_steps": auto_run.get("steps"),
+         "budget_seconds": auto_run.get("seconds"), "best_run": best.get("run"),
+         "best_score": regret.score(best) if best else None,
+         "regret": records[0].get("regret"), "machine": auto_run.get("machine"), "runs": {}}
+  for r in records:
+    if r["run"] == "auto":
+      continue
+    row["runs"][r["run"]] = {
+        "gain": r.get("gain"), "step_cost_ratio": r.get("step_cost_ratio"),
+        "turned": "" if r["flipped"] == "representation" else
+                  ("on" if turned_on(r) else "off"), "error": r.get("error")}
+  return row
+
+
+def columns(rows):
+  """The run names of `rows`, flips in regret_plan.FLIPS's order, then the representations."""
+  names = {name for row in rows for name in row["runs"]}
+  flips = [f"flip/{d}" for d in regret_plan.FLIPS if f"flip/{d}" in names]
+  return flips + sorted(names - set(flips))
+
+
+def _cell(run):
+  if run is None:
+    return ""
+  if run.get("gain") is None:
+    return "failed"
+  ratio = run.get("step_cost_ratio")
+  return (f"{run['turned']} {run['gain']:+.2f}" if run["turned"] else f"{run['gain']:+.2f}") + (
+      "" if ratio is None else f" ({ratio:.2f}×)")
+
+
+def summary_table(rows):
+  """table.md: one row per scene; each flip's cell 'on/off GAIN (step-cost ratio×)', the
+  direction the flip turned auto's decision."""
+  names = columns(rows)
+  head = ["scene", "auto's config", "auto", "steps", "best run", "regret"] + names
+  lines = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
+  fmt = lambda v, form: "-" if v is None else format(v, form)
+  for row in rows:
+    cells = [row["scene"], f"{row['auto_config']}.py", fmt(row["auto_score"], ".2f"),
+             fmt(row["auto_steps"], "d"), row["best_run"] or "-", fmt(row["regret"], ".2f")]
+    cells += [_cell(row["runs"].get(name)) for name in names]
+    lines.append("| " + " | ".join(cells) + " |")
+  return "\n".join(lines) + "\n"
+
+
+def summarize(out, scenes=None):
+  """Rows of every OUT/<scene>/results.jsonl (of `scenes` only, where given), written to
+  OUT/summary.jsonl and OUT/table.md. Returns the rows."""
+  rows = []
+  names = sorted(os.listdir(out)) if os.path.isdir(out) else []
+  for scene in names:
+    path = os.path.join(out, scene, "results.jsonl")
+    if (scenes and scene not in scenes) or not os.path.isfile(path):
+      continue
+    records = regret.read_results(path)
+    if records:
+      rows.append(scene_summary(records))
+  if not rows:
+    raise FileNotFoundError(f"--out={out}: no <scene>/results.jsonl to summarise")
+  with open(os.path.join(out, "summary.jsonl"), "w") as f:
+    for row in rows:
+      f.write(json.dumps(row) + "\n")
+  with open(os.path.join(out, "table.md"), "w") as f:
+    f.write(summary_table(rows))
+  return rows
+
+
+def define_table_flags(values, argv):
+  """The flags of `python -m nerf_jax.bench.regret_table` on the FlagValues `values`."""
+  command_line.define_config(values, argv, "The config auto starts from (default auto); "
+                             "--config.FIELD=VALUE overrides go to every scene's runs.")
+  flags.DEFINE_list("scenes", list(SCENES), "Built-in scenes, run in this order.",
+                    flag_values=values)
+  flags.DEFINE_float("seconds", 60.0, "Wall-clock training budget of every run.",
+                     flag_values=values, lower_bound=0.0)
+  flags.DEFINE_string("out", "runs/regret_table", "Output folder: one folder and log per "
+                      "scene, table.md and summary.jsonl.", flag_values=values)
+  flags.DEFINE_integer("workers", 2, "Scenes run at once, each pinned to a core of its own.",
+                       flag_values=values, lower_bound=1)
+  flags.DEFINE_list("runs", [], "--runs of every scene's command (default "
+                    f"{','.join(DEFAULT_RUNS)}).", flag_values=values)
+  flags.DEFINE_bool("summarize", False, "Train nothing: write the table from OUT's results.",
+                    flag_values=values)
+
+
+def regret_table(values, spec, argv):
+  """Run the scenes (unless --summarize), then write the table. Returns the rows."""
+  del spec
+  if not values.summarize:
+    commands = {scene: scene_command(scene, values.seconds, values.out,
+                                     passed_on(argv, values.runs))
+                for scene in values.scenes}
+    failed = {s: c for s, c in run_scenes(commands, values.out, values.workers).items() if c}
+    for scene, code in failed.items():
+      print(f"{scene}: exit {code}; see {os.path.join(values.out, scene + '.log')}", flush=True)
+  rows = summarize(values.out, None if values.summarize else values.scenes)
+  print(f"{len(rows)} scenes -> {os.path.join(values.out, 'table.md')}", flush=True)
+  return rows
+
+
+def regret_table_main(argv=None):
+  """`python -m nerf_jax.bench.regret_table`."""
+  given = list(sys.argv if argv is None else argv)
+  command_line.run_command(define_table_flags, regret_table, standard.normalised_argv(given),
+                           with_config=True)
+
+
+if __name__ == "__main__":
+  regret_table_main()
