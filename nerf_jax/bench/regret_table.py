@@ -14,7 +14,8 @@ same kind of neighbour, so the runs of a scene stay comparable at equal time. Th
 Writes OUT/table.md and OUT/summary.jsonl from every OUT/*/results.jsonl (so scenes run apart,
 e.g. real data at a longer budget into the same OUT, join the table): one row per scene with
 auto's config and score, the best run, auto's regret, and each flip's and each other
-representation's gain over auto.
+representation's gain over auto; and OUT/regret_table.png, one panel per scene of each run's
+gain against its step-cost ratio (matplotlib: the [bench] extra).
 """
 
 import json
@@ -25,7 +26,7 @@ import threading
 
 from absl import flags
 
-from nerf_jax.bench import command_line, regret, regret_plan, standard
+from nerf_jax.bench import command_line, regret, regret_plan, report, standard
 
 # The built-in scenes of the table (docs/regret.md), the slowest first: landmark's runs carve a
 # hull and fit zooms before training; the collections fit held-out codes after it.
@@ -144,9 +145,48 @@ def summary_table(rows):
   return "\n".join(lines) + "\n"
 
 
+def picture(rows, path):
+  """One panel per scene at `path`: each run's gain over auto (dB) against its step-cost ratio,
+  the flips marked by the way they turned auto's decision. Returns None, or the line saying
+  matplotlib is missing (nothing drawn)."""
+  problem = report.missing_dependency()
+  if problem:
+    return problem
+  from matplotlib import figure  # pylint: disable=import-outside-toplevel  (optional: [bench])
+  across = min(4, len(rows))
+  down = -(-len(rows) // across)
+  fig = figure.Figure(figsize=(3.6 * across, 3.0 * down))
+  axes = fig.subplots(down, across, squeeze=False).ravel()
+  marks = {"on": ("^", "C3"), "off": ("v", "C0"), "": ("s", "C2")}
+  for ax, row in zip(axes, rows):
+    ax.scatter([1.0], [0.0], marker="o", color="k")
+    for name, run in row["runs"].items():
+      if run.get("gain") is None:
+        continue
+      marker, colour = marks[run["turned"]]
+      ax.scatter(run["step_cost_ratio"], run["gain"], marker=marker, color=colour)
+      ax.annotate(name.split("/")[1], (run["step_cost_ratio"], run["gain"]), fontsize=6,
+                  textcoords="offset points", xytext=(3, 2))
+    ax.axhline(0.0, color="grey", linewidth=0.8)
+    ax.axvline(1.0, color="grey", linewidth=0.8)
+    regret_text = "-" if row["regret"] is None else f"{row['regret']:.2f}"
+    ax.set_title(f"{row['scene']} ({row['auto_config']}.py): regret {regret_text} dB",
+                 fontsize=8)
+    ax.tick_params(labelsize=7)
+  for ax in axes[len(rows):]:
+    ax.set_visible(False)
+  fig.suptitle("each run against auto (●): ▲ a decision turned on, ▼ turned off, ■ another "
+               "config", fontsize=9)
+  fig.supxlabel("step-cost ratio (seconds per step / auto's)", fontsize=8)
+  fig.supylabel("PSNR gain over auto (dB)", fontsize=8)
+  fig.tight_layout()
+  fig.savefig(path, dpi=110)
+  return None
+
+
 def summarize(out, scenes=None):
   """Rows of every OUT/<scene>/results.jsonl (of `scenes` only, where given), written to
-  OUT/summary.jsonl and OUT/table.md. Returns the rows."""
+  OUT/summary.jsonl, OUT/table.md and OUT/regret_table.png (`picture`). Returns the rows."""
   rows = []
   names = sorted(os.listdir(out)) if os.path.isdir(out) else []
   for scene in names:
@@ -163,6 +203,9 @@ def summarize(out, scenes=None):
       f.write(json.dumps(row) + "\n")
   with open(os.path.join(out, "table.md"), "w") as f:
     f.write(summary_table(rows))
+  problem = picture(rows, os.path.join(out, "regret_table.png"))
+  if problem:
+    print(f"no picture: {problem}", flush=True)
   return rows
 
 

@@ -290,6 +290,17 @@ class RayRenderer:
     return occupancy.density_grid(density, oc.resolution, rs.grid_bound, oc.probes, key)
 
 
+def occupancy_hull(sampler, hull, hull_bound):
+  """float32 [R, R, R]: the visual hull `hull` float32 [H, H, H] over the box
+  [-hull_bound, hull_bound]^3 at the centres of the R^3 cells of `sampler`'s occupancy grid
+  (placement.Sampler with occupancy settings; cells of contracted space mapped back to the
+  points the field sees there): 1 where a cell's centre is kept, 0 where carved or outside.
+  The hull itself where it was carved on the occupancy grid (its box, R cells a side, no
+  contraction); a subject's hull has its own box and cells (run/from_data.subject_hull)."""
+  cells = occupancy.cell_centres(sampler.occupancy.resolution, sampler.grid_bound)
+  return visual_hull.gate(hull, sampler.grid_points(cells), hull_bound)
+
+
 def hull_of(variables, scene_bound):
   """(hull float32 [R, R, R], bound) of `variables`' visual hull over the box [-bound, bound]^3:
   variables['hull'], over variables['hull_bound'] where the run keeps one (a subject's hull)

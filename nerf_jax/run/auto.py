@@ -11,7 +11,10 @@ from nerf_jax.run import (characterise, config_lib, from_data, subject, transien
 
 APPEARANCE_DIMS = 8  # the appearance codes' length auto switches on (NeRF-W: 48, nerfacto: 32)
 CONTRACTION = "linf"  # where the rays leave the box: nerfacto's contraction (docs/real_captures.md)
-LARGE_IMAGES = 400  # auto: object captures from this many pixels a side use configs/detail.py
+# auto: object captures from this many pixels a side use configs/detail.py, smaller ones fast.py.
+# detail.py won at the smallest size measured, the built-in scenes' 100 px (docs/regret.md: 300 s
+# on one core, diffuse +4.25 dB; 60 s, exposure +7.10, crowd +3.21); below it, unmeasured.
+LARGE_IMAGES = 100
 # Zip-NeRF's multisampling with its level weights, or the weights alone (multisample False):
 # on the multiscale lego at 10 CPU-minutes the weights alone score best (docs/multiscale.md).
 ANTIALIAS_MULTISAMPLE = False
@@ -199,7 +202,8 @@ def _flat(config):
 def auto_config(config, dataset, backend=None, before_loading=({}, [])):
   """`config` (config.auto: configs/auto.py and the user's flags) decided from the training
   views `dataset` by characterise.decide: the representation of the config that suits the
-  kind of capture (fast.py for an object on a background, detail.py from LARGE_IMAGES pixels,
+  kind of capture (detail.py for an object on a background from LARGE_IMAGES pixels, fast.py
+  below,
   configs/llff.py (grids in NDC) for a forward-facing one, capture.py otherwise or
   when there are too few cameras; on a 'gpu' `backend` (default jax.default_backend()) its
   configs/gpu/ counterpart, `for_backend`) and the effects it calls for (view dependence only

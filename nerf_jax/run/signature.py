@@ -12,6 +12,7 @@ from nerf_jax.backend import components
 from nerf_jax.cameras import intrinsics_refinement
 from nerf_jax.fields import registry
 from nerf_jax.fields.encodings import grid
+from nerf_jax.render import renderer
 from nerf_jax.train.state import TrainState
 from nerf_jax.run.builders import (encoding_family, make_ray_renderer, make_sampler,
                                      network_family, own_settings, transient_settings)
@@ -84,9 +85,10 @@ def init_state(exp):
   if exp.hull is not None:  # no density outside the hull (renderer.py), from the first step
     grid, bound = exp.hull
     buffers.update(hull=jnp.array(grid), hull_bound=jnp.asarray(bound, jnp.float32))
-    if exp.config.occupancy.enabled:  # and samples only inside it (a grid of the scene box)
-      # Two arrays, not one: the train step donates its state, and a buffer is donated once.
-      buffers.update(occupancy=jnp.array(grid))
+    if exp.config.occupancy.enabled:  # and samples only inside it, from the first step
+      # A new array, not the hull's: the train step donates its state, a buffer once.
+      buffers.update(occupancy=renderer.occupancy_hull(exp.renderer.sampler, buffers["hull"],
+                                                       buffers["hull_bound"]))
   ema = {}
   if exp.config.train.ema_decay > 0:  # the average starts at the initial weights
     # Copies, not the same arrays: the train step donates its state, and a buffer once.

@@ -28,7 +28,7 @@ import optax
 
 from nerf_jax.backend import components, draws
 from nerf_jax.cameras import pose_refinement
-from nerf_jax.render import background as background_lib
+from nerf_jax.render import background as background_lib, renderer
 from nerf_jax.samplers import occupancy
 from nerf_jax.train import losses, parallel, train_batches
 from nerf_jax.train.state import TrainState
@@ -92,11 +92,17 @@ class OccupancyRefresh:
     key = jax.random.fold_in(jax.random.fold_in(run_key, 0xFFFFFFFF), state.step)
     refresh = lambda s: occupancy.accumulate(
         s.buffers["occupancy"], self.ray_renderer.occupancy_grid(s.training_variables, key),
-        oc.decay
-    ) * s.buffers.get("hull", 1.0)  # what the masks rule out stays empty
+        oc.decay) * self._kept(s.buffers)  # what the masks rule out stays empty
     grid = jax.lax.cond(state.step % oc.update_every == 0, refresh,
                         lambda s: s.buffers["occupancy"], state)
     return {**state.buffers, "occupancy": grid}
+
+  def _kept(self, buffers):
+    """The occupancy cells the visual hull keeps (renderer.occupancy_hull), 1 without one."""
+    if "hull" not in buffers:
+      return 1.0
+    return renderer.occupancy_hull(self.ray_renderer.sampler, buffers["hull"],
+                                   buffers["hull_bound"])
 
 
 def moving_average(ema, params, decay):

@@ -68,6 +68,7 @@ def test_the_table_gives_each_scene_its_regret_and_each_flip_its_direction_and_g
       "config/detail")  # flips in regret_plan.FLIPS's order, then the representations
   assert "| off -2.00 (0.70×) |" in table and "| on +0.50 (2.00×) |" in table
   assert len([json.loads(l) for l in open(tmp_path / "summary.jsonl")]) == 2
+  assert (tmp_path / "regret_table.png").stat().st_size > 1000
 
 
 def test_nothing_to_summarise_is_one_line(tmp_path):

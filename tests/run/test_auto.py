@@ -10,7 +10,7 @@ from nerf_jax.run import auto, config_lib
 from tests.helpers import load_data
 
 # Today's CPU choice for each built-in scene at 24 px (auto's rules: an object on a background
-# below 400 px -> fast.py, forward-facing -> llff.py, a frame-filling scene -> capture.py), and
+# below auto.LARGE_IMAGES (100 px) -> fast.py, forward-facing -> llff.py, a frame-filling scene -> capture.py), and
 # the GPU config that takes its place.
 CPU_CHOICE = {"diffuse": "fast", "forward": "llff", "garden": "capture"}
 GPU_CHOICE = {"diffuse": "gpu/lego", "forward": "gpu/llff", "garden": "capture"}
