@@ -41,7 +41,7 @@ class Settings:
   fit_rays: int = 1024  # left_half: rays drawn (with replacement) from the left half each step
   fit_lr: float = 1e-2  # left_half: Adam's first step size for the code
   fit_decay_every: int = 333  # left_half: the step size x0.1 every this many steps (0 = constant)
-  test_every: int = 1  # score test views 0, N, 2N, ... (1 = all): a shorter evaluation
+  test_every: int = 1  # score views 0, N, 2N, ... of each scale (1 = all): a shorter evaluation
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,7 +63,8 @@ def make_evaluator(exp, settings):
   views (`protocols`) and, where the data knows the true poses, `pose_scores`.
 
   Evaluates the test views of `exp` (an experiment_parts.Experiment) as `settings`
-  (EvalSettings) say: views 0, N, 2N, ... with eval.test_every = N (`scored_views`; max_views
+  (EvalSettings) say: views 0, N, 2N, ... with eval.test_every = N, of each scale where the
+  views have scale labels (`scored_views`; max_views
   takes the first of those). With `out_dir`, writes per view a PNG of [prediction | depth | ground
   truth] and depth `.npy`. on_view(index, out, truth) is called for every view with the
   rendered numpy dict (rgb [H, W, 3], depth [H, W], acc [H, W]) and the true image float32
@@ -103,7 +104,7 @@ def make_evaluator(exp, settings):
     return lpips_reasons[size]
 
   def evaluate(variables, max_views=None, out_dir=None, on_view=None):
-    views = scored_views(len(test_ds), every, max_views)
+    views = scored_views(len(test_ds), every, max_views, test_ds.labels)
     per_view, lpips_skipped = [], None
     draw = make_draw(variables)
     poses = held_out_poses(exp, variables)
@@ -157,10 +158,21 @@ def make_evaluator(exp, settings):
   return evaluate
 
 
-def scored_views(num_views, every=1, max_views=None):
+def scored_views(num_views, every=1, max_views=None, labels=None):
   """The test views an evaluation scores: list of int, 0, every, 2 every, ... below num_views,
-  the first max_views of them (None = all)."""
-  views = list(range(0, num_views, int(every)))
+  the first max_views of them (None = all). labels: None, or each view's scale label
+  (Dataset.labels, [num_views]): then every `every`-th view of each label, in view order, so
+  that every scale keeps its share (mip-NeRF's multiscale views cycle through the scales: a
+  plain stride of 4 would keep one scale of four)."""
+  if labels is None:
+    views = list(range(0, num_views, int(every)))
+  else:
+    seen = {}
+    views = []
+    for i in range(num_views):
+      rank = seen[str(labels[i])] = seen.get(str(labels[i]), -1) + 1
+      if rank % int(every) == 0:
+        views.append(i)
   return views if max_views is None else views[:max_views]
 
 

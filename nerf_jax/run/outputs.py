@@ -73,7 +73,7 @@ def final_render_line(exp, rays_per_second, long_seconds=None):
     return None
   long_seconds = LONG_FINAL_SECONDS if long_seconds is None else long_seconds
   config, test_ds = exp.config, exp.test_ds
-  views = evaluation.scored_views(len(test_ds), config.eval.test_every)
+  views = evaluation.scored_views(len(test_ds), config.eval.test_every, labels=test_ds.labels)
   fit = fit_rays(config, len(views))
   test_pixels = int(sum(test_ds.cameras.num_pixels()[views])) + round(FIT_RAY_COST * fit)
   frames = config.render.video_frames if (config.render.after_training and

@@ -1,6 +1,7 @@
 """A long final evaluation (+ video) says how long it will take, and how to shorten it, before it
 starts (run/outputs.final_render_line); eval.test_every scores every N-th test view."""
 
+import numpy as np
 import pytest
 
 from nerf_jax import cli
@@ -24,6 +25,16 @@ def test_scored_views():
   assert evaluation.scored_views(10, 4) == [0, 4, 8]
   assert evaluation.scored_views(10, 4, max_views=2) == [0, 4]
   assert evaluation.scored_views(3, 1, max_views=2) == [0, 1]
+
+
+def test_scored_views_keep_every_scale_where_the_views_have_scale_labels():
+  labels = np.array([0, 1, 2, 3] * 4)  # mip-NeRF's multiscale test views cycle through scales
+  assert evaluation.scored_views(16, 4) == [0, 4, 8, 12]  # a plain stride: one scale of four
+  assert evaluation.scored_views(16, 4, labels=labels) == [0, 1, 2, 3]
+  assert evaluation.scored_views(16, 2, labels=labels) == [0, 1, 2, 3, 8, 9, 10, 11]
+  grouped = np.repeat(np.arange(2), 5)  # views grouped by scale: each group strided alone
+  assert evaluation.scored_views(10, 2, labels=grouped) == [0, 2, 4, 5, 7, 9]
+  assert evaluation.scored_views(16, 1, labels=labels) == list(range(16))
 
 
 def test_the_line_of_a_long_evaluation():
