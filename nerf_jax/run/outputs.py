@@ -22,14 +22,39 @@ from nerf_jax.run import builders, experiment
 from nerf_jax.train import progress
 
 
-def render_frames(exp, variables, poses, scale=1.0):
+def render_frames(exp, variables, poses, scale=1.0, cameras=None):
   """Render `poses` (float32 [F, 4, 4]) through the training camera with `scale` times its pixels
-  per side: yields numpy dicts rgb [H, W, 3], depth [H, W], acc [H, W]."""
+  per side, or frame i through `cameras[i]` (height, width, intrinsics; see `frame_cameras`):
+  yields numpy dicts rgb [H, W, 3], depth [H, W], acc [H, W]."""
   draw = image_renderer.make_image_renderer(exp.renderer, exp.image)(variables)
   bg = background.parse(exp.config.data.background)
-  camera = exp.camera(scale)
-  for pose in poses:
-    yield draw(exp.rays(pose, camera), bg)
+  shared = exp.camera(scale)
+  for i, pose in enumerate(poses):
+    yield draw(exp.rays(pose, shared if cameras is None else cameras[i]), bg)
+
+
+def frame_cameras(exp, poses, scale=1.0):
+  """Each frame's camera (height, width, intrinsics) for `poses` float32 [F, 4, 4] where the
+  training images have cameras of their own (a collection shot at several zooms), else None.
+
+  Every frame keeps the training camera's size with `scale` (a video's frames share one size)
+  and its principal point, and takes the vertical field of view and pixel aspect of the
+  training image whose camera centre is nearest the frame's, so a path through the capture
+  sees what each photo saw. Images of one field of view at several sizes (multiscale data)
+  give the training camera exactly."""
+  ds = exp.train_ds
+  if ds.image_cameras is None:
+    return None
+  height, width, (_, _, cx, cy) = exp.camera(scale)
+  centres = np.asarray(ds.poses, np.float64)[:, :3, 3]
+  frames = np.asarray(poses, np.float64)[:, :3, 3]
+  nearest = np.argmin(np.linalg.norm(frames[:, None] - centres[None], axis=-1), axis=1)
+  cameras = []
+  for k in nearest:
+    image_height, _, (fx, fy, _, _) = ds.cameras.camera(int(k))
+    zoom = height / image_height  # image k's field of view spread over the frame's height
+    cameras.append((height, width, (fx * zoom, fy * zoom, cx, cy)))
+  return cameras
 
 
 def follows_trajectory(exp):
@@ -116,8 +141,9 @@ def _duration(seconds):
 
 def render_video(exp, variables, out_dir, depth_npy=False, show_progress=True, scale=1.0,
                  poses=None):
-  """A video as rgb.mp4 and depth.mp4 in `out_dir`: of `poses` (float32 [F, 4, 4]), or of the
-  default path (see `camera_paths.video_poses`).
+  """A video as rgb.mp4 and depth.mp4 in `out_dir`: of `poses` (float32 [F, 4, 4]) through the
+  training camera, or of the default path (see `camera_paths.video_poses`), each frame with the
+  field of view of its nearest training image where the images have their own (`frame_cameras`).
 
   depth_npy: also save the float depth of every frame as `depth_frames.npy`, float32 [F, H, W]
   (z-depth in scene units, see the module docstring). scale: frames have `scale` times the
@@ -129,13 +155,15 @@ def render_video(exp, variables, out_dir, depth_npy=False, show_progress=True, s
     raise FileNotFoundError(missing)
   os.makedirs(out_dir, exist_ok=True)
   rc = exp.config.render
-  if poses is None:
+  default_path = poses is None
+  if default_path:
     poses = camera_paths.video_poses(exp.train_ds, rc.video_frames, exp.config.data.ndc,
                                      rc.orbit_phi, rc.orbit_radius,
                                      trajectory=follows_trajectory(exp))
   near, far = exp.near, exp.far
   rgb_frames, depth_frames, depths = [], [], []
-  frames = render_frames(exp, variables, poses, scale)
+  cameras = frame_cameras(exp, poses, scale) if default_path else None
+  frames = render_frames(exp, variables, poses, scale, cameras)
   if show_progress:
     frames = progress.track(frames, total=len(poses), desc="video")
   for out in frames:
