@@ -145,7 +145,8 @@ def with_regret(records):
   return out, (None if base is None else max(0.0, max(scores) - base))
 
 
-def _cell(value, form):
+def format_cell(value, form):
+  """A table cell: `value` formatted with `form`, '-' for None."""
   return "-" if value is None else format(value, form)
 
 
@@ -154,17 +155,18 @@ def table(records, regret, command):
   scene = records[0]["scene"] if records else "-"
   best = max((r for r in records if score(r) is not None), key=score, default={})
   lines = [f"# Auto's regret on {scene}", "", "```", command, "```", "",
-           f"Auto's regret: {_cell(regret, '.2f')} dB (best: {best.get('run', '-')}).", "",
+           f"Auto's regret: {format_cell(regret, '.2f')} dB (best: {best.get('run', '-')}).", "",
            "| run | flipped | overrides | PSNR | mean over scales | gain | SSIM | LPIPS | steps "
            "| s/step | step-cost ratio | error |", "|---" * 12 + "|"]
+  cell = format_cell
   for r in records:
     overrides = ", ".join(f"{k}={v!r}" for k, v in r["overrides"].items()) or "-"
     lines.append(
-        f"| {r['run']} | {r['flipped'] or '-'} | {overrides} | {_cell(r.get('psnr'), '.2f')} | "
-        f"{_cell(r.get('mean_over_scales_psnr'), '.2f')} | {_cell(r.get('gain'), '+.2f')} | "
-        f"{_cell(r.get('ssim'), '.3f')} | {_cell(r.get('lpips'), '.3f')} | "
-        f"{_cell(r.get('steps'), 'd')} | {_cell(r.get('seconds_per_step'), '.4f')} | "
-        f"{_cell(r.get('step_cost_ratio'), '.2f')} | {r.get('error', '')} |")
+        f"| {r['run']} | {r['flipped'] or '-'} | {overrides} | {cell(r.get('psnr'), '.2f')} | "
+        f"{cell(r.get('mean_over_scales_psnr'), '.2f')} | {cell(r.get('gain'), '+.2f')} | "
+        f"{cell(r.get('ssim'), '.3f')} | {cell(r.get('lpips'), '.3f')} | "
+        f"{cell(r.get('steps'), 'd')} | {cell(r.get('seconds_per_step'), '.4f')} | "
+        f"{cell(r.get('step_cost_ratio'), '.2f')} | {r.get('error', '')} |")
   return "\n".join(lines) + "\n"
 
 
@@ -203,7 +205,7 @@ def picture(records, regret, path):
   axes.set_xlabel("step-cost ratio (seconds per step / auto's)")
   axes.set_ylabel("PSNR gain over auto (dB)")
   scene = records[0]["scene"] if records else ""
-  axes.set_title(f"{scene}: auto's regret {_cell(regret, '.2f')} dB")
+  axes.set_title(f"{scene}: auto's regret {format_cell(regret, '.2f')} dB")
   fig.tight_layout()
   fig.savefig(path, dpi=120)
   return None
@@ -318,7 +320,7 @@ def regret(values, spec, argv):
   records, value = run_plan(runs, values.scene, values.out, command)
   path = os.path.join(values.out, f"regret_{values.scene}.png")
   problem = picture(records, value, path)
-  print(f"auto's regret on {values.scene}: {_cell(value, '.2f')} dB -> "
+  print(f"auto's regret on {values.scene}: {format_cell(value, '.2f')} dB -> "
         f"{os.path.join(values.out, 'table.md')}" + (f"; no picture: {problem}" if problem
                                                        else f", {path}"), flush=True)
   return records, value

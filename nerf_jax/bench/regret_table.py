@@ -120,7 +120,7 @@ def columns(rows):
   return flips + sorted(names - set(flips))
 
 
-def _cell(run):
+def _flip_cell(run):
   if run is None:
     return ""
   if run.get("gain") is None:
@@ -136,11 +136,11 @@ def summary_table(rows):
   names = columns(rows)
   head = ["scene", "auto's config", "auto", "steps", "best run", "regret"] + names
   lines = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
-  fmt = lambda v, form: "-" if v is None else format(v, form)
+  fmt = regret.format_cell
   for row in rows:
     cells = [row["scene"], f"{row['auto_config']}.py", fmt(row["auto_score"], ".2f"),
              fmt(row["auto_steps"], "d"), row["best_run"] or "-", fmt(row["regret"], ".2f")]
-    cells += [_cell(row["runs"].get(name)) for name in names]
+    cells += [_flip_cell(row["runs"].get(name)) for name in names]
     lines.append("| " + " | ".join(cells) + " |")
   return "\n".join(lines) + "\n"
 
