@@ -41,7 +41,7 @@ def frame_cameras(exp, poses, scale=1.0):
   and its principal point, and takes the vertical field of view and pixel aspect of the
   training image whose camera centre is nearest the frame's, so a path through the capture
   sees what each photo saw. Images of one field of view at several sizes (multiscale data)
-  give the training camera exactly."""
+  give the training camera (exactly where the sizes divide evenly)."""
   ds = exp.train_ds
   if ds.image_cameras is None:
     return None
