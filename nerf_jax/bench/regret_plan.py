@@ -132,6 +132,14 @@ def _transients(result, base, context):
   return {"loss.robust.weight": 1.0, "train.patch_size": patch}, ""
 
 
+def _step_rule(result, base, context):
+  """Auto's step rule off (auto.by_steps): the effects it waits to decide stay on at any
+  budget."""
+  if not result.auto_by_steps:
+    return None, "auto turned on nothing that pays only from a step count (auto.MIN_STEPS)"
+  return {"auto_by_steps": ()}, ""
+
+
 # decision name -> flip(result, base, context) -> (overrides or None, why none). context:
 # {'height', 'width': the training images' pixels, 'one_camera': whether they share one
 # camera}.
@@ -149,6 +157,7 @@ FLIPS = {
     "photo_zoom": _on_subject("data.photo_zoom"),
     "transients": _transients,
     "pose_refinement": _switch("train.pose_refinement"),
+    "step_rule": _step_rule,
 }
 
 
@@ -180,6 +189,8 @@ def flip_runs(result, chosen, height, width, one_camera=True):
       continue
     config = with_fields(result, overrides)
     config.auto_decisions = ()
+    # A flipped effect is the flip's, whatever the budget.
+    config.auto_by_steps = tuple(f for f in config.auto_by_steps if f not in overrides)
     runs.append(Run(f"flip/{decision}", decision, chosen, overrides, config))
   return runs, skipped
 
@@ -197,7 +208,8 @@ def candidates(chosen, backend):
 
 def representation_runs(result, chosen, user, backend):
   """([Run] of each other representation that applies, [line] for each that does not).
-  Each keeps auto's EFFECT_FIELDS (and its patch size under the trimmed loss), takes the
+  Each keeps auto's EFFECT_FIELDS (and its patch size under the trimmed loss, and its step
+  rule: auto.by_steps), takes the
   cones auto.cone_effects gives it where `result` reads cones, and the command's `user`
   fields ({field: value}: data, budget) on top; its overrides are those that differ from the
   representation's own config."""
@@ -216,6 +228,7 @@ def representation_runs(result, chosen, user, backend):
     if has_cones(result):
       overrides.update(auto.cone_effects(base))
     overrides.update(user)
+    overrides["auto_by_steps"] = result.auto_by_steps  # auto's step rule, as in auto's run
     overrides = {f: v for f, v in overrides.items() if config_lib.get_field(base, f) != v}
     runs.append(Run(f"config/{name}", "representation", name, overrides,
                     with_fields(base, overrides)))

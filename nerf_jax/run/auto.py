@@ -25,7 +25,13 @@ TRANSIENT_SHARE = 0.01
 # the masks mark a subject whose largest half-extent is under this share of the cameras' median
 # distance from it (landmark: 0.5 of ~4.2; crowd's masks mark passers-by, no subject).
 SUBJECT_SHARE = 0.25
-_OWN = ("auto", "auto_decisions", "auto_flags")  # auto's own fields, set by auto_config itself
+# Effects that pay only after enough steps: {field auto turns on: (its value off, the fewest steps
+# from which it pays)}. Auto leaves one off where the run's step budget holds fewer (by_steps,
+# decided once the run knows its steps). docs/regret.md, detail.py on one core: view dependence
+# on glossy loses 4.55 dB at 78 steps and gains 0.48 at 177; the trimmed loss on crowd (its
+# patch batches) loses 2.16 dB at 82 steps and gains at ...
+MIN_STEPS = {"model.view_dependent": (False, 120), "loss.robust.weight": (0.0, 200)}
+_OWN = ("auto", "auto_decisions", "auto_flags", "auto_by_steps")  # auto's own fields
 # On a GPU backend, the config that takes each CPU choice's place: the configs/gpu/ one where it
 # won on an H200 (docs/gpu.md, 2026-11-28: gpu/lego 32.63 dB on lego in 60 s against detail.py's
 # 30.45 in 120 s; gpu/llff 23.85 on fern against llff.py's 23.34), the CPU's own where it lost
@@ -287,6 +293,12 @@ def auto_config(config, dataset, backend=None, before_loading=({}, [])):
     lines.append(transient_line)
     lines.append("pose refinement: off (nothing in the photos measures a pose error; "
                  "train.pose_refinement=True switches it on)")
+  pending = tuple(f for f, (off, _) in MIN_STEPS.items()
+                  if f in effects and f not in user and effects[f] != off)
+  if pending:
+    lines.append(f"step rule: {', '.join(pending)} kept only where the run's step budget "
+                 "holds the steps from which they pay (auto.MIN_STEPS), decided once the "
+                 "budget is known")
   lines.append(backend_line)
   lines.append(f"representation: configs/{chosen}.py")
   values = {**_flat(result), **effects}
@@ -298,7 +310,30 @@ def auto_config(config, dataset, backend=None, before_loading=({}, [])):
     if name not in _OWN:
       config_lib.set_field(result, name, value)
   result.auto = False
+  result.auto_by_steps = pending
   result.auto_decisions = tuple(lines)
   for line in lines:
     print(f"auto: {line}", flush=True)
   return result
+
+
+def by_steps(config, steps):
+  """(config, [line]): a copy of `config` with each effect of config.auto_by_steps that pays
+  only from more than `steps` steps (MIN_STEPS) off, one line each, and the record cleared
+  (decided: config.json keeps the result); `config` itself and [] where nothing is pending.
+  steps: int, the run's step budget (given, or fitted to its time budget)."""
+  if not config.auto_by_steps:
+    return config, []
+  out, lines = ml_collections.ConfigDict(config.to_dict()), []
+  for name in config.auto_by_steps:
+    off, fewest = MIN_STEPS[name]
+    keep = steps >= fewest
+    if not keep:
+      config_lib.set_field(out, name, off)
+    lines.append(f"step rule: {name}={config_lib.get_field(out, name)!r}, the run's budget "
+                 f"holds {steps} steps ({'>=' if keep else '<'} the {fewest} from which it "
+                 "pays)")
+  out.auto_by_steps = ()
+  out.auto_decisions = (*config.auto_decisions, *lines)
+  return out, lines
+

@@ -15,6 +15,7 @@ class RunSettings:
   auto: bool = False  # decide the effects and the representation from the data (configs/auto.py)
   auto_decisions: Tuple[str, ...] = ()  # what auto decided and why, one line each (filled by auto)
   auto_flags: Tuple[str, ...] = ()  # fields set on the command line (filled by nerf-train): auto keeps them
+  auto_by_steps: Tuple[str, ...] = ()  # effects auto turned on that pay only from auto.MIN_STEPS steps: off below (filled by auto)
 
 
 @dataclasses.dataclass(frozen=True)

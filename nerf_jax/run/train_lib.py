@@ -20,7 +20,8 @@ import ml_collections
 
 from nerf_jax.backend import determinism
 from nerf_jax.evaluate import lpips
-from nerf_jax.run import builders, config_lib, experiment, outputs
+from nerf_jax.run import (auto, builders, config_lib, experiment, experiment_parts,
+                          outputs)
 from nerf_jax.run.experiment import TrainingError
 from nerf_jax.run.signature import init_state, model_signature, state_template
 from nerf_jax.train import (budget, checkpoints, hooks as hooks_lib, loop, optimizer, parallel,
@@ -55,6 +56,9 @@ def train_and_evaluate(config, workdir, watchers=()):
   if main:
     os.makedirs(workdir, exist_ok=True)
   exp = experiment.setup(config)
+  known = _known_steps(exp.config, workdir)
+  if known:  # auto's step rule on a step budget known before the state is built
+    exp = _by_steps(exp, known)[0]
   signature = model_signature(exp.config)  # as resolved from the data (config.auto, ...)
   state, meta = _start_state(exp, workdir, signature)
   # The run's seconds, a resumed run's earlier ones included (a time budget's calibration
@@ -66,14 +70,20 @@ def train_and_evaluate(config, workdir, watchers=()):
   data = parallel.replicate(builders.make_train_data(exp), mesh)
   key = jax.random.PRNGKey(exp.config.seed + 1)
   # Reused for an equal run in the same process (tests, sweeps and resumed runs compile once).
-  cached = (exp.config.to_json(), exp.near, exp.far, mesh)
-  if cached not in _STEPS:
-    _keep(cached, train_step_lib.make_train_step(**builders.train_step_args(exp, mesh)))
-  _STEPS.move_to_end(cached)
-  train_step = _STEPS[cached]
+  train_step = _train_step(exp, mesh)
   config, last_step = exp.config, builders.schedule_steps(exp.config.train)
   if fits_time(config.train):
     config = _resumed_or_fitted(exp, train_step, data, key, mesh, meta, t_start)
+    if config.auto_by_steps:  # a new run: auto's step rule on the steps fitted to its time
+      exp, changed = _by_steps(exp, config.train.max_steps)
+      if changed:  # a fresh start of what changed, fitted to the time left
+        signature = model_signature(exp.config)
+        state = parallel.from_main(init_state(exp))
+        data = parallel.replicate(builders.make_train_data(exp), mesh)
+        train_step = _train_step(exp, mesh)
+        config = _resumed_or_fitted(exp, train_step, data, key, mesh, meta, t_start)
+      else:
+        config.auto_by_steps, config.auto_decisions = (), exp.config.auto_decisions
     train_step = functools.partial(train_step, planned_steps=jnp.int32(config.train.max_steps))
     last_step = sys.maxsize  # the clock ends the run
   if main:  # with the schedule the run uses
@@ -88,13 +98,51 @@ def train_and_evaluate(config, workdir, watchers=()):
   loop_hooks = [hooks_lib.Watch(make_watcher(exp, workdir, main), _variables_on(mesh))
                 for make_watcher in watchers] + loop_hooks  # the caller's, after every step
   out_of_time = lambda: 0 < config.train.max_seconds <= elapsed()
+  # A clocked run keeps one step queued: the clock counts steps done (loop.run).
   state, step, signum = loop.run(state, lambda s: train_step(s, data, key), loop_hooks,
-                                 int(state.step), last_step, out_of_time)
+                                 int(state.step), last_step, out_of_time,
+                                 in_flight=1 if last_step == sys.maxsize else None)
   if signum:
     raise KeyboardInterrupt(f"stopped by signal {signum} at step {step}; "
                             f"checkpoint saved in {checkpoints.checkpoint_dir(workdir)}")
   rate = next((h.rays_per_second for h in loop_hooks if isinstance(h, hooks_lib.Record)), None)
   return _finish(exp, config, workdir, state, step, evaluate, writer, mesh, elapsed(), rate)
+
+
+def _train_step(exp, mesh):
+  """The jitted train step of `exp` on `mesh`, compiled once for an equal run in the same
+  process (tests, sweeps and resumed runs)."""
+  cached = (exp.config.to_json(), exp.near, exp.far, mesh)
+  if cached not in _STEPS:
+    _keep(cached, train_step_lib.make_train_step(**builders.train_step_args(exp, mesh)))
+  _STEPS.move_to_end(cached)
+  return _STEPS[cached]
+
+
+def _known_steps(config, workdir):
+  """The step budget of the run of `config` in `workdir` where auto's step rule waits for it
+  (config.auto_by_steps) and it is known before training: the given or default steps, or the
+  schedule a resumed time-budget run fitted (its newest checkpoint's meta); else 0."""
+  if not config.auto_by_steps:
+    return 0
+  if not fits_time(config.train):
+    return builders.schedule_steps(config.train)
+  path = checkpoints.latest_path(workdir) if parallel.is_main_process() else None
+  meta = checkpoints.read_meta(path) if path else {}
+  return int(meta.get("schedule_steps", 0))
+
+
+def _by_steps(exp, steps):
+  """(Experiment, changed): `exp` rebuilt on its config with auto's step rule decided at `steps`
+  (auto.by_steps: the effects that pay only from more steps off, one printed line each; the
+  same data and bounds), and whether an effect changed."""
+  config, lines = auto.by_steps(exp.config, steps)
+  for line in lines:
+    print(f"auto: {line}", flush=True)
+  changed = any(config_lib.get_field(config, name) != config_lib.get_field(exp.config, name)
+                for name in exp.config.auto_by_steps)
+  return experiment_parts.assemble(config, exp.train_ds, exp.test_ds, exp.near, exp.far,
+                                   exp.hull), changed
 
 
 def _keep(cached, train_step):

@@ -10,10 +10,13 @@ just taken. Hooks run in their list's order (a log step's record is filled by th
 `hooks.Record`) and close in the reverse order.
 """
 
+import collections
 import dataclasses
 import functools
 import signal
 from typing import Any, Callable, Optional
+
+import jax
 
 
 class StopRequest:
@@ -68,19 +71,28 @@ class StepEnd:
     return self.last or self.stop.signum is not None
 
 
-def run(state, step_fn, hooks, start_step, last_step, out_of_time=lambda: False):
+def run(state, step_fn, hooks, start_step, last_step, out_of_time=lambda: False,
+        in_flight=None):
   """Take steps `state = step_fn(state)` after `start_step` until `last_step` or until
   out_of_time() says so after a step, calling the hooks after each; then close them.
 
   step_fn: state -> (state, stats), the jitted step with its data and key bound.
+  in_flight: None, or the most steps left queued on the device after each step (the loop
+  waits for the older ones' stats): a clock then counts steps done. Unbounded, jax's
+  asynchronous dispatch queues steps ahead of the device, and a time budget ran over by the
+  queue (40 steps, 25 s of a 100 s budget, measured on a CPU: docs/regret.md).
   Returns (state, steps taken, signal number or None): with a signal (SIGINT, SIGTERM) the loop
   ends after the hooks of the step it arrived in, which see `final` (a checkpoint hook saves).
   """
-  step = start_step
+  step, queued = start_step, collections.deque()
   with StopRequest() as stop:
     while step < last_step:
       state, stats = step_fn(state)
       step += 1
+      if in_flight is not None:
+        queued.append(stats)
+        while len(queued) > in_flight:
+          jax.block_until_ready(queued.popleft())
       end = StepEnd(step, state, stats, last_step, out_of_time, stop)
       for hook in hooks:
         if hook.due(end):

@@ -29,12 +29,13 @@ CONE_FIELDS = {"model.encoding", "model.grid.antialias", "model.grid.multisample
 SUBJECT_FIELDS = {"data.subject", "data.photo_bounds", "data.visual_hull", "data.photo_zoom"}
 FIELDS = {"background": {"train.random_background"}, "forward": {"data.ndc"},
           "contraction": {"data.contraction"}, "focus": {"data.focus"},
-          "appearance": {"model.appearance_dims"}, "view_dependence": {"model.view_dependent"},
+          "appearance": {"model.appearance_dims"},
+          "view_dependence": {"model.view_dependent", "auto_by_steps"},
           "cones": CONE_FIELDS, "subject": SUBJECT_FIELDS,
           "photo_bounds": {"data.photo_bounds"}, "visual_hull": {"data.visual_hull"},
           "photo_zoom": {"data.photo_zoom"},
-          "transients": {"loss.robust.weight", "train.patch_size"},
-          "pose_refinement": {"train.pose_refinement"}}
+          "transients": {"loss.robust.weight", "train.patch_size", "auto_by_steps"},
+          "pose_refinement": {"train.pose_refinement"}, "step_rule": {"auto_by_steps"}}
 USER = {"data.scene": "diffuse", "data.image_size": 16, "train.max_seconds": 2.0}
 
 
@@ -59,6 +60,11 @@ COLLECTION = _decided("capture", {
     "data.photo_bounds": True, "data.visual_hull": True, "data.photo_zoom": True,
     "model.appearance_dims": 8, "loss.robust.weight": 1.0, "train.patch_size": 8})
 
+# Effects auto waits to decide until the run knows its step budget (auto.by_steps).
+PENDING = _decided("fast", {"model.view_dependent": True, "loss.robust.weight": 1.0,
+                            "train.patch_size": 8,
+                            "auto_by_steps": ("model.view_dependent", "loss.robust.weight")})
+
 
 def _diff(a, b):
   """The fields (auto's own aside) whose values differ between ConfigDicts a and b."""
@@ -66,8 +72,8 @@ def _diff(a, b):
   return {k for k in fa.keys() | fb.keys() if fa.get(k) != fb.get(k)} - {"auto_decisions"}
 
 
-@pytest.mark.parametrize("result", [OBJECT, FORWARD, CONES, COLLECTION],
-                         ids=["object", "forward", "cones", "collection"])
+@pytest.mark.parametrize("result", [OBJECT, FORWARD, CONES, COLLECTION, PENDING],
+                         ids=["object", "forward", "cones", "collection", "pending"])
 def test_each_flip_changes_one_decision_alone(result):
   runs, _ = regret_plan.plan(result, USER, 16, 16, "cpu")
   assert runs[0].name == "auto" and not _diff(runs[0].config, result)
@@ -121,6 +127,20 @@ def test_flips_turn_what_auto_set_the_other_way():
   runs, skipped = regret_plan.plan(OBJECT, USER, 16, 16, "cpu", one_camera=False)
   assert "flip/transients" not in {r.name for r in runs}  # patches need one camera
   assert "flip/transients: not run (its patch batches need images of one camera)" in skipped
+
+
+def test_the_step_rule_flips_alone_and_the_other_runs_keep_it():
+  runs = {r.name: r for r in regret_plan.plan(PENDING, USER, 16, 16, "cpu")[0]}
+  rule = runs["flip/step_rule"]
+  assert rule.overrides == {"auto_by_steps": ()} and rule.config.model.view_dependent is True
+  # A flipped effect is the flip's at any budget; the others still wait for the steps.
+  assert runs["flip/view_dependence"].config.auto_by_steps == ("loss.robust.weight",)
+  assert runs["flip/transients"].config.auto_by_steps == ("model.view_dependent",)
+  for name in ("flip/cones", "flip/appearance", "config/detail", "config/hash"):
+    assert runs[name].config.auto_by_steps == PENDING.auto_by_steps, name
+  skipped = regret_plan.plan(OBJECT, USER, 16, 16, "cpu")[1]
+  assert ("flip/step_rule: not run (auto turned on nothing that pays only from a step count "
+          "(auto.MIN_STEPS))") in skipped
 
 
 def test_representations_that_apply_keep_autos_effects():

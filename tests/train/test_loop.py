@@ -62,3 +62,17 @@ def test_a_signal_ends_the_run_after_the_hooks_of_its_step_which_see_final():
 
 def test_every_zero_is_never():
   assert not hooks.every(5, 0) and hooks.every(6, 3) and not hooks.every(7, 3)
+
+
+def test_a_clocked_run_waits_for_all_but_its_newest_steps_before_it_reads_the_clock(monkeypatch):
+  # jax dispatches steps ahead of the device; the clock must count steps done. A stand-in for
+  # jax.block_until_ready records which step's stats the loop waited for before each clock read.
+  waited, reads = [], []
+  monkeypatch.setattr(loop.jax, "block_until_ready", lambda stats: waited.append(stats["step"]))
+  step_fn = lambda state: (state + 1, {"step": state + 1})
+  clock = lambda: reads.append(list(waited)) or len(reads) == 4
+  loop.run(0, step_fn, [], 0, 100, clock, in_flight=1)
+  assert reads == [[], [1], [1, 2], [1, 2, 3]]  # after step n: steps up to n - 1 done
+  waited.clear()
+  loop.run(0, step_fn, [], 0, 5)
+  assert waited == []  # a step budget: no wait, the device's queue stays full
