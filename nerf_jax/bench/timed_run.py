@@ -109,15 +109,27 @@ def run_config(config, options):
   """Train `config` under its budget in this process and measure it. Returns the record."""
   start = time.perf_counter()
   exp = experiment.setup(config)
-  data = builders.make_train_data(exp)
-  key = jax.random.PRNGKey(config.seed + 1)  # as train_lib.train_and_evaluate
   tc = config.train
   max_steps = builders.schedule_steps(tc)
-  if tc.max_seconds > 0 and options.fit_schedule:
+  fitted = tc.max_seconds > 0 and options.fit_schedule
+  waiting = None  # auto's step rule as training decides it (train_lib.with_step_rule)
+  if not fitted:
+    exp = train_lib.with_step_rule(exp, builders.schedule_steps(exp.config.train))
+  elif exp.config.auto_by_steps:
+    waiting, exp = exp, train_lib.with_step_rule(exp, 0, quiet=True)
+  data = builders.make_train_data(exp)
+  key = jax.random.PRNGKey(config.seed + 1)  # as train_lib.train_and_evaluate
+  if fitted:
     # The schedule spans the steps expected to fit in the budget (the benchmark's clock counts
     # the compile, not the calibration); the clock alone ends the run.
-    config = train_lib.fit_to_time(exp, builders.make_train_step(exp), data, key,
-                                   lambda compile_seconds: tc.max_seconds - compile_seconds)
+    left = lambda compile_seconds: tc.max_seconds - compile_seconds
+    config = train_lib.fit_to_time(exp, builders.make_train_step(exp), data, key, left)
+    if waiting is not None:
+      decided = train_lib.with_step_rule(waiting, config.train.max_steps)
+      if train_lib.kept_on(decided.config, waiting.config):
+        exp, data = decided, builders.make_train_data(decided)
+        config = train_lib.fit_to_time(exp, builders.make_train_step(exp), data, key, left)
+      config.auto_by_steps, config.auto_decisions = (), decided.config.auto_decisions
     tc = config.train
     tx = optimizer.make_optimizer(builders.optimizer_settings(config))
     exp = dataclasses.replace(exp, config=config, tx=tx)

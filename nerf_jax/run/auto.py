@@ -26,12 +26,13 @@ TRANSIENT_SHARE = 0.01
 # distance from it (landmark: 0.5 of ~4.2; crowd's masks mark passers-by, no subject).
 SUBJECT_SHARE = 0.25
 # Effects that pay only after enough steps: {field auto turns on: (its value off, the fewest steps
-# from which it pays)}. Auto leaves one off where the run's step budget holds fewer (by_steps,
-# decided once the run knows its steps). Measured with detail.py on one core, side by side
-# (docs/regret.md, the step rule): view dependence on glossy loses 4.2 dB at ~80 steps and 1.3 at
-# ~120, gains 0.5 at 177; the trimmed loss on crowd (its patch batches) loses 1.5 dB at ~75 steps
-# and gains 1.9 at ~110. The thresholds: where the interpolated curves cross.
-MIN_STEPS = {"model.view_dependent": (False, 160), "loss.robust.weight": (0.0, 100)}
+# from which it pays)}. Auto leaves one off where the run's step budget holds fewer: the steps
+# given, or those a time budget holds with the waiting effects off (by_steps, decided once the
+# run knows them). Measured with detail.py on one core, side by side (docs/regret.md, the step
+# rule), in the steps of the run with the effect off: view dependence on glossy loses 4.2 dB at
+# 85 steps and 1.3 at 124, gains 0.5 at 180; the trimmed loss on crowd (its patch batches)
+# loses 1.5 dB at 69 steps and gains 1.9 at 99. The thresholds: where the lines between cross.
+MIN_STEPS = {"model.view_dependent": (False, 165), "loss.robust.weight": (0.0, 80)}
 _OWN = ("auto", "auto_decisions", "auto_flags", "auto_by_steps")  # auto's own fields
 # On a GPU backend, the config that takes each CPU choice's place: the configs/gpu/ one where it
 # won on an H200 (docs/gpu.md, 2026-11-28: gpu/lego 32.63 dB on lego in 60 s against detail.py's

@@ -7,6 +7,7 @@ With several processes only process 0 reads and writes the workdir.
 """
 
 import collections
+import dataclasses
 import functools
 import io
 import json
@@ -56,9 +57,7 @@ def train_and_evaluate(config, workdir, watchers=()):
   if main:
     os.makedirs(workdir, exist_ok=True)
   exp = experiment.setup(config)
-  known = _known_steps(exp.config, workdir)
-  if known:  # auto's step rule on a step budget known before the state is built
-    exp = _by_steps(exp, known)[0]
+  exp, waiting = _step_rule_at_start(exp, workdir)
   signature = model_signature(exp.config)  # as resolved from the data (config.auto, ...)
   state, meta = _start_state(exp, workdir, signature)
   # The run's seconds, a resumed run's earlier ones included (a time budget's calibration
@@ -74,16 +73,18 @@ def train_and_evaluate(config, workdir, watchers=()):
   config, last_step = exp.config, builders.schedule_steps(exp.config.train)
   if fits_time(config.train):
     config = _resumed_or_fitted(exp, train_step, data, key, mesh, meta, t_start)
-    if config.auto_by_steps:  # a new run: auto's step rule on the steps fitted to its time
-      exp, changed = _by_steps(exp, config.train.max_steps)
-      if changed:  # a fresh start of what changed, fitted to the time left
+    if waiting is not None:  # the step rule on the steps the run holds with them off
+      decided = with_step_rule(waiting, config.train.max_steps)
+      if kept_on(decided.config, waiting.config):  # one pays: its step compiled, refitted
+        exp = decided
         signature = model_signature(exp.config)
         state = parallel.from_main(init_state(exp))
         data = parallel.replicate(builders.make_train_data(exp), mesh)
         train_step = _train_step(exp, mesh)
         config = _resumed_or_fitted(exp, train_step, data, key, mesh, meta, t_start)
-      else:
-        config.auto_by_steps, config.auto_decisions = (), exp.config.auto_decisions
+      else:  # as fitted: only the record is the decided one's
+        exp = dataclasses.replace(exp, config=decided.config)
+        config.auto_by_steps, config.auto_decisions = (), decided.config.auto_decisions
     train_step = functools.partial(train_step, planned_steps=jnp.int32(config.train.max_steps))
     last_step = sys.maxsize  # the clock ends the run
   if main:  # with the schedule the run uses
@@ -119,30 +120,45 @@ def _train_step(exp, mesh):
   return _STEPS[cached]
 
 
-def _known_steps(config, workdir):
-  """The step budget of the run of `config` in `workdir` where auto's step rule waits for it
-  (config.auto_by_steps) and it is known before training: the given or default steps, or the
-  schedule a resumed time-budget run fitted (its newest checkpoint's meta); else 0."""
-  if not config.auto_by_steps:
-    return 0
-  if not fits_time(config.train):
-    return builders.schedule_steps(config.train)
-  path = checkpoints.latest_path(workdir) if parallel.is_main_process() else None
-  meta = checkpoints.read_meta(path) if path else {}
-  return int(meta.get("schedule_steps", 0))
+def _step_rule_at_start(exp, workdir):
+  """(Experiment, waiting): auto's step rule (with_step_rule) decided where it can be before
+  the state is built: as the run that `workdir` resumes decided it (its config.json; process 0
+  reads the workdir), or on a step budget. A new time-budget run is fitted with the waiting
+  effects off: (`exp` with them off, `exp`), decided once its steps are fitted; else
+  (decided Experiment, None)."""
+  if not exp.config.auto_by_steps:
+    return exp, None
+  if parallel.is_main_process() and checkpoints.latest_path(workdir):
+    saved = config_lib.load_saved(workdir)
+    config = ml_collections.ConfigDict(exp.config.to_dict())
+    for name in exp.config.auto_by_steps:
+      config_lib.set_field(config, name, config_lib.get_field(saved, name))
+    config.auto_by_steps, config.auto_decisions = (), saved.auto_decisions
+    return experiment_parts.assemble(config, exp.train_ds, exp.test_ds, exp.near, exp.far,
+                                     exp.hull), None
+  if not fits_time(exp.config.train):
+    return with_step_rule(exp, builders.schedule_steps(exp.config.train)), None
+  return with_step_rule(exp, 0, quiet=True), exp
 
 
-def _by_steps(exp, steps):
-  """(Experiment, changed): `exp` rebuilt on its config with auto's step rule decided at `steps`
-  (auto.by_steps: the effects that pay only from more steps off, one printed line each; the
-  same data and bounds), and whether an effect changed."""
+def with_step_rule(exp, steps, quiet=False):
+  """`exp` rebuilt on its config with auto's step rule decided at `steps` (auto.by_steps: the
+  effects that pay only from more steps off, the record cleared, one printed line each unless
+  `quiet`; the same data and bounds); `exp` itself where nothing waits (config.auto_by_steps)."""
+  if not exp.config.auto_by_steps:
+    return exp
   config, lines = auto.by_steps(exp.config, steps)
-  for line in lines:
+  for line in lines if not quiet else ():
     print(f"auto: {line}", flush=True)
-  changed = any(config_lib.get_field(config, name) != config_lib.get_field(exp.config, name)
-                for name in exp.config.auto_by_steps)
   return experiment_parts.assemble(config, exp.train_ds, exp.test_ds, exp.near, exp.far,
-                                   exp.hull), changed
+                                   exp.hull)
+
+
+def kept_on(decided, waiting):
+  """Whether the step rule kept on an effect of the ConfigDict `waiting` (auto_by_steps) in the
+  ConfigDict `decided`."""
+  return any(config_lib.get_field(decided, name) == config_lib.get_field(waiting, name)
+             for name in waiting.auto_by_steps)
 
 
 def _keep(cached, train_step):

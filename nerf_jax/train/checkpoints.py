@@ -84,30 +84,18 @@ def restore(path, template, signature):
   return restore_with_meta(path, template, signature)[0]
 
 
-def read_meta(path):
-  """The meta dict saved with the checkpoint at `path` ({} for one without); CheckpointError
-  for an unreadable file."""
-  return json.loads(_payload(path)[0].get("meta", "{}"))
-
-
-def _payload(path):
-  """(the saved dict of the checkpoint at `path`, its model signature): CheckpointError where
-  it cannot be read."""
-  try:
-    with open(path, "rb") as f:
-      payload = serialization.msgpack_restore(f.read())
-    return payload, json.loads(payload["signature"])
-  except Exception as e:  # msgpack raises several types for a damaged file
-    raise CheckpointError(f"{path}: unreadable checkpoint ({type(e).__name__}); delete it to "
-                          "resume from the one before, or use a new --workdir") from None
-
-
 def restore_with_meta(path, template, signature, upgrade=None):
   """(state, meta) saved at `path`; see `restore`. meta is {} for checkpoints without one.
 
   upgrade: None, or fn(saved state dict) -> state dict in today's structure (older
   checkpoints)."""
-  payload, saved = _payload(path)
+  try:
+    with open(path, "rb") as f:
+      payload = serialization.msgpack_restore(f.read())
+    saved = json.loads(payload["signature"])
+  except Exception as e:  # msgpack raises several types for a damaged file
+    raise CheckpointError(f"{path}: unreadable checkpoint ({type(e).__name__}); delete it to "
+                          "resume from the one before, or use a new --workdir") from None
   if saved != json.loads(json.dumps(signature)):
     current = json.loads(json.dumps(signature))
     diffs = [f"{k}: checkpoint {saved.get(k)!r} vs config {current.get(k)!r}"

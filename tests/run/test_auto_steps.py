@@ -1,7 +1,7 @@
 """Auto's step rule (auto.MIN_STEPS, auto.by_steps): an effect that pays only after enough
 steps stays on only where the run's step budget holds them. Decided on a given step budget
 before the state is built, on a time budget once the calibration has fitted the steps, and a
-resumed run decides as its first part did (else its checkpoint would not fit)."""
+resumed run keeps what its first part decided (else its checkpoint would not fit)."""
 
 import json
 import os
@@ -91,9 +91,28 @@ def test_a_time_budget_decides_on_its_fitted_steps_and_resumes_so(tmp_path, monk
   assert saved["model"]["view_dependent"] is kept and saved["auto_by_steps"] == []
   steps = saved["train"]["max_steps"]
   assert f"auto: step rule: {VD}={kept}, the run's budget holds " in capsys.readouterr().out
-  # Again in the same workdir: the budget is spent, the checkpoint restores (the same model)
-  # and the rule reads the steps the first part fitted.
+  # Again in the same workdir, with the rule now the other way: the budget is spent, and the
+  # run keeps what its first part decided (its config.json), so its checkpoint restores.
+  monkeypatch.setitem(auto.MIN_STEPS, VD, (False, 10 ** 9 if kept else 1))
   again = _train(tmp_path, **{"train.max_seconds": 4.0})
   assert again["model"]["view_dependent"] is kept and again["train"]["max_steps"] == steps
+  assert again["auto_decisions"] == saved["auto_decisions"]
   out = capsys.readouterr().out
-  assert "resuming from" in out and f"holds {steps} steps" in out
+  assert "resuming from" in out and "step rule" not in out.split("resuming from")[1]
+
+
+@pytest.mark.parametrize("seconds", [0.0, 3.0], ids=["steps", "seconds"])
+def test_the_benchmarks_run_decides_as_training_does(monkeypatch, seconds):
+  # python -m nerf_jax.bench's run (timed_run.run_config) on auto's config: the effect the rule
+  # leaves off is not in the trained model (the view-dependent head's parameters).
+  from nerf_jax.bench import timed_run  # pylint: disable=import-outside-toplevel
+  options = timed_run.Options(eval_times=(), render_repeats=1, matmul_repeats=1)
+  params = {}
+  for fewest in (1, 10 ** 9):
+    monkeypatch.setitem(auto.MIN_STEPS, VD, (False, fewest))
+    config = small_config({"data.scene": "glossy", "data.image_size": 24,
+                           "data.num_views": 40, "train.max_steps": 0 if seconds else 2,
+                           "train.max_seconds": seconds, "render.video_frames": 0},
+                          base="auto")
+    params[fewest] = timed_run.run_config(config, options)["params"]
+  assert params[10 ** 9] < params[1]
