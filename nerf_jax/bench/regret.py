@@ -13,6 +13,7 @@ minus auto's (0 when auto is best); the score is PSNR, its mean over the scales 
 data. docs/regret.md explains every column.
 """
 
+import hashlib
 import json
 import os
 import shlex
@@ -107,6 +108,30 @@ def seconds_per_step(log, metrics):
   return metrics["train_seconds"] / max(metrics["steps"], 1)
 
 
+# What a run's saved config may differ in from auto's and still be auto's config: auto's record
+# and the schedule its time budget fitted. A flip of an effect auto's step rule turned off at
+# this budget trains auto's own config: its gain is the run-to-run noise, not a regret.
+NOT_THE_CONFIG = ("auto_decisions", "auto_by_steps", "auto_flags", "train.max_steps",
+                  "train.warmup_steps")
+
+
+def trained_config(workdir):
+  """A short hash of the config a run trained (workdir/config.json) less NOT_THE_CONFIG;
+  None where the run saved none."""
+  path = os.path.join(workdir, "config.json")
+  if not os.path.exists(path):
+    return None
+  with open(path) as f:
+    config = json.load(f)
+  for name in NOT_THE_CONFIG:
+    *sections, field = name.split(".")
+    node = config
+    for section in sections:
+      node = node.get(section, {})
+    node.pop(field, None)
+  return hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()[:16]
+
+
 def make_record(run, metrics, scene, machine, log=()):
   """One results.jsonl record of `run` (a regret_plan.Run) from its metrics.json `metrics`
   (or {'error': ...}) and metrics.jsonl `log` ([dict]); the step-cost ratio and gain come
@@ -129,19 +154,22 @@ def make_record(run, metrics, scene, machine, log=()):
 
 def with_regret(records):
   """`records` (dicts of one scene, auto's named 'auto') with each run's 'gain' (its score
-  minus auto's) and 'step_cost_ratio' (its seconds per step over auto's), and the regret:
-  max(0, best score - auto's score), None while auto's run has no score. Returns (records,
-  regret)."""
+  minus auto's) and 'step_cost_ratio' (its seconds per step over auto's), 'same_as_auto' on a
+  run that trained auto's own config (the same 'trained' hash: `trained_config`), and the
+  regret: max(0, best score - auto's score) over the other runs, None while auto's run has no
+  score. Returns (records, regret)."""
   auto_run = next((r for r in records if r["run"] == "auto"), {})
   base = score(auto_run)
   out = []
   for record in records:
     record = dict(record)
+    if record["run"] != "auto" and auto_run.get("trained"):
+      record["same_as_auto"] = record.get("trained") == auto_run["trained"]
     if base is not None and score(record) is not None:
       record["gain"] = score(record) - base
       record["step_cost_ratio"] = record["seconds_per_step"] / auto_run["seconds_per_step"]
     out.append(record)
-  scores = [score(r) for r in records if score(r) is not None]
+  scores = [score(r) for r in out if score(r) is not None and not r.get("same_as_auto")]
   return out, (None if base is None else max(0.0, max(scores) - base))
 
 
@@ -153,7 +181,8 @@ def format_cell(value, form):
 def table(records, regret, command):
   """table.md of one scene's `records` (with_regret's) and its `regret`."""
   scene = records[0]["scene"] if records else "-"
-  best = max((r for r in records if score(r) is not None), key=score, default={})
+  best = max((r for r in records if score(r) is not None and not r.get("same_as_auto")),
+             key=score, default={})
   lines = [f"# Auto's regret on {scene}", "", "```", command, "```", "",
            f"Auto's regret: {format_cell(regret, '.2f')} dB (best: {best.get('run', '-')}).", "",
            "| run | flipped | overrides | PSNR | mean over scales | gain | SSIM | LPIPS | steps "
@@ -161,8 +190,9 @@ def table(records, regret, command):
   cell = format_cell
   for r in records:
     overrides = ", ".join(f"{k}={v!r}" for k, v in r["overrides"].items()) or "-"
+    same = " (auto's config)" if r.get("same_as_auto") else ""
     lines.append(
-        f"| {r['run']} | {r['flipped'] or '-'} | {overrides} | {cell(r.get('psnr'), '.2f')} | "
+        f"| {r['run']}{same} | {r['flipped'] or '-'} | {overrides} | {cell(r.get('psnr'), '.2f')} | "
         f"{cell(r.get('mean_over_scales_psnr'), '.2f')} | {cell(r.get('gain'), '+.2f')} | "
         f"{cell(r.get('ssim'), '.3f')} | {cell(r.get('lpips'), '.3f')} | "
         f"{cell(r.get('steps'), 'd')} | {cell(r.get('seconds_per_step'), '.4f')} | "
@@ -270,7 +300,8 @@ def run_plan(runs, scene, out, command):
     metrics = train_isolated(run.config, workdir)
     record = make_record(run, metrics, scene, machine, read_results(
         os.path.join(workdir, "metrics.jsonl")) if "error" not in metrics else ())
-    record.update(workdir=workdir, wall_seconds=round(time.perf_counter() - start, 1))
+    record.update(workdir=workdir, wall_seconds=round(time.perf_counter() - start, 1),
+                  trained=trained_config(workdir))
     records.append(record)
     scored, regret = with_regret(records)
     write_results(scored, regret, out, command)

@@ -96,7 +96,7 @@ def turned_on(record):
 def scene_summary(records):
   """One summary.jsonl row of a scene's results.jsonl `records` (with gains and regret)."""
   auto_run = next((r for r in records if r["run"] == "auto"), {})
-  scored = [r for r in records if regret.score(r) is not None]
+  scored = [r for r in records if regret.score(r) is not None and not r.get("same_as_auto")]
   best = max(scored, key=regret.score, default={})
   row = {"scene": records[0]["scene"], "auto_config": auto_run.get("base"),
          "auto_score": regret.score(auto_run), "auto_steps": auto_run.get("steps"),
@@ -109,7 +109,8 @@ def scene_summary(records):
     row["runs"][r["run"]] = {
         "gain": r.get("gain"), "step_cost_ratio": r.get("step_cost_ratio"),
         "turned": "" if r["flipped"] == "representation" else
-                  ("on" if turned_on(r) else "off"), "error": r.get("error")}
+                  ("on" if turned_on(r) else "off"), "error": r.get("error"),
+        "same_as_auto": bool(r.get("same_as_auto"))}
   return row
 
 
@@ -126,6 +127,8 @@ def _flip_cell(run):
   if run.get("gain") is None:
     return "failed"
   ratio = run.get("step_cost_ratio")
+  if run.get("same_as_auto"):  # auto's own config at this budget: the noise between two runs
+    return f"= auto {run['gain']:+.2f}"
   return (f"{run['turned']} {run['gain']:+.2f}" if run["turned"] else f"{run['gain']:+.2f}") + (
       "" if ratio is None else f" ({ratio:.2f}×)")
 

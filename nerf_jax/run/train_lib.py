@@ -99,10 +99,10 @@ def train_and_evaluate(config, workdir, watchers=()):
   loop_hooks = [hooks_lib.Watch(make_watcher(exp, workdir, main), _variables_on(mesh))
                 for make_watcher in watchers] + loop_hooks  # the caller's, after every step
   out_of_time = lambda: 0 < config.train.max_seconds <= elapsed()
-  # A clocked run keeps one step queued: the clock counts steps done (loop.run).
+  # A run the clock can end keeps one step queued: the clock counts steps done (loop.run).
   state, step, signum = loop.run(state, lambda s: train_step(s, data, key), loop_hooks,
                                  int(state.step), last_step, out_of_time,
-                                 in_flight=1 if last_step == sys.maxsize else None)
+                                 in_flight=1 if config.train.max_seconds > 0 else None)
   if signum:
     raise KeyboardInterrupt(f"stopped by signal {signum} at step {step}; "
                             f"checkpoint saved in {checkpoints.checkpoint_dir(workdir)}")

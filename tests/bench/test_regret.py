@@ -224,6 +224,37 @@ def test_regret_is_best_minus_auto_and_zero_when_auto_is_best():
   assert regret.with_regret([{"scene": "s", "run": "auto", "error": "boom"}])[1] is None
 
 
+def _saved(tmp_path, name, **changes):
+  """A run's workdir holding configs/detail.py's config.json with `changes` (dotted fields)."""
+  config = config_lib.load("detail")
+  for field, value in changes.items():
+    config_lib.set_field(config, field, value)
+  workdir = tmp_path / name
+  workdir.mkdir()
+  (workdir / "config.json").write_text(config.to_json())
+  return str(workdir)
+
+
+def test_a_run_that_trained_autos_own_config_is_noise_not_regret(tmp_path):
+  # The step rule turned view dependence off: flip/view_dependence trains auto's config again.
+  auto_dir = _saved(tmp_path, "auto", **{"model.view_dependent": False, "train.max_steps": 49,
+                                         "auto_decisions": ("step rule: ...",)})
+  same_dir = _saved(tmp_path, "same", **{"model.view_dependent": False, "train.max_steps": 77})
+  other_dir = _saved(tmp_path, "other", **{"model.view_dependent": True})
+  trained = [regret.trained_config(d) for d in (auto_dir, same_dir, other_dir)]
+  assert trained[0] == trained[1] != trained[2]
+  assert regret.trained_config(str(tmp_path)) is None  # no config.json
+  records, value = regret.with_regret([
+      _record("auto", 20.0, 0.1, trained=trained[0]),
+      _record("flip/view_dependence", 23.0, 0.1, trained=trained[1]),
+      _record("flip/step_rule", 19.0, 0.1, trained=trained[2])])
+  assert [r.get("same_as_auto") for r in records] == [None, True, False]
+  assert value == 0.0 and records[1]["gain"] == pytest.approx(3.0)
+  regret.write_results(records, value, str(tmp_path), "cmd")
+  table = (tmp_path / "table.md").read_text()
+  assert "(best: auto)" in table and "| flip/view_dependence (auto's config) |" in table
+
+
 def test_results_and_table_round_trip(tmp_path):
   records, value = regret.with_regret([
       _record("auto", 20.0, 0.1, steps=10, ssim=0.8, lpips=None),

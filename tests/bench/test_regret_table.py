@@ -89,3 +89,15 @@ def test_summarize_from_the_command_line(tmp_path):
                           f"--out={tmp_path / 'none'}"], capture_output=True, text=True,
                          check=False)
   assert empty.returncode == 1 and "Traceback" not in empty.stderr
+
+
+def test_a_run_of_autos_own_config_shows_as_noise_and_is_never_the_best(tmp_path):
+  _write(str(tmp_path), "glossy", [
+      {**_record("glossy", "auto", 20.0), "trained": "a"},
+      {**_record("glossy", "flip/view_dependence", 23.0, {"model.view_dependent": False}),
+       "trained": "a"},
+      {**_record("glossy", "flip/step_rule", 19.0, {"auto_by_steps": []}), "trained": "b"}])
+  row = regret_table.summarize(str(tmp_path))[0]
+  assert row["regret"] == 0.0 and row["best_run"] == "auto"
+  table = (tmp_path / "table.md").read_text()
+  assert "| = auto +3.00 |" in table and "| off -1.00 (1.00×) |" in table
