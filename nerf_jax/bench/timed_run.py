@@ -123,9 +123,12 @@ def run_config(config, options):
     # The schedule spans the steps expected to fit in the budget (the benchmark's clock counts
     # the compile, not the calibration); the clock alone ends the run.
     left = lambda compile_seconds: tc.max_seconds - compile_seconds
+    fit_start = time.perf_counter()
     config = train_lib.fit_to_time(exp, builders.make_train_step(exp), data, key, left)
     if waiting is not None:
-      decided = train_lib.with_step_rule(waiting, config.train.max_steps)
+      fit_seconds = time.perf_counter() - fit_start
+      decided = train_lib.with_step_rule(waiting, train_lib.steps_after_another_fit(
+          config.train.max_steps, tc.max_seconds - fit_seconds, fit_seconds))
       if train_lib.kept_on(decided.config, waiting.config):
         exp, data = decided, builders.make_train_data(decided)
         config = train_lib.fit_to_time(exp, builders.make_train_step(exp), data, key, left)

@@ -72,9 +72,11 @@ def train_and_evaluate(config, workdir, watchers=()):
   train_step = _train_step(exp, mesh)
   config, last_step = exp.config, builders.schedule_steps(exp.config.train)
   if fits_time(config.train):
+    fit_start = elapsed()
     config = _resumed_or_fitted(exp, train_step, data, key, mesh, meta, t_start)
-    if waiting is not None:  # the step rule on the steps the run holds with them off
-      decided = with_step_rule(waiting, config.train.max_steps)
+    if waiting is not None:  # the step rule on the steps the run would hold with them on
+      decided = with_step_rule(waiting, steps_after_another_fit(
+          config.train.max_steps, config.train.max_seconds - elapsed(), elapsed() - fit_start))
       if kept_on(decided.config, waiting.config):  # one pays: its step compiled, refitted
         exp = decided
         signature = model_signature(exp.config)
@@ -152,6 +154,14 @@ def with_step_rule(exp, steps, quiet=False):
     print(f"auto: {line}", flush=True)
   return experiment_parts.assemble(config, exp.train_ds, exp.test_ds, exp.near, exp.far,
                                    exp.hull)
+
+
+def steps_after_another_fit(steps, seconds_left, fit_seconds):
+  """The steps of `steps` fitted into `seconds_left` that remain after a fit as long as the last
+  one (`fit_seconds`: compiling and timing a step) is spent again: what a time budget holds
+  for an effect whose own step must still be compiled (a capture.py step on a loaded CPU
+  core compiles in ~30 s: 83 steps of a 60 s budget become 26)."""
+  return int(steps * max(seconds_left - fit_seconds, 0.0) / max(seconds_left, 1e-9))
 
 
 def kept_on(decided, waiting):

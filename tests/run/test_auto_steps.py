@@ -83,7 +83,13 @@ def test_a_step_budget_below_the_steps_trains_without_the_effect(tmp_path, capsy
           in capsys.readouterr().out)
 
 
-@pytest.mark.parametrize("fewest,kept", [(1, True), (10 ** 9, False)])
+def test_a_time_budget_counts_the_fit_the_effects_step_still_needs():
+  assert train_lib.steps_after_another_fit(100, 50.0, 25.0) == 50
+  assert train_lib.steps_after_another_fit(100, 50.0, 0.0) == 100
+  assert train_lib.steps_after_another_fit(100, 10.0, 20.0) == 0  # no time for another fit
+
+
+@pytest.mark.parametrize("fewest,kept", [(0, True), (10 ** 9, False)])
 def test_a_time_budget_decides_on_its_fitted_steps_and_resumes_so(tmp_path, monkeypatch,
                                                                     capsys, fewest, kept):
   monkeypatch.setitem(auto.MIN_STEPS, VD, (False, fewest))
@@ -93,7 +99,7 @@ def test_a_time_budget_decides_on_its_fitted_steps_and_resumes_so(tmp_path, monk
   assert f"auto: step rule: {VD}={kept}, the run's budget holds " in capsys.readouterr().out
   # Again in the same workdir, with the rule now the other way: the budget is spent, and the
   # run keeps what its first part decided (its config.json), so its checkpoint restores.
-  monkeypatch.setitem(auto.MIN_STEPS, VD, (False, 10 ** 9 if kept else 1))
+  monkeypatch.setitem(auto.MIN_STEPS, VD, (False, 10 ** 9 if kept else 0))
   again = _train(tmp_path, **{"train.max_seconds": 4.0})
   assert again["model"]["view_dependent"] is kept and again["train"]["max_steps"] == steps
   assert again["auto_decisions"] == saved["auto_decisions"]
@@ -108,11 +114,11 @@ def test_the_benchmarks_run_decides_as_training_does(monkeypatch, seconds):
   from nerf_jax.bench import timed_run  # pylint: disable=import-outside-toplevel
   options = timed_run.Options(eval_times=(), render_repeats=1, matmul_repeats=1)
   params = {}
-  for fewest in (1, 10 ** 9):
+  for fewest in (0, 10 ** 9):
     monkeypatch.setitem(auto.MIN_STEPS, VD, (False, fewest))
     config = small_config({"data.scene": "glossy", "data.image_size": 24,
                            "data.num_views": 40, "train.max_steps": 0 if seconds else 2,
                            "train.max_seconds": seconds, "render.video_frames": 0},
                           base="auto")
     params[fewest] = timed_run.run_config(config, options)["params"]
-  assert params[10 ** 9] < params[1]
+  assert params[10 ** 9] < params[0]
