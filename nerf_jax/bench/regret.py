@@ -169,8 +169,13 @@ def with_regret(records):
       record["gain"] = score(record) - base
       record["step_cost_ratio"] = record["seconds_per_step"] / auto_run["seconds_per_step"]
     out.append(record)
-  scores = [score(r) for r in out if score(r) is not None and not r.get("same_as_auto")]
-  return out, (None if base is None else max(0.0, max(scores) - base))
+  return out, (None if base is None else max(0.0, max(score(r) for r in rivals(out)) - base))
+
+
+def rivals(records):
+  """The runs of `records` auto's regret is taken over: every scored run but those that trained
+  auto's own config (with_regret's 'same_as_auto')."""
+  return [r for r in records if score(r) is not None and not r.get("same_as_auto")]
 
 
 def format_cell(value, form):
@@ -181,8 +186,7 @@ def format_cell(value, form):
 def table(records, regret, command):
   """table.md of one scene's `records` (with_regret's) and its `regret`."""
   scene = records[0]["scene"] if records else "-"
-  best = max((r for r in records if score(r) is not None and not r.get("same_as_auto")),
-             key=score, default={})
+  best = max(rivals(records), key=score, default={})
   lines = [f"# Auto's regret on {scene}", "", "```", command, "```", "",
            f"Auto's regret: {format_cell(regret, '.2f')} dB (best: {best.get('run', '-')}).", "",
            "| run | flipped | overrides | PSNR | mean over scales | gain | SSIM | LPIPS | steps "

@@ -96,8 +96,7 @@ def turned_on(record):
 def scene_summary(records):
   """One summary.jsonl row of a scene's results.jsonl `records` (with gains and regret)."""
   auto_run = next((r for r in records if r["run"] == "auto"), {})
-  scored = [r for r in records if regret.score(r) is not None and not r.get("same_as_auto")]
-  best = max(scored, key=regret.score, default={})
+  best = max(regret.rivals(records), key=regret.score, default={})
   row = {"scene": records[0]["scene"], "auto_config": auto_run.get("base"),
          "auto_score": regret.score(auto_run), "auto_steps": auto_run.get("steps"),
          "budget_seconds": auto_run.get("seconds"), "best_run": best.get("run"),
