@@ -9,12 +9,15 @@ Two camera rigs (`Scene.camera_rig`):
     every view, so that world coordinates are already those NDC (`nerf_jax.cameras.ndc`) expects.
 """
 
+import dataclasses
+
 import jax
 import numpy as np
 
 from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.data.dataset import Dataset
-from nerf_jax.data.scenes import cache, detail, garden, landmark, multiscale, simulator
+from nerf_jax.data.scenes import (cache, detail, garden, landmark, landmark_sfm, multiscale,
+                                  simulator)
 from nerf_jax.data.scenes.geometry import Box, Cylinder, Sphere
 from nerf_jax.data.scenes.scene import Effects, Light, Material, Medium, Object, Scene
 
@@ -99,6 +102,9 @@ SCENES = {
     # A tourist photo collection (scenes/landmark.py): a monument on a square seen from 2 to 9
     # times its size, each training photo with its own zoom and lens, one pinhole stored.
     "landmark": landmark.SCENE,
+    # `landmark` posed as a structure from motion forced to one shared focal poses it
+    # (scenes/landmark_sfm.py): the training poses absorb each photo's zoom and lens.
+    "landmark_sfm": landmark_sfm.SCENE,
 }
 
 
@@ -140,7 +146,8 @@ def make_dataset(name, num_views=100, height=None, width=None, focal=None, radiu
   `supersample > 1` is rendered by `tracer` (s x s rays per pixel), through the disk `cache`
   when large. 'multiscale' (scenes/multiscale.py): views at several distances and sizes
   (height = level 0's side, width ignored; near, far None = its own). 'landmark'
-  (scenes/landmark.py): its own cameras (radius ignored), `focal` the stored pinhole's.
+  (scenes/landmark.py) and 'landmark_sfm' (its twin, the same views): its own cameras (radius
+  ignored), `focal` the stored pinhole's.
   """
   scene = get_scene(name)
   bounds = (near, far)  # as asked: the multiscale scene has its own defaults
@@ -149,8 +156,9 @@ def make_dataset(name, num_views=100, height=None, width=None, focal=None, radiu
   height = scene.image_size if height is None else height
   width = scene.image_size if width is None else width
   focal = TINY_NERF_FOCAL * width / 100 if focal is None else focal
-  if name == landmark.SCENE.name:
-    return landmark.make_dataset(num_views, height, width, focal, pixel_center, near, far, seed)
+  if name in (landmark.SCENE.name, landmark_sfm.SCENE.name):
+    return dataclasses.replace(landmark.make_dataset(num_views, height, width, focal,
+                                                     pixel_center, near, far, seed), name=name)
   if scene.camera_rig == "forward":
     poses = forward_poses(num_views, seed=seed)
   else:

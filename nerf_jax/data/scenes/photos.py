@@ -14,7 +14,7 @@ import dataclasses
 
 import numpy as np
 
-from nerf_jax.data.scenes import landmark, occluders
+from nerf_jax.data.scenes import landmark, landmark_sfm, occluders
 from nerf_jax.data.scenes.scene import CAPTURE
 
 # Each draw has a stream of its own: default_rng(seed) alone would repeat the stream the
@@ -74,19 +74,23 @@ def photographed(train, effects, seed=0, lens_parts=LENS_PARTS):
   """The training views `train` (a Dataset) as the capture declaring `effects` took them:
   each photo through its own zoom and lens (lens: the `landmark` scene's, re-rendered by
   landmark.py, passers-by included; only the LENS_PARTS in `lens_parts`), passers-by in front
-  of the subject in some photos (transients, occluders.py), per-photo gains over the whole photo
-  (appearance), poses off by a known amount (pose_error; the true ones kept in
-  `Dataset.true_poses`)."""
+  of the subject in some photos (transients, occluders.py), the poses a structure from motion
+  with one shared focal solves from those photos (sfm_poses, landmark_sfm.py), per-photo gains
+  over the whole photo (appearance), poses off by a known amount (pose_error). The true poses
+  are kept in `Dataset.true_poses` where the stored ones differ."""
+  zoom, distortion = ("zoom" in lens_parts, "distortion" in lens_parts)
   if effects.lens and lens_parts:
-    train = landmark.photographed(train, effects.transients, seed, "zoom" in lens_parts,
-                                  "distortion" in lens_parts)[0]
+    train = landmark.photographed(train, effects.transients, seed, zoom, distortion)[0]
   elif effects.transients:
     train = occluders.with_crowd(train, seed=seed)[0]
+  if effects.sfm_poses:
+    lensed = bool(effects.lens and lens_parts)  # the lens the photos were taken through
+    train = landmark_sfm.posed(train, seed, lensed and zoom, lensed and distortion)
   if effects.appearance:
     train = dataclasses.replace(train, images=with_gains(train.images, gains(len(train), seed)))
   if effects.pose_error:
-    train = dataclasses.replace(train, poses=perturbed(train.poses, seed=seed),
-                                true_poses=train.poses)
+    true = train.poses if train.true_poses is None else train.true_poses
+    train = dataclasses.replace(train, poses=perturbed(train.poses, seed=seed), true_poses=true)
   return train
 
 

@@ -4,8 +4,8 @@ A scene is plain, frozen data; `scenes.simulator` renders it. The `effects` decl
 is checked against the content (`Scene.__post_init__`) and decides what the simulator computes:
 an effect that is not declared is never evaluated. (`unbounded` asks nothing more of the
 simulator; it tells a renderer that the content reaches beyond a bounded box. `appearance`,
-`pose_error`, `transients` and `lens` (`CAPTURE`) are the capture's, not the content's:
-scenes/photos.py applies them to the training views.)
+`pose_error`, `transients`, `lens` and `sfm_poses` (`CAPTURE`) are the capture's, not the
+content's: scenes/photos.py applies them to the training views.)
 """
 
 import dataclasses
@@ -69,6 +69,7 @@ class Effects:
   pose_error: bool = False  # the training cameras' poses are off by a known amount (photos.py)
   transients: bool = False  # some training photos have passers-by in front (occluders.py)
   lens: bool = False  # each training photo its own zoom and radial lens; one pinhole stored
+  sfm_poses: bool = False  # training poses a one-focal SfM solves (scenes/landmark_sfm.py)
 
   def names(self):
     """The declared effects: frozenset of field names."""
@@ -76,7 +77,7 @@ class Effects:
 
 
 # The effects of the capture (scenes/photos.py), not of the content.
-CAPTURE = frozenset({"appearance", "pose_error", "transients", "lens"})
+CAPTURE = frozenset({"appearance", "pose_error", "transients", "lens", "sfm_poses"})
 
 
 @dataclasses.dataclass(frozen=True)
