@@ -60,6 +60,14 @@ class Dataset:
     (nerfstudio's ply_file_path); scene-wide, so subsets keep them. None when the data has none.
   bounds: float32 [N, 2] or None, each image's own (near, far) z-depths (LLFF's poses_bounds);
     `near`, `far` cover them all. The samplers read only `near`, `far`. None when unknown.
+  point_errors: float32 [P] or None, each of `points`' mean reprojection error in pixels
+    (COLMAP's ERROR; < 0 where unknown); scene-wide, as `points`. None without tracks.
+  observations: int32 [K, 2] or None, the sparse points' tracks: (image index, point index)
+    pairs, point p of `points` seen in image i, each pair once; subsets keep the pairs of the
+    images they keep, re-indexed (`subset`). The keypoint's pixel and depth are not stored: they
+    are the point projected through the image's camera as trained (train_batches.Keypoints),
+    so every move of the world and every change of the cameras keeps them. None without tracks
+    (a COLMAP model's images and points3D: colmap.py, and beside transforms.json or LLFF).
   """
   images: np.ndarray
   poses: np.ndarray
@@ -81,6 +89,8 @@ class Dataset:
   masks: Optional[np.ndarray] = None
   points: Optional[np.ndarray] = None
   bounds: Optional[np.ndarray] = None
+  point_errors: Optional[np.ndarray] = None
+  observations: Optional[np.ndarray] = None
 
   def __post_init__(self):
     if self.image_cameras is not None and self.image_cameras.is_shared() and not isinstance(
@@ -96,6 +106,24 @@ class Dataset:
       self.lossmult = np.asarray(self.lossmult, np.float32).reshape(-1)
     if self.masks is not None:
       self.masks = self._checked_masks(self.masks)
+    if self.observations is not None:
+      self._check_tracks()
+
+  def _check_tracks(self):
+    """DataError unless `observations` pair images and points that exist and `point_errors`
+    has one entry per point."""
+    obs = np.asarray(self.observations)
+    if obs.ndim != 2 or obs.shape[1] != 2:
+      raise DataError(f"{self.name}: observations has shape {obs.shape}, not [K, 2]")
+    num_points = 0 if self.points is None else len(self.points)
+    if self.point_errors is None or len(self.point_errors) != num_points:
+      raise DataError(f"{self.name}: observations need points and point_errors of one length "
+                      f"(points: {num_points}, point_errors: "
+                      f"{None if self.point_errors is None else len(self.point_errors)})")
+    if len(obs) and not (0 <= obs.min() and obs[:, 0].max() < len(self.images)
+                         and obs[:, 1].max() < num_points):
+      raise DataError(f"{self.name}: observations name an image or a point that does not "
+                      f"exist ({len(self.images)} images, {num_points} points)")
 
   def _checked_masks(self, masks):
     """`masks` as float32 of 0 and 1 (an array, or a list with mixed sizes); DataError for NaN,
@@ -182,7 +210,9 @@ class Dataset:
                                accs=take(self.accs), true_poses=take(self.true_poses),
                                image_cameras=cameras, lossmult=take(self.lossmult),
                                labels=take(self.labels), masks=take(self.masks),
-                               bounds=take(self.bounds))
+                               bounds=take(self.bounds),
+                               observations=_observations_of(self.observations, len(self),
+                                                             indices))
 
   def split(self, holdout_from=-1):
     """(train, test): views [:holdout_from] and [holdout_from:].
@@ -204,6 +234,22 @@ class Dataset:
       raise DataError(f"{self.name}: cannot hold out every {every}th of {num} views")
     is_test = np.arange(num) % every == 0
     return self.subset(np.flatnonzero(~is_test)), self.subset(np.flatnonzero(is_test))
+
+
+def _observations_of(observations, num, indices):
+  """int32 [K', 2]: the pairs of `observations` (int32 [K, 2] or None: None stays None) of the
+  images `indices` (of `num`), image indices renumbered to the subset's (an image taken twice
+  has its pairs twice)."""
+  if observations is None:
+    return None
+  obs = np.asarray(observations, np.int32)
+  kept = np.arange(num)[indices]
+  order = np.argsort(obs[:, 0], kind="stable")
+  first = np.searchsorted(obs[order, 0], kept, side="left")
+  last = np.searchsorted(obs[order, 0], kept, side="right")
+  parts = [np.stack([np.full(b - a, new, np.int32), obs[order[a:b], 1]], -1)
+           for new, (a, b) in enumerate(zip(first, last))]
+  return np.concatenate(parts).astype(np.int32) if parts else np.zeros((0, 2), np.int32)
 
 
 def _take(values, indices):

@@ -8,6 +8,10 @@ NeRF's order (`nerf_jax.cameras.rays`) is [right, up, backwards], so on the colu
   nerf = [llff_1, -llff_0, llff_2]      and back      llff = [-nerf_1, nerf_0, nerf_2].
 images/: one image per view, matched to the rows in the order of their sorted file names.
 images_{factor}/: the same downsampled by `factor`, as LLFF's tools write them.
+sparse/0/ (optional; LLFF's archives hold it): the COLMAP model the poses came from; its points
+  and their tracks become Dataset.points, point_errors and observations (`colmap.beside`: image
+  k is images/' k-th name, or the model's k-th image by name; the points carried onto the poses
+  and moved with them by recenter and bd_factor).
 masks/ (optional): one mask per image, the same file name (or with '.png' added or in place of
   its extension), white = keep (`nerf_jax.data.masks`); a full-size mask is min-pooled by
   `factor` to its image's size.
@@ -18,7 +22,7 @@ import os
 import imageio.v3 as iio
 import numpy as np
 
-from nerf_jax.data import masks as masks_lib, validate
+from nerf_jax.data import colmap, masks as masks_lib, validate
 from nerf_jax.data.dataset import DataError, Dataset
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -91,18 +95,21 @@ def _read_masks(path, names, size, factor):
   return np.stack(out)
 
 
-def _recenter(c2w):
-  """Express float64 [N, 3, 4] camera-to-world poses in the frame of their average camera.
-
-  The average camera sits at the mean centre, looks along the mean viewing direction and keeps
-  the mean up vector (made orthogonal); after this, NDC's world -z is the mean viewing direction.
-  """
+def _average_camera(c2w):
+  """(frame float64 [3, 3], its axes as columns; centre float64 [3]) of the average camera of
+  float64 [N, 3, 4] camera-to-world poses: at the mean centre, looking along the mean viewing
+  direction, keeping the mean up vector (made orthogonal)."""
   backwards = np.sum(c2w[:, :, 2], 0)
   backwards /= np.linalg.norm(backwards)
   right = np.cross(np.sum(c2w[:, :, 1], 0), backwards)
   right /= np.linalg.norm(right)
-  frame = np.stack([right, np.cross(backwards, right), backwards], axis=1)
-  centre = c2w[:, :, 3].mean(0)
+  return np.stack([right, np.cross(backwards, right), backwards], axis=1), c2w[:, :, 3].mean(0)
+
+
+def _recenter(c2w):
+  """Express float64 [N, 3, 4] camera-to-world poses in the frame of their average camera
+  (`_average_camera`); after this, NDC's world -z is the mean viewing direction."""
+  frame, centre = _average_camera(c2w)
   rotations = np.einsum("ji,njk->nik", frame, c2w[:, :, :3])  # frame^T R
   centres = (c2w[:, :, 3] - centre) @ frame  # frame^T (t - centre), as rows
   return np.concatenate([rotations, centres[:, :, None]], axis=2)
@@ -152,13 +159,31 @@ def load_llff(path, factor=1, bd_factor=None, recenter=False):
   focal = hwf[0, 2] * scale
 
   c2w = np.concatenate([matrices[:, :, 1:2], -matrices[:, :, 0:1], matrices[:, :, 2:4]], axis=2)
+  tracks = colmap.beside(path, c2w, _model_names(path, len(c2w)), table_path)
+  points = None if tracks is None else tracks[0]
   if recenter:
+    frame, centre = _average_camera(c2w)
     c2w = _recenter(c2w)
+    points = None if points is None else (points - centre) @ frame
   if bd_factor:
     rescale = 1.0 / (bd_factor * bounds[:, 0].min())
     c2w[:, :, 3] *= rescale
     bounds = bounds * rescale
+    points = None if points is None else points * rescale
+  own = {} if tracks is None else {"points": points.astype(np.float32),
+                                   "point_errors": tracks[1].astype(np.float32),
+                                   "observations": tracks[2]}
   return Dataset(images.astype(np.float32), validate.poses(c2w, table_path),
                  (float(focal), float(focal), width * 0.5, height * 0.5),
                  near=float(bounds[:, 0].min()), far=float(bounds[:, 1].max()), name=path,
-                 forward_facing=True, masks=masks, bounds=bounds.astype(np.float32))
+                 forward_facing=True, masks=masks, bounds=bounds.astype(np.float32), **own)
+
+
+def _model_names(path, num_views):
+  """The names a COLMAP model beside the LLFF folder is matched by (colmap.beside): images/'
+  sorted names, row k the k-th (the names COLMAP saw); None (the model's images in name order,
+  LLFF's imgs2poses rule) where images/ does not hold num_views images."""
+  folder = os.path.join(path, "images")
+  names = sorted(n for n in os.listdir(folder) if n.lower().endswith(_IMAGE_SUFFIXES)) if (
+      os.path.isdir(folder)) else []
+  return names if len(names) == num_views else None

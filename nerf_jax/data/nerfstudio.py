@@ -12,6 +12,9 @@ Fields read (top level for one camera, or per frame for several; a frame's own v
     read when `min_sharpness` > 0 (`sharp_frames`);
   train_filenames / test_filenames (optional split, nerfstudio's names);
   ply_file_path (optional sparse points, used to centre and scale, and for `Dataset.aabb`);
+  a COLMAP model beside the file (colmap/sparse/0 as nerf-process and ns-process-data keep it,
+    or sparse/0): its points' tracks (`Dataset.observations`), its images matched to the frames
+    by file name, its points carried onto the frames' poses (`colmap.beside`);
   aabb_scale, scale, offset (optional, instant-ngp's scene box, `ngp_box`);
   near, far, nerf_jax_normalized (written by `nerf-process`).
   frames[].mask_path (optional, nerfstudio's masks: 0 = ignore the pixel), else instant-ngp's
@@ -244,7 +247,9 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
   None. Dataset.aabb: `ngp_box` where the file has aabb_scale, else `orient.points_box` of
   ply_file_path's points, else None; Dataset.core: instant-ngp's unit cube where the file has
   aabb_scale, else the points' box; both carried with the poses into the Dataset's frame, as
-  are Dataset.points (ply_file_path's, or None).
+  are Dataset.points (ply_file_path's, or None). With a COLMAP model beside the file (`_tracks`:
+  nerf-process's colmap/sparse/0), Dataset.points, point_errors and observations are its points
+  and tracks, its images matched to the frames by file name.
   """
   meta_path = path if path.endswith(".json") else os.path.join(path, FILENAME)
   root = os.path.dirname(meta_path)
@@ -275,6 +280,7 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
   poses = np.stack(poses)
   near, far = meta.get("near"), meta.get("far")
   points, transform = _points(root, meta, meta_path), np.eye(4)
+  tracks = _tracks(root, poses, names, meta_path)
   if not meta.get("nerf_jax_normalized", False):
     transform = orient.normalize(poses, points)
     poses, points = orient.apply(transform, poses, points)
@@ -299,8 +305,27 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
                     aabb=None if aabb is None else aabb.astype(np.float32),
                     core=None if core is None else core.astype(np.float32),
                     masks=_stack_masks(masks, sizes, one_size),
-                    points=None if points is None else points.astype(np.float32))
+                    points=None if points is None else points.astype(np.float32),
+                    **({} if tracks is None else _tracked(tracks, transform)))
   return dataset, names, _test_names(meta, names)
+
+
+def _tracks(root, poses, names, meta_path):
+  """colmap.beside's tracks of a COLMAP model under `root` (nerf-process's colmap/sparse/0,
+  ns-process-data's likewise) for the frames `names` at `poses` (the file's frame), or None."""
+  from nerf_jax.data import colmap  # pylint: disable=import-outside-toplevel
+  # (here, not at the top: colmap.py reads this module's undistortion, a cycle)
+  return colmap.beside(root, poses, names, meta_path)
+
+
+def _tracked(tracks, transform):
+  """Dataset's points, point_errors and observations of `tracks` (colmap.beside's), the points
+  carried by `transform` (float64 [4, 4], the loader's move of the world). The model's points
+  take the place of ply_file_path's (nerf-process writes the same points there); the boxes,
+  near and far stay those of ply_file_path's."""
+  points, errors, seen = tracks
+  return {"points": orient.apply(transform, None, points)[1].astype(np.float32),
+          "point_errors": errors.astype(np.float32), "observations": seen}
 
 
 def composite_frames(images, background):

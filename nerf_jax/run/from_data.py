@@ -49,7 +49,8 @@ def with_focus(config, train_ds, test_ds):
 
 def translated(dataset, offset):
   """`dataset` (a Dataset) with everything in world units moved by `offset` (float [3]): the
-  poses' centres, true poses and the aabb and core boxes."""
+  poses' centres, true poses, the aabb and core boxes and the sparse points (z-depths, bounds
+  and depths, stay as they are)."""
   offset = np.asarray(offset, np.float32)
   def move_poses(poses):
     if poses is None:
@@ -57,10 +58,11 @@ def translated(dataset, offset):
     poses = np.array(poses, np.float32)
     poses[:, :3, 3] += offset
     return poses
-  move_box = lambda box: None if box is None else np.asarray(box, np.float32) + offset
+  move = lambda a: None if a is None else np.asarray(a, np.float32) + offset
   return dataclasses.replace(dataset, poses=move_poses(dataset.poses),
                              true_poses=move_poses(dataset.true_poses),
-                             aabb=move_box(dataset.aabb), core=move_box(dataset.core))
+                             aabb=move(dataset.aabb), core=move(dataset.core),
+                             points=move(dataset.points))
 
 
 def scene_box(contraction, dataset):
