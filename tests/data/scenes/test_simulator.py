@@ -196,7 +196,7 @@ def test_whole_scene_is_in_view():
 
 def test_unknown_scene_lists_valid_names():
   with pytest.raises(ValueError, match="diffuse, exposure, fog, forward, garden, glossy, "
-                                       "landmark, multiscale, perturbed"):
+                                       "landmark, landmark_sfm, multiscale, perturbed"):
     scenes.get_scene("lego")
 
 
@@ -296,7 +296,7 @@ def test_unbounded_declaration_is_checked():
   assert scenes.Scene("far", (far,), scenes.Effects(unbounded=True)).effects.unbounded
   # The forward scene's back wall (16 x 16 at depth 5) reaches beyond the inner cube too.
   unbounded = {n for n, scene in scenes.SCENES.items() if scene.effects.unbounded}
-  assert unbounded == {"forward", "garden", "landmark"}
+  assert unbounded == {"forward", "garden", "landmark", "landmark_sfm"}
 
 
 @pytest.mark.parametrize("shape", [Sphere((0.3, -1.2, 0.5), 0.6),
