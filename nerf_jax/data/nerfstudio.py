@@ -305,8 +305,7 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
                     aabb=None if aabb is None else aabb.astype(np.float32),
                     core=None if core is None else core.astype(np.float32),
                     masks=_stack_masks(masks, sizes, one_size),
-                    points=None if points is None else points.astype(np.float32),
-                    **({} if tracks is None else _tracked(tracks, transform)))
+                    **_tracked(points, tracks, transform))
   return dataset, names, _test_names(meta, names)
 
 
@@ -318,13 +317,16 @@ def _tracks(root, poses, names, meta_path):
   return colmap.beside(root, poses, names, meta_path)
 
 
-def _tracked(tracks, transform):
-  """Dataset's points, point_errors and observations of `tracks` (colmap.beside's), the points
-  carried by `transform` (float64 [4, 4], the loader's move of the world). The model's points
-  take the place of ply_file_path's (nerf-process writes the same points there); the boxes,
-  near and far stay those of ply_file_path's."""
-  points, errors, seen = tracks
-  return {"points": orient.apply(transform, None, points)[1].astype(np.float32),
+def _tracked(points, tracks, transform):
+  """Dataset's points: `points` (ply_file_path's float [P, 3] in the Dataset's frame, or None)
+  without `tracks` (colmap.beside's, or None); with them the model's points carried by
+  `transform` (float64 [4, 4], the loader's move of the world) in their place (nerf-process
+  writes the same points to the ply; the boxes, near and far stay the ply's), and its
+  point_errors and observations."""
+  if tracks is None:
+    return {"points": None if points is None else points.astype(np.float32)}
+  tracked, errors, seen = tracks
+  return {"points": orient.apply(transform, None, tracked)[1].astype(np.float32),
           "point_errors": errors.astype(np.float32), "observations": seen}
 
 

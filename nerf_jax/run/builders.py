@@ -324,14 +324,29 @@ def make_train_step(exp, mesh=None):
 
 def make_train_data(exp):
   """train_batches.TrainData of exp's training images: targets on config.data.background, each
-  step's rays made through the training camera as `Experiment.rays` makes them."""
+  step's rays made through the training camera as `Experiment.rays` makes them; with a loss term
+  that asks for keypoint rays (losses.keypoint_rays: config.loss.depth) the sparse points'
+  keypoints too (ValueError naming the term's weight where the data has no tracks, or none of
+  them in front of a training camera)."""
   height, width, intrinsics = exp.camera()
   camera = (height, width, intrinsics, exp.near, exp.far, exp.pixel_center,
             exp.config.data.ndc)
-  return train_batches.make_train_data(exp.train_ds, camera,
+  asking = [t for t in loss_terms(exp.config, training_renderer(exp))
+            if getattr(t, "keypoint_rays", 0)]
+  field = asking and f"config.loss.{asking[0].name}.weight={asking[0].weight}"
+  if asking and exp.train_ds.observations is None:
+    raise ValueError(f"{field} needs the sparse points' tracks (a COLMAP model: a COLMAP "
+                     "folder, or sparse/0 beside transforms.json or poses_bounds.npy); "
+                     f"{exp.config.data.path or 'the built-in scene'} has none: set it to 0")
+  data = train_batches.make_train_data(exp.train_ds, camera,
                                        background.parse(exp.config.data.background),
                                        with_radii=exp.renderer.field.cones,
-                                       photo_bounds=exp.config.data.photo_bounds)
+                                       photo_bounds=exp.config.data.photo_bounds,
+                                       keypoints=bool(asking))
+  if asking and not len(data.keypoints):
+    raise ValueError(f"{field}: no observation of a sparse point lies in front of a training "
+                     "camera, inside its image and its near..far, unmasked: set it to 0")
+  return data
 
 
 def eval_settings(config):

@@ -14,6 +14,11 @@ With batching='patches' a batch is square patches of P x P neighbouring pixels, 
 image, patch after patch, each row-major (RobustNeRF's patches: a loss term can look at a
 pixel's neighbours, train/losses/robust.py).
 
+Keypoints (`Keypoints`, with a loss term that asks for them: train/losses/depth.py): each
+observation of a sparse point (`Dataset.observations`) projected through its image's camera as
+trained, a ray through the exact sub-pixel position and the ray's t at the point; a step draws
+its own (`draw_keypoints`) and makes their rays (`keypoint_rays`) as it does its pixels'.
+
 Masks (`Dataset.masks`): a masked pixel is never trained on. Its colour is zeroed before it
 reaches the device; random rays are drawn from the kept pixels alone (`TrainData.kept`); whole
 images and patches carry it with weight exactly 0 (`TrainData.mask`), so every weighted loss
@@ -95,6 +100,8 @@ class TrainData:
     drawn pixel's (LossInputs.mask).
   bounds: float32 [N, 2] or None: each image's own (near, far) z-depths (Dataset.bounds, with
     data.photo_bounds): every ray of the image is sampled between them, not the shared camera's.
+  keypoints: Keypoints [K] or None: the sparse points' observations in the training images
+    (make_train_data's `keypoints`); None when no loss term asks for them.
   """
   rays: Rays
   rgb: jnp.ndarray
@@ -111,9 +118,39 @@ class TrainData:
   kept: jnp.ndarray = None
   mask: jnp.ndarray = None
   bounds: jnp.ndarray = None
+  keypoints: "Keypoints" = None
 
 
-def make_train_data(ds, camera, rgb_background, with_radii=False, photo_bounds=False):
+@flax.struct.dataclass
+class Keypoints:
+  """Observations of the sparse points: K keypoints, each a training image's view of one point.
+
+  image: int32 [K], the training image. at: float32 [K, 2], (column i, row j) of the ray through
+    the point, as `rays.pixel_rays` takes them (sub-pixel: the point projected through the
+    image's camera, pixel centre offset included).
+  t: float32 [K], the ray's t at the point: its z-depth, or in NDC s = 1 - NDC_NEAR / depth
+    (cameras/ndc.py; depth the point's -z in world).
+  scale: float32 [K], depth · dt/d depth at the point: how far t moves when the depth grows by a
+    share of itself, per unit share (the depth itself; NDC_NEAR / depth in NDC): a depth spread
+    given as a share of the depth is that share times `scale` in t.
+  error: float32 [K], the point's reprojection error over the mean error of the points kept
+    (1 where the data does not know it or the mean is 0).
+  """
+  image: jnp.ndarray
+  at: jnp.ndarray
+  t: jnp.ndarray
+  scale: jnp.ndarray
+  error: jnp.ndarray
+
+  def __len__(self):
+    return self.t.shape[0]
+
+
+NDC_NEAR = 1.0  # the world plane z = -1 where pixel_rays' NDC rays start (ndc_rays' near there)
+
+
+def make_train_data(ds, camera, rgb_background, with_radii=False, photo_bounds=False,
+                    keypoints=False):
   """TrainData of every pixel of the images of `ds` (a Dataset), targets on `rgb_background`
   (float32 [3], background.parse's); rays are made per step from the poses and `camera`:
   (height, width, intrinsics, near, far, pixel_center, use_ndc), see TrainData.camera
@@ -121,7 +158,14 @@ def make_train_data(ds, camera, rgb_background, with_radii=False, photo_bounds=F
   (`ds.image_cameras`) the pixels are one flat run and each image's own camera is used (its
   height, width and intrinsics in `camera` are ignored). with_radii: see TrainData.
   photo_bounds: each image's rays between its own bounds (TrainData.bounds; ds.bounds must be
-  set)."""
+  set). keypoints: fill TrainData.keypoints from ds.observations (`keypoints_of`; ds must have
+  them)."""
+  data = _pixel_data(ds, camera, rgb_background, with_radii, photo_bounds)
+  return data.replace(keypoints=keypoints_of(data, ds)) if keypoints else data
+
+
+def _pixel_data(ds, camera, rgb_background, with_radii, photo_bounds):
+  """make_train_data's TrainData without keypoints."""
   height, width, intrinsics, near, far, pixel_center, use_ndc = camera
   lossmult = None if ds.lossmult is None else jnp.asarray(ds.lossmult, jnp.float32)
   if photo_bounds and ds.bounds is None:
@@ -192,22 +236,26 @@ def pixel_rays_of(data, image, pixel, poses=None, intrinsics=None):
 
 def _pixel_rays(data, image, pixel, poses, intrinsics):
   """pixel_rays_of's rays between the shared camera's near and far."""
+  width = data.camera[1] if data.cameras is None else data.cameras[image][:, 4].astype(jnp.int32)
+  i = (pixel % width).astype(jnp.float32)
+  j = (pixel // width).astype(jnp.float32)
+  return _rays_at(data, image, i, j, poses, intrinsics)
+
+
+def _rays_at(data, image, i, j, poses, intrinsics):
+  """Rays [B] through (column i, row j) (float32 [B], `rays.pixel_rays`' pixel coordinates) of
+  images `image` (int32 [B]), between the shared camera's near and far (see pixel_rays_of)."""
   poses = data.poses if poses is None else poses
   height, width, pinhole, near, far, pixel_center, use_ndc = data.camera
   if intrinsics is not None and data.cameras is not None:
     raise ValueError(INTRINSICS_NEED_ONE_CAMERA)
   if data.cameras is not None:  # each ray through its own image's camera
     cams = data.cameras[image]
-    widths = cams[:, 4].astype(jnp.int32)
-    i = (pixel % widths).astype(jnp.float32)
-    j = (pixel // widths).astype(jnp.float32)
 
     def one(i, j, c2w, cam):  # cam: fx, fy, cx, cy, width, height
       return pixel_rays(i, j, cam[5], cam[4], tuple(cam[:4]), c2w, near, far, pixel_center,
                         use_ndc, data.with_radii)
     return jax.vmap(one)(i, j, poses[image], cams)
-  i = (pixel % width).astype(jnp.float32)
-  j = (pixel // width).astype(jnp.float32)
   if intrinsics is not None:
     one = lambda i, j, c2w, lens: pixel_rays(i, j, height, width, pinhole, c2w, near, far,
                                              pixel_center, use_ndc, data.with_radii, lens)
@@ -215,6 +263,90 @@ def _pixel_rays(data, image, pixel, poses, intrinsics):
   one = lambda i, j, c2w: pixel_rays(i, j, height, width, pinhole, c2w, near, far,
                                      pixel_center, use_ndc, data.with_radii)
   return jax.vmap(one)(i, j, poses[image])
+
+
+def keypoint_rays(data, keypoints, poses=None, intrinsics=None):
+  """Rays [R] of `keypoints` (Keypoints [R]): each through its image's camera at its exact
+  sub-pixel position, as `pixel_rays_of` makes a pixel's (poses, intrinsics: as there; between
+  its image's own bounds where data.bounds is set)."""
+  image = keypoints.image
+  rays = _rays_at(data, image, keypoints.at[:, 0], keypoints.at[:, 1], poses, intrinsics)
+  if data.bounds is None:
+    return rays
+  return rays.replace(near=data.bounds[image, 0], far=data.bounds[image, 1])
+
+
+def draw_keypoints(data, count, key):
+  """Keypoints [count] drawn uniformly (with replacement) from data.keypoints with `key`."""
+  pick = jax.random.randint(key, (count,), 0, len(data.keypoints))
+  return jax.tree_util.tree_map(lambda a: a[pick], data.keypoints)
+
+
+def keypoints_of(data, ds):
+  """Keypoints of the observations of `ds` (a Dataset with observations) through the cameras
+  of `data` (its TrainData, as make_train_data builds it: the poses, cameras, bounds and NDC the
+  rays are made with). Dropped: an observation whose point is behind its camera, outside its
+  image (no pixel's ray is nearest it: pixel k spans [k - 0.5, k + 0.5) in `at`) or outside its
+  ray's [near, far]; and every observation of a point that a mask hides in
+  any training image (Dataset.masks: the point may lie on what the mask hides, a passer-by).
+  float64 on the host; K may be 0 (the caller says what that means)."""
+  image, point = np.asarray(ds.observations, np.int64).T
+  at, t, scale, inside = _project(data, image, np.asarray(ds.points, np.float64)[point])
+  if ds.masks is not None:
+    hidden = np.zeros(len(ds.points), bool)
+    hidden[point[inside & ~_kept_at(ds.masks, image, at, inside)]] = True
+    inside &= ~hidden[point]
+  errors = np.asarray(ds.point_errors, np.float64)
+  known = np.isfinite(errors) & (errors >= 0)  # COLMAP writes -1 for an error it never set
+  seen = np.unique(point[inside])
+  mean = errors[seen][known[seen]].mean() if known[seen].any() else 0.0
+  ratio = np.where(known, errors / mean, 1.0) if mean > 0 else np.ones_like(errors)
+  ratio = ratio[point[inside]]
+  as32 = lambda a: jnp.asarray(a, jnp.float32)
+  return Keypoints(image=jnp.asarray(image[inside], jnp.int32), at=as32(at[inside]),
+                   t=as32(t[inside]), scale=as32(scale[inside]), error=as32(ratio))
+
+
+def _project(data, image, points):
+  """(at float64 [K, 2], t float64 [K], scale float64 [K], inside bool [K]) of world `points`
+  (float64 [K, 3]) seen from images `image` (int [K]) through data's cameras (Keypoints'
+  fields; inside: in front of the camera, in its image, t within the ray's [near, far])."""
+  height, width, pinhole, near, far, pixel_center, use_ndc = data.camera
+  poses = np.asarray(data.poses, np.float64)[image]
+  cam = np.einsum("kji,kj->ki", poses[:, :3, :3], points - poses[:, :3, 3])  # R^T (p - o)
+  depth = -cam[:, 2]  # the camera looks down -z
+  if data.cameras is not None:
+    fx, fy, cx, cy, widths, heights = np.asarray(data.cameras, np.float64)[image].T
+  else:
+    (fx, fy, cx, cy), widths, heights = pinhole, width, height
+  front = depth > 0
+  safe = np.where(front, depth, 1.0)  # behind the camera: dropped, any finite value will do
+  at = np.stack([fx * cam[:, 0] / safe + cx, -fy * cam[:, 1] / safe + cy], -1) - pixel_center
+  # Pixel k's ray is at k (pixel_rays adds pixel_center itself), so the pixel spans
+  # [k - 0.5, k + 0.5) in `at`, whatever the data's convention of pixel centres.
+  col, row = np.floor(at + 0.5).T
+  if use_ndc:  # t along the NDC ray: s = 1 - near / (its world -z) (cameras/ndc.py)
+    world_depth = np.where(points[:, 2] < 0, -points[:, 2], np.inf)  # behind z = 0: s = 1
+    t, scale = 1.0 - NDC_NEAR / world_depth, NDC_NEAR / world_depth
+  else:
+    t, scale = depth, depth
+  if data.bounds is not None:
+    near, far = np.asarray(data.bounds, np.float64)[image].T
+  inside = (front & (col >= 0) & (col < widths) & (row >= 0) & (row < heights) & (t > near)
+            & (t < far))
+  return at, t, scale, inside
+
+
+def _kept_at(masks, image, at, inside):
+  """bool [K]: whether the mask of image `image` keeps the pixel holding each of `at` (float
+  [K, 2], pixel_rays' coordinates: pixel k spans [k - 0.5, k + 0.5)); True where not `inside`
+  (not looked up)."""
+  col, row = np.floor(at + 0.5).astype(np.int64).T
+  kept = np.ones(len(image), bool)
+  for index in np.unique(image[inside]):  # image by image: masks may differ in size
+    here = np.flatnonzero(inside & (image == index))
+    kept[here] = np.asarray(masks[index])[row[here], col[here]] > 0
+  return kept
 
 
 def _targets(ds, rgb_background):

@@ -14,6 +14,13 @@ each ray is made through its image's refined focal and the shared lens
 (cameras/intrinsics_refinement.py, params['intrinsics']; the bands open coarse to fine only
 with pose refinement).
 
+With a loss term that asks for keypoint rays (losses.keypoint_rays: the depth term) each step
+also draws that many keypoints (train_batches.draw_keypoints, from a key of their own folded from
+the step's) and renders their rays with the same parameters, each with its image (appearance
+codes), the sample budget scaled to their share of the batch; their rays come from the refined
+cameras but carry no gradient to them (their depths were measured through the cameras as
+loaded). Without such a term nothing of them is drawn or rendered.
+
 With several devices each batch is split over them (see parallel.py); the parameters are
 replicated.
 """
@@ -33,6 +40,9 @@ from nerf_jax.samplers import occupancy
 from nerf_jax.train import losses, parallel, train_batches
 from nerf_jax.train.state import TrainState
 
+# fold_in(step key, KEYPOINTS_KEY) draws and renders the step's keypoint rays: a stream of its
+# own (a fold_in, not a split, so the batch's and the render's keys stay as they were).
+KEYPOINTS_KEY = 0x4B59
 
 @dataclasses.dataclass(frozen=True)
 class StepSettings:
@@ -136,6 +146,7 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
   """
   fixed_background = jnp.asarray(settings.background)
   refine, lens = settings.pose_refinement, settings.intrinsics_refinement
+  num_keypoints = losses.keypoint_rays(terms)
 
   def bands_at(step, planned_steps):
     """BARF's α: positional-encoding bands (or grid levels) open between the shares
@@ -157,7 +168,20 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
       return None
     return posed
 
-  def loss_fn(params, buffers, batch, key, data=None, bands=None, step=None):
+  def render_keypoints(params, buffers, data, keypoints, key, bands, batch_rays):
+    """The renderer's outputs of the rays of `keypoints` (train_batches.Keypoints [R]), with
+    the sample budget scaled from the batch's `batch_rays` to their R."""
+    poses = pose_refinement.corrected(data.poses, params["poses"]) if refine else None
+    rays = jax.lax.stop_gradient(train_batches.keypoint_rays(
+        data, keypoints, poses, params["intrinsics"] if lens else None))
+    if ray_renderer.uses_images:
+      rays = rays.replace(image=keypoints.image)
+    budget = math.ceil(ray_renderer.sample_budget * len(keypoints) / batch_rays)
+    return dataclasses.replace(ray_renderer, sample_budget=budget).render(
+        {"params": params, **buffers}, rays, key, fixed_background, settings.remat_chunk, bands)
+
+  def loss_fn(params, buffers, batch, key, data=None, bands=None, step=None, keypoints=None,
+              keypoint_key=None):
     render_key, bg_key = jax.random.split(key)
     bg, target = fixed_background, batch.rgb
     if settings.random_background:
@@ -178,8 +202,10 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
       outs = render(rays, render_key, bg)
     else:  # only the first `posed` rays' gradient reaches the poses
       outs = _render_split(render, rays, render_key, bg, posed)
+    keypoint_outs = None if keypoints is None else render_keypoints(
+        params, buffers, data, keypoints, keypoint_key, bands, rays.near.shape[0])
     return losses.total(terms, losses.LossInputs(outs, target, rays, params, batch.weight,
-                                                 batch.mask, step))
+                                                 batch.mask, step, keypoint_outs, keypoints))
 
   def update_buffers(state, run_key):
     for update in buffer_updates:
@@ -192,9 +218,13 @@ def make_train_step(ray_renderer, tx, terms, settings, optimizer_for=None, mesh=
     batch = parallel.shard_batch(
         train_batches.draw_batch(data, settings.batch, batch_key, state.step, run_key), mesh)
     buffers = update_buffers(state, run_key)
+    keypoints = keypoint_key = None
+    if num_keypoints:
+      draw_key, keypoint_key = jax.random.split(jax.random.fold_in(key, KEYPOINTS_KEY))
+      keypoints = train_batches.draw_keypoints(data, num_keypoints, draw_key)
     grads, stats = jax.grad(loss_fn, has_aux=True)(state.params, buffers, batch, render_key,
                                                    data, bands_at(state.step, planned_steps),
-                                                   state.step)
+                                                   state.step, keypoints, keypoint_key)
     finite = jnp.isfinite(stats["loss"]) & jnp.all(jnp.array(
         [jnp.all(jnp.isfinite(g)) for g in jax.tree_util.tree_leaves(grads)]))
     step_tx = tx if planned_steps is None else optimizer_for(planned_steps)

@@ -8,12 +8,18 @@ terms' losses in their order (`total`) and logs every stat as '<name>/<stat>' (t
 A term is one module defining `LOSS = losses.Loss(name, Settings, build)` (a `Loss` record):
 `config.loss.terms` lists the run's terms, in the order they are added, by their registered
 name (`REGISTRY`: colour, distortion, pose_prior, total_variation, transient, robust,
-masked_empty, the modules of this package) or the dotted path of any importable module; each term's settings are
+masked_empty, depth, the modules of this package) or the dotted path of any importable module; each term's settings are
 its own section, `config.loss.<name>` (docs/extending.md, "Adding a loss term"). The entry layer
 builds them (run/builders.loss_terms), adds 'transient' where the field has a transient head,
 and appends the sampler's own terms (its `loss_terms()`). A term whose class has
 `replaces_colour = True` (robust) is itself the photometric loss: beside it the entry layer
 builds the colour term with weight 0 (its PSNR only), so the two are never added.
+
+A term with `keypoint_rays` > 0 (depth) asks for keypoint rays: each step then also draws that
+many observations of the sparse points (the most any term asks for; train_batches.Keypoints),
+renders their rays with the same parameters, and hands their outputs and targets to every term
+(LossInputs.keypoint_outputs, keypoints); the entry layer fills TrainData.keypoints. No term
+asks: nothing of them is built, drawn or rendered.
 """
 
 import dataclasses
@@ -41,6 +47,10 @@ class LossInputs:
   masked (its weight is 0 and its target black; a term that takes statistics of the batch
   leaves it out of them: robust.py); None = data without masks.
   step: int32 [] or None, the step number (the train step's; None outside it).
+  keypoint_outputs: the renderer's outputs (as `outputs`) of the step's R keypoint rays, or None
+    when no term asks for them (`keypoint_rays`, module docstring).
+  keypoints: train_batches.Keypoints [R] or None, those rays' keypoints: their images, the t
+    at their points and how t scales with the depth.
   """
   outputs: dict
   target: jnp.ndarray
@@ -49,6 +59,8 @@ class LossInputs:
   weight: Any = None
   mask: Any = None
   step: Any = None
+  keypoint_outputs: Any = None
+  keypoints: Any = None
 
 
 # The render passes of the renderer's outputs (outputs['sampler'] is a sampler's, not a pass).
@@ -92,7 +104,7 @@ class Loss(components.Component):
 class Settings:
   """config.loss's own field (each term's settings are its section, config.loss.<name>)."""
   terms: Tuple[str, ...] = ("colour", "distortion", "pose_prior", "total_variation", "transient",
-                            "robust", "masked_empty")  # added in this order
+                            "robust", "masked_empty", "depth")  # added in this order
 
 
 def check_weight(weight, term, example):
@@ -112,7 +124,14 @@ REGISTRY = components.Registry("loss term", "config.loss.terms", "LOSS", "loss",
     "transient": "nerf_jax.train.losses.transient",
     "robust": "nerf_jax.train.losses.robust",
     "masked_empty": "nerf_jax.train.losses.masked_empty",
+    "depth": "nerf_jax.train.losses.depth",
 })
+
+
+def keypoint_rays(terms):
+  """The keypoint rays a step draws for `terms`: the most any asks for (`keypoint_rays`), 0 =
+  none."""
+  return max((getattr(term, "keypoint_rays", 0) for term in terms), default=0)
 
 
 def total(terms, inputs):
