@@ -21,9 +21,9 @@ ANTIALIAS_MULTISAMPLE = False
 # Transients (passers-by): RobustNeRF's loss above this share of clustered outliers after the
 # warm-up; crowd 0.027, the clean built-in scenes <= 0.0033 at 48 px (docs/photo_collections.md).
 TRANSIENT_SHARE = 0.01
-# A photo collection's subject fills the inner region (data.subject) when the sparse points or
-# the masks mark a subject whose largest half-extent is under this share of the cameras' median
-# distance from it (landmark: 0.5 of ~4.2; crowd's masks mark passers-by, no subject).
+# A photo collection's subject fills the inner region (data.subject) when the masks or the
+# sparse points mark a subject whose largest half-extent is under this share of the cameras'
+# median distance from it (landmark: 0.5 of ~4.2; crowd's masks mark passers-by, no subject).
 SUBJECT_SHARE = 0.25
 # Effects that pay only after enough steps: {field auto turns on: (its value off, the fewest steps
 # from which it pays)}. Auto leaves one off where the run's step budget holds fewer: the steps
@@ -100,7 +100,8 @@ def transient_effects(dataset, collection, patch_size):
 
 def subject_effects(dataset, collection, contraction="", stored_camera=True):
   """({field: value}, [line]): for a photo collection (`collection`), data.subject='auto' where
-  the sparse points or the masks of `dataset` (one camera) mark a subject (subject.subject_box)
+  the masks or the sparse points of `dataset` (the training photos, each through its own camera:
+  a resampled view would crop them) mark a subject (subject.subject_box)
   whose largest half-extent is under SUBJECT_SHARE of the cameras' median distance from its
   centre, and the space beyond the inner region contracted (CONTRACTION) unless `contraction`
   (the run's) already is: the cameras and the rest of the world lie outside it; where the
@@ -231,7 +232,7 @@ def auto_config(config, dataset, backend=None, before_loading=({}, [])):
           if (base.get(k) != v or k in config.auto_flags) and k not in _OWN}
   stored_camera = dataset.image_cameras is None  # one camera stored for every photo
   decisions = characterise.decide(dataset)  # scales from every camera, the rest from image 0's
-  dataset = dataset.one_camera()
+  photos, dataset = dataset, dataset.one_camera()  # the subject: each photo through its camera
   effects, lines = dict(before_loading[0]), list(before_loading[1])
   if decisions is None:
     chosen = "capture"
@@ -283,7 +284,7 @@ def auto_config(config, dataset, backend=None, before_loading=({}, [])):
         lines.append(f"{settings[d.name] if d.found else absent}: {d.reason}")
     lines += box_lines
     fill, fill_lines = subject_effects(
-        dataset, found["appearance"].found,
+        photos, found["appearance"].found,
         user.get("data.contraction", effects.get("data.contraction", result.data.contraction)),
         stored_camera)
     effects.update(fill)

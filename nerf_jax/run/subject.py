@@ -9,15 +9,19 @@ Names (numpy, world units):
   region: (centre float64 [3], half float) the cube carved when the box is found by carving.
 
 The sources, in the order `subject_box` tries them:
+  masks   masks that keep a subject (Dataset.masks): where at least MASK_VOTE of the photos
+          that see a point (MASK_SEEN of all) keep its pixel (carved; visual_hull.mask_votes,
+          each photo through its own camera), if that is far smaller than the cameras' region
+          (masks of passers-by keep nearly everything);
   points  the sparse points (Dataset.points): their POINT_PERCENTILE..(100 - it) percentiles;
   bounds  each image's (near, far) depths (Dataset.bounds, LLFF's): where every camera's depth
           slab holds a point (the slabs' intersection, carved);
-  masks   masks that keep a subject (Dataset.masks): where at least MASK_VOTE of the photos
-          that see a point (MASK_SEEN of all) keep its pixel (carved), if that is far smaller
-          than the cameras' region (masks of passers-by keep nearly everything);
   focus   else the cameras: centred on their focus point, out to the farthest camera
           (today's box about data.focus).
   box     by hand (data.subject_box), as K-Planes sizes each scene; never tried by 'auto'.
+Masks come first: they say which pixels are the subject, while structure from motion matches
+whatever the photos share, the square, the façades and the crowd as much as the monument, and
+LLFF's bounds are those points' depths. Where masks mark no subject they are passed over.
 """
 
 import dataclasses
@@ -25,10 +29,14 @@ import dataclasses
 import ml_collections
 import numpy as np
 
+from nerf_jax.data.dataset import DataError
 from nerf_jax.run import characterise
+from nerf_jax.samplers import visual_hull
 
 POINT_PERCENTILE = 1.0  # the points' box: their 1st to 99th percentiles on each axis
 CARVE_CELLS = 48  # cells per side of a carved grid; carved twice, the second time on the box found
+MAX_ZOOMS = 4  # a subject smaller than the cells: located by their footprints, each time on a
+#   grid over the cells touched and two around them, at most this often
 MASK_VOTE = 0.8  # a point is the subject where 80% of the photos that see it keep it (not all:
 #   passers-by hide parts of it, per-photo zoom that the stored camera lacks shifts its edges;
 #   landmark at 48 px, 60 views: 0.8 finds its box within 0.11 clean, 0.22 from the photos)
@@ -36,14 +44,14 @@ MASK_SEEN = 0.5  # ... and at least half of all photos see it (not a point a few
 MASK_SUBJECT = 0.5  # masks mark a subject when its box is under half the carved region's size
 MARGIN = 1.1  # the subject's largest half-extent times this fills the inner region
 MIN_NEAR = 1e-3  # a camera inside the subject's box: its near bound stays positive
-SOURCES = ("auto", "points", "bounds", "masks", "focus", "box")  # data.subject's values besides ''
+SOURCES = ("auto", "masks", "points", "bounds", "focus", "box")  # data.subject's values besides ''
 
 
 @dataclasses.dataclass(frozen=True)
 class SubjectBox:
   centre: np.ndarray  # float64 [3]
   half: np.ndarray  # float64 [3], half-extent per axis
-  source: str  # 'points', 'bounds', 'masks', 'focus' or 'box'
+  source: str  # 'masks', 'points', 'bounds', 'focus' or 'box'
 
 
 def cameras_region(dataset):
@@ -70,17 +78,25 @@ def _grid(centre, half, cells):
   return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
 
 
-def carve(keep, region, cells=CARVE_CELLS):
+def carve(keep, region, cells=CARVE_CELLS, touch=None):
   """(lo, hi) float64 [3] of the cells `keep` keeps, carved twice: on `region`, then on the kept
   cells' box grown by two cells, each box grown by half a cell; None when nothing is kept.
-  keep: function of points float64 [M, 3] -> bool [M]."""
+  keep: function of points float64 [M, 3] -> bool [M]. touch: None, or a function of (points,
+  reach: a cell's circumscribed radius) -> bool [M], whether what `keep` keeps may touch each
+  point's cell: where a grid keeps no cell centre (a subject smaller than its cells, seen from
+  far away), the cells `touch` keeps give the next grid instead, at most MAX_ZOOMS times."""
   centre, half = np.asarray(region[0], np.float64), np.full(3, float(region[1]))
-  for _ in range(2):
-    points = _grid(centre, half, cells)
-    kept = points[keep(points)]
-    if not len(kept):
+  carved, zooms = 0, 0
+  while carved < 2:
+    points, cell = _grid(centre, half, cells), 2 * half / cells
+    chosen = keep(points)
+    if chosen.any():
+      carved += 1
+    elif touch is not None and zooms < MAX_ZOOMS:
+      chosen, zooms = touch(points, 0.5 * float(np.linalg.norm(cell))), zooms + 1
+    if not chosen.any():
       return None
-    cell = 2 * half / cells
+    kept = points[chosen]
     lo, hi = kept.min(0) - 0.5 * cell, kept.max(0) + 0.5 * cell
     centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo) + 2 * cell
   return lo, hi
@@ -105,37 +121,28 @@ def from_bounds(poses, bounds, region):
                                              "bounds")
 
 
-def _pixels(points, pose, height, width, intrinsics, pixel_center):
-  """(row, column) int [M] of the pixels world points float [M, 3] fall in, and bool [M], whether
-  in front of the camera and inside the image (rays.pixel_rays inverted)."""
-  fx, fy, cx, cy = intrinsics
-  local = (points - pose[:3, 3]) @ pose[:3, :3]
-  depth = -local[:, 2]
-  safe = np.maximum(depth, 1e-9)  # behind the camera: masked out by `depth` below
-  column = np.floor(cx + fx * local[:, 0] / safe - pixel_center + 0.5).astype(np.int64)
-  row = np.floor(cy - fy * local[:, 1] / safe - pixel_center + 0.5).astype(np.int64)
-  seen = (depth > 0) & (column >= 0) & (column < width) & (row >= 0) & (row < height)
-  return np.clip(row, 0, height - 1), np.clip(column, 0, width - 1), seen
-
-
 def from_masks(dataset, region):
   """SubjectBox where at least MASK_VOTE of the photos that see a point (at least MASK_SEEN of
-  them all) keep its pixel, carved in `region`; None where the masks keep no such region or one
-  at least MASK_SUBJECT of the region's size on its largest axis (masks of passers-by, not of a
-  subject)."""
-  poses = np.asarray(dataset.poses, np.float64)
-  def keep(points):
-    seen, kept = np.zeros(len(points)), np.zeros(len(points))
-    for k in range(len(dataset)):
-      height, width, intrinsics = dataset.cameras.camera(k)
-      row, column, inside = _pixels(points, poses[k], height, width, intrinsics,
-                                    dataset.pixel_center)
-      seen += inside
-      kept += inside & (np.asarray(dataset.mask(k))[row, column] > 0)
+  them all) keep its pixel (visual_hull.mask_votes: each photo through its own camera and size),
+  carved in `region` (cells coarser than the subject: located by their footprints, `carve`), or
+  the reason there is none (str): the masks keep no such region, or one at least MASK_SUBJECT of
+  the region's size on its largest axis (masks of passers-by, not of a subject)."""
+  cameras = dataset.cameras
+  def vote(points, radius):
+    seen, kept = visual_hull.mask_votes(dataset.masks, dataset.poses, cameras, points, radius,
+                                        dataset.pixel_center)
     return (seen >= MASK_SEEN * len(dataset)) & (kept >= MASK_VOTE * seen)
-  box = carve(keep, region)
-  if box is None or np.max(box[1] - box[0]) >= MASK_SUBJECT * 2 * region[1]:
-    return None
+  def touch(points, reach):  # a photo keeps a cell where its mask keeps a pixel of its footprint
+    return vote(points, lambda k, depth: visual_hull.footprint_radius(reach, cameras.camera(k),
+                                                                      depth))
+  box = carve(lambda points: vote(points, lambda k, depth: 0), region, touch=touch)
+  if box is None:
+    return (f"no point that {100 * MASK_SEEN:.0f}% of the photos see is kept by "
+            f"{100 * MASK_VOTE:.0f}% of those that see it (the masks agree on no subject)")
+  share = float(np.max(box[1] - box[0])) / (2 * region[1])
+  if share >= MASK_SUBJECT:
+    return (f"the region they keep spans {100 * share:.0f}% of the cameras' region (>= "
+            f"{100 * MASK_SUBJECT:.0f}%): masks of passers-by, not of a subject")
   return SubjectBox(0.5 * (box[0] + box[1]), 0.5 * (box[1] - box[0]), "masks")
 
 
@@ -151,23 +158,39 @@ def from_hand(box):
 
 def subject_box(dataset, source="auto", box=()):
   """SubjectBox of the training views `dataset` (a Dataset) from `source` (module docstring):
-  'auto' tries points, bounds, masks, then the cameras' focus; a named source gives None where
+  'auto' tries masks, points, bounds, then the cameras' focus; a named source gives None where
   the data lacks it ('focus' never does); 'box' is `box` (data.subject_box) by hand."""
+  return find_box(dataset, source, box)[0]
+
+
+def find_box(dataset, source="auto", box=()):
+  """(SubjectBox or None, [why]): `subject_box`'s box and, for each source passed over, why
+  ('masks: ...'). DataError naming the source where the box found has no extent on any axis
+  (sparse points all at one place, cameras all at one place)."""
   if source == "box":
-    return from_hand(box)
+    return from_hand(box), []
   region = cameras_region(dataset)
   finders = {
-      "points": lambda: from_points(dataset.points),
-      "bounds": lambda: (None if dataset.bounds is None else
-                         from_bounds(dataset.poses, dataset.bounds, region)),
-      "masks": lambda: None if dataset.masks is None else from_masks(dataset, region),
+      "masks": lambda: "the data has no masks" if dataset.masks is None else from_masks(
+          dataset, region),
+      "points": lambda: from_points(dataset.points) or "the data has no sparse points (or under 4)",
+      "bounds": lambda: ("the data has no per-image bounds (Dataset.bounds)"
+                         if dataset.bounds is None else
+                         from_bounds(dataset.poses, dataset.bounds, region) or
+                         "no point lies within every camera's bounds"),
       "focus": lambda: SubjectBox(region[0], np.full(3, region[1]), "focus"),
   }
+  reasons = []
   for name in (finders if source == "auto" else (source,)):
-    box = finders[name]()
-    if box is not None:
-      return box
-  return None
+    found = finders[name]()
+    if isinstance(found, SubjectBox):
+      if not np.max(found.half) > 0:
+        raise DataError(f"{dataset.name or 'the data'}: the subject's box from the {name} has "
+                        "no extent (half-extent 0 on every axis); give data.subject_box by "
+                        "hand (data.subject='box')")
+      return found, reasons
+    reasons.append(f"{name}: {found}")
+  return None, reasons
 
 
 def moved(dataset, centre, scale):
@@ -215,10 +238,10 @@ def with_subject(config, train_ds, test_ds):
     return config, train_ds, test_ds
   if source not in SOURCES:
     raise ValueError(f"config.data.subject={source!r}: use '' (off) or one of {SOURCES}")
-  box = subject_box(train_ds, source, config.data.subject_box)
+  box, reasons = find_box(train_ds, source, config.data.subject_box)
   if box is None:
-    raise ValueError(f"config.data.subject={source!r}: the data has no {source} to find the "
-                     "subject from (use 'auto')")
+    raise ValueError(f"config.data.subject={source!r}: no subject's box from the {reasons[0]} "
+                     "(use 'auto')")
   bound = config.data.scene_bound if config.data.scene_bound > 0 else 1.0
   scale = bound / (MARGIN * float(np.max(box.half)))
   train_ds, test_ds = (moved(d, box.centre, scale) for d in (train_ds, test_ds))

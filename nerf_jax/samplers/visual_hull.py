@@ -58,6 +58,20 @@ def dilation_radius(poses, intrinsics, bound, resolution):
   return int(math.ceil(0.5 * math.sqrt(3) * cell * focal / nearest)) + 1
 
 
+def footprint_radius(reach, camera, depth):
+  """int64 [M]: `dilation_radius` point by point: the pixels that a ball of radius `reach`
+  (world units) about each point spans in `camera` ((height, width, (fx, fy, cx, cy))), seen
+  from its z-depth (float [M]) less `reach`, plus one; the image's larger side (any pixel)
+  where the camera is within `reach` of the point."""
+  height, width, (fx, fy, _, _) = camera
+  focal = max(fx, fy)
+  nearest = np.asarray(depth, np.float64) - reach
+  # A camera within reach sees the ball anywhere: the whole image, and no division by <= 0.
+  pixels = np.ceil(reach * focal / np.maximum(nearest, 1e-12)) + 1
+  return np.where(nearest > 0, np.minimum(pixels, max(height, width)),
+                  max(height, width)).astype(np.int64)
+
+
 def carve(accs, poses, intrinsics, bound, resolution, pixel_center=0.5, masks=None):
   """The visual hull on the R^3 cells of the box [-bound, bound]^3 (module docstring).
 
@@ -110,10 +124,54 @@ def dilated(mask, radius):
 def pixels_seen(points, pose, intrinsics, height, width, pixel_center):
   """(row, column) int32 [...] of the pixel each point float32 [..., 3] falls in (clamped to
   the image) and bool [...], whether it is in front of the camera and inside the image."""
-  column, row, depth = project(points, pose, intrinsics, pixel_center)
+  return pixel_indices(*project(points, pose, intrinsics, pixel_center), height, width)
+
+
+def pixel_indices(column, row, depth, height, width):
+  """`pixels_seen` of a projection (`project`'s column, row, depth, float32 [...])."""
   i, j = jnp.floor(column + 0.5).astype(jnp.int32), jnp.floor(row + 0.5).astype(jnp.int32)
   seen = (depth > 0) & (i >= 0) & (i < width) & (j >= 0) & (j < height)
   return jnp.clip(j, 0, height - 1), jnp.clip(i, 0, width - 1), seen
+
+
+def kept_within(mask, rows, columns, radius):
+  """bool [M]: whether `mask` (float [H, W]) keeps a pixel (> 0) within `radius` (int, or int
+  [M]; 0 = the pixel itself) rows and columns of each pixel (rows, columns int [M], inside the
+  image): `dilated(mask, radius) > 0` there, read from the kept pixels' summed-area table so
+  that each point may have its own radius (exact: integer counts)."""
+  kept = np.asarray(mask) > 0
+  table = np.zeros((kept.shape[0] + 1, kept.shape[1] + 1), np.int64)
+  table[1:, 1:] = np.cumsum(np.cumsum(kept, 0), 1)
+  rows, columns = np.asarray(rows, np.int64), np.asarray(columns, np.int64)
+  top, bottom = np.maximum(rows - radius, 0), np.minimum(rows + radius, kept.shape[0] - 1) + 1
+  left, right = np.maximum(columns - radius, 0), np.minimum(columns + radius,
+                                                           kept.shape[1] - 1) + 1
+  return (table[bottom, right] - table[top, right] - table[bottom, left] + table[top, left]) > 0
+
+
+def mask_votes(masks, poses, cameras, points, radius, pixel_center=0.5):
+  """(seen, kept) float64 [M]: for each world point float [M, 3], how many photos see it (in
+  front of the camera, inside the image: `pixels_seen`, each photo through its own camera) and
+  how many of those keep it (their mask keeps a pixel within `radius` pixels of the point's).
+  The one mask vote of the code: the subject's box (run/subject.py), its hull (`carve_vote`) and
+  the photos' zoom (run/photo_zoom.py) all count with it.
+
+  masks: float32 [N, H, W] or a list of [H_i, W_i] (1 = the subject). poses: float [N, 4, 4].
+  cameras: Cameras (`camera(k)` gives photo k's size and intrinsics). radius: function (k,
+  depth float32 [M], the points' z-depths in photo k) -> int or int [M] (the window's radius in
+  photo k's pixels), or None where photo k does not vote.
+  """
+  seen, kept = np.zeros(len(points)), np.zeros(len(points))
+  for k, pose in enumerate(np.asarray(poses, np.float64)):
+    height, width, intrinsics = cameras.camera(k)
+    column, row, depth = project(points, pose, intrinsics, pixel_center)
+    reach = radius(k, np.asarray(depth))
+    if reach is None:
+      continue
+    j, i, inside = (np.asarray(a) for a in pixel_indices(column, row, depth, height, width))
+    seen += inside
+    kept += inside & kept_within(masks[k], j, i, reach)
+  return seen, kept
 
 
 def carve_vote(masks, poses, cameras, bound, resolution, vote, pixel_center=0.5):
@@ -130,17 +188,10 @@ def carve_vote(masks, poses, cameras, bound, resolution, vote, pixel_center=0.5)
   cameras: Cameras (`camera(k)` gives photo k's size and intrinsics). vote: float in (0, 1].
   """
   centres = np.asarray(occupancy.cell_centres(resolution, bound), np.float64).reshape(-1, 3)
-  seen, kept = np.zeros(len(centres)), np.zeros(len(centres))
-  for k, pose in enumerate(np.asarray(poses, np.float64)):
-    height, width, intrinsics = cameras.camera(k)
-    radius = dilation_radius(pose[None], intrinsics, bound, resolution)
-    if radius is None:
-      continue
-    cover = np.asarray(dilated(masks[k], radius)) > 0
-    j, i, inside = (np.asarray(a) for a in pixels_seen(centres, pose, intrinsics, height, width,
-                                                        pixel_center))
-    seen += inside
-    kept += inside & cover[j, i]
+  poses = np.asarray(poses, np.float64)
+  radius = lambda k, depth: dilation_radius(poses[k][None], cameras.camera(k)[2], bound,
+                                            resolution)
+  seen, kept = mask_votes(masks, poses, cameras, centres, radius, pixel_center)
   return (kept >= vote * seen).reshape((resolution,) * 3).astype(np.float32)
 
 
