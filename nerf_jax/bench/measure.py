@@ -9,7 +9,6 @@ Time words:
 
 import contextlib
 import os
-import platform
 import resource
 import sys
 import time
@@ -17,6 +16,8 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from nerf_jax.run import machine
 
 MATMUL_SHAPES = ((4096, 256, 256), (16384, 64, 64), (1024, 1024, 1024))  # (M, K, N)
 
@@ -127,17 +128,9 @@ def device_peak_mb():
 
 
 def machine_info():
-  """The machine and software versions the numbers belong to."""
+  """The machine and software versions the numbers belong to (run/machine.py's `describe`),
+  with flax's and optax's versions and the load average now."""
   import flax
-  import jaxlib
   import optax
-  cpu = platform.processor()
-  if os.path.exists("/proc/cpuinfo"):
-    with open("/proc/cpuinfo") as f:
-      names = [l.split(":", 1)[1].strip() for l in f if l.startswith("model name")]
-    cpu = names[0] if names else cpu
-  return {"cpu_model": cpu, "cpu_count": os.cpu_count(), "platform": platform.platform(),
-          "backend": jax.default_backend(), "device_kind": jax.devices()[0].device_kind,
-          "device_count": jax.device_count(), "python": platform.python_version(),
-          "jax": jax.__version__, "jaxlib": jaxlib.__version__, "flax": flax.__version__,
-          "optax": optax.__version__, "load_average": [round(x, 2) for x in os.getloadavg()]}
+  return {**machine.describe(), "flax": flax.__version__, "optax": optax.__version__,
+          "load_average": [round(x, 2) for x in os.getloadavg()]}

@@ -29,6 +29,7 @@ from nerf_jax import cli
 from nerf_jax.bench import command_line, regret_plan, report, runner, standard
 from nerf_jax.data.scenes import builtin
 from nerf_jax.run import config_lib, experiment, train_lib
+from nerf_jax.run import machine as machine_lib
 
 LOG_NAME = "log.txt"  # each run's output, in its workdir
 # Every process takes the device memory it uses, not 75% of it at start: the command's own
@@ -135,9 +136,10 @@ def trained_config(workdir):
 def make_record(run, metrics, scene, machine, log=()):
   """One results.jsonl record of `run` (a regret_plan.Run) from its metrics.json `metrics`
   (or {'error': ...}) and metrics.jsonl `log` ([dict]); the step-cost ratio and gain come
-  later (`with_regret`)."""
+  later (`with_regret`). machine: the record's 'machine' where metrics.json has none (a failed
+  run); metrics.json's own, measured while the run trained (run/machine.py), comes first."""
   record = {"scene": scene, "run": run.name, "flipped": run.flipped, "base": run.base,
-            "overrides": run.overrides, "machine": machine}
+            "overrides": run.overrides, "machine": metrics.get("machine", machine)}
   if "error" in metrics:
     return {**record, "error": metrics["error"]}
   record.update(psnr=metrics["psnr"], ssim=metrics.get("ssim"), lpips=metrics.get("lpips"),
@@ -194,9 +196,10 @@ def table(records, regret, command):
   cell = format_cell
   for r in records:
     overrides = ", ".join(f"{k}={v!r}" for k, v in r["overrides"].items()) or "-"
-    same = " (auto's config)" if r.get("same_as_auto") else ""
+    marks = (" (auto's config)" if r.get("same_as_auto") else "") + machine_lib.busy_note(
+        r.get("machine"))
     lines.append(
-        f"| {r['run']}{same} | {r['flipped'] or '-'} | {overrides} | {cell(r.get('psnr'), '.2f')} | "
+        f"| {r['run']}{marks} | {r['flipped'] or '-'} | {overrides} | {cell(r.get('psnr'), '.2f')} | "
         f"{cell(r.get('mean_over_scales_psnr'), '.2f')} | {cell(r.get('gain'), '+.2f')} | "
         f"{cell(r.get('ssim'), '.3f')} | {cell(r.get('lpips'), '.3f')} | "
         f"{cell(r.get('steps'), 'd')} | {cell(r.get('seconds_per_step'), '.4f')} | "
@@ -295,7 +298,7 @@ def run_plan(runs, scene, out, command):
   """Train every Run of `runs` (auto's first) into OUT/<run name>; records and results written
   after each. Returns (records, regret)."""
   check_fresh(runs, out)
-  machine = {"backend": jax.default_backend(), "device": standard.device()}
+  machine = machine_lib.describe()  # a failed run's: what the machine is, not its load
   records = []
   for i, run in enumerate(runs):
     workdir = workdir_of(run, out)
@@ -309,7 +312,8 @@ def run_plan(runs, scene, out, command):
     records.append(record)
     scored, regret = with_regret(records)
     write_results(scored, regret, out, command)
-    print(f"  {record.get('error') or format(score(record), '.2f') + ' dB'}", flush=True)
+    print(f"  {record.get('error') or format(score(record), '.2f') + ' dB'}"
+          f"{machine_lib.busy_note(record.get('machine'))}", flush=True)
   return scored, regret
 
 

@@ -94,14 +94,16 @@ def turned_on(record):
 
 
 def scene_summary(records):
-  """One summary.jsonl row of a scene's results.jsonl `records` (with gains and regret)."""
+  """One summary.jsonl row of a scene's results.jsonl `records` (with gains and regret);
+  'busy_runs' names the runs whose machine record says it was busy (run/machine.py)."""
   auto_run = next((r for r in records if r["run"] == "auto"), {})
   best = max(regret.rivals(records), key=regret.score, default={})
   row = {"scene": records[0]["scene"], "auto_config": auto_run.get("base"),
          "auto_score": regret.score(auto_run), "auto_steps": auto_run.get("steps"),
          "budget_seconds": auto_run.get("seconds"), "best_run": best.get("run"),
          "best_score": regret.score(best) if best else None,
-         "regret": records[0].get("regret"), "machine": auto_run.get("machine"), "runs": {}}
+         "regret": records[0].get("regret"), "machine": auto_run.get("machine"), "runs": {},
+         "busy_runs": [r["run"] for r in records if (r.get("machine") or {}).get("busy")]}
   for r in records:
     if r["run"] == "auto":
       continue
@@ -134,13 +136,16 @@ def _flip_cell(run):
 
 def summary_table(rows):
   """table.md: one row per scene; each flip's cell 'on/off GAIN (step-cost ratio×)', the
-  direction the flip turned auto's decision."""
+  direction the flip turned auto's decision; the scene's cell names the runs whose machine was
+  busy."""
   names = columns(rows)
   head = ["scene", "auto's config", "auto", "steps", "best run", "regret"] + names
   lines = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
   fmt = regret.format_cell
   for row in rows:
-    cells = [row["scene"], f"{row['auto_config']}.py", fmt(row["auto_score"], ".2f"),
+    busy = row.get("busy_runs")  # runs whose machine was busy while they trained
+    scene = row["scene"] + (f" (busy: {', '.join(busy)})" if busy else "")
+    cells = [scene, f"{row['auto_config']}.py", fmt(row["auto_score"], ".2f"),
              fmt(row["auto_steps"], "d"), row["best_run"] or "-", fmt(row["regret"], ".2f")]
     cells += [_flip_cell(row["runs"].get(name)) for name in names]
     lines.append("| " + " | ".join(cells) + " |")

@@ -10,6 +10,8 @@ API (no pyplot, no global backend), so it stays an optional dependency: the `ben
 import math
 import os
 
+from nerf_jax.run import machine as machine_lib  # its RULE, in the header
+
 PLOTS = ("psnr_vs_time.png", "pareto_render.png", "pareto_train.png")
 MISSING_MATPLOTLIB = 'plots need matplotlib: pip install -e ".[bench]"'
 
@@ -170,15 +172,24 @@ OPTIONAL_COLUMNS = (("test_lpips", "LPIPS"), ("test_depth_error", "depth err"),
                     ("test_empty_opacity", "empty opacity"), ("test_floaters", "floaters"))
 
 
+def load_cell(machine):
+  """The machine column: 'busy: WHY' or 'idle' by the record's verdict (run/machine.py), '–'
+  for a record without one."""
+  if not isinstance(machine, dict) or "busy" not in machine:
+    return "–"
+  return f"busy: {machine.get('busy_why')}" if machine["busy"] else "idle"
+
+
 def table_lines(records):
-  """Markdown table lines, one row per record."""
+  """Markdown table lines, one row per record; the last column says whether the machine was
+  busy while the run trained (run/machine.py's verdict)."""
   times = shown_times(records)
   extra = [(key, label) for key, label in OPTIONAL_COLUMNS if any(r.get(key) is not None
                                                                   for r in records)]
   head = (["scene", "config", "test PSNR", "SSIM"] + [label for _, label in extra] +
           [f"PSNR@{t:g}s" for t in times] +
           ["steps", "train s (incl. compile)", "compile s", "step ms", "rays/s",
-           "MLP GFLOP/s (% peak)", "render ms/frame", "params", "peak RSS MB"])
+           "MLP GFLOP/s (% peak)", "render ms/frame", "params", "peak RSS MB", "machine"])
   lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
   for r in records:
     name = run_name(r, records)
@@ -191,7 +202,8 @@ def table_lines(records):
     cells += [str(r["steps"]), _fmt(r["train_seconds"], ".1f"), _fmt(r["compile_seconds"], ".1f"),
               _fmt(r["step_ms"], ".1f"), _fmt(r["rays_per_second"], ",.0f"),
               f"{r['mlp_gflops']:.1f} ({100 * r['peak_fraction']:.0f}%)",
-              _fmt(r["render_ms"], ".0f"), f"{r['params']:,}", _fmt(r["peak_rss_mb"], ".0f")]
+              _fmt(r["render_ms"], ".0f"), f"{r['params']:,}", _fmt(r["peak_rss_mb"], ".0f"),
+              load_cell(r.get("machine"))]
     lines.append("| " + " | ".join(cells) + " |")
   return lines
 
@@ -213,7 +225,9 @@ def header_lines(record):
       f"* machine: {m['cpu_model']}, {m['cpu_count']} cores, {m['backend']} "
       f"({m['device_kind']}), load average at start {m['load_average']}",
       f"* versions: jax {m['jax']}, jaxlib {m['jaxlib']}, flax {m['flax']}, optax "
-      f"{m['optax']}, Python {m['python']}, {m['platform']}",
+      f"{m['optax']}, Python {m['python']}, {m['platform']}; code {m.get('git') or 'unknown'}",
+      f"* machine: 'busy' where the machine was busy while the run trained ({machine_lib.RULE}; "
+      "`machine` in results.jsonl)",
       f"* dense matmul peak (GFLOP/s) at the start: {peaks}; each run's % uses its own "
       "measurement, taken just before it trained (`matmul_peak_gflops` in results.jsonl)",
       f"* budget: {budget}",

@@ -10,6 +10,7 @@ import subprocess
 import sys
 import tempfile
 
+from nerf_jax.run import machine as machine_lib
 from nerf_jax.train import progress
 from nerf_jax.bench import measure, report, sweeps, timed_run
 
@@ -65,9 +66,11 @@ def run_sweep(request, options, out, command, in_process=False, dry_run=False):
     bar.write(f"[{i + 1}/{len(runs)}] {sweep}/{entry.label} on {scene}")
     slug = "".join(c if c.isalnum() else "_" for c in f"{sweeps.scene_label(scene)}-{entry.label}")
     record = run(config, dataclasses.replace(options, eval_dir=os.path.join(out, "eval", slug)))
+    # The sweep's machine and matmul peaks, with the run's own load while it trained.
     record.update(sweep=sweep, label=entry.label, base=entry.base, overrides=entry.overrides,
-                  scene=sweeps.scene_label(scene), mode=sweeps.mode(request), machine=machine,
-                  command=command, eval_times=list(options.eval_times))
+                  scene=sweeps.scene_label(scene), mode=sweeps.mode(request),
+                  machine={**machine, **record.get("machine", {})}, command=command,
+                  eval_times=list(options.eval_times))
     records.append(record)
     with open(results, "a") as f:
       f.write(json.dumps(record) + "\n")
@@ -82,7 +85,8 @@ def summary(record):
   """One line of a finished run."""
   if "error" in record:
     return f"  failed: {record['error']}"
+  busy = machine_lib.busy_note(record.get("machine"))
   return (f"  test PSNR {record['test_psnr']:.2f} dB, SSIM {record['test_ssim']:.3f}, "
           f"{record['steps']} steps in {record['train_seconds']:.1f} s "
           f"(compile {record['compile_seconds']:.1f} s), step {record['step_ms']:.1f} ms, "
-          f"render {record['render_ms']:.0f} ms/frame")
+          f"render {record['render_ms']:.0f} ms/frame{busy}")

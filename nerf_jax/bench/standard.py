@@ -40,7 +40,7 @@ from absl import flags
 
 from nerf_jax import cli
 from nerf_jax.bench import command_line
-from nerf_jax.run import train_lib
+from nerf_jax.run import machine, train_lib
 
 FAMILIES = ("blender", "llff", "m360", "fox")
 # The scenes of each archive, in the papers' order.
@@ -360,6 +360,14 @@ def _cell(value, decimals):
   return "-" if value is None else f"{value:.{decimals}f}"
 
 
+def row_line(row):
+  """One line of a finished run: its scores, steps and seconds, and whether the machine was
+  busy while it trained (the row's 'machine', run/machine.py)."""
+  return (f"{row['family']}/{row['scene']}: PSNR {row['psnr']:.2f}, SSIM {row['ssim']:.3f} "
+          f"after {row['steps']} steps in {row['seconds']:.0f} s"
+          f"{machine.busy_note(row.get('machine'))}")
+
+
 def markdown(rows, command):
   """results.md: the command, then one table row per run with the published figures beside."""
   lines = ["# Standard benchmarks", "", "```", command, "```", "",
@@ -372,7 +380,8 @@ def markdown(rows, command):
         f"| {row['family']} | {row['scene']} | {row['protocol']} | {row['psnr']:.2f} | "
         f"{row['ssim']:.3f} | {_cell(row.get('lpips'), 3)} | {row['steps']} | "
         f"{row['seconds']:.0f} | {_cell(pub.get('psnr'), 2)} | {_cell(pub.get('ssim'), 3)} | "
-        f"{_cell(pub.get('lpips'), 3)} | {row['device']} | {row['config']} | {row['date']} |")
+        f"{_cell(pub.get('lpips'), 3)} | {row['device']}{machine.busy_note(row.get('machine'))} | "
+        f"{row['config']} | {row['date']} |")
   missing = sorted({r["lpips_missing"] for r in rows if "lpips_missing" in r})
   if missing:
     lines += ["", "LPIPS missing: " + "; ".join(missing) + "."]
@@ -408,7 +417,9 @@ def run_benchmark(base, config_name, scenes, out, seconds, half, test_every, com
         "protocol": protocol(scene, half, test_every), "data": data_path,
         "wall_seconds": round(time.perf_counter() - start, 1), "device": where,
         "config": config_name, "workdir": workdir,
-        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}))
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        **({"machine": metrics["machine"]} if "machine" in metrics else {})}))
+    print(row_line(rows[-1]), flush=True)
     with open(results, "a") as f:
       f.write(json.dumps(rows[-1]) + "\n")
     with open(os.path.join(out, "results.md"), "w") as f:

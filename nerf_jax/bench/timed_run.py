@@ -23,7 +23,7 @@ import numpy as np
 
 from nerf_jax.evaluate import evaluation
 from nerf_jax.render import background, image_renderer
-from nerf_jax.run import builders, experiment
+from nerf_jax.run import builders, experiment, machine
 from nerf_jax.train import optimizer
 from nerf_jax.run.signature import init_state
 from nerf_jax.run import train_lib
@@ -106,7 +106,8 @@ def frame_seconds(exp, variables, repeats):
 
 
 def run_config(config, options):
-  """Train `config` under its budget in this process and measure it. Returns the record."""
+  """Train `config` under its budget in this process and measure it. Returns the record; its
+  'machine' is the machine and its load while training (machine.Sampler's record)."""
   start = time.perf_counter()
   exp = experiment.setup(config)
   tc = config.train
@@ -151,12 +152,14 @@ def run_config(config, options):
   setup = {"setup_seconds": time.perf_counter() - start, "setup_rss_mb": measure.peak_rss_mb()}
   # The peak under the same machine load as this run's training, moments before it.
   peak = max(measure.matmul_gflops(config.model.dtype, repeats=options.matmul_repeats).values())
+  sampler = machine.Sampler()  # the machine's load while it trains
   clock.start()
   compiled, compile_seconds = measure.compile_jitted(jitted, state, data, key)
   state, steps, segments, more, last_stats = train_loop(
       lambda s: compiled(s, data, key), state, max_steps, tc.max_seconds, options.eval_times,
       probe, clock)
   train_seconds = clock.stop()
+  measured = sampler.stop()
   probes += more
   if probes[-1]["step"] != steps:
     probes.append({"seconds": train_seconds, "step": steps, "psnr": probe(state)})
@@ -189,7 +192,7 @@ def run_config(config, options):
       "peak_rss_mb": measure.peak_rss_mb(), "device_peak_mb": measure.device_peak_mb(),
       "eval_seconds": eval_seconds, "diverged_at_step": bad + 1 if bad >= 0 else None,
       "schedule_steps": builders.schedule_steps(tc), "config": json.loads(config.to_json()),
-      **setup}
+      "machine": measured, **setup}
 
 
 def worker(spec_path):

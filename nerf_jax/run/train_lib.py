@@ -22,7 +22,7 @@ import ml_collections
 from nerf_jax.backend import determinism
 from nerf_jax.evaluate import lpips
 from nerf_jax.run import (auto, builders, config_lib, experiment, experiment_parts,
-                          outputs)
+                          machine, outputs)
 from nerf_jax.run.experiment import TrainingError
 from nerf_jax.run.signature import init_state, model_signature, state_template
 from nerf_jax.train import (budget, checkpoints, hooks as hooks_lib, loop, optimizer, parallel,
@@ -53,6 +53,7 @@ def train_and_evaluate(config, workdir, watchers=()):
   if config.train.deterministic:
     determinism.require()  # before the first computation starts jax's backends
   main = parallel.is_main_process()
+  sampler = machine.Sampler()  # the machine's load over the run: metrics.json's 'machine'
   parallel.check_time_budget(config.train.max_seconds)
   if main:
     os.makedirs(workdir, exist_ok=True)
@@ -109,7 +110,8 @@ def train_and_evaluate(config, workdir, watchers=()):
     raise KeyboardInterrupt(f"stopped by signal {signum} at step {step}; "
                             f"checkpoint saved in {checkpoints.checkpoint_dir(workdir)}")
   rate = next((h.rays_per_second for h in loop_hooks if isinstance(h, hooks_lib.Record)), None)
-  return _finish(exp, config, workdir, state, step, evaluate, writer, mesh, elapsed(), rate)
+  return _finish(exp, config, workdir, state, step, evaluate, writer, mesh, elapsed(), rate,
+                 sampler)
 
 
 def _train_step(exp, mesh):
@@ -202,12 +204,14 @@ def _loop_hooks(exp, config, workdir, signature, evaluate, writer, mesh, start_s
 
 
 def _finish(exp, config, workdir, state, step, evaluate, writer, mesh, train_seconds,
-            rays_per_second=None):
+            rays_per_second=None, sampler=None):
   """After the last step: score the test views (their images into workdir/eval with
   render.after_training), write metrics.json and the final metrics.jsonl record, render the
   video; returns the final metrics. A long evaluation (+ video) is announced first, with how to
-  shorten it (outputs.final_render_line, from the training's last rays_per_second)."""
+  shorten it (outputs.final_render_line, from the training's last rays_per_second). sampler:
+  the run's machine.Sampler, stopped here (the load while training) for metrics.json."""
   main = parallel.is_main_process()
+  measured = sampler.stop() if sampler else None
   _check_finite(state, workdir)
   line = outputs.final_render_line(exp, rays_per_second) if main else None
   if line:
@@ -224,16 +228,18 @@ def _finish(exp, config, workdir, state, step, evaluate, writer, mesh, train_sec
   result.update(train_seconds=round(train_seconds, 3), steps=step)
   if not main:
     return result
-  # With the background the views were scored on (data.background, 'auto' resolved).
+  # With the background the views were scored on (data.background, 'auto' resolved), and the
+  # machine the run trained on (machine.py).
   checkpoints.atomic_write(os.path.join(workdir, "metrics.json"), json.dumps(
-      {**result, "background": config.data.background}, indent=2).encode())
+      {**result, "background": config.data.background,
+       **({"machine": measured} if measured else {})}, indent=2).encode())
   hooks_lib.append_json_line(os.path.join(workdir, "metrics.jsonl"), {
       "step": step, "wall_seconds": round(train_seconds, 3), "eval_psnr": result["psnr"],
       "eval_ssim": result["ssim"], **({"eval_lpips": result["lpips"]} if "lpips" in result else {}),
       "final": True})
   print(f"test PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.4f}, {lpips.describe(result)} "
-        f"over {len(result['per_view'])} views after {step} steps ({train_seconds:.0f} s)",
-        flush=True)
+        f"over {len(result['per_view'])} views after {step} steps ({train_seconds:.0f} s)"
+        f"{machine.busy_note(measured)}", flush=True)
   if config.render.after_training and config.render.video_frames > 0:
     missing = outputs.video_writer_missing()
     if missing:  # the run and its scores are kept; only the video is not

@@ -205,6 +205,11 @@ def test_record_reads_the_scores_the_data_calls_for():
   assert regret.score(record) == 20.0 and "by_scale_psnr" not in record
   failed = regret.make_record(run, {"error": "exit status 1: boom"}, "crowd", {})
   assert failed["error"] == "exit status 1: boom" and regret.score(failed) is None
+  # The machine the run measured (its metrics.json's) comes before the one passed in.
+  measured = {"cpu_count": 2, "busy": True, "busy_why": "load 3.1 on 2 CPUs"}
+  record = regret.make_record(run, {**collection, "machine": measured}, "crowd", {"cpu": 1})
+  assert record["machine"] == measured and failed["machine"] == {}
+  assert "flip/cones (busy: load 3.1 on 2 CPUs) |" in regret.table([record], None, "test")
 
 
 def test_regret_is_best_minus_auto_and_zero_when_auto_is_best():
@@ -381,6 +386,9 @@ def test_two_tiny_runs_end_to_end(tmp_path):
       (log[2]["wall_seconds"] - log[0]["wall_seconds"]) / 2)  # steps 1 to 3: no compile
   assert value == max(0.0, records[1]["psnr"] - records[0]["psnr"])
   assert len(regret.read_results(str(tmp_path / "results.jsonl"))) == 2
+  for record, name in zip(records, ("auto", "flip_background")):  # measured in the run's process
+    metrics = json.loads((tmp_path / name / "metrics.json").read_text())
+    assert record["machine"] == metrics["machine"] and metrics["machine"]["cpu_count"] >= 1
   with pytest.raises(ValueError, match="auto holds an earlier run"):  # it would resume
     regret.run_plan(runs, "diffuse", str(tmp_path), "test")
 

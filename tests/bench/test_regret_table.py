@@ -101,3 +101,16 @@ def test_a_run_of_autos_own_config_shows_as_noise_and_is_never_the_best(tmp_path
   assert row["regret"] == 0.0 and row["best_run"] == "auto"
   table = (tmp_path / "table.md").read_text()
   assert "| = auto +3.00 |" in table and "| off -1.00 (1.00×) |" in table
+
+
+def test_a_scene_names_the_runs_whose_machine_was_busy(tmp_path):
+  busy = {"backend": "cpu", "busy": True, "busy_why": "load 3.1 on 2 CPUs"}
+  _write(str(tmp_path), "fog", [
+      _record("fog", "auto", 20.0),
+      {**_record("fog", "flip/background", 19.0, {"train.random_background": False}),
+       "machine": busy}])
+  _write(str(tmp_path), "glossy", [_record("glossy", "auto", 20.0)])
+  rows = {r["scene"]: r for r in regret_table.summarize(str(tmp_path))}
+  assert rows["fog"]["busy_runs"] == ["flip/background"] and rows["glossy"]["busy_runs"] == []
+  table = (tmp_path / "table.md").read_text()
+  assert "| fog (busy: flip/background) | fast.py |" in table and "| glossy | fast.py |" in table

@@ -107,6 +107,11 @@ def test_runs_each_protocol_and_records_it(archives, tmp_path, capsys):
     assert np.isfinite(row["psnr"]) and -1 <= row["ssim"] <= 1  # a few steps: any SSIM
     assert "lpips" in row or row["lpips_missing"]  # 16-pixel images: LPIPS says why not
     assert row["device"] and row["config"] == "debug" and row["date"]
+    # The machine its run measured while training (its metrics.json's), with the verdict.
+    with open(os.path.join(row["workdir"], "metrics.json")) as f:
+      assert row["machine"] == json.load(f)["machine"]
+    assert row["machine"]["cpu_count"] >= 1 and isinstance(row["machine"]["busy"], bool)
+    assert standard.row_line(row) in printed
   assert "test views 0, 2, 4, ... (3 of 5) on white" in lego["protocol"]
   assert "views 0, 8, 16, ... held out (3 of 17)" in fern["protocol"]
   assert lego["published"] == {"psnr": 32.54, "ssim": 0.961, "lpips": 0.050,

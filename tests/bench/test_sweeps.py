@@ -371,3 +371,14 @@ def test_profile_lists_the_steps_xla_operations_by_kind(profiled):
   times = [float(line.split("|")[2]) for line in table if line.startswith("|")]
   assert all(t > 0 for t in times) and times[:4] == sorted(times[:4], reverse=True)
   assert times[-1] >= sum(times[:4])
+
+
+def test_a_run_on_a_busy_machine_says_so_in_its_line_and_its_row():
+  busy = {"busy": True, "busy_why": "load 3.1 on 2 CPUs"}
+  record = {"test_psnr": 20.0, "test_ssim": 0.5, "steps": 3, "train_seconds": 1.0,
+            "compile_seconds": 0.5, "step_ms": 10.0, "render_ms": 5.0, "machine": busy}
+  assert runner.summary(record).endswith("ms/frame (busy: load 3.1 on 2 CPUs)")
+  assert runner.summary({**record, "machine": {"busy": False}}).endswith("ms/frame")
+  assert report.load_cell(busy) == "busy: load 3.1 on 2 CPUs"
+  assert report.load_cell({"busy": False, "busy_why": None}) == "idle"
+  assert report.load_cell({"cpu_count": 2}) == "–"  # a record from before the verdict
