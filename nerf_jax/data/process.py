@@ -147,8 +147,12 @@ def pass_masks(images, names, out_dir):
 
 def process(out_dir, images="", video="", num_frames=100, matcher="auto",
             camera_model="SIMPLE_RADIAL", single_camera=True, min_registered=0.5, log=print,
-            num_threads=-1):
+            num_threads=-1, ordered=False):
   """Photos (`images`, a directory) or a `video` -> a posed dataset in `out_dir`.
+
+  matcher: 'auto' (`sfm.choose_matcher`: every pair of unordered photos, neighbours only for
+  video frames or, with `ordered`, photos taken in file-name order), 'exhaustive' or
+  'sequential'; the choice and why are logged on one line.
 
   single_camera: bool, all photos share one camera (and size); False: one camera per photo,
   photos of different sizes accepted, each frame of transforms.json with its own camera.
@@ -176,16 +180,17 @@ def process(out_dir, images="", video="", num_frames=100, matcher="auto",
   work_dir = os.path.join(out_dir, "colmap")
   _fresh(work_dir)  # a stale database would mix in old images
   os.makedirs(os.path.join(work_dir, "models"))
-  matcher = sfm.choose_matcher(matcher, len(names), ordered=bool(video))
+  matcher, why = sfm.choose_matcher(matcher, len(names), ordered=ordered, video=bool(video))
   log(f"[2/4] structure from motion ({matcher} matching, {camera_model} camera)")
+  log(f"      {matcher} matching: {why}")
   rec, seconds = sfm.reconstruct(image_dir, work_dir, matcher, camera_model, single_camera,
                                  num_threads=num_threads, log=log)
   registered = 0 if rec is None else len(rec.names)
   if registered < max(3, min_registered * len(names)):
     raise sfm.SfmError(
         f"only {registered} of {len(names)} images registered (need {min_registered:.0%}): take "
-        "photos with more overlap (each area in 3+ photos), avoid blur and blank walls, or try "
-        f"--matcher={'exhaustive' if matcher == 'sequential' else 'sequential'}")
+        "photos with more overlap (each area in 3+ photos), avoid blur and blank walls" +
+        (", or try --matcher=exhaustive" if matcher == "sequential" else ""))
   log("[3/4] re-orienting and scaling into the scene box")
   written = write_dataset(out_dir, rec, mask_paths=mask_paths)
   seconds["total"] = time.perf_counter() - start
@@ -220,8 +225,10 @@ def main():
   num_frames = flags.DEFINE_integer("num_frames", 100, "--video: frames sampled evenly.")
   out = flags.DEFINE_string("out", "", "Output directory (the dataset).")
   matcher = flags.DEFINE_enum("matcher", "auto", ["auto", "exhaustive", "sequential"],
-                              f"Feature matching; auto = exhaustive up to "
-                              f"{sfm.EXHAUSTIVE_MAX} photos, sequential for more or a video.")
+                              "Feature matching; auto = every pair of unordered photos, "
+                              "sequential for a video or --ordered photos.")
+  ordered = flags.DEFINE_bool("ordered", False, "The photos are an ordered capture (taken in "
+                              "file-name order): auto matches each with its neighbours.")
   camera_model = flags.DEFINE_enum("camera_model", "SIMPLE_RADIAL",
                                    list(nerfstudio.lens.COLMAP_PARAMS), "COLMAP camera model.")
   single_camera = flags.DEFINE_bool("single_camera", True, "All photos share one camera; "
@@ -233,7 +240,8 @@ def main():
     del argv
     errors.run_main(lambda: process(out.value, images.value, video.value, num_frames.value,
                                     matcher.value, camera_model.value, single_camera.value,
-                                    min_registered.value), USER_ERRORS)
+                                    min_registered.value, ordered=ordered.value),
+                   USER_ERRORS)
 
   app.run(run, flags_parser=errors.parse_flags)
 

@@ -18,7 +18,6 @@ import numpy as np
 from nerf_jax.data import lens
 from nerf_jax.data.dataset import DataError
 
-EXHAUSTIVE_MAX = 100  # 'auto' matching: exhaustive up to this many images, sequential beyond
 OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0, 1.0])  # camera axes: y down, z forward -> y up, z back
 
 
@@ -77,14 +76,23 @@ def c2w_from_cam_from_world(matrix):
   return c2w @ OPENCV_TO_OPENGL
 
 
-def choose_matcher(matcher, num_images, ordered=False):
-  """'exhaustive' or 'sequential' for matcher in ('auto', 'exhaustive', 'sequential'); 'auto'
-  is sequential for an ordered capture (video frames) or more than EXHAUSTIVE_MAX images."""
+def choose_matcher(matcher, num_images, ordered=False, video=False):
+  """(matcher, why): 'exhaustive' or 'sequential' for matcher in ('auto', 'exhaustive',
+  'sequential'), and one phrase saying why. 'auto' matches every pair of an unordered
+  collection, whatever its count (its overlapping photos can be anywhere in it), and each image
+  with its neighbours in file-name order only for an ordered capture: video frames (`video`)
+  or photos the user says were taken in order (`ordered`)."""
   if matcher not in ("auto", "exhaustive", "sequential"):
     raise SfmError(f"--matcher={matcher}: expected auto, exhaustive or sequential")
-  if matcher == "auto":
-    return "sequential" if ordered or num_images > EXHAUSTIVE_MAX else "exhaustive"
-  return matcher
+  if matcher != "auto":
+    return matcher, f"--matcher={matcher}"
+  if video:
+    return "sequential", "video frames: each matched with the frames near it in time"
+  if ordered:
+    return "sequential", "--ordered: each photo matched with its neighbours in file-name order"
+  pairs = num_images * (num_images - 1) // 2
+  return "exhaustive", (f"unordered photos: every pair of the {num_images} matched ({pairs:,} "
+                        "pairs; --ordered for photos taken in order)")
 
 
 def _stage(log, name, fn):

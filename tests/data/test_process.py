@@ -169,11 +169,43 @@ def test_cli_exits_1_with_one_line(tmp_path):
 
 
 def test_matcher_choice():
-  assert sfm.choose_matcher("auto", sfm.EXHAUSTIVE_MAX) == "exhaustive"
-  assert sfm.choose_matcher("auto", sfm.EXHAUSTIVE_MAX + 1) == "sequential"
-  assert sfm.choose_matcher("auto", 10, ordered=True) == "sequential"
-  assert sfm.choose_matcher("exhaustive", 500, ordered=True) == "exhaustive"
+  # Unordered photos: every pair, whatever their count (no count switches to neighbours only).
+  for count in (10, 100, 101, 500):
+    matcher, why = sfm.choose_matcher("auto", count)
+    assert matcher == "exhaustive" and f"every pair of the {count} matched" in why
+    assert f"({count * (count - 1) // 2:,} pairs" in why and "\n" not in why
+  # Neighbours only for an ordered capture: video frames, or photos the user says are in order.
+  assert sfm.choose_matcher("auto", 500, video=True)[0] == "sequential"
+  assert "video frames" in sfm.choose_matcher("auto", 10, video=True)[1]
+  assert sfm.choose_matcher("auto", 10, ordered=True) == (
+      "sequential", "--ordered: each photo matched with its neighbours in file-name order")
+  # Asked for: as asked, whatever the capture.
+  assert sfm.choose_matcher("exhaustive", 500, ordered=True, video=True) == (
+      "exhaustive", "--matcher=exhaustive")
+  assert sfm.choose_matcher("sequential", 5) == ("sequential", "--matcher=sequential")
   assert_data_error(["--matcher=vocab"], sfm.choose_matcher, "vocab", 10)
+
+
+def test_the_matcher_and_why_are_one_logged_line(tmp_path, monkeypatch):
+  photos = tmp_path / "photos"
+  _photograph(str(photos), 4)
+  asked = []
+
+  def reconstruct(image_dir, work_dir, matcher, *args, **kwargs):  # SfM itself is tested above
+    asked.append(matcher)
+    return None, {}
+
+  monkeypatch.setattr(sfm, "reconstruct", reconstruct)
+  for options, matcher in (({}, "exhaustive"), ({"ordered": True}, "sequential")):
+    lines = []
+    with pytest.raises(sfm.SfmError, match="only 0 of 4 images registered") as info:
+      process.process(str(tmp_path / "out"), images=str(photos), log=lines.append, **options)
+    assert asked[-1] == matcher
+    why = sfm.choose_matcher("auto", 4, **options)[1]
+    assert f"      {matcher} matching: {why}" in lines
+    # Exhaustive matching failed: sequential would not do better; sequential: try exhaustive.
+    assert ("--matcher=exhaustive" in str(info.value)) == (matcher == "sequential")
+    assert "--matcher=sequential" not in str(info.value)
 
 
 def test_video_frames_are_sampled_evenly(tmp_path):
