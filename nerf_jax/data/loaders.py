@@ -184,20 +184,37 @@ class DataSettings:
 def auto_background(path):
   """(name, why): the background data.background='auto' means for the data at `path` ('' = a
   built-in scene), the convention of its family: 'white' for a Blender (NeRF-synthetic) folder
-  of RGBA images (transforms_train.json; the first frame's image decides), on which every
-  published table scores that data; 'black' for everything else (built-in scenes, .npz, LLFF,
-  transforms.json, COLMAP and multiscale folders, Blender folders of RGB images)."""
-  meta_path = os.path.join(path, "transforms_train.json")
-  blender = (path and os.path.isdir(path) and os.path.isfile(meta_path)
-             and not os.path.isfile(os.path.join(path, nerfstudio.FILENAME))
-             and not os.path.isfile(os.path.join(path, multicam.FILENAME)))
-  if blender:
+  of RGBA images (transforms_train.json; the first frame's image decides) and for a mip-NeRF
+  multiscale folder of RGBA images (metadata.json, made from Blender's; the first training
+  image decides), on which every published table scores that data; 'black' for everything else
+  (built-in scenes, .npz, LLFF, transforms.json and COLMAP folders, Blender and multiscale
+  folders of RGB images)."""
+  is_file = lambda name: bool(path) and os.path.isfile(os.path.join(path, name))
+  if not path or not os.path.isdir(path) or is_file(nerfstudio.FILENAME):
+    return "black", "the convention of data other than Blender's RGBA folders"
+  if is_file(multicam.FILENAME):  # read before transforms_train.json (load_dataset's order)
+    if _first_multiscale_image_channels(path) == 4:
+      return "white", "the convention of mip-NeRF's multiscale data (Blender's RGBA, on white)"
+  elif is_file("transforms_train.json"):
+    meta_path = os.path.join(path, "transforms_train.json")
     frames = validate.read_json(meta_path).get("frames")
     if isinstance(frames, list) and frames:  # else load_blender says what is wrong
       image_path = _frame_image_path(path, meta_path, 0, frames[0])
       if validate.read_image(image_path).shape[-1] == 4:
         return "white", "the convention of Blender (NeRF-synthetic) data"
   return "black", "the convention of data other than Blender's RGBA folders"
+
+
+def _first_multiscale_image_channels(path):
+  """The channels of the first training image a multiscale folder's metadata.json names, or
+  None where it names none that exists (multicam.load then says what is wrong)."""
+  meta = validate.read_json(os.path.join(path, multicam.FILENAME))
+  train = meta.get("train") if isinstance(meta, dict) else None
+  files = train.get("file_path") if isinstance(train, dict) else None
+  if not isinstance(files, list) or not files or not isinstance(files[0], str):
+    return None
+  image_path = os.path.join(path, files[0])
+  return validate.read_image(image_path).shape[-1] if os.path.isfile(image_path) else None
 
 
 def is_auto(background):

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.cameras import rays as rays_lib
-from nerf_jax.data import export, multicam, convert_multiscale, scenes
+from nerf_jax.data import export, loaders, multicam, convert_multiscale, scenes
 from nerf_jax.data.dataset import DataError
 from nerf_jax.train import train_batches
 from tests.helpers import assert_data_error, load_data
@@ -89,6 +89,30 @@ def test_the_loader_gives_back_the_images_cameras_lossmults_and_labels(folders):
   np.testing.assert_array_equal(test.lossmult, meta["lossmult"])
   assert list(test.labels) == [str(v) for v in meta["label"]]
   assert test.pixel_center == 0.5 and (test.near, test.far) == (meta["near"][0], meta["far"][0])
+
+
+def test_rgba_multiscale_is_scored_on_white_under_auto_as_blender_folders_are(folders, tmp_path):
+  blender, out = folders
+  assert loaders.auto_background(out) == (
+      "white", "the convention of mip-NeRF's multiscale data (Blender's RGBA, on white)")
+  assert loaders.auto_background(blender)[0] == "white"  # the rule it follows
+  train, test = load_data({"path": out})  # data.background='auto', the default
+  white_train, white_test = load_data({"path": out, "background": "white"})
+  assert train.background == test.background == (1.0, 1.0, 1.0)
+  for k in range(len(test)):
+    np.testing.assert_array_equal(test.image(k), white_test.image(k))
+  # RGB images (no opacity to composite): black, as for Blender folders of RGB images.
+  rgb = tmp_path / "rgb"
+  convert_multiscale.convert(blender, str(rgb), levels=2)
+  for path in rgb.glob("images_*/*.png"):
+    iio.imwrite(path, iio.imread(path)[..., :3])
+  assert loaders.auto_background(str(rgb))[0] == "black"
+  # A transforms.json beside it is read first (nerfstudio's format): black.
+  convert_multiscale.convert(blender, str(tmp_path / "both"), levels=1)
+  (tmp_path / "both" / "transforms.json").write_text("{}")
+  assert loaders.auto_background(str(tmp_path / "both"))[0] == "black"
+  # The built-in multiscale scene is no folder: black, as every built-in scene.
+  assert loaders.auto_background("")[0] == "black"
 
 
 def test_one_level_is_one_camera(folders, tmp_path):
