@@ -180,13 +180,22 @@ def solved_pose(points, pixels, start, intrinsics, iterations=ITERATIONS):
   return pose, float(np.sqrt(cost / len(points)))
 
 
+def reprojection_rms(points, pixels, pose, intrinsics):
+  """float: the RMS distance in pixels between pixels float [M, 2] and world points float
+  [M, 3] projected through the pinhole `intrinsics` at pose float [4, 4] (`project`)."""
+  projected, _ = project(points, pose, intrinsics)
+  return float(np.sqrt(np.mean(np.sum((projected - pixels) ** 2, -1))))
+
+
 @dataclasses.dataclass
 class Solve:
   """What the twin's reconstruction did, per training photo: poses float64 [N, 4, 4] (solved),
-  rms_px float64 [N] (RMS reprojection error at the solution), num_points int [N] (matched
-  points), subject_share float64 [N] (share of them on the monument)."""
+  rms_px float64 [N] (RMS reprojection error at the solution), true_rms_px float64 [N] (at the
+  true pose, where the solve starts), num_points int [N] (matched points), subject_share
+  float64 [N] (share of them on the monument)."""
   poses: np.ndarray
   rms_px: np.ndarray
+  true_rms_px: np.ndarray
   num_points: np.ndarray
   subject_share: np.ndarray
 
@@ -195,7 +204,7 @@ def reconstruct(train, focals, dists, size=GRID):
   """`Solve` of the training photos `train` (a Dataset as photographed: its depths, its true
   poses in `poses`) taken through focals float [N] and dists (k1, k2) float [N, 2], posed
   through its stored pinhole. ValueError when a photo matches fewer than MIN_POINTS points."""
-  poses, rms, counts, shares = [], [], [], []
+  poses, rms, true_rms, counts, shares = [], [], [], [], []
   for k, pose in enumerate(np.asarray(train.poses, np.float64)):
     points, pixels, subject = matched_points(train.depths[k], pose, focals[k], dists[k],
                                              train.pixel_center, train.near, train.far, size)
@@ -204,9 +213,11 @@ def reconstruct(train, focals, dists, size=GRID):
     solved, error = solved_pose(points, pixels, pose, train.intrinsics)
     poses.append(solved)
     rms.append(error)
+    true_rms.append(reprojection_rms(points, pixels, pose, train.intrinsics))
     counts.append(len(points))
     shares.append(float(np.mean(subject)))
-  return Solve(np.stack(poses), np.array(rms), np.array(counts), np.array(shares))
+  return Solve(np.stack(poses), np.array(rms), np.array(true_rms), np.array(counts),
+               np.array(shares))
 
 
 def posed(train, seed=0, zoom=True, distortion=True, size=GRID):
