@@ -61,7 +61,7 @@ class Dataset:
   bounds: float32 [N, 2] or None, each image's own (near, far) z-depths (LLFF's poses_bounds);
     `near`, `far` cover them all. The samplers read only `near`, `far`. None when unknown.
   point_errors: float32 [P] or None, each of `points`' mean reprojection error in pixels
-    (COLMAP's ERROR; < 0 where unknown); scene-wide, as `points`. None without tracks.
+    (COLMAP's ERROR; < 0 or NaN where unknown); scene-wide, as `points`. None without tracks.
   observations: int32 [K, 2] or None, the sparse points' tracks: (image index, point index)
     pairs, point p of `points` seen in image i, each pair once; subsets keep the pairs of the
     images they keep, re-indexed (`subset`). The keypoint's pixel and depth are not stored: they

@@ -9,7 +9,7 @@ NeRF's order (`nerf_jax.cameras.rays`) is [right, up, backwards], so on the colu
 images/: one image per view, matched to the rows in the order of their sorted file names.
 images_{factor}/: the same downsampled by `factor`, as LLFF's tools write them.
 sparse/0/ (optional; LLFF's archives hold it): the COLMAP model the poses came from; its points
-  and their tracks become Dataset.points, point_errors and observations (`colmap.beside`: image
+  and their tracks become Dataset.points, point_errors and observations (`colmap_model.beside`: image
   k is images/' k-th name, or the model's k-th image by name; the points carried onto the poses
   and moved with them by recenter and bd_factor).
 masks/ (optional): one mask per image, the same file name (or with '.png' added or in place of
@@ -22,7 +22,7 @@ import os
 import imageio.v3 as iio
 import numpy as np
 
-from nerf_jax.data import colmap, masks as masks_lib, validate
+from nerf_jax.data import colmap_model, masks as masks_lib, validate
 from nerf_jax.data.dataset import DataError, Dataset
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -159,7 +159,7 @@ def load_llff(path, factor=1, bd_factor=None, recenter=False):
   focal = hwf[0, 2] * scale
 
   c2w = np.concatenate([matrices[:, :, 1:2], -matrices[:, :, 0:1], matrices[:, :, 2:4]], axis=2)
-  tracks = colmap.beside(path, c2w, _model_names(path, len(c2w)), table_path)
+  tracks = colmap_model.beside(path, c2w, _model_names(path, len(c2w)), table_path)
   points = None if tracks is None else tracks[0]
   if recenter:
     frame, centre = _average_camera(c2w)
@@ -180,7 +180,7 @@ def load_llff(path, factor=1, bd_factor=None, recenter=False):
 
 
 def _model_names(path, num_views):
-  """The names a COLMAP model beside the LLFF folder is matched by (colmap.beside): images/'
+  """The names a COLMAP model beside the LLFF folder is matched by (colmap_model.beside): images/'
   sorted names, row k the k-th (the names COLMAP saw); None (the model's images in name order,
   LLFF's imgs2poses rule) where images/ does not hold num_views images."""
   folder = os.path.join(path, "images")

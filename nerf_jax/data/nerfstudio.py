@@ -14,7 +14,7 @@ Fields read (top level for one camera, or per frame for several; a frame's own v
   ply_file_path (optional sparse points, used to centre and scale, and for `Dataset.aabb`);
   a COLMAP model beside the file (colmap/sparse/0 as nerf-process and ns-process-data keep it,
     or sparse/0): its points' tracks (`Dataset.observations`), its images matched to the frames
-    by file name, its points carried onto the frames' poses (`colmap.beside`);
+    by file name, its points carried onto the frames' poses (`colmap_model.beside`);
   aabb_scale, scale, offset (optional, instant-ngp's scene box, `ngp_box`);
   near, far, nerf_jax_normalized (written by `nerf-process`).
   frames[].mask_path (optional, nerfstudio's masks: 0 = ignore the pixel), else instant-ngp's
@@ -43,7 +43,7 @@ import os
 import numpy as np
 
 from nerf_jax.cameras.cameras import Cameras
-from nerf_jax.data import lens, masks as masks_lib, orient, pointcloud, validate
+from nerf_jax.data import colmap_model, lens, masks as masks_lib, orient, pointcloud, validate
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.data.validate import composite, parse_background
 
@@ -310,16 +310,15 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
 
 
 def _tracks(root, poses, names, meta_path):
-  """colmap.beside's tracks of a COLMAP model under `root` (nerf-process's colmap/sparse/0,
-  ns-process-data's likewise) for the frames `names` at `poses` (the file's frame), or None."""
-  from nerf_jax.data import colmap  # pylint: disable=import-outside-toplevel
-  # (here, not at the top: colmap.py reads this module's undistortion, a cycle)
-  return colmap.beside(root, poses, names, meta_path)
+  """colmap_model.beside's tracks of a COLMAP model under `root` (nerf-process's
+  colmap/sparse/0, ns-process-data's likewise) for the frames `names` at `poses` (the file's
+  frame), or None."""
+  return colmap_model.beside(root, poses, names, meta_path)
 
 
 def _tracked(points, tracks, transform):
   """Dataset's points: `points` (ply_file_path's float [P, 3] in the Dataset's frame, or None)
-  without `tracks` (colmap.beside's, or None); with them the model's points carried by
+  without `tracks` (colmap_model.beside's, or None); with them the model's points carried by
   `transform` (float64 [4, 4], the loader's move of the world) in their place (nerf-process
   writes the same points to the ply; the boxes, near and far stay the ply's), and its
   point_errors and observations."""

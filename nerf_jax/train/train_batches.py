@@ -287,9 +287,9 @@ def keypoints_of(data, ds):
   of `data` (its TrainData, as make_train_data builds it: the poses, cameras, bounds and NDC the
   rays are made with). Dropped: an observation whose point is behind its camera, outside its
   image (no pixel's ray is nearest it: pixel k spans [k - 0.5, k + 0.5) in `at`) or outside its
-  ray's [near, far]; and every observation of a point that a mask hides in
-  any training image (Dataset.masks: the point may lie on what the mask hides, a passer-by).
-  float64 on the host; K may be 0 (the caller says what that means)."""
+  ray's [near, far]; and every observation of a point that a mask hides in any training image
+  (Dataset.masks: the point may lie on what the mask hides, a passer-by). Computed in float64
+  on the host; K may be 0 (the caller says what that means)."""
   image, point = np.asarray(ds.observations, np.int64).T
   at, t, scale, inside = _project(data, image, np.asarray(ds.points, np.float64)[point])
   if ds.masks is not None:

@@ -44,6 +44,7 @@ from nerf_jax.train.state import TrainState
 # own (a fold_in, not a split, so the batch's and the render's keys stay as they were).
 KEYPOINTS_KEY = 0x4B59
 
+
 @dataclasses.dataclass(frozen=True)
 class StepSettings:
   """What a train step does besides rendering and the loss terms: config.train's fields of

@@ -1,4 +1,4 @@
-"""The sparse points' tracks (nerf_jax.data.colmap's reader, Dataset.observations, and
+"""The sparse points' tracks (nerf_jax.data.colmap_model's reader, Dataset.observations, and
 train_batches.Keypoints): a COLMAP model written by pycolmap with the built-in 'diffuse' scene's
 cameras, each image's keypoints the points' exact projections, read back and compared with what
 was written; loaded as a COLMAP folder, beside transforms.json and beside an LLFF folder, each
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from nerf_jax.cameras.cameras import Cameras
-from nerf_jax.data import colmap, llff, nerfstudio, scenes
+from nerf_jax.data import colmap, colmap_model, llff, nerfstudio, scenes
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.train import train_batches
 from tests.helpers import assert_data_error, load_data, requires_pycolmap
@@ -88,8 +88,8 @@ def test_every_observation_and_error_pycolmap_wrote_is_read(tmp_path, binary):
   _, _, errors, model = tracked_scene()
   folder = str(tmp_path / "sparse" / "0")
   _write(model, folder, binary)
-  _, images_file, points_file = colmap.model_files(folder)
-  keypoints, images = colmap.read_keypoints(images_file), colmap.read_images(images_file)
+  _, images_file, points_file = colmap_model.model_files(folder)
+  keypoints, images = colmap_model.read_keypoints(images_file), colmap_model.read_images(images_file)
   assert set(keypoints) == set(images) == set(model.images)
   for image_id, image in model.images.items():
     xy, ids = keypoints[image_id]
@@ -98,7 +98,7 @@ def test_every_observation_and_error_pycolmap_wrote_is_read(tmp_path, binary):
     np.testing.assert_array_equal(ids, [p.point3D_id if p.has_point3D() else -1
                                         for p in image.points2D])
     assert ids[0] == ids[-1] == -1 and np.all(ids[1:-1] >= 0)
-  sparse = colmap.read_sparse_points(points_file)
+  sparse = colmap_model.read_sparse_points(points_file)
   assert len(sparse.ids) == model.num_points3D() == POINTS
   for k, point_id in enumerate(sparse.ids):
     point = model.point3D(int(point_id))
@@ -113,7 +113,7 @@ def test_every_observation_and_error_pycolmap_wrote_is_read(tmp_path, binary):
     for image_id, index in zip(sparse.track_images[in_track], sparse.track_points2d[in_track]):
       assert keypoints[int(image_id)][1][index] == point_id
   np.testing.assert_allclose(np.sort(sparse.errors), np.sort(errors), rtol=1e-12)
-  xyz, rgb = colmap.read_points(points_file)  # the old reader's form is kept
+  xyz, rgb = colmap_model.read_points(points_file)  # the old reader's form is kept
   np.testing.assert_array_equal(xyz, sparse.xyz)
   np.testing.assert_array_equal(rgb, sparse.rgb)
 
@@ -121,23 +121,23 @@ def test_every_observation_and_error_pycolmap_wrote_is_read(tmp_path, binary):
 def test_malformed_tracks_are_one_line_errors(tmp_path):
   points = tmp_path / "points3D.txt"
   points.write_text("1 0 0 1 1 2 3 0.5 4\n")  # a track element without its 2D point
-  assert_data_error([str(points), "line 1", "TRACK"], colmap.read_sparse_points, str(points))
-  points.write_text("1 0 0 1 1 2 3 nan 4 0\n")
-  assert_data_error([str(points), "errors contain NaN"], colmap.read_sparse_points, str(points))
+  assert_data_error([str(points), "line 1", "TRACK"], colmap_model.read_sparse_points, str(points))
+  points.write_text("1 0 0 1 1 2 3 x 4 0\n")
+  assert_data_error([str(points), "line 1", "ERROR"], colmap_model.read_sparse_points, str(points))
   images = tmp_path / "images.txt"
   images.write_text("1 1 0 0 0 0 0 0 1 a.png\n1.5 2.5\n")
-  assert_data_error([str(images), "line 2", "POINT3D_ID"], colmap.read_keypoints, str(images))
+  assert_data_error([str(images), "line 2", "POINT3D_ID"], colmap_model.read_keypoints, str(images))
   binary = tmp_path / "images.bin"
   binary.write_bytes(np.array([1], "<u8").tobytes() + np.array([1], "<i4").tobytes() +
                      np.zeros(7).tobytes() + np.array([1], "<i4").tobytes() + b"a.png\0" +
                      np.array([3], "<u8").tobytes() + bytes(24))  # 1 of 3 points
-  assert_data_error([str(binary), "truncated"], colmap.read_keypoints, str(binary))
+  assert_data_error([str(binary), "truncated"], colmap_model.read_keypoints, str(binary))
 
 
 def _file_order(folder):
   """int64 [P]: the index into tracked_scene's points (id - 1) of each point of the model in
   `folder`, in its file's order (the Dataset's)."""
-  return colmap.read_sparse_points(colmap.model_files(folder)[2]).ids - 1
+  return colmap_model.read_sparse_points(colmap_model.model_files(folder)[2]).ids - 1
 
 
 def _tracks_of(model, image_ids, order):

@@ -228,14 +228,14 @@ def test_the_proposal_samplers_term_has_its_own_namespace():
 
 def test_the_registry_finds_the_built_ins_and_names_the_field_for_an_unknown_term():
   assert losses.REGISTRY.names() == ("colour", "distortion", "pose_prior", "total_variation",
-                                     "transient", "robust", "masked_empty")
+                                     "transient", "robust", "masked_empty", "depth")
   for name in losses.REGISTRY.names():
     record = losses.REGISTRY.lookup(name)
     assert record.name == name
     assert losses.REGISTRY.lookup(f"nerf_jax.train.losses.{name}") is record  # a module path
   with pytest.raises(ValueError, match="config.loss.terms must be one of colour, distortion, "
                                        "pose_prior, total_variation, transient, robust, "
-                                       "masked_empty or a module path, got 'l1'"):
+                                       "masked_empty, depth or a module path, got 'l1'"):
     losses.REGISTRY.lookup("l1")
   with pytest.raises(ValueError, match="cannot import no.such_module"):
     losses.REGISTRY.lookup("no.such_module")

@@ -8,12 +8,12 @@ terms' losses in their order (`total`) and logs every stat as '<name>/<stat>' (t
 A term is one module defining `LOSS = losses.Loss(name, Settings, build)` (a `Loss` record):
 `config.loss.terms` lists the run's terms, in the order they are added, by their registered
 name (`REGISTRY`: colour, distortion, pose_prior, total_variation, transient, robust,
-masked_empty, depth, the modules of this package) or the dotted path of any importable module; each term's settings are
-its own section, `config.loss.<name>` (docs/extending.md, "Adding a loss term"). The entry layer
-builds them (run/builders.loss_terms), adds 'transient' where the field has a transient head,
-and appends the sampler's own terms (its `loss_terms()`). A term whose class has
-`replaces_colour = True` (robust) is itself the photometric loss: beside it the entry layer
-builds the colour term with weight 0 (its PSNR only), so the two are never added.
+masked_empty, depth, the modules of this package) or the dotted path of any importable module;
+each term's settings are its own section, `config.loss.<name>` (docs/extending.md, "Adding a
+loss term"). The entry layer builds them (run/builders.loss_terms), adds 'transient' where the
+field has a transient head, and appends the sampler's own terms (its `loss_terms()`). A term
+whose class has `replaces_colour = True` (robust) is itself the photometric loss: beside it the
+entry layer builds the colour term with weight 0 (its PSNR only), so the two are never added.
 
 A term with `keypoint_rays` > 0 (depth) asks for keypoint rays: each step then also draws that
 many observations of the sparse points (the most any term asks for; train_batches.Keypoints),

@@ -7,16 +7,18 @@ observations drawn at random over the training images (train_batches.Keypoints: 
 projected through its image's camera as trained, so every move of the world keeps it), and adds
 the weight times, in every render pass, the mean over them of
 
-  'kl'      DS-NeRF's KL form: sum_k -log(w_k + KL_EPS) · exp(-(t_k - D)² / (2 σ²)) · Δt_k over
-            the ray's intervals (weights w_k, midpoints t_k, lengths Δt_k): the ray's weights
-            pulled up near the point's depth D, and so down in front of it (the fog of few views);
+  'kl'      DS-NeRF's KL form: sum_k -log(w_k + KL_EPS) · exp(-(t_k - D)² / (2 σ²)) · Δt_k
+            over the ray's intervals (weights w_k, midpoints t_k, lengths Δt_k): the ray's
+            weights pulled up near the point's depth D, and so down in front of it (the fog of
+            few views);
   'robust'  Charbonnier's sqrt(1 + r²) - 1 of r = (E[t] - D) / σ, the expected depth's error in
             spreads: quadratic near D, linear (a bounded pull) far from it.
 
 D and σ are in the ray's t: z-depth, or NDC's s. σ follows the point's reprojection error as
-DS-NeRF weighs its points: σ = sigma · max(e / ē, min_error_ratio) · depth, e the point's error,
-ē the mean over the points kept (a point twice as uncertain as most gets twice the spread; the
-floor keeps the best points from a spread too thin for the samples to resolve). Needs the data's
+DS-NeRF weighs its points: σ = sigma · max(e / ē, min_error_ratio) · depth (in t: times
+dt/d depth, Keypoints.scale), e the point's error, ē the mean over the points kept (a point
+twice as uncertain as most gets twice the spread; the floor keeps the best points from a spread
+too thin for the samples to resolve). Needs the data's
 tracks (Dataset.observations: a COLMAP model, or one beside transforms.json or an LLFF folder).
 """
 
@@ -38,7 +40,7 @@ class Settings:
   weight: float = 0.0  # weight of the sparse points' depth on their keypoints' rays (0 = off)
   form: str = "kl"  # 'kl' (DS-NeRF: the weights near the point) or 'robust' (the expected depth)
   rays: int = 256  # keypoint rays a step renders: observations drawn over all training images
-  sigma: float = 0.02  # a point's depth spread, a share of its depth, at the mean reprojection error
+  sigma: float = 0.02  # depth spread of a point of mean reprojection error: a share of its depth
   min_error_ratio: float = 0.5  # the least error / mean error a point's spread is scaled by
 
   def __post_init__(self):
