@@ -9,8 +9,11 @@ import ml_collections
 import numpy as np
 import pytest
 
-from nerf_jax.data.dataset import Dataset
-from nerf_jax.run import auto, subject
+from nerf_jax.cameras.cameras import Cameras
+from nerf_jax.data.dataset import DataError, Dataset
+from nerf_jax.run import auto, config_lib, from_data, subject
+from nerf_jax.samplers import occupancy, visual_hull
+from tests.helpers import small_config
 
 BOX_LO, BOX_HI = np.array([1.0, -2.5, 0.5]), np.array([1.8, -1.3, 1.7])  # half (0.4, 0.6, 0.6)
 CENTRE, HALF = 0.5 * (BOX_LO + BOX_HI), 0.5 * (BOX_HI - BOX_LO)
@@ -224,3 +227,162 @@ def test_llff_keeps_each_views_bounds(tmp_path):
   np.testing.assert_allclose(loaded.bounds, bounds)
   assert (loaded.near, loaded.far) == (1.0, 9.0)
   np.testing.assert_allclose(loaded.subset([1, 3]).bounds, bounds[[1, 3]])
+
+
+# A collection with a camera per photo (nerf-process --nosingle_camera): each photo its own size,
+# focal and principal point, and (with far=True) every sixth photo taken from 4x as far through
+# a 4x longer lens, so that the cameras' region is ±32 and its first carving grid's cells
+# (1.3) are wider than the box (0.8 on x): the box's cells are located by their footprints.
+SIZES = ((48, 64), (64, 48), (56, 56))  # (height, width) in turn
+FAR = 4.0
+
+
+def _own_cameras(poses, far=False):
+  """(poses float64 [N, 4, 4], [(height, width, (fx, fy, cx, cy))]) of the collection above."""
+  rng = np.random.default_rng(5)
+  poses, cameras = poses.copy(), []
+  for k in range(len(poses)):
+    height, width = SIZES[k % len(SIZES)]
+    focal = FOCAL * np.exp(rng.uniform(-0.4, 0.4))
+    if far and k % 6 == 0:
+      poses[k, :3, 3] = CENTRE + FAR * (poses[k, :3, 3] - CENTRE)
+      focal *= FAR
+    cameras.append((height, width, (focal, focal * 1.02, width / 2 + rng.uniform(-3, 3),
+                                    height / 2 + rng.uniform(-3, 3))))
+  return poses, cameras
+
+
+def _box_mask(pose, camera):
+  """float32 [H, W]: 1 where the ray through a pixel's centre, through `camera` ((height, width,
+  (fx, fy, cx, cy)); y up, looking down -z), meets the box BOX_LO..BOX_HI ahead (slab test)."""
+  height, width, (fx, fy, cx, cy) = camera
+  u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5, indexing="xy")
+  d = np.stack([(u - cx) / fx, -(v - cy) / fy, -np.ones_like(u)], -1) @ pose[:3, :3].T
+  with np.errstate(divide="ignore", invalid="ignore"):
+    t0, t1 = (BOX_LO - pose[:3, 3]) / d, (BOX_HI - pose[:3, 3]) / d
+  enter, leave = np.minimum(t0, t1).max(-1), np.maximum(t0, t1).min(-1)
+  return ((leave >= enter) & (leave > 0)).astype(np.float32)
+
+
+def _own_dataset(far=False, **fields):
+  """A Dataset of the collection above (images of three sizes: lists), its masks the box's."""
+  poses, cameras = _own_cameras(_sphere_cameras(), far)
+  masks = [_box_mask(p, c) for p, c in zip(poses, cameras)]
+  return Dataset([np.zeros((h, w, 3), np.float32) for h, w, _ in cameras],
+                 poses.astype(np.float32), cameras[0][2], near=1.0, far=40.0,
+                 image_cameras=Cameras.stack(cameras), masks=masks, **fields), cameras
+
+
+@pytest.mark.parametrize("far", [False, True])
+def test_masks_through_each_photos_own_camera_give_the_box(far):
+  dataset, cameras = _own_dataset(far)
+  assert dataset.mixed_sizes and dataset.image_cameras is not None
+  box = subject.subject_box(dataset)
+  assert box.source == "masks"
+  # The largest pixel footprint at the box (distance 8 or 32 over the focal) bounds the error,
+  # as for one camera (test_masks_of_a_subject_give_its_box).
+  pixel = max(np.linalg.norm(dataset.poses[k, :3, 3] - CENTRE) / c[2][0]
+              for k, c in enumerate(cameras))
+  np.testing.assert_allclose(box.centre, CENTRE, atol=pixel)
+  assert np.all(box.half >= HALF - pixel) and np.all(box.half <= HALF + 0.2)
+  # A projection written here: each photo keeps the box's centre, through its own camera.
+  for pose, camera, mask in zip(dataset.poses, cameras, dataset.masks):
+    local = (CENTRE - pose[:3, 3]) @ pose[:3, :3]
+    (fx, fy, cx, cy) = camera[2]
+    column = cx + fx * local[0] / -local[2] - 0.5
+    row = cy - fy * local[1] / -local[2] - 0.5
+    assert mask[int(round(row)), int(round(column))] == 1.0
+
+
+def test_far_photos_make_the_first_grid_coarser_than_the_box():
+  # What the footprints are for: the cells' centres alone keep nothing on the cameras' region.
+  dataset, _ = _own_dataset(far=True)
+  region = subject.cameras_region(dataset)
+  assert 2 * region[1] / subject.CARVE_CELLS > 2 * HALF.min()
+  def centres_kept(points):
+    seen, kept = visual_hull.mask_votes(dataset.masks, dataset.poses, dataset.cameras, points,
+                                        lambda k, depth: 0, dataset.pixel_center)
+    return (seen >= subject.MASK_SEEN * len(dataset)) & (kept >= subject.MASK_VOTE * seen)
+  assert subject.carve(centres_kept, region) is None
+  assert subject.from_masks(dataset, region).source == "masks"
+
+
+def test_masks_come_before_points_that_cover_the_square_too():
+  rng = np.random.default_rng(6)
+  # structure from motion's points: the monument, and the square and crowd around it
+  points = np.concatenate([rng.uniform(BOX_LO, BOX_HI, (2000, 3)),
+                           CENTRE + rng.uniform(-6.0, 6.0, (4000, 3)) * [1, 1, 0.1]])
+  dataset, _ = _own_dataset(points=points.astype(np.float32))
+  assert subject.from_points(dataset.points).half.max() > 4.0  # the square's, not the subject's
+  box = subject.subject_box(dataset)
+  assert box.source == "masks" and np.all(box.half <= HALF + 0.2)
+  effects, lines = auto.subject_effects(dataset, True, "", stored_camera=False)
+  assert effects == {"data.subject": "auto", "data.contraction": auto.CONTRACTION,
+                     "data.photo_bounds": True, "data.visual_hull": True}
+  assert "the masks mark a subject" in lines[0]
+  # Masks of passers-by mark no subject: the points come next.
+  crowd = np.ones((len(dataset.poses), SIZE, SIZE), np.float32)
+  crowd[:, 20:40, 10:30] = 0.0
+  found, reasons = subject.find_box(_dataset(_sphere_cameras(), masks=crowd, points=points
+                                             .astype(np.float32)))
+  assert found.source == "points" and "passers-by" in reasons[0]
+
+
+def test_the_subject_asked_from_masks_with_a_camera_per_photo_bounds_and_carves(monkeypatch):
+  monkeypatch.setattr(from_data, "SUBJECT_HULL_CELLS", 48)  # 96 in a run: 8x the test's time
+  photos, _ = _own_dataset()
+  train, test = photos.subset(np.arange(0, len(photos), 3)), photos.subset([1, 2])
+  config = small_config(base="capture", **{"data.subject": "masks", "data.photo_bounds": True,
+                                           "data.visual_hull": True, "data.scene_bound": -1.0,
+                                           "data.contraction": "linf"})
+  config, moved, moved_test = subject.with_subject(config, train, test)
+  box = subject.subject_box(train)
+  scale = 1.0 / (subject.MARGIN * box.half.max())
+  truth = scale * (_corners(BOX_LO, BOX_HI) - box.centre)  # the true box, moved
+  # Each photo's bounds hold the true box's depths (the box found holds it within a pixel).
+  for bounds in (moved.bounds, moved_test.bounds):
+    poses = moved.poses if bounds is moved.bounds else moved_test.poses
+    z = -np.einsum("nmi,ni->nm", truth[None] - poses[:, None, :3, 3], poses[:, :3, 2])
+    assert np.all(bounds[:, 0] <= z.min(1) + 0.2 * scale)
+    assert np.all(bounds[:, 1] >= z.max(1) - 0.2 * scale)
+  _, (hull, extent) = from_data.with_visual_hull(config, moved)
+  cells = np.asarray(occupancy.cell_centres(hull.shape[0], extent)).reshape(-1, 3)
+  inside = np.all((cells >= truth.min(0)) & (cells <= truth.max(0)), axis=1)
+  kept = np.asarray(hull).reshape(-1) > 0
+  assert kept[inside].all()  # none of the subject carved
+  outside = np.max(np.maximum(truth.min(0) - cells, cells - truth.max(0)), axis=1)
+  # The photos rule out what lies well outside it; a 60% vote keeps cells just outside a face,
+  # which most photos see against it (here up to 0.83 out, the box's half-extent 0.79).
+  assert kept[outside > 0.5].mean() < 0.05 and not kept[outside > 1.0].any()
+
+
+def test_a_source_that_gives_no_box_is_named_with_its_reason():
+  poses = _sphere_cameras()
+  with pytest.raises(ValueError, match="masks: the data has no masks"):
+    subject.with_subject(_config("masks", -1.0), _dataset(poses), None)
+  crowd = np.ones((len(poses), SIZE, SIZE), np.float32)
+  crowd[:, 20:40, 10:30] = 0.0
+  with pytest.raises(ValueError, match="passers-by"):
+    subject.with_subject(_config("masks", -1.0), _dataset(poses, masks=crowd), None)
+
+
+@pytest.mark.parametrize("source", ["points", "auto"])
+def test_a_box_with_no_extent_is_a_one_line_error_naming_its_source(source):
+  # every sparse point at one place (a broken point cloud): no scale fills a box of size 0
+  train = _dataset(_sphere_cameras(), points=np.tile(CENTRE, (10, 1)).astype(np.float32))
+  with pytest.raises(DataError, match="box from the points has no extent") as error:
+    subject.with_subject(_config(source, -1.0), train, train)
+  assert "\n" not in str(error.value)
+
+
+def test_auto_measures_the_subject_on_the_photos_not_their_resampled_view(monkeypatch):
+  # The other rules read one camera's view (Dataset.one_camera: every photo resampled into the
+  # narrowest field of view); the subject is measured on the photos themselves.
+  dataset, _ = _own_dataset()
+  given = []
+  monkeypatch.setattr(auto, "subject_effects",
+                      lambda photos, *args: given.append(photos) or ({}, []))
+  monkeypatch.setattr(auto, "transient_effects", lambda *args: ({}, "no transients: not here"))
+  auto.auto_config(config_lib.load("auto"), dataset, backend="cpu")
+  assert dataset.one_camera().image_cameras is None  # what the other rules read
+  assert len(given) == 1 and given[0] is dataset
