@@ -1,6 +1,7 @@
 """The visual hull: projection inverts the camera rays; carving a sphere's masks keeps every cell
 the sphere touches and removes what no view covers; transient masks never carve; a subject's
-masks, hidden in some photos by passers-by, carved by vote; the gate and every rendering path
+masks, hidden in some photos by passers-by, carved by vote (the one mask vote, each photo
+through its own camera, against a vote written here; its windows and footprints); the gate and every rendering path
 give no density outside the hull (closed-form optical depths); grids over a tighter, non-cubic
 box interpolate as brute force; a run with data.visual_hull samples only inside the hull."""
 
@@ -275,3 +276,57 @@ def test_a_run_on_a_subjects_masks_carves_their_vote_whatever_the_box():
   assert out is config and 0.02 < float(jnp.mean(hull)) < 0.1  # the ball: 3.2% of the box
   config.data.subject = ""
   assert from_data.with_visual_hull(config, dataset)[1] is None
+
+
+def test_one_vote_counts_each_photo_through_its_own_camera():
+  # mask_votes (the vote of the subject's box, its hull and the photos' zoom) against a vote
+  # written here: each point projected through each photo's own size and intrinsics, its mask
+  # read over the square window of the point's radius, pixel by pixel.
+  rng = np.random.default_rng(7)
+  poses = _views(6).astype(np.float64)
+  cameras = [(h, w, (f, 1.1 * f, w / 2 + 1.5, h / 2 - 2.0))
+             for h, w, f in [(20, 30, 25.0), (24, 24, 40.0), (30, 20, 30.0)] * 2]
+  masks = [(rng.random((h, w)) > 0.8).astype(np.float32) for h, w, _ in cameras]
+  points = rng.uniform(-1.5, 1.5, (400, 3))
+  radius = lambda k, depth: None if k == 5 else (np.arange(len(depth)) + k) % 3  # 5 abstains
+  seen, kept = visual_hull.mask_votes(masks, poses, Cameras.stack(cameras), points, radius, 0.5)
+  want_seen, want_kept = np.zeros(len(points)), np.zeros(len(points))
+  for k, (pose, (h, w, (fx, fy, cx, cy)), mask) in enumerate(zip(poses, cameras, masks)):
+    if k == 5:
+      continue
+    for m, point in enumerate(points):
+      x, y, z = (point - pose[:3, 3]) @ pose[:3, :3]
+      i = int(np.floor(cx + fx * x / -z - 0.5 + 0.5))  # the pixel whose centre ray is nearest
+      j = int(np.floor(cy - fy * y / -z - 0.5 + 0.5))
+      if -z <= 0 or not (0 <= i < w and 0 <= j < h):
+        continue
+      r = (m + k) % 3
+      want_seen[m] += 1
+      want_kept[m] += mask[max(j - r, 0):j + r + 1, max(i - r, 0):i + r + 1].any()
+  np.testing.assert_array_equal(seen, want_seen)
+  np.testing.assert_array_equal(kept, want_kept)
+  assert 0 < kept.sum() < seen.sum()
+
+
+def test_a_window_read_from_the_summed_table_is_the_dilated_mask():
+  rng = np.random.default_rng(8)
+  mask = (rng.random((17, 23)) > 0.93).astype(np.float32)
+  rows, columns = np.meshgrid(np.arange(17), np.arange(23), indexing="ij")
+  for radius in (0, 1, 3, 30):
+    np.testing.assert_array_equal(
+        visual_hull.kept_within(mask, rows.reshape(-1), columns.reshape(-1), radius),
+        np.asarray(visual_hull.dilated(mask, radius)).reshape(-1) > 0)
+
+
+def test_a_footprint_covers_the_ball_it_stands_for():
+  # A ball of radius 0.3 straight ahead at depth z spans f tan(asin(0.3 / z)) pixels from its
+  # centre's: the footprint holds that, within 10% and two pixels from 10 radii away, and is the
+  # whole image from within the ball.
+  camera, reach = (40, 60, (50.0, 45.0, 30.0, 20.0)), 0.3
+  depth = np.array([0.1, 0.3, 0.5, 1.0, 3.0, 4.0, 20.0])
+  got = visual_hull.footprint_radius(reach, camera, depth)
+  spans = 50.0 * np.tan(np.arcsin(np.minimum(reach / depth, 1.0)))
+  ahead, far = depth > reach, depth >= 10 * reach
+  assert np.all(got[ahead] >= spans[ahead]) and np.all(got <= 60)
+  assert np.all(got[far] <= 1.1 * spans[far] + 2)
+  np.testing.assert_array_equal(got[~ahead], 60)
