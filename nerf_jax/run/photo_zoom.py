@@ -8,7 +8,9 @@ projection of the hull agrees best with the mask (intersection over union, searc
 log-spaced grid) is that photo's zoom; the hull is then carved again through the found cameras.
 The scales are divided by their median, as the stored focal is one for all the photos (COLMAP's
 shared camera fits the typical photo): a hull carved through wrong focals is too large, which
-biases every scale alike.
+biases every scale alike. A photo whose mask the hull's projection meets at no scale (its pose
+or its mask contradicts the other photos) says nothing of its zoom: it keeps the stored focal,
+and one line names it.
 
 Names: dataset: the training Dataset (one image size; `masks` keep the subject, the world
 scaled so the subject fills [-bound, bound]^3: data.subject); pixel_center: float (`cameras.rays`).
@@ -62,26 +64,33 @@ def overlap(points, pose, camera, mask, log_scales, pixel_center):
 
 def best_scale(points, pose, camera, mask, pixel_center):
   """float: the log focal scale of `camera` whose projection of `points` agrees best with
-  `mask` (`overlap`): the best of LOG_SCALES, then of FINE_STEPS about it."""
-  coarse = LOG_SCALES[np.argmax(overlap(points, pose, camera, mask, LOG_SCALES, pixel_center))]
-  fine = coarse + FINE_STEPS
+  `mask` (`overlap`): the best of LOG_SCALES, then of FINE_STEPS about it; None where none of
+  LOG_SCALES' projections meets the mask (no scale is better than another)."""
+  scores = overlap(points, pose, camera, mask, LOG_SCALES, pixel_center)
+  if not scores.max() > 0:
+    return None
+  fine = LOG_SCALES[np.argmax(scores)] + FINE_STEPS
   return float(fine[np.argmax(overlap(points, pose, camera, mask, fine, pixel_center))])
 
 
 def fit_zooms(dataset, bound, vote, pixel_center):
-  """float64 [N]: each training photo's log focal scale against the stored camera (median 0),
-  after ROUNDS rounds of carving the masks' hull over [-bound, bound]^3 and fitting each
-  photo's scale to its mask (module docstring)."""
+  """(float64 [N], int [M]): each training photo's log focal scale against the stored camera
+  (median 0 over the photos fitted), after ROUNDS rounds of carving the masks' hull over
+  [-bound, bound]^3 and fitting each photo's scale to its mask (module docstring); and the
+  photos whose mask the hull's projection meets at no scale in some round (a pose or a mask
+  that the others contradict), which keep the stored focal (log scale 0)."""
   cameras, logs = dataset.cameras, np.zeros(len(dataset))
+  missed = np.zeros(len(dataset), bool)
   for _ in range(ROUNDS):
     points = hull_points(dataset, cameras, bound, vote, pixel_center)
-    found = np.array([best_scale(points, pose, cameras.camera(k), dataset.masks[k],
-                                 pixel_center)
-                      for k, pose in enumerate(np.asarray(dataset.poses, np.float64))])
-    logs = logs + found
-    logs -= np.median(logs)
+    found = [best_scale(points, pose, cameras.camera(k), dataset.masks[k], pixel_center)
+             for k, pose in enumerate(np.asarray(dataset.poses, np.float64))]
+    missed |= np.array([f is None for f in found])
+    logs = np.where(missed, 0.0, logs + np.array([f or 0.0 for f in found]))
+    if not missed.all():
+      logs[~missed] -= np.median(logs[~missed])
     cameras = scaled(dataset.cameras, logs)
-  return logs
+  return logs, np.flatnonzero(missed)
 
 
 def scaled(cameras, log_scales):
@@ -92,10 +101,15 @@ def scaled(cameras, log_scales):
 
 def with_photo_zoom(dataset, bound, vote, pixel_center):
   """`dataset` with a camera per photo (`image_cameras`), each focal scaled by its photo's
-  fitted zoom (`fit_zooms`), and one line saying their spread."""
-  logs = fit_zooms(dataset, bound, vote, pixel_center)
+  fitted zoom (`fit_zooms`), and one line saying their spread; one more naming the photos that
+  keep the stored focal, where the hull misses their masks."""
+  logs, missed = fit_zooms(dataset, bound, vote, pixel_center)
   print(f"photo zoom: each training photo's focal fitted to its mask against the masks' hull: "
         f"x{np.exp(logs.min()):.2f} to x{np.exp(logs.max()):.2f} of the stored "
         f"{dataset.focal:.4g} px (median x1; data.photo_zoom)", flush=True)
+  if len(missed):
+    print(f"photo zoom: training photo{'s' * (len(missed) > 1)} "
+          f"{', '.join(str(k) for k in missed)} keep{'s' * (len(missed) == 1)} the stored "
+          f"focal: the masks' hull meets {'their masks' if len(missed) > 1 else 'its mask'} "
+          "at no zoom (a pose or a mask the other photos contradict)", flush=True)
   return dataclasses.replace(dataset, image_cameras=scaled(dataset.cameras, logs))
-

@@ -1,6 +1,8 @@
 """Each photo's zoom recovered from its mask (run/photo_zoom.py): a ball photographed at known
 zooms through one stored focal, its masks cast ray by ray in the test."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -40,7 +42,8 @@ def collection(num=24, seed=0):
 
 def test_each_photos_zoom_is_recovered_from_its_mask():
   data, zooms = collection()
-  found = photo_zoom.fit_zooms(data, bound=1.0, vote=0.6, pixel_center=0.5)
+  found, missed = photo_zoom.fit_zooms(data, bound=1.0, vote=0.6, pixel_center=0.5)
+  assert len(missed) == 0
   assert np.median(found) == pytest.approx(0.0, abs=1e-9)  # the stored focal is the median
   error = np.sqrt(np.mean((found - zooms) ** 2))
   assert error < 0.05, (error, np.sqrt(np.mean(zooms ** 2)))  # the stored focal's: 0.21
@@ -65,3 +68,21 @@ def test_a_photo_through_its_true_focal_scores_best_at_scale_one():
   scores = photo_zoom.overlap(points, data.poses[0], camera, data.masks[0],
                               photo_zoom.LOG_SCALES, 0.5)
   assert abs(photo_zoom.LOG_SCALES[np.argmax(scores)]) <= 0.04  # 0.08 apart: the grid point 0
+
+
+def test_a_photo_the_hull_never_meets_keeps_the_stored_focal(capsys):
+  # Photo 0 posed looking away from the ball (a pose the others contradict): no zoom projects
+  # the hull onto its mask, so none is better than another; it keeps the stored focal, one line
+  # names it, and the others are fitted as before (their median the stored focal).
+  data, zooms = collection(num=16, seed=3)
+  poses = np.array(data.poses)
+  poses[0, :3, :3] = poses[0, :3, :3] @ np.diag([-1.0, 1.0, -1.0])  # turned about its y axis
+  data = dataclasses.replace(data, poses=poses)
+  found, missed = photo_zoom.fit_zooms(data, bound=1.0, vote=0.6, pixel_center=0.5)
+  assert list(missed) == [0] and found[0] == 0.0
+  others = zooms[1:] - np.median(zooms[1:])
+  assert np.sqrt(np.mean((found[1:] - others) ** 2)) < 0.06  # as 12 photos do (above)
+  zoomed = photo_zoom.with_photo_zoom(data, bound=1.0, vote=0.6, pixel_center=0.5)
+  assert zoomed.cameras.fx[0] == FOCAL
+  lines = capsys.readouterr().out.splitlines()
+  assert lines[-1].startswith("photo zoom: training photo 0 keeps the stored focal")
