@@ -78,7 +78,9 @@ def make_evaluator(exp, settings):
   Where the test views have masks (`Dataset.masks`) no masked pixel is scored (MASK_RULE, the
   metrics' mask argument; left_half fits the codes on kept pixels alone) and the result holds
   'masks' (MASK_RULE) and 'masked_pixels', the share of the scored pixels that were masked; a
-  view whose windows are all centred on masked pixels has no 'ssim'.
+  view whose windows are all centred on masked pixels has no 'ssim'. A view whose left half
+  keeps no pixel has nothing to fit a code on: the training codes' mean renders it, its
+  per_view entry says 'mean_code': True, and one line says so.
   """
   every = settings.held_out.test_every
   if int(every) != every or every < 1:
@@ -114,14 +116,21 @@ def make_evaluator(exp, settings):
         rays = rays.replace(near=jnp.full_like(rays.near, test_ds.bounds[i][0]),
                             far=jnp.full_like(rays.far, test_ds.bounds[i][1]))
       truth, mask = truths[i], test_ds.mask(i)
+      mean_code = False  # the training codes' mean in place of a fit on no pixel
       if fit_code is not None:  # this view's own code, from its left half
         weight = None if mask is None else jnp.asarray(left_half_mask(mask))
-        draw = make_draw(fit_code(variables, *left_half(rays, truth), jnp.asarray(bg, jnp.float32),
-                                  weight))
+        mean_code = weight is not None and not bool(jnp.any(weight > 0))
+        if mean_code:
+          print(f"eval: view {i} keeps no pixel of its left half (its mask): the training "
+                "codes' mean renders it, not a code fitted there", flush=True)
+        draw = make_draw(variables if mean_code else fit_code(
+            variables, *left_half(rays, truth), jnp.asarray(bg, jnp.float32), weight))
       out = draw(rays, bg)
       kept = None if mask is None else scored(mask)
       view = {"view": i, "psnr": float(metrics.psnr(scored(out["rgb"]), scored(truth), kept)),
               **geometry_errors(out, test_ds, i)}
+      if mean_code:
+        view["mean_code"] = True
       ssim = float(metrics.ssim(scored(out["rgb"]), scored(truth), kept))
       if np.isfinite(ssim):  # NaN: every window centred on a masked pixel
         view["ssim"] = ssim
@@ -136,7 +145,8 @@ def make_evaluator(exp, settings):
         on_view(i, out, truth)
       if out_dir:
         _write_eval_view(out_dir, i, out, truth, exp.near, exp.far)
-    names = dict.fromkeys(name for v in per_view for name in v if name not in ("view", "label"))
+    names = dict.fromkeys(name for v in per_view for name in v
+                          if name not in ("view", "label", "mean_code"))
     result = {name: float(np.mean([v[name] for v in per_view if name in v])) for name in names}
     if lpips_skipped is not None:
       result["lpips_skipped"] = lpips_skipped
@@ -241,7 +251,8 @@ def make_code_fitter(ray_renderer, settings):
   times 0.1 after every fit_decay_every steps (`fit_schedule`), on fit_rays rays drawn from the
   P each step, the field frozen (NeRF-W's protocol for held-out views as nerfbaselines runs it;
   jitted once for every view of one size). weight: float32 [P] or None, each pixel's
-  mask (0: never fitted on, nor drawn). `ray_renderer` needs `render(variables, rays,
+  mask (0: never fitted on, nor drawn), keeping at least one pixel (the evaluator renders a view
+  whose left half keeps none with the mean code). `ray_renderer` needs `render(variables, rays,
   background=)` returning {'coarse': {'rgb'}, ...} (RayRenderer's)."""
   tx = optax.adam(fit_schedule(settings))
 

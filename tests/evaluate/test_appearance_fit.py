@@ -144,3 +144,36 @@ def test_the_evaluator_fits_each_view_on_its_left_halfs_kept_pixels(monkeypatch)
     left = slice(0, test.images.shape[2] // 2)
     np.testing.assert_array_equal(target, test.images[k][:, left].reshape(-1, 3))
     np.testing.assert_array_equal(weight, masks[k][:, left].reshape(-1))
+
+
+def test_a_view_whose_left_half_is_all_masked_keeps_the_mean_code(monkeypatch, capsys):
+  """A view with no kept pixel on its left half has nothing to fit a code on (the fit would
+  draw its rays with zero weights: masked pixels): the evaluator renders it with the mean code
+  (the variables as given), flags it in its per-view scores and says so; the other views are
+  fitted as before."""
+  fitted, drawn = [], []
+
+  def recording_fitter(ray_renderer, settings):
+    def fit(variables, rays, target, bg, weight=None):
+      fitted.append(np.asarray(target))
+      return {"fitted": True}
+    return fit
+  monkeypatch.setattr(image_renderer, "make_image_renderer",
+                      lambda *a: lambda p: drawn.append(p) or _grey)
+  monkeypatch.setattr(evaluation, "make_code_fitter", recording_fitter)
+  config = small_config({"data.image_size": 24, "model.appearance_dims": 4,
+                         "eval.appearance": "left_half"})
+  exp = experiment.setup(config)
+  test = exp.test_ds
+  masks = np.ones(test.images.shape[:3], np.float32)
+  masks[0, :, :test.images.shape[2] // 2] = 0.0  # view 0: its left half all masked
+  exp = dataclasses.replace(exp, test_ds=dataclasses.replace(test, masks=masks))
+  variables = {"params": {}}
+  result = builders.make_evaluator(exp)(variables, max_views=2)
+  assert len(fitted) == 1  # view 1 alone
+  np.testing.assert_array_equal(fitted[0], test.images[1][:, :test.images.shape[2] // 2]
+                                .reshape(-1, 3))
+  assert drawn[1:] == [variables, {"fitted": True}]  # view 0 drawn with the mean code
+  assert result["per_view"][0]["mean_code"] is True and "mean_code" not in result["per_view"][1]
+  assert "mean_code" not in result
+  assert "eval: view 0 keeps no pixel of its left half" in capsys.readouterr().out
