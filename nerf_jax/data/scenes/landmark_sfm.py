@@ -75,13 +75,15 @@ def pixel_rays(pose, rows, columns, height, width, focal, dist, pixel_center):
 
 
 def matched_points(depth, pose, focal, dist, pixel_center, near=landmark.NEAR,
-                   far=landmark.FAR, size=GRID):
+                   far=landmark.FAR, size=GRID, subject_only=False):
   """The points one photo matches (module docstring): (points float64 [M, 3], world; pixels
   float64 [M, 2], (column, row) + pixel_center where the photo shows each, the stored pinhole's
   convention; subject bool [M], on the monument).
 
   depth: float [H, W], the photo's z-depths (passers-by included); pose: float [4, 4], its true
-  camera-to-world; focal, dist: its true focal (pixels) and (k1, k2)."""
+  camera-to-world; focal, dist: its true focal (pixels) and (k1, k2). subject_only: the
+  monument's points alone (a reconstruction whose matches are all on the subject; the
+  benchmark's comparison, bench/sfm_twin.py)."""
   height, width = depth.shape
   rows, columns = grid_pixels(height, width, size)
   origins, directions = pixel_rays(pose, rows, columns, height, width, focal, dist,
@@ -89,7 +91,7 @@ def matched_points(depth, pose, focal, dist, pixel_center, near=landmark.NEAR,
   t, index, _ = simulator.first_hit(landmark.SCENE.objects, origins, directions, near, far)
   z = np.asarray(depth, np.float64)[rows, columns]
   static = z >= (1.0 - PASSER_TOLERANCE) * t  # float32 depths: equal up to rounding
-  keep = static & (index != SKY)
+  keep = static & (index < len(landmark.SUBJECT) if subject_only else index != SKY)
   points = origins[keep] + z[keep, None] * directions[keep]
   pixels = np.stack([columns[keep], rows[keep]], -1) + pixel_center
   return points, pixels.astype(np.float64), index[keep] < len(landmark.SUBJECT)
@@ -200,14 +202,16 @@ class Solve:
   subject_share: np.ndarray
 
 
-def reconstruct(train, focals, dists, size=GRID):
+def reconstruct(train, focals, dists, size=GRID, subject_only=False):
   """`Solve` of the training photos `train` (a Dataset as photographed: its depths, its true
   poses in `poses`) taken through focals float [N] and dists (k1, k2) float [N, 2], posed
-  through its stored pinhole. ValueError when a photo matches fewer than MIN_POINTS points."""
+  through its stored pinhole (size, subject_only: `matched_points`'). ValueError when a photo
+  matches fewer than MIN_POINTS points."""
   poses, rms, true_rms, counts, shares = [], [], [], [], []
   for k, pose in enumerate(np.asarray(train.poses, np.float64)):
     points, pixels, subject = matched_points(train.depths[k], pose, focals[k], dists[k],
-                                             train.pixel_center, train.near, train.far, size)
+                                             train.pixel_center, train.near, train.far, size,
+                                             subject_only)
     if len(points) < MIN_POINTS:
       raise ValueError(f"landmark_sfm: photo {k} matches {len(points)} points")
     solved, error = solved_pose(points, pixels, pose, train.intrinsics)
