@@ -1,9 +1,10 @@
 """The visual hull: projection inverts the camera rays; carving a sphere's masks keeps every cell
 the sphere touches and removes what no view covers; transient masks never carve; a subject's
 masks, hidden in some photos by passers-by, carved by vote (the one mask vote, each photo
-through its own camera, against a vote written here; its windows and footprints); the gate and every rendering path
-give no density outside the hull (closed-form optical depths); grids over a tighter, non-cubic
-box interpolate as brute force; a run with data.visual_hull samples only inside the hull."""
+through its own camera, against a vote written here; its windows and footprints); the gate and
+every rendering path give no density outside the hull (closed-form optical depths); grids over a
+tighter, non-cubic box interpolate as brute force; a run with data.visual_hull samples only
+inside the hull."""
 
 import jax
 import jax.numpy as jnp
