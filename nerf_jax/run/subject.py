@@ -11,8 +11,9 @@ Names (numpy, world units):
 The sources, in the order `subject_box` tries them:
   masks   masks that keep a subject (Dataset.masks): where at least MASK_VOTE of the photos
           that see a point (MASK_SEEN of all) keep its pixel (carved; visual_hull.mask_votes,
-          each photo through its own camera), if that is far smaller than the cameras' region
-          (masks of passers-by keep nearly everything);
+          each photo through its own camera; cells wider than the subject, where photos from
+          far away widen the region, located by their footprints first: `carve`), if that is
+          far smaller than the cameras' region (masks of passers-by keep nearly everything);
   points  the sparse points (Dataset.points): their POINT_PERCENTILE..(100 - it) percentiles;
   bounds  each image's (near, far) depths (Dataset.bounds, LLFF's): where every camera's depth
           slab holds a point (the slabs' intersection, carved);
