@@ -222,3 +222,19 @@ def test_a_run_with_appearance_codes_says_how_its_views_were_scored():
   assert row["protocol"].endswith("held-out views scored with eval.appearance=left_half")
   assert row["lpips_missing"] == "no weights" and "lpips" not in row
   assert row["held_out"] == [0, 8, 16] and row["test_views"] == 3
+
+
+def test_a_row_whose_machine_was_busy_says_so_in_its_line_and_the_table():
+  scene = standard.Scene("llff", "fern", "/data/fern", 378, 504, 20, [0, 8, 16])
+  metrics = {"psnr": 20.0, "ssim": 0.5, "steps": 10, "train_seconds": 3.0, "lpips": 0.3}
+  extra = {"protocol": standard.protocol(scene), "device": "cpu: cpu (x1)", "config": "auto",
+           "date": "today"}
+  busy = {"busy": True, "busy_why": "load 3.1 on 2 CPUs"}
+  row = standard.make_row(scene, metrics, {**extra, "machine": busy})
+  assert row["machine"] == busy
+  assert standard.row_line(row) == ("llff/fern: PSNR 20.00, SSIM 0.500 after 10 steps in 3 s "
+                                    "(busy: load 3.1 on 2 CPUs)")
+  assert "| cpu: cpu (x1) (busy: load 3.1 on 2 CPUs) | auto |" in standard.markdown([row], "c")
+  idle = standard.make_row(scene, metrics, {**extra, "machine": {"busy": False}})
+  assert standard.row_line(idle).endswith("in 3 s") and "busy" not in standard.markdown(
+      [idle], "c")
