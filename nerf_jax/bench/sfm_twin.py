@@ -6,7 +6,7 @@ poses a one-focal reconstruction gives), on the same training photos, this print
               against its zoom (focal / the stored focal) and what the pinhole predicts for
               the subject at z-depth d: d (1 - f / f_photo); their correlation and slope;
   the solve   the twin's RMS reprojection error (px) of the points each photo matched, at the
-              solved pose and at the true one;
+              solved pose and at the true one; its sparse points' tracks;
   the hull    the share of the masks' visual hull box kept, as config=auto computes it for a
               photo collection (run/subject.py finds the subject's box from the masks and
               scales it to fill ±1; run/from_data.subject_hull carves the box twice that size,
@@ -215,6 +215,18 @@ def moves_line(name, moved, predicted, zoom, solve):
           f"{np.max(solve.true_rms_px):.2f} |")
 
 
+def tracks_line(twin):
+  """One line: the twin's sparse points and tracks (Dataset.points, observations,
+  point_errors)."""
+  length = np.bincount(twin.observations[:, 1], minlength=len(twin.points))
+  lo, mid, hi = np.percentile(length, [5, 50, 95])
+  return (f"tracks: {len(twin.points)} points (every {landmark_sfm.TRACK_EVERY}th point a photo "
+          f"matched), {len(twin.observations)} observations; seen by {mid:.0f} photos (median; "
+          f"5-95%: {lo:.0f}-{hi:.0f}); reprojection error through the twin's cameras median "
+          f"{np.median(twin.point_errors):.2f} px (95%: "
+          f"{np.percentile(twin.point_errors, 95):.2f} px)")
+
+
 def report(num_views, image_size, arc_seeds=(0, 1, 2), rows=12):
   """The lines this benchmark prints (module docstring); the SfM check on the arcs drawn with
   `arc_seeds` (none: skipped)."""
@@ -246,6 +258,7 @@ def report(num_views, image_size, arc_seeds=(0, 1, 2), rows=12):
             "RMS px at the true pose |", "|---|---:|---:|---:|---:|---:|---:|---:|",
             moves_line("twin", moved, predicted, zoom, solve),
             moves_line("monument only", moved_alone, predicted, zoom, alone), "",
+            tracks_line(twin), "",
             "the hull: the masks' visual hull as config=auto carves it; the share of its box "
             "kept through the stored camera, and through each photo's focal fitted to its mask "
             "(data.photo_zoom: the fitted zooms' range, their correlation with the true zooms "

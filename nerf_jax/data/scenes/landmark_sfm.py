@@ -25,6 +25,9 @@ warped, its reprojection errors smaller than the residuals here, and its world f
 (a similarity away). Here the points pin the frame to the true world: no gauge to align, and
 every difference from the truth is in the poses.
 
+The reconstruction's sparse points and tracks come with it, as a COLMAP model's
+(`tracks`: Dataset.points, point_errors, observations), for depth from the tracks (loss.depth).
+
 The held-out views stay landmark's (true poses, stored pinhole, neutral look). They are
 scorable as they are because the fixed structure puts the reconstruction's frame exactly on the
 true world: the true held-out cameras are where the same reconstruction would place photos
@@ -48,6 +51,9 @@ STEP_TOLERANCE = 1e-12  # ... stop once the update is this small (radians, scene
 PASSER_TOLERANCE = 1e-3  # a pixel's depth this share short of the static scene's: a passer-by
 SKY = len(landmark.SCENE.objects) - 1  # the enclosure's last object, the sky (garden.enclosure)
 MIN_POINTS = 6  # fewer matched points than this: a photo's pose is not determined (an error)
+TRACK_EVERY = 4  # the tracks' points (Dataset.points): every 4th point each photo matched
+SEEN_TOLERANCE = 0.01  # another photo sees a point where its depth there is within 1% of it
+UNHIDDEN_TOLERANCE = 1e-6  # ... and a ray cast to it hits nothing before (a share of its length)
 
 
 def grid_pixels(height, width, size=GRID):
@@ -194,12 +200,13 @@ class Solve:
   """What the twin's reconstruction did, per training photo: poses float64 [N, 4, 4] (solved),
   rms_px float64 [N] (RMS reprojection error at the solution), true_rms_px float64 [N] (at the
   true pose, where the solve starts), num_points int [N] (matched points), subject_share
-  float64 [N] (share of them on the monument)."""
+  float64 [N] (share of them on the monument), points (each photo's matched points)."""
   poses: np.ndarray
   rms_px: np.ndarray
   true_rms_px: np.ndarray
   num_points: np.ndarray
   subject_share: np.ndarray
+  points: list  # of float64 [M_k, 3], the points each photo matched
 
 
 def reconstruct(train, focals, dists, size=GRID, subject_only=False):
@@ -207,7 +214,7 @@ def reconstruct(train, focals, dists, size=GRID, subject_only=False):
   poses in `poses`) taken through focals float [N] and dists (k1, k2) float [N, 2], posed
   through its stored pinhole (size, subject_only: `matched_points`'). ValueError when a photo
   matches fewer than MIN_POINTS points."""
-  poses, rms, true_rms, counts, shares = [], [], [], [], []
+  poses, rms, true_rms, counts, shares, matched = [], [], [], [], [], []
   for k, pose in enumerate(np.asarray(train.poses, np.float64)):
     points, pixels, subject = matched_points(train.depths[k], pose, focals[k], dists[k],
                                              train.pixel_center, train.near, train.far, size,
@@ -220,18 +227,82 @@ def reconstruct(train, focals, dists, size=GRID, subject_only=False):
     true_rms.append(reprojection_rms(points, pixels, pose, train.intrinsics))
     counts.append(len(points))
     shares.append(float(np.mean(subject)))
+    matched.append(points)
   return Solve(np.stack(poses), np.array(rms), np.array(true_rms), np.array(counts),
-               np.array(shares))
+               np.array(shares), matched)
+
+
+def photo_pixels(points, pose, focal, dist, width, height):
+  """Where a photo taken through a radial lens shows world points float [M, 3]: (pixels float64
+  [M, 2], (column, row) + pixel_center as `matched_points`' pixels; z-depths float64 [M]);
+  `pixel_rays` inverted (`lens.distort` of the pinhole coordinates). pose: float [4, 4], the
+  photo's true camera-to-world; focal: float, pixels; dist: (k1, k2)."""
+  pose = np.asarray(pose, np.float64)
+  local = (np.asarray(points, np.float64) - pose[:3, 3]) @ pose[:3, :3]
+  depth = -local[:, 2]
+  safe = np.where(depth > 0, depth, 1.0)  # behind the camera: the caller drops it by `depth`
+  xy = np.stack([local[:, 0] / safe, -local[:, 1] / safe], -1)  # lens.py's axes: y down
+  xy = lens.distort(xy, (float(dist[0]), float(dist[1]), 0.0, 0.0))
+  return xy * focal + np.array([0.5 * width, 0.5 * height]), depth
+
+
+def _unhidden(points, pose):
+  """bool [M]: whether the static scene hides none of the points float [M, 3] from the centre
+  of pose float [4, 4] (the ray towards each first hits the scene at it: at t = 1 of the
+  un-normalised direction, to rounding)."""
+  centre = np.asarray(pose, np.float64)[:3, 3]
+  towards = np.asarray(points, np.float64) - centre
+  t, _, _ = simulator.first_hit(landmark.SCENE.objects, np.broadcast_to(centre, towards.shape),
+                                towards, 0.0, np.inf)
+  return t >= 1.0 - UNHIDDEN_TOLERANCE
+
+
+def tracks(train, solve, focals, dists, every=TRACK_EVERY):
+  """The twin's sparse points and their tracks, as a reconstruction's COLMAP model gives them
+  (Dataset.points, point_errors, observations): (points float32 [P, 3], errors float32 [P],
+  observations int32 [K, 2] (photo, point)).
+
+  The points: every `every`-th point each photo matched (`solve.points`, true positions). A
+  photo sees a point where its true camera (focals, dists) puts it inside the photo with the
+  photo's depth there (Dataset.depths, passers-by included) within SEEN_TOLERANCE of the
+  point's and no part of the scene in front of it (a pixel next to an edge can have the depth
+  of a point the edge hides): the photo it came from and every other that shows it. A point's error
+  is COLMAP's: the mean over its track of the distance in pixels between where the photo shows
+  it and where the twin's camera (`solve.poses`, the stored pinhole) projects it; held at the
+  truth, the points keep errors that bundle adjustment would have reduced."""
+  points = np.concatenate([p[::every] for p in solve.points])
+  height, width = train.height, train.width
+  observations, error_sum, count = [], np.zeros(len(points)), np.zeros(len(points))
+  for k in range(len(train)):
+    shown, depth = photo_pixels(points, train.poses[k], focals[k], dists[k], width, height)
+    # Far outside the photo (or behind it) the lens polynomial is huge: clipped before the cast.
+    limit = np.clip(np.nan_to_num(shown, nan=-1.0), -1.0, max(width, height) + 1.0)
+    column, row = (np.floor(limit - train.pixel_center + 0.5).astype(np.int64)).T
+    inside = (depth > 0) & (column >= 0) & (column < width) & (row >= 0) & (row < height)
+    there = np.asarray(train.depths[k], np.float64)[np.clip(row, 0, height - 1),
+                                                     np.clip(column, 0, width - 1)]
+    seen = np.flatnonzero(inside & (np.abs(there - depth) <= SEEN_TOLERANCE * depth))
+    seen = seen[_unhidden(points[seen], train.poses[k])]  # not an edge's neighbour
+    projected, _ = project(points[seen], solve.poses[k], train.intrinsics)
+    error_sum[seen] += np.linalg.norm(projected - shown[seen], axis=-1)
+    count[seen] += 1
+    observations.append(np.stack([np.full(len(seen), k), seen], -1))
+  # Every point is seen by the photo it came from at least: count >= 1.
+  return (points.astype(np.float32), (error_sum / np.maximum(count, 1)).astype(np.float32),
+          np.concatenate(observations).astype(np.int32))
 
 
 def posed(train, seed=0, zoom=True, distortion=True, size=GRID):
   """The training photos `train` (landmark's, `landmark.photographed(..., seed, zoom,
-  distortion)`) with the poses the shared-focal reconstruction gives (`reconstruct`) and their
-  true poses in `true_poses`."""
+  distortion)`) with the poses the shared-focal reconstruction gives (`reconstruct`), their
+  true poses in `true_poses`, and its sparse points and tracks (`tracks`: Dataset.points,
+  point_errors, observations)."""
   focals, dists = landmark.lenses(len(train), train.focal, seed, zoom, distortion)
   solve = reconstruct(train, focals, dists, size)
+  points, errors, observations = tracks(train, solve, focals, dists)
   return dataclasses.replace(train, poses=solve.poses.astype(np.float32),
-                             true_poses=np.asarray(train.poses, np.float32))
+                             true_poses=np.asarray(train.poses, np.float32), points=points,
+                             point_errors=errors, observations=observations)
 
 
 SCENE = dataclasses.replace(landmark.SCENE, name="landmark_sfm", effects=dataclasses.replace(

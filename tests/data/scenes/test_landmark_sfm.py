@@ -202,3 +202,33 @@ def test_pycolmap_agrees_with_the_twin_rather_than_the_truth():
 
   to_true, to_twin = distance(poses[index, :3, 3]), distance(twin[index, :3, 3])
   assert to_twin < 0.7 * to_true, (to_twin, to_true)
+
+
+def test_the_tracks_are_points_the_photos_see(both):
+  """Dataset.points, point_errors and observations, as a COLMAP model gives them: each point is
+  seen by the photo it came from and by others; every listed observation is a point its photo's
+  camera sees (a ray cast from the photo's centre towards it first hits the scene at it, and
+  the photo's passers-by do not stand in front: its depth there is the point's); the held-out
+  views have none."""
+  (train, test), (twin, twin_test) = both
+  assert twin_test.observations is None and test.points is None and train.points is None
+  obs, points = twin.observations, np.asarray(twin.points, np.float64)
+  assert obs.dtype == np.int32 and len(twin.point_errors) == len(points)
+  assert len(np.unique(obs, axis=0)) == len(obs)
+  counts = np.bincount(obs[:, 1], minlength=len(points))
+  assert counts.min() >= 1 and np.median(counts) >= 2
+  sample = obs[np.random.default_rng(0).choice(len(obs), 300, replace=False)]
+  centres = np.asarray(twin.true_poses, np.float64)[sample[:, 0], :3, 3]
+  towards = points[sample[:, 1]] - centres
+  t, _, _ = scenes.simulator.first_hit(landmark.SCENE.objects, centres, towards, 0.0, np.inf)
+  np.testing.assert_allclose(t, 1.0, atol=0.02)  # the direction's length is the distance
+
+
+def test_point_errors_are_the_twins_reprojection_errors():
+  """Through the stored pinhole (data.without='zoom,distortion') the twin's cameras are the true
+  ones and every point reprojects where its photos show it (errors ~0); with the zooms and
+  lenses the errors are the pixels the one focal cannot explain."""
+  exact = _load("landmark_sfm", "zoom,distortion")[0]
+  assert np.max(exact.point_errors) < 0.01
+  twin = _load("landmark_sfm")[0]
+  assert np.median(twin.point_errors) > 0.3
