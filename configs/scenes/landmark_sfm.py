@@ -1,8 +1,9 @@
 """`landmark_sfm`: the `landmark` photo collection (configs/scenes/landmark.py) with the training
 poses a structure from motion forced to one shared focal gives
 (nerf_jax/data/scenes/landmark_sfm.py): each photo's zoom and lens absorbed by its pose (a
-zoomed-in photo's camera moved closer), as a real collection posed with one camera stores them. The same config as
-landmark's; only the poses differ (docs/photo_collections.md, "The SfM twin").
+zoomed-in photo's camera moved closer), as a real collection posed with one camera stores them.
+The same config as landmark's; only the poses differ (docs/photo_collections.md, "The SfM
+twin").
 
   python train.py --config=configs/scenes/landmark_sfm.py --workdir=runs/landmark_sfm
 """

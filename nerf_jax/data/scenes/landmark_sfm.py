@@ -18,7 +18,7 @@ distortion), of the 3D points the photo really sees (`matched_points`):
   * the points: the photo's true depth (Dataset.depths) back-projected through its TRUE camera
     (its own focal and lens, `landmark.lenses`), at the pixel where the photo shows them (the
     observed, distorted pixel);
-  * the solve: Levenberg-Marquardt from the true pose (a few iterations; poses start close).
+  * the solve: Levenberg-Marquardt from the true pose (no robustness to bad starts needed).
 The structure is held at the truth. Real SfM also re-optimises the points (bundle adjustment):
 they move to reduce the errors the one focal leaves, so a real reconstruction's points are
 warped, its reprojection errors smaller than the residuals here, and its world frame is its own
@@ -59,11 +59,9 @@ UNHIDDEN_TOLERANCE = 1e-6  # ... and a ray cast to it hits nothing before (a sha
 def grid_pixels(height, width, size=GRID):
   """(rows, columns) int64 [M]: a size x size grid of pixels (fewer on a smaller photo), at the
   centres of equal cells, row-major."""
-  rows = np.unique(((np.arange(min(size, height)) + 0.5) * height / min(size, height)).astype(
+  centres = lambda n: np.unique(((np.arange(min(size, n)) + 0.5) * n / min(size, n)).astype(
       np.int64))
-  columns = np.unique(((np.arange(min(size, width)) + 0.5) * width / min(size, width)).astype(
-      np.int64))
-  row, column = np.meshgrid(rows, columns, indexing="ij")
+  row, column = np.meshgrid(centres(height), centres(width), indexing="ij")
   return row.reshape(-1), column.reshape(-1)
 
 

@@ -5,14 +5,12 @@ the stored pinhole moved along its axis by what the pinhole model says); the twi
 landmark (the same photos, only the poses differ); and pycolmap's own reconstruction of a few
 rendered landmark photos against the twin's cameras and the true ones."""
 
-import dataclasses
-
 import numpy as np
 import pytest
 
 from nerf_jax.cameras import rays as rays_lib
 from nerf_jax.data import loaders, scenes
-from nerf_jax.data.scenes import landmark, landmark_sfm, photos
+from nerf_jax.data.scenes import landmark, landmark_sfm, photos, simulator
 from nerf_jax.run import config_lib
 from tests.helpers import similarity
 
@@ -220,7 +218,7 @@ def test_the_tracks_are_points_the_photos_see(both):
   sample = obs[np.random.default_rng(0).choice(len(obs), 300, replace=False)]
   centres = np.asarray(twin.true_poses, np.float64)[sample[:, 0], :3, 3]
   towards = points[sample[:, 1]] - centres
-  t, _, _ = scenes.simulator.first_hit(landmark.SCENE.objects, centres, towards, 0.0, np.inf)
+  t, _, _ = simulator.first_hit(landmark.SCENE.objects, centres, towards, 0.0, np.inf)
   np.testing.assert_allclose(t, 1.0, atol=0.02)  # the direction's length is the distance
 
 
