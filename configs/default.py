@@ -4,76 +4,41 @@
   python train.py --config=configs/default.py --config.num_samples=128 --workdir=runs/s128
 
 Every setting is declared once, with its default and its one-line comment, in the settings
-dataclass of the part that reads it; this file builds each section from them (`SECTIONS`), so a
-field here and its dataclass cannot disagree. A component's own settings are its own section
-(`COMPONENTS`: config.model.<encoding>, config.<sampler>, config.loss.<term>); other sections
-are shared by the dataclasses listed for them, and a key none of them declares is refused
-(run/builders.check_config).
+dataclass of the part that reads it; the library's schema (nerf_jax/run/schema.py) builds each
+section from them, so a field here and its dataclass cannot disagree, and a key that none of
+its section's dataclasses declares is refused (run/builders.check_config). The sections, and
+the dataclasses (under nerf_jax/) that declare their settings:
+
+  config             run/settings.RunSettings (seed, auto*), samplers/registry.Settings
+                     (num_samples, sampler), render/renderer.FineSettings (num_fine_samples),
+                     fields/encodings/posenc.Settings (pos_encode_dims, the positions' bands),
+                     fields/protocol.DirectionSettings (dir_encode_dims, dir_encoding)
+  config.data        data/loaders.DataSettings (the images and cameras loaded),
+                     run/settings.SceneSettings (how rays see the scene: box, bounds, spacing)
+  config.model       fields/registry.Parts (the parts' names), fields/protocol.NetworkSettings
+                     (what every network shares), fields/networks/mlp.Settings (depth, skips),
+                     fields/field.Settings (noise), render/renderer.Settings
+  config.model.transient    fields/networks/transient_head.Settings (NeRF-W's, dims 0 = off)
+  config.occupancy   samplers/occupancy.OccupancySettings
+  config.loss        train/losses.Settings (the terms, in the order they are added)
+  config.train       run/settings.LoopSettings, train/train_batches.BatchSettings,
+                     train/optimizer.OptimizerSettings, train/train_step.StepSettings
+  config.render      render/image_renderer.ImageSettings, run/settings.OutputSettings
+  config.eval        evaluate/evaluation.Settings (how held-out views are scored)
+  config.viewer      run/settings.ViewerSettings
+
+A built-in component's own settings are its own section, its module's `Settings`
+(schema.COMPONENTS):
+
+  config.model.grid, config.model.hash, config.model.tensorf    fields/encodings/<name>.Settings
+  config.proposal    samplers/proposal.Settings
+  config.loss.<term> (colour, distortion, pose_prior, total_variation, transient, robust,
+                     masked_empty, depth)    train/losses/<term>.Settings
 """
 
-import ml_collections
-
-from nerf_jax.backend import components
-from nerf_jax.data import loaders
-from nerf_jax.evaluate import evaluation
-from nerf_jax.fields import field, protocol, registry
-from nerf_jax.fields.encodings import posenc
-from nerf_jax.fields.networks import mlp
-from nerf_jax.fields.networks import transient_head
-from nerf_jax.render import image_renderer, renderer
-from nerf_jax.run import settings
-from nerf_jax.samplers import occupancy
-from nerf_jax.samplers import registry as samplers
-from nerf_jax.train import losses, optimizer, train_batches, train_step
-
-# Each section (dotted path, '' = the top level) and the dataclasses that declare its settings.
-SECTIONS = {
-    # seed, auto*; num_samples (NUM_SAMPLES), sampler; num_fine_samples; pos_encode_dims
-    # (POS_ENCODE_DIMS, the positions' bands); dir_encode_dims, dir_encoding (the directions').
-    "": (settings.RunSettings, samplers.Settings, renderer.FineSettings, posenc.Settings,
-         protocol.DirectionSettings),
-    # The images and cameras loaded; how rays see the scene (box, bounds, spacing).
-    "data": (loaders.DataSettings, settings.SceneSettings),
-    # The parts' names; what every network shares (width, view_*, dtype, appearance, the
-    # lattices' box); the MLP's depth and skips; the field's noise; the renderer's use of it.
-    "model": (registry.Parts, protocol.NetworkSettings, mlp.Settings, field.Settings,
-              renderer.Settings),
-    "model.transient": (transient_head.Settings,),  # NeRF-W's transient head (dims 0 = off)
-    "occupancy": (occupancy.OccupancySettings,),  # the occupancy grid (enabled, then its grid)
-    "loss": (losses.Settings,),  # the order of the terms; each term's section is its own
-    "train": (settings.LoopSettings, train_batches.BatchSettings, optimizer.OptimizerSettings,
-              train_step.StepSettings),
-    "render": (image_renderer.ImageSettings, settings.OutputSettings),
-    # How held-out views are scored: NeRF-W's left-half appearance fit or the mean code.
-    "eval": (evaluation.Settings,),
-    "viewer": (settings.ViewerSettings,),
-}
-
-# The registries whose built-in components have sections of their own (Registry.section_path):
-# the lattice encodings' model.grid, model.hash, model.tensorf; the proposal sampler's
-# config.proposal; each loss term's config.loss.<term>.
-COMPONENTS = (registry.ENCODINGS, registry.NETWORKS, samplers.REGISTRY, losses.REGISTRY)
-
-
-def component_sections():
-  """{dotted path: (settings dataclass,)} of every built-in component with a section of its
-  own."""
-  found = {}
-  for reg in COMPONENTS:
-    for name in reg.names():
-      record = reg.lookup(name)
-      if record.settings is not None and record.strict:
-        found[reg.section_path(record)] = (record.settings,)
-  return found
+from nerf_jax.run import schema
 
 
 def get_config():
-  config = ml_collections.ConfigDict()
-  for path, classes in {**SECTIONS, **component_sections()}.items():
-    node = config
-    for part in filter(None, path.split(".")):
-      if part not in node:
-        node[part] = ml_collections.ConfigDict()
-      node = node[part]
-    node.update(components.section(*classes))
+  config = schema.defaults()
   return config

@@ -52,7 +52,7 @@ def own_settings(reg, record, config):
 
 def check_config(config):
   """ValueError naming the first key of `config` that no settings dataclass declares: a
-  misspelt setting (configs/default.SECTIONS for the shared sections; each component's own
+  misspelt setting (run/schema.SECTIONS for the shared sections; each component's own
   section is read strictly when it is built)."""
   for path, classes in config_lib.SECTIONS.items():
     values = config_lib.section_at(config, path)

@@ -3,8 +3,9 @@
 
 A config is named by a path (`configs/fast.py`, `my/exp.py`) or, from any directory, by its name
 under configs/ (`fast`, `scenes/fog`); `:arg` after either is passed to `get_config(arg)` as
-ml_collections' config_flags does. A saved config is completed with `configs/default.py`'s values
-for fields it lacks (written before they existed), so the defaults live in one place.
+ml_collections' config_flags does. A saved config is completed with the schema's defaults
+(run/schema.py, configs/default.py's values) for fields it lacks (written before they existed),
+so the defaults live in one place.
 """
 
 import dataclasses
@@ -15,7 +16,7 @@ import os
 
 import ml_collections
 
-from nerf_jax.configs import default as _default
+from nerf_jax.run import schema
 
 
 class ConfigError(ValueError):
@@ -75,14 +76,13 @@ def _last_line(exc):
 
 
 def default():
-  """configs/default.py's config: every field, at its default."""
-  return _default.get_config()
+  """The default config (configs/default.py's): every field, at its default (schema.defaults)."""
+  return schema.defaults()
 
 
 # Every section of the config (dotted path, '' = the top level) -> the settings dataclasses
-# that declare its keys: the shared ones (configs/default.SECTIONS) and the built-in
-# components' own.
-SECTIONS = {**_default.SECTIONS, **_default.component_sections()}
+# that declare its keys: the shared ones (schema.SECTIONS) and the built-in components' own.
+SECTIONS = schema.all_sections()
 
 
 # Fields that moved: old dotted name -> new one. A config, override or config.json using the

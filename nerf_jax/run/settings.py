@@ -1,7 +1,7 @@
 """The settings the entry layer reads itself (run/): the run's seed and auto's record, how rays
 see the scene (config.data's box, bounds and spacing), the training loop, the renders after
 training and the live viewer. Each setting is declared here once, with its default and comment;
-configs/default.py builds its section from these (nothing below run/ reads them).
+run/schema.py builds its section from these (nothing below run/ reads them).
 """
 
 import dataclasses

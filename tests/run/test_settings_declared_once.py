@@ -1,5 +1,5 @@
 """Every setting is declared once, in a settings dataclass, and the config is built from them
-(configs/default.py SECTIONS, config_lib.SECTIONS): a field and its dataclass cannot disagree,
+(run/schema.py SECTIONS, config_lib.SECTIONS): a field and its dataclass cannot disagree,
 and a key that no dataclass declares is refused with one line naming it."""
 
 import dataclasses
