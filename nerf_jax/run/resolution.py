@@ -2,18 +2,15 @@
 from the photos' sizes in their file headers (imageio's `improps` reads no pixels).
 
 It applies to the folders that data.factor downscales, LLFF (`poses_bounds.npy` and `images/`)
-and transforms.json (nerfstudio, instant-ngp, nerf-process), and only where the user set no
-data.factor: a 12-megapixel phone photo read at full size is 145 MB as float32, so a hundred of
-them do not fit in a laptop's memory, and every held-out view and video frame renders each of
-its pixels.
+and transforms.json (nerfstudio, instant-ngp, nerf-process), whose photos their format names
+(`photo_paths`, data/formats/), and only where the user set no data.factor: a 12-megapixel
+phone photo read at full size is 145 MB as float32, so a hundred of them do not fit in a
+laptop's memory, and every held-out view and video frame renders each of its pixels.
 """
-
-import json
-import os
 
 import imageio.v3 as iio
 
-from nerf_jax.data import multicam, nerfstudio
+from nerf_jax.data import formats
 from nerf_jax.run import config_lib
 
 # The longest side, in pixels, auto trains photos at on each backend (`for_backend`'s 'cpu' for
@@ -22,32 +19,6 @@ from nerf_jax.run import config_lib
 # hundred photos under 1 GB as float32 and a 12 MP photo (4032 x 3024) at factor 4, LLFF's and
 # nerfstudio's images_4. A GPU holds and renders four times the pixels in the same time budget.
 MAX_SIDE = {"cpu": 1024, "gpu": 2048}
-_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-
-
-def photo_paths(path):
-  """The full-size photo files of the folder `path` (data.path) that data.factor downscales:
-  an LLFF folder's `images/`, a transforms.json's frames whose file exists; None for any other
-  data (a built-in scene, .npz, Blender, multiscale)."""
-  if not path:
-    return None
-  meta = path if path.endswith(nerfstudio.FILENAME) else os.path.join(path, nerfstudio.FILENAME)
-  if os.path.isfile(meta):
-    with open(meta) as f:
-      frames = json.load(f).get("frames", [])
-    root = os.path.dirname(meta)
-    files = [os.path.join(root, frame.get("file_path", "")) for frame in frames]
-    return [p for p in files if os.path.isfile(p)]
-  own_split = (multicam.FILENAME, "transforms_train.json")  # the loader reads these first
-  if any(os.path.isfile(os.path.join(path, name)) for name in own_split):
-    return None
-  if os.path.isfile(os.path.join(path, "poses_bounds.npy")):
-    folder = os.path.join(path, "images")
-    if not os.path.isdir(folder):
-      return []
-    return [os.path.join(folder, n) for n in sorted(os.listdir(folder))
-            if n.lower().endswith(_IMAGE_SUFFIXES)]
-  return None
 
 
 def largest_photo(paths):
@@ -70,7 +41,7 @@ def factor_effects(config, backend):
   size). ({}, []) where the data is not such a folder. A data.factor the user set (named in
   config.auto_flags or differing from 1, configs/auto.py's) is theirs: not decided, and one
   line says so where auto's would differ. auto_config records the lines with its own."""
-  paths = photo_paths(config.data.path)
+  paths = formats.photo_paths(config.data.path)  # the format's (data/formats/)
   size = largest_photo(paths) if paths else None
   if size is None:
     return {}, []
