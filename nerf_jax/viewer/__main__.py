@@ -9,8 +9,15 @@ import time
 
 from absl import app, flags
 
-from nerf_jax import cli
 from nerf_jax.backend import errors
+from nerf_jax.data import DataError
+from nerf_jax.run import config_lib, experiment
+from nerf_jax.train import checkpoints
+
+# Exceptions whose message is the whole story for the user: those of restoring a run (as
+# nerf-render's, cli.USER_ERRORS) and the viewer's own (server.ViewerError, a ValueError).
+USER_ERRORS = (DataError, checkpoints.CheckpointError, experiment.TrainingError,
+               config_lib.ConfigError, FileNotFoundError, ValueError)
 
 
 def serve(workdir, host, port, fps, still_height, out_dir):
@@ -44,8 +51,8 @@ def main():
 
   def run(argv):
     del argv
-    cli.run_main(lambda: serve(workdir.value, host.value, port.value, fps.value,
-                               still_height.value, out.value))
+    errors.run_main(lambda: serve(workdir.value, host.value, port.value, fps.value,
+                                  still_height.value, out.value), USER_ERRORS)
 
   app.run(run, flags_parser=errors.parse_flags)
 
