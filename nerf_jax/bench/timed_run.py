@@ -113,27 +113,22 @@ def run_config(config, options):
   tc = config.train
   max_steps = builders.schedule_steps(tc)
   fitted = tc.max_seconds > 0 and options.fit_schedule
-  waiting = None  # auto's step rule as training decides it (train_lib.with_step_rule)
-  if not fitted:
-    exp = train_lib.with_step_rule(exp, builders.schedule_steps(exp.config.train))
-  elif exp.config.auto_by_steps:
-    waiting, exp = exp, train_lib.with_step_rule(exp, 0, quiet=True)
+  # auto's step rule as training decides it (train_lib.step_rule_before_fit, fit_then_decide)
+  exp, waiting = train_lib.step_rule_before_fit(exp, fitted)
   data = builders.make_train_data(exp)
   key = jax.random.PRNGKey(config.seed + 1)  # as train_lib.train_and_evaluate
   if fitted:
     # The schedule spans the steps expected to fit in the budget (the benchmark's clock counts
     # the compile, not the calibration); the clock alone ends the run.
     left = lambda compile_seconds: tc.max_seconds - compile_seconds
-    fit_start = time.perf_counter()
-    config = train_lib.fit_to_time(exp, builders.make_train_step(exp), data, key, left)
-    if waiting is not None:
-      fit_seconds = time.perf_counter() - fit_start
-      decided = train_lib.with_step_rule(waiting, train_lib.steps_after_another_fit(
-          config.train.max_steps, tc.max_seconds - fit_seconds, fit_seconds))
-      if train_lib.kept_on(decided.config, waiting.config):
-        exp, data = decided, builders.make_train_data(decided)
-        config = train_lib.fit_to_time(exp, builders.make_train_step(exp), data, key, left)
-      config.auto_by_steps, config.auto_decisions = (), decided.config.auto_decisions
+
+    def fit(run):  # `run`'s schedule fitted, on its own data (the decided run's built)
+      nonlocal data
+      if run is not exp:
+        data = builders.make_train_data(run)
+      return train_lib.fit_to_time(run, builders.make_train_step(run), data, key, left)
+
+    exp, config, _ = train_lib.fit_then_decide(exp, waiting, fit, left)
     tc = config.train
     tx = optimizer.make_optimizer(builders.optimizer_settings(config))
     exp = dataclasses.replace(exp, config=config, tx=tx)

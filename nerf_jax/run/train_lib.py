@@ -73,21 +73,19 @@ def train_and_evaluate(config, workdir, watchers=()):
   train_step = _train_step(exp, mesh)
   config, last_step = exp.config, builders.schedule_steps(exp.config.train)
   if fits_time(config.train):
-    fit_start = elapsed()
-    config = _resumed_or_fitted(exp, train_step, data, key, mesh, meta, t_start)
-    if waiting is not None:  # the step rule on the steps the run would hold with them on
-      decided = with_step_rule(waiting, steps_after_another_fit(
-          config.train.max_steps, config.train.max_seconds - elapsed(), elapsed() - fit_start))
-      if kept_on(decided.config, waiting.config):  # one pays: its step compiled, refitted
-        exp = decided
-        signature = model_signature(exp.config)
-        state = parallel.from_main(init_state(exp))
-        data = parallel.replicate(builders.make_train_data(exp), mesh)
-        train_step = _train_step(exp, mesh)
-        config = _resumed_or_fitted(exp, train_step, data, key, mesh, meta, t_start)
-      else:  # as fitted: only the record is the decided one's
-        exp = dataclasses.replace(exp, config=decided.config)
-        config.auto_by_steps, config.auto_decisions = (), decided.config.auto_decisions
+    max_seconds = config.train.max_seconds
+
+    def fit(run):  # `run`'s schedule fitted, on its own data and step (the decided run's built)
+      nonlocal data, train_step
+      if run is not exp:
+        data = parallel.replicate(builders.make_train_data(run), mesh)
+        train_step = _train_step(run, mesh)
+      return _resumed_or_fitted(run, train_step, data, key, mesh, meta, t_start)
+
+    exp, config, refitted = fit_then_decide(exp, waiting, fit, lambda _: max_seconds - elapsed())
+    if refitted:  # an effect the step rule kept on: its model and state
+      signature = model_signature(exp.config)
+      state = parallel.from_main(init_state(exp))
     train_step = functools.partial(train_step, planned_steps=jnp.int32(config.train.max_steps))
     last_step = sys.maxsize  # the clock ends the run
   if main:  # with the schedule the run uses
@@ -127,9 +125,7 @@ def _train_step(exp, mesh):
 def _step_rule_at_start(exp, workdir):
   """(Experiment, waiting): auto's step rule (with_step_rule) decided where it can be before
   the state is built: as the run that `workdir` resumes decided it (its config.json; process 0
-  reads the workdir), or on a step budget. A new time-budget run is fitted with the waiting
-  effects off: (`exp` with them off, `exp`), decided once its steps are fitted; else
-  (decided Experiment, None)."""
+  reads the workdir), (decided Experiment, None); a new run's as step_rule_before_fit."""
   if not exp.config.auto_by_steps:
     return exp, None
   if parallel.is_main_process() and checkpoints.latest_path(workdir):
@@ -140,9 +136,7 @@ def _step_rule_at_start(exp, workdir):
     config.auto_by_steps, config.auto_decisions = (), saved.auto_decisions
     return experiment_parts.assemble(config, exp.train_ds, exp.test_ds, exp.near, exp.far,
                                      exp.hull), None
-  if not fits_time(exp.config.train):
-    return with_step_rule(exp, builders.schedule_steps(exp.config.train)), None
-  return with_step_rule(exp, 0, quiet=True), exp
+  return step_rule_before_fit(exp, fits_time(exp.config.train))
 
 
 def with_step_rule(exp, steps, quiet=False):
@@ -156,6 +150,43 @@ def with_step_rule(exp, steps, quiet=False):
     print(f"auto: {line}", flush=True)
   return experiment_parts.assemble(config, exp.train_ds, exp.test_ds, exp.near, exp.far,
                                    exp.hull)
+
+
+def step_rule_before_fit(exp, fitted):
+  """(Experiment, waiting): auto's step rule (with_step_rule) for a new run: decided on the step
+  budget where the schedule is not `fitted` to a time budget, (decided Experiment, None); else
+  fitted with the waiting effects off, (`exp` with them off, `exp`), decided by
+  fit_then_decide. (`exp`, None) where nothing waits (config.auto_by_steps)."""
+  if not exp.config.auto_by_steps:
+    return exp, None
+  if not fitted:
+    return with_step_rule(exp, builders.schedule_steps(exp.config.train)), None
+  return with_step_rule(exp, 0, quiet=True), exp
+
+
+def fit_then_decide(exp, waiting, fit, seconds_left):
+  """(Experiment, config, refitted): a time budget's schedule fitted, then auto's step rule
+  decided on the steps it holds (training and the benchmark alike).
+
+  fit(exp) -> a copy of exp.config with the steps that fit in the budget (fit_to_time);
+  waiting: the Experiment whose effects wait for the rule (step_rule_before_fit), or None;
+  seconds_left(fit_seconds) -> the budget's seconds left after a fit that took `fit_seconds`.
+  The rule is decided on the steps that remain after another fit as long
+  (steps_after_another_fit): where it keeps an effect on, that run is refitted (its own step
+  compiled) and returned with refitted=True; else `exp` as fitted, with the decided record
+  (config.auto_decisions).
+  """
+  fit_start = time.perf_counter()
+  config = fit(exp)
+  if waiting is None:
+    return exp, config, False
+  fit_seconds = time.perf_counter() - fit_start
+  decided = with_step_rule(waiting, steps_after_another_fit(
+      config.train.max_steps, seconds_left(fit_seconds), fit_seconds))
+  if kept_on(decided.config, waiting.config):  # one pays: its step compiled, refitted
+    return decided, fit(decided), True
+  config.auto_by_steps, config.auto_decisions = (), decided.config.auto_decisions
+  return dataclasses.replace(exp, config=decided.config), config, False
 
 
 def steps_after_another_fit(steps, seconds_left, fit_seconds):
