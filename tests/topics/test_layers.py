@@ -113,6 +113,14 @@ def test_imports_run_down_the_layers():
   assert UPWARD <= upward, f"gone, remove from UPWARD: {sorted(UPWARD - upward)}"
 
 
+def test_a_config_file_is_above_the_library_and_the_viewer_below_the_command_line():
+  # A library module importing a config file is an arrow up the layers, caught above.
+  assert LAYERS.index(_layer("configs.default")) > LAYERS.index(_layer("run/config_lib.py"))
+  # The viewer is a part the command line hands down (cli.TRAIN_WATCHERS): it imports no cli.
+  viewer = sorted((PACKAGE / "viewer").rglob("*.py"))
+  assert len(viewer) > 3 and not [p.name for p in viewer if "nerf_jax.cli" in _imports(p)]
+
+
 def _module_name(path):
   """'nerf_jax.cameras.rays' of .../nerf_jax/cameras/rays.py; a package's __init__.py is the
   package."""
