@@ -64,7 +64,7 @@ def hull_kept(train, fit_zoom=False):
   `fit_zoom`, through each photo's focal fitted to its mask first (data.photo_zoom)."""
   box = subject.subject_box(train)
   scale = 1.0 / (subject.MARGIN * float(np.max(box.half)))  # capture's scene_bound -1 -> 1
-  moved = subject.moved(train, box.centre, scale)
+  moved = train.moved(box.centre, scale)
   extent = from_data.SUBJECT_HULL_EXTENT  # times scene_bound, 1
   if fit_zoom:
     moved = photo_zoom.with_photo_zoom(moved, extent, from_data.HULL_VOTE, moved.pixel_center)

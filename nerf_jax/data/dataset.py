@@ -190,6 +190,34 @@ class Dataset:
                       "camera; the format cannot store them")
     return float(fx)
 
+  def moved(self, centre, scale=1.0):
+    """This Dataset with the world mapped by x -> scale (x - centre) (centre float [3], scale
+    float > 0): the cameras' centres (poses, true_poses), the boxes (aabb, core) and the sparse
+    points move; every length (near, far, bounds, depths) is times scale, and stays as it is
+    with scale 1 (a move keeps z-depths). Rotations, cameras, images and the tracks (indices,
+    errors in pixels) stay. Computed in float64, stored float32 (a float64 sum of float32
+    values rounds to float32's own sum: a pure move by a float32 centre is float32 arithmetic)."""
+    centre = np.asarray(centre, np.float64)
+    move = lambda a: None if a is None else (
+        scale * (np.asarray(a, np.float64) - centre)).astype(np.float32)
+    def move_poses(poses):
+      if poses is None:
+        return None
+      poses = np.array(poses, np.float64)
+      poses[:, :3, 3] = scale * (poses[:, :3, 3] - centre)
+      return poses.astype(np.float32)
+    def times(a):
+      if a is None or scale == 1:
+        return a
+      if isinstance(a, list):  # mixed sizes
+        return [(scale * np.asarray(d)).astype(np.float32) for d in a]
+      return (scale * np.asarray(a, np.float64)).astype(np.float32)
+    return dataclasses.replace(
+        self, poses=move_poses(self.poses), true_poses=move_poses(self.true_poses),
+        aabb=move(self.aabb), core=move(self.core), points=move(self.points),
+        near=float(scale * self.near), far=float(scale * self.far), bounds=times(self.bounds),
+        depths=times(self.depths))
+
   def one_camera(self):
     """The images that share image 0's camera, as a Dataset of one camera (`images` an [M, H,
     W, 3] array, image_cameras None): what code that reads the images of one camera takes

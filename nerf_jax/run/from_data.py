@@ -5,8 +5,6 @@ box in NDC and from the visual hull, the ray bounds and pixel centres; and the o
 warns when the scene box cuts the training rays (`cut_share`, which auto reads too).
 """
 
-import dataclasses
-
 import jax.numpy as jnp
 import ml_collections
 import numpy as np
@@ -44,25 +42,8 @@ def with_focus(config, train_ds, test_ds):
   point = characterise.focus_point(train_ds.poses, train_ds.near, train_ds.far)
   print(f"focus: the cameras look at ({', '.join(f'{v:.3g}' for v in point)}); the world is "
         "moved to put it at the origin, the centre of the scene box (data.focus)", flush=True)
-  return translated(train_ds, -point), translated(test_ds, -point)
-
-
-def translated(dataset, offset):
-  """`dataset` (a Dataset) with everything in world units moved by `offset` (float [3]): the
-  poses' centres, true poses, the aabb and core boxes and the sparse points (z-depths, bounds
-  and depths, stay as they are)."""
-  offset = np.asarray(offset, np.float32)
-  def move_poses(poses):
-    if poses is None:
-      return None
-    poses = np.array(poses, np.float32)
-    poses[:, :3, 3] += offset
-    return poses
-  move = lambda a: None if a is None else np.asarray(a, np.float32) + offset
-  return dataclasses.replace(dataset, poses=move_poses(dataset.poses),
-                             true_poses=move_poses(dataset.true_poses),
-                             aabb=move(dataset.aabb), core=move(dataset.core),
-                             points=move(dataset.points))
+  point = np.asarray(point, np.float32)  # as the poses are stored: a move in float32
+  return train_ds.moved(point), test_ds.moved(point)
 
 
 def scene_box(contraction, dataset):

@@ -194,29 +194,6 @@ def find_box(dataset, source="auto", box=()):
   return None, reasons
 
 
-def moved(dataset, centre, scale):
-  """`dataset` with the world mapped by x -> scale (x - centre) (centre float [3], scale float
-  > 0): poses' centres and true poses, the boxes (aabb, core), the points, and every length
-  (near, far, bounds, depths) times scale."""
-  centre = np.asarray(centre, np.float64)
-  def move_poses(poses):
-    if poses is None:
-      return None
-    poses = np.array(poses, np.float64)
-    poses[:, :3, 3] = scale * (poses[:, :3, 3] - centre)
-    return poses.astype(np.float32)
-  move = lambda a: None if a is None else (scale * (np.asarray(a, np.float64) - centre)).astype(
-      np.float32)
-  times = lambda a: None if a is None else (
-      [(scale * np.asarray(d)).astype(np.float32) for d in a] if isinstance(a, list) else
-      (scale * np.asarray(a, np.float64)).astype(np.float32))
-  return dataclasses.replace(
-      dataset, poses=move_poses(dataset.poses), true_poses=move_poses(dataset.true_poses),
-      aabb=move(dataset.aabb), core=move(dataset.core), points=move(dataset.points),
-      near=float(scale * dataset.near), far=float(scale * dataset.far),
-      bounds=times(dataset.bounds), depths=times(dataset.depths))
-
-
 def subject_bounds(poses, half):
   """float32 [N, 2]: each camera's (near, far) z-depths of the box ± half (half float [3],
   centred at the origin), near at least MIN_NEAR."""
@@ -227,7 +204,7 @@ def subject_bounds(poses, half):
 
 
 def with_subject(config, train_ds, test_ds):
-  """(config, train_ds, test_ds) with data.subject on: the world moved and scaled (`moved`) so
+  """(config, train_ds, test_ds) with data.subject on: the world moved and scaled (Dataset.moved) so
   that the subject's box (`subject_box` of the training views) is centred at the origin with
   its largest half-extent times MARGIN at data.scene_bound (1 where that is 0 or -1; -1 then
   becomes 1, as the box found); each training photo's bounds (Dataset.bounds) cover the
@@ -245,7 +222,7 @@ def with_subject(config, train_ds, test_ds):
                      "(use 'auto')")
   bound = config.data.scene_bound if config.data.scene_bound > 0 else 1.0
   scale = bound / (MARGIN * float(np.max(box.half)))
-  train_ds, test_ds = (moved(d, box.centre, scale) for d in (train_ds, test_ds))
+  train_ds, test_ds = (d.moved(box.centre, scale) for d in (train_ds, test_ds))
   train_ds = with_bounds(train_ds, scale * box.half)
   if config.data.photo_bounds:  # the held-out views sampled as the photos are
     test_ds = with_bounds(test_ds, scale * box.half)
