@@ -15,6 +15,8 @@ pixel_center = 0 (what such a Dataset records) its rays pass through pixel centr
 
 import numpy as np
 
+from nerf_jax.data import resampling
+
 # COLMAP camera models -> the names of their parameters, in order.
 COLMAP_PARAMS = {
     "SIMPLE_PINHOLE": ("f", "cx", "cy"),
@@ -91,21 +93,6 @@ def project(points_cam, intrinsics, dist=(0.0, 0.0, 0.0, 0.0)):
   return xy * np.array([fx, fy]) + np.array([cx, cy])
 
 
-def bilinear(image, uv):
-  """Sample float [H, W, C] at pixel coordinates uv float64 [..., 2] (COLMAP convention: pixel
-  centres at +0.5); beyond the border the nearest edge pixel. Returns float64 [..., C]."""
-  height, width = image.shape[:2]
-  u = np.clip(uv[..., 0] - 0.5, 0.0, width - 1.0)
-  v = np.clip(uv[..., 1] - 0.5, 0.0, height - 1.0)
-  i0 = np.clip(np.floor(u), 0, max(width - 2, 0)).astype(np.int64)  # i0 + 1 stays inside
-  j0 = np.clip(np.floor(v), 0, max(height - 2, 0)).astype(np.int64)
-  fu, fv = (u - i0)[..., None], (v - j0)[..., None]
-  i1, j1 = np.minimum(i0 + 1, width - 1), np.minimum(j0 + 1, height - 1)
-  top = image[j0, i0] * (1 - fu) + image[j0, i1] * fu
-  bottom = image[j1, i0] * (1 - fu) + image[j1, i1] * fu
-  return top * (1 - fv) + bottom * fv
-
-
 def resample(image, intrinsics, dist, target_intrinsics, target_size):
   """The photo `image` (taken through intrinsics + dist) as seen by a pinhole camera.
 
@@ -118,7 +105,8 @@ def resample(image, intrinsics, dist, target_intrinsics, target_size):
   fx, fy, cx, cy = target_intrinsics
   u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5, indexing="xy")
   rays = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)], -1)
-  return bilinear(np.asarray(image, np.float64), project(rays, intrinsics, dist))
+  uv = project(rays, intrinsics, dist)  # pixel centres at +0.5: continuous indices - 0.5
+  return resampling.bilinear(np.asarray(image, np.float64), uv[..., 1] - 0.5, uv[..., 0] - 0.5)
 
 
 def dataset_intrinsics(intrinsics):

@@ -18,6 +18,8 @@ import dataclasses
 
 import numpy as np
 
+from nerf_jax.data import resampling
+
 
 def common_pinhole(cameras):
   """(height, width, (fx, fy, cx, cy)): the median focal lengths of `cameras` and the largest
@@ -42,23 +44,6 @@ def source_coordinates(target, source, pixel_center):
   return rows, columns
 
 
-def bilinear(image, rows, columns):
-  """float32 [H, W, ...]: `image` float [h, w, ...] at the grid `rows` [H] x `columns` [W]
-  (continuous indices, clamped to the image: the target's field of view lies inside it up to
-  rounding)."""
-  image = np.asarray(image, np.float32)
-  rows = np.clip(rows, 0, image.shape[0] - 1)
-  columns = np.clip(columns, 0, image.shape[1] - 1)
-  r0 = np.minimum(np.floor(rows).astype(int), image.shape[0] - 2).clip(0)
-  c0 = np.minimum(np.floor(columns).astype(int), image.shape[1] - 2).clip(0)
-  r1, c1 = np.minimum(r0 + 1, image.shape[0] - 1), np.minimum(c0 + 1, image.shape[1] - 1)
-  wr = (rows - r0).astype(np.float32).reshape((-1, 1) + (1,) * (image.ndim - 2))
-  wc = (columns - c0).astype(np.float32).reshape((1, -1) + (1,) * (image.ndim - 2))
-  top = image[r0][:, c0] * (1 - wc) + image[r0][:, c1] * wc
-  bottom = image[r1][:, c0] * (1 - wc) + image[r1][:, c1] * wc
-  return top * (1 - wr) + bottom * wr
-
-
 def nearest(image, rows, columns):
   """`image` [h, w, ...] at the nearest pixel of each point of the grid rows [H] x columns [W]
   (for masks and depths, whose values must not blend across an edge)."""
@@ -74,6 +59,8 @@ def resampled(dataset):
   (nearest pixel); so do depths, which a shared camera centre and orientation leave unchanged.
   The photos whose masks keep no pixel of the shared view are left out (M <= N)."""
   target = common_pinhole(dataset.cameras)
+  bilinear = lambda image, rows, columns: resampling.bilinear(  # on the grid, in float32
+      np.asarray(image, np.float32), rows[:, None], columns[None, :])
   grids = [source_coordinates(target, dataset.cameras.camera(k), dataset.pixel_center)
            for k in range(len(dataset))]
 

@@ -54,20 +54,6 @@ def test_undistort_inverts_distort():
   np.testing.assert_allclose(lens.undistort(lens.distort(xy, k3), k3), xy, atol=1e-12)
 
 
-def test_bilinear_against_a_loop():
-  rng = np.random.default_rng(2)
-  image = rng.uniform(0, 1, (5, 7, 3))
-  uv = rng.uniform(0.5, 6.5, (40, 2)) * [1.0, 4.5 / 6.5]  # inside the pixel centres' hull
-  for (u, v), got in zip(uv, lens.bilinear(image, uv)):
-    x, y = u - 0.5, v - 0.5
-    i, j = int(x), int(y)
-    fx, fy = x - i, y - j
-    want = ((1 - fx) * (1 - fy) * image[j, i] + fx * (1 - fy) * image[j, min(i + 1, 6)]
-            + (1 - fx) * fy * image[min(j + 1, 4), i] + fx * fy * image[min(j + 1, 4),
-                                                                      min(i + 1, 6)])
-    np.testing.assert_allclose(got, want, atol=1e-12)
-
-
 def test_resample_is_identity_for_the_same_pinhole():
   image = np.random.default_rng(3).uniform(0, 1, (6, 9, 3))
   out = lens.resample(image, (8.0, 8.0, 4.5, 3.0), (0.0, 0.0, 0.0, 0.0), (8.0, 8.0, 4.5, 3.0),
