@@ -30,7 +30,7 @@ INSTALL_HINT = 'pip install -e ".[viewer]"'
 
 class ViewerError(ValueError):
   """The viewer cannot start; the one-line message says why and what to do (a ValueError, so
-  cli.run_main prints it as one line)."""
+  nerf-view and nerf-train print it as one line)."""
 
 
 def import_viser():

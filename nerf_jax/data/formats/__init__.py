@@ -65,11 +65,12 @@ def register(name, module, before=None):
   """Make the format of `module` (a dotted module path defining FORMAT) known as `name`, tried
   just before the format named `before` (None: after every other). ValueError for an unknown
   `before`."""
-  if before is not None and before not in FORMATS:
-    raise ValueError(f"no data format {before!r} to put {name!r} before (formats: "
-                     f"{', '.join(FORMATS)})")
   entries = [(n, m) for n, m in FORMATS.items() if n != name]
-  at = len(entries) if before is None else [n for n, _ in entries].index(before)
+  others = [n for n, _ in entries]
+  if before is not None and before not in others:
+    raise ValueError(f"no data format {before!r} to put {name!r} before (formats: "
+                     f"{', '.join(others)})")
+  at = len(entries) if before is None else others.index(before)
   entries.insert(at, (name, module))
   FORMATS.clear()
   FORMATS.update(entries)

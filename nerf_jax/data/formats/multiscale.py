@@ -38,5 +38,5 @@ def _first_image_channels(path):
   return validate.read_image(image_path).shape[-1] if os.path.isfile(image_path) else None
 
 
-# Not named by the one line for data of no known format (`expected` ''), as before.
+# `expected` '': the one line for data of no known format has never named metadata.json.
 FORMAT = formats.Format("multiscale", detect, load, background)
