@@ -22,7 +22,8 @@ import os
 import numpy as np
 
 from nerf_jax.cameras.cameras import Cameras
-from nerf_jax.data import lens, masks as masks_lib, nerfstudio, orient, sfm, validate
+from nerf_jax.data import (lens, masks as masks_lib, nerfstudio, orient, resampling, sfm,
+                           validate)
 # FILES, MODEL_DIRS and model_dir are also read through this module (loaders.py, the tests).
 from nerf_jax.data.colmap_model import (FILES, MODEL_DIRS, model_dir, model_files, observations,
                                         read_cameras, read_images, read_sparse_points, rotation)
@@ -38,7 +39,7 @@ def _image(path, name, factor):
   full = os.path.join(path, "images", name)
   if not os.path.isfile(full):
     raise DataError(f"{full}: image {name!r} of the COLMAP model not found")
-  return nerfstudio.downscale(validate.read_image(full), factor)
+  return resampling.block_mean(validate.read_image(full), factor)
 
 
 def _camera(camera, camera_id, image_size, where):

@@ -17,16 +17,8 @@ import sys
 
 import numpy as np
 
-from nerf_jax.data import multicam, validate
+from nerf_jax.data import multicam, resampling, validate
 from nerf_jax.data.dataset import DataError
-
-
-def down2(rgba):
-  """float64 [H, W, C] -> [H // 2, W // 2, C]: the mean of each 2×2 block (an odd last row or
-  column dropped)."""
-  height, width = rgba.shape[0] // 2, rgba.shape[1] // 2
-  blocks = rgba[:2 * height, :2 * width].reshape(height, 2, width, 2, -1)
-  return blocks.mean((1, 3))
 
 
 def convert(blender_dir, out_dir, levels=4):
@@ -55,7 +47,7 @@ def convert(blender_dir, out_dir, levels=4):
         entries.append({"rgba": rgba, "cam2world": frame["transform_matrix"],
                         "focal": focal / 2 ** j, "label": j, "lossmult": 4.0 ** j,
                         "near": meta.get("near", 2.0), "far": meta.get("far", 6.0)})
-        rgba = down2(rgba)
+        rgba = resampling.block_mean(rgba, 2)
     splits[split] = entries
   if not splits:
     raise DataError(f"{blender_dir}: no transforms_{{train,val,test}}.json")

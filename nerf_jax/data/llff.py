@@ -22,7 +22,7 @@ import os
 import imageio.v3 as iio
 import numpy as np
 
-from nerf_jax.data import colmap_model, masks as masks_lib, validate
+from nerf_jax.data import colmap_model, masks as masks_lib, resampling, validate
 from nerf_jax.data.dataset import DataError, Dataset
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -51,15 +51,6 @@ def export_llff(dataset, dirpath):
                       dataset.mask(k))
 
 
-def _downsample(images, factor):
-  """factor x factor block average of float [N, H, W, C]; a partial last block is dropped."""
-  num, height, width, channels = images.shape
-  height, width = height // factor, width // factor
-  blocks = images[:, :height * factor, :width * factor].reshape(
-      num, height, factor, width, factor, channels)
-  return blocks.mean((2, 4))
-
-
 def _read_images(path, num_views, factor):
   """(float32 [N, H, W, 3] from `images_{factor}/`, or `images/` block-averaged by `factor`;
   the masks float32 [N, H, W] from masks/, or None)."""
@@ -77,7 +68,7 @@ def _read_images(path, num_views, factor):
   shapes = {im.shape[:2] for im in images}
   if len(shapes) > 1:
     raise DataError(f"{folder}: images have different sizes {sorted(shapes)}")
-  images = _downsample(np.stack(images), factor) if reduce else np.stack(images)
+  images = resampling.block_mean(np.stack(images), factor if reduce else 1)
   return images, _read_masks(path, names, images.shape[1:3], factor)
 
 

@@ -43,7 +43,8 @@ import os
 import numpy as np
 
 from nerf_jax.cameras.cameras import Cameras
-from nerf_jax.data import colmap_model, lens, masks as masks_lib, orient, pointcloud, validate
+from nerf_jax.data import (colmap_model, lens, masks as masks_lib, orient, pointcloud,
+                           resampling, validate)
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.data.validate import composite, parse_background
 
@@ -112,15 +113,6 @@ def _camera(frame, meta, image_size, full_size, where):
     raise DataError(f"{where}: focal lengths fl_x={fx:g}, fl_y={fy:g} must be positive")
   dist = tuple(_number(frame, meta, k, where, 0.0) for k in _DIST_KEYS)
   return (fx * sx, fy * sy, cx * sx, cy * sy), dist
-
-
-def downscale(image, factor):
-  """Block average of float [H, W, C] by an integer factor (odd edges are cropped)."""
-  if factor == 1:
-    return image
-  height, width = image.shape[0] // factor, image.shape[1] // factor
-  blocks = image[:height * factor, :width * factor]
-  return blocks.reshape(height, factor, width, factor, -1).mean((1, 3))
 
 
 def _scaled_path(root, file_path, factor):
@@ -269,7 +261,7 @@ def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
     where = f"{meta_path}: frames[{k}]"
     image = validate.read_image(image_path)
     full_size = tuple(n * (factor if prescaled else 1) for n in image.shape[:2])
-    image = image if prescaled else downscale(image, factor)
+    image = image if prescaled else resampling.block_mean(image, factor)
     masks.append(_mask(root, frame, factor, full_size, image.shape, where))
     poses.append(validate.poses(np.asarray(frame["transform_matrix"], np.float64)[None],
                                 f"{where}.transform_matrix")[0])

@@ -1,6 +1,8 @@
 """Images resampled on the host (numpy), for the data layer: bilinear sampling at continuous
 pixel indices (a lens's distortion removed, data/lens.py; photos seen through one pinhole,
-data/one_camera.py).
+data/one_camera.py) and the block average that downscales photos by an integer factor
+(data.factor's LLFF, COLMAP and transforms.json folders, Blender's half_res, the multiscale
+converter).
 
 Indices are continuous: pixel k's value sits at index k (a pixel-centre convention of the
 caller's is its own offset).
@@ -25,3 +27,15 @@ def bilinear(image, rows, columns):
   top = image[r0, c0] * (1 - wc) + image[r0, c1] * wc
   bottom = image[r1, c0] * (1 - wc) + image[r1, c1] * wc
   return top * (1 - wr) + bottom * wr
+
+
+def block_mean(images, factor):
+  """float [..., H, W, C] -> [..., H // factor, W // factor, C]: the mean of each factor x
+  factor block of pixels (int factor >= 1; a partial last row or column of blocks is dropped),
+  in `images`' dtype; `images` itself with factor 1."""
+  if factor == 1:
+    return images
+  height, width = images.shape[-3] // factor, images.shape[-2] // factor
+  blocks = images[..., :height * factor, :width * factor, :]
+  return blocks.reshape(images.shape[:-3] + (height, factor, width, factor, images.shape[-1])
+                        ).mean((-4, -2))

@@ -48,3 +48,17 @@ def test_bilinear_beyond_the_border_is_the_nearest_edge_pixel(height, width):
   r, c = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
   np.testing.assert_allclose(resampling.bilinear(image, r.astype(float), c.astype(float)),
                              image, atol=1e-12)
+
+
+@pytest.mark.parametrize("factor", [1, 2, 3])
+def test_block_mean_against_a_loop(factor):
+  images = np.random.default_rng(5).uniform(0, 1, (2, 7, 8, 3))  # partial blocks at 2 and 3
+  got = resampling.block_mean(images, factor)
+  assert got.shape == (2, 7 // factor, 8 // factor, 3)
+  for n, i, j in np.ndindex(got.shape[:3]):
+    block = images[n, i * factor:(i + 1) * factor, j * factor:(j + 1) * factor]
+    np.testing.assert_allclose(got[n, i, j], block.reshape(-1, 3).mean(0), atol=1e-12)
+  # One image [H, W, C] alike, in its own dtype.
+  one = resampling.block_mean(images[1].astype(np.float32), factor)
+  assert one.dtype == np.float32
+  np.testing.assert_allclose(one, got[1], atol=1e-6)

@@ -6,7 +6,7 @@ import os
 
 import numpy as np
 
-from nerf_jax.data import formats, masks as masks_lib, validate
+from nerf_jax.data import formats, masks as masks_lib, resampling, validate
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.data.validate import composite, parse_background
 
@@ -54,10 +54,8 @@ def _read_frame_mask(root, meta_path, k, frame, image_path):
 def _half_res(rgba):
   """2x2 area average of float64 [N, H, W, 4] straight-alpha images (premultiplied while
   averaging so that transparent pixels' colours do not bleed); odd sizes lose a row/column."""
-  num, height, width = rgba.shape[0], rgba.shape[1] // 2, rgba.shape[2] // 2
   premult = np.concatenate([rgba[..., :3] * rgba[..., 3:], rgba[..., 3:]], -1)
-  blocks = premult[:, :2 * height, :2 * width].reshape(num, height, 2, width, 2, 4)
-  mean = blocks.mean((2, 4))
+  mean = resampling.block_mean(premult, 2)
   alpha = mean[..., 3:]
   return np.concatenate([mean[..., :3] / np.maximum(alpha, 1e-12), alpha], -1)  # 0/0 -> 0
 
