@@ -26,13 +26,12 @@
 import dataclasses
 import json
 import os
-import subprocess
 import sys
-import time
 
 import imageio.v3 as iio
 import numpy as np
 
+from nerf_jax.bench import child
 from nerf_jax.data import nerfstudio, orient, pointcloud
 from nerf_jax.data.scenes import capture
 
@@ -187,16 +186,16 @@ def summary(record):
 
 
 def _run(cmd, log_path):
-  """Run a command, tee its output into log_path; returns (seconds, output)."""
-  start = time.perf_counter()
-  result = subprocess.run(cmd, capture_output=True, text=True,
-                          env={**os.environ, "PYTHONPATH": "."})
-  seconds = time.perf_counter() - start
-  with open(log_path, "w") as f:
-    f.write("$ " + " ".join(cmd) + "\n" + result.stdout + result.stderr)
-  if result.returncode:
-    raise RuntimeError(f"{' '.join(cmd)} failed: {result.stderr.strip().splitlines()[-1:]}")
-  return seconds, result.stdout + result.stderr
+  """Run a command (from the repository root: train.py, render.py), its output into log_path
+  after the command line; returns (seconds, output). RuntimeError with its last line if it
+  fails."""
+  code, seconds = child.run_logged(cmd, log_path, environment={**os.environ, "PYTHONPATH": "."},
+                                   command_line=True)
+  with open(log_path) as f:
+    output = f.read().split("\n", 1)[1]
+  if code:
+    raise RuntimeError(f"{' '.join(cmd)} failed: {output.strip().splitlines()[-1:]}")
+  return seconds, output
 
 
 def _train(root, folders, seconds, extra):

@@ -17,11 +17,12 @@ steps/s, PSNR and seconds. Processes share one GPU: memory is not preallocated.
 import json
 import os
 import re
-import subprocess
 import sys
 import time
 
 from absl import app, flags
+
+from nerf_jax.bench import child
 
 SCENES = {"lego": ("detail", {}), "fox": ("capture", {"data.factor": 4}),
           "fern": ("llff", {"data.factor": 8})}
@@ -43,26 +44,13 @@ DEVICE = ("import jax; d = jax.devices()[0]; "
 
 
 def _env():
-  return dict(os.environ, XLA_PYTHON_CLIENT_PREALLOCATE="false")
-
-
-def _run(args, log, timeout):
-  """(return code or 'timeout', seconds) of a subprocess writing stdout and stderr to `log`."""
-  start = time.perf_counter()
-  with open(log, "w") as f:
-    try:
-      code = subprocess.run(args, stdout=f, stderr=subprocess.STDOUT, env=_env(),
-                            timeout=max(timeout, 1)).returncode
-    except subprocess.TimeoutExpired:
-      code = "timeout"
-  return code, time.perf_counter() - start
+  """The stages' environment: this process's path, no GPU preallocation."""
+  return child.env(preallocate=False, own_code=False)
 
 
 def device():
   """'backend | device kind | jax version' of this machine's first jax device."""
-  out = subprocess.run([sys.executable, "-c", DEVICE], capture_output=True, text=True,
-                       env=_env(), check=False)
-  return out.stdout.strip() or f"unknown ({out.stderr.strip().splitlines()[-1:]})"
+  return child.python_line(DEVICE, _env())
 
 
 def train_row(name, config, overrides, out, timeout):
@@ -70,7 +58,7 @@ def train_row(name, config, overrides, out, timeout):
   workdir = os.path.join(out, name)
   args = [sys.executable, "-c", TRAIN, f"--config={config}", f"--workdir={workdir}",
           *(f"--config.{k}={v}" for k, v in overrides.items())]
-  code, seconds = _run(args, os.path.join(out, f"{name}.log"), timeout)
+  code, seconds = child.run_logged(args, os.path.join(out, f"{name}.log"), timeout, _env())
   row = {"stage": name, "config": config, "status": "ok" if code == 0 else f"exit {code}",
          "seconds": seconds}
   path = os.path.join(workdir, "metrics.json")
@@ -84,8 +72,9 @@ def train_row(name, config, overrides, out, timeout):
 def suite_row(out, tests, workers, timeout):
   """The quick suite (`pytest -m "not slow"`) as a row: passed, failed and errors counted."""
   log = os.path.join(out, "suite.log")
-  code, seconds = _run([sys.executable, "-m", "pytest", tests, "-m", "not slow", "-q",
-                        "-n", workers, "-p", "no:cacheprovider"], log, timeout)
+  code, seconds = child.run_logged([sys.executable, "-m", "pytest", tests, "-m", "not slow",
+                                    "-q", "-n", workers, "-p", "no:cacheprovider"], log,
+                                   timeout, _env())
   text = open(log).read()
   counts = {k: int(n) for n, k in re.findall(r"(\d+) (passed|failed|errors?|skipped)", text)}
   summary = ", ".join(f"{n} {k}" for k, n in counts.items()) or "no summary"

@@ -1,6 +1,7 @@
 """How a benchmark command runs, with train.py's conventions: absl flags, one --config flag (a
 path or a name under configs/) with typed --config.FIELD=VALUE overrides, and errors the user
-can fix printed as one line with exit status 1 (nerf_jax.cli).
+can fix printed as one line with exit status 1 (nerf_jax.cli); and the config a command trains
+(`command_config`: the command's fields set, auto keeps them).
 
 Each command is `define_*_flags(flag_values, argv)` and a function of the parsed flag values, so
 tests parse and run it on a private FlagValues; its `*_main` runs it here under absl's app.run:
@@ -11,6 +12,7 @@ tests parse and run it on a private FlagValues; its `*_main` runs it here under 
 
 import sys
 
+import ml_collections
 from absl import app, flags
 from ml_collections import config_flags
 
@@ -40,3 +42,15 @@ def run_command(define, command, argv, with_config):
     cli.run_main(lambda: command(flags.FLAGS, spec, given))  # app.run exits with what run returns
 
   app.run(run, argv=argv, flags_parser=errors.parse_flags)
+
+
+def command_config(base, fields, overrides=()):
+  """(a copy of the ConfigDict `base` with `fields` ({dotted field: value}) set, {field: value}
+  of what the command set: `overrides` (the dotted fields the command line set on `base`), then
+  `fields`). These go into config.auto_flags after those `base` holds: auto keeps them."""
+  config = ml_collections.ConfigDict(base.to_dict())
+  for name, value in fields.items():
+    config_lib.set_field(config, name, value)
+  names = tuple(dict.fromkeys((*overrides, *fields)))
+  config.auto_flags = tuple(dict.fromkeys((*config.auto_flags, *names)))
+  return config, {name: config_lib.get_field(config, name) for name in names}

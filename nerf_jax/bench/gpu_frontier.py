@@ -27,12 +27,13 @@ both rewritten after each stage, a log per stage, and scatter.json.
 import ast
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
 
 from absl import app, flags
+
+from nerf_jax.bench import child
 
 # The scenes: (config, overrides on a folder, the built-in scene of its kind for --smoke).
 SCENES = {"lego": ("gpu/lego", {"data.background": "white"}, "diffuse"),
@@ -58,7 +59,6 @@ SMOKE_MODEL = {"gpu/lego": {"model.hash.levels": 4, "model.hash.log2_size": 10,
                             "render.num_samples": 0},
                "gpu/llff": {"model.grid.resolutions": (8, 16), "num_samples": 16}}
 SMOKE_MODEL["gpu/capture"] = SMOKE_MODEL["gpu/lego"]
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 DEVICE = ("import jax; d = jax.devices()[0]; "
           "print(jax.default_backend(), '|', getattr(d, 'device_kind', d.platform), '|', "
           "'jax', jax.__version__)")
@@ -92,28 +92,13 @@ def define_flags(values):
 def _env():
   """The children's environment: this checkout first on the path, no GPU preallocation (the
   stages run one after the other, but the parent's children share the device with nothing)."""
-  path = os.pathsep.join(p for p in (ROOT, os.environ.get("PYTHONPATH")) if p)
-  return dict(os.environ, PYTHONPATH=path, XLA_PYTHON_CLIENT_PREALLOCATE="false")
-
-
-def run_logged(args, log, timeout):
-  """(exit status or 'timeout', seconds) of subprocess `args`, its output into file `log`."""
-  start = time.perf_counter()
-  with open(log, "w") as f:
-    try:
-      code = subprocess.run(args, stdout=f, stderr=subprocess.STDOUT, env=_env(),
-                            timeout=max(timeout, 1), check=False).returncode
-    except subprocess.TimeoutExpired:
-      code = "timeout"
-  return code, time.perf_counter() - start
+  return child.env(preallocate=False)
 
 
 def device():
   """'backend | device kind | jax version' of the first jax device, from a child process (this
   one never starts a backend: it would hold device memory while the stages run)."""
-  out = subprocess.run([sys.executable, "-c", DEVICE], capture_output=True, text=True,
-                       env=_env(), check=False)
-  return out.stdout.strip() or f"unknown ({out.stderr.strip().splitlines()[-1:]})"
+  return child.python_line(DEVICE, _env())
 
 
 def parse_seconds(items):
@@ -166,8 +151,8 @@ def timed_record(name, overrides, probe_times, eval_views, log, timeout):
       json.dump({"config": _config_json(name, overrides), "record_path": record,
                  "options": {"eval_times": list(probe_times), "eval_views": eval_views,
                              "render_repeats": 3, "matmul_repeats": 3}}, f)
-    code, seconds = run_logged([sys.executable, "-m", "nerf_jax.bench.timed_run", spec], log,
-                               timeout)
+    code, seconds = child.run_logged([sys.executable, "-m", "nerf_jax.bench.timed_run", spec],
+                                     log, timeout, _env())
     if not os.path.exists(record):
       return {"error": f"exit {code} after {seconds:.0f} s without a record (log: {log})"}
     with open(record) as f:
@@ -301,7 +286,7 @@ def run(values):
     log = os.path.join(values.out, f"{name.split()[0]}.log")
     later = sum(list(STAGE_LIMIT_S.values())[i + 1:])  # the checks after this one
     limit = SMOKE_LIMIT_S if values.smoke else min(STAGE_LIMIT_S[name], left() - later)
-    code, spent = run_logged(args, log, limit)
+    code, spent = child.run_logged(args, log, limit, _env())
     stages[name] = {"status": f"exit {code}, {spent:.0f} s", "text": _stage_text(log, keep)}
     write_report(values.out, machine, results, stages)
   print(open(os.path.join(values.out, "frontier.md")).read(), flush=True)

@@ -17,7 +17,6 @@ import hashlib
 import json
 import os
 import shlex
-import subprocess
 import sys
 import time
 
@@ -26,18 +25,15 @@ import ml_collections
 from absl import flags
 
 from nerf_jax import cli
-from nerf_jax.bench import command_line, regret_plan, report, runner, standard
+from nerf_jax.bench import child, command_line, regret_plan, report, standard
 from nerf_jax.data.scenes import builtin
 from nerf_jax.run import config_lib, experiment, train_lib
 from nerf_jax.run import machine as machine_lib
 
 LOG_NAME = "log.txt"  # each run's output, in its workdir
-# Every process takes the device memory it uses, not 75% of it at start: the command's own
-# process (which decided auto's config) holds some while each run trains in its own.
-NO_PREALLOCATION = {"XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
 
 
-def command_config(config, scene, data_path, seconds, overrides=()):
+def scene_config(config, scene, data_path, seconds, overrides=()):
   """(a copy of `config` that trains `scene` (a built-in scene name) or the data at
   `data_path` for `seconds`, {field: value} the command set: these and `overrides`, the
   dotted fields of the command line). The fields go into config.auto_flags: auto keeps them.
@@ -46,14 +42,9 @@ def command_config(config, scene, data_path, seconds, overrides=()):
     raise FileNotFoundError(f"--data_path={data_path}: not found")
   if not data_path:
     builtin.get_scene(scene)  # ValueError naming the valid scenes
-  config = regret_plan.copy(config)
   fields = {**({"data.path": data_path} if data_path else {"data.scene": scene}),
             "train.max_seconds": float(seconds), "render.after_training": False}
-  for name, value in fields.items():
-    config_lib.set_field(config, name, value)
-  names = tuple(dict.fromkeys((*overrides, *fields)))
-  config.auto_flags = names
-  return config, {n: config_lib.get_field(config, n) for n in names}
+  return command_line.command_config(config, fields, overrides)
 
 
 def train_isolated(config, workdir):
@@ -63,18 +54,16 @@ def train_isolated(config, workdir):
   spec = os.path.join(workdir, "regret_config.json")
   with open(spec, "w") as f:
     f.write(config.to_json())
-  env = {**os.environ, **NO_PREALLOCATION, "PYTHONPATH": os.pathsep.join(
-      p for p in (runner.ROOT, os.environ.get("PYTHONPATH")) if p)}
   code = ("import sys; from nerf_jax.bench import regret; "
           "sys.exit(regret.worker(sys.argv[1], sys.argv[2]))")
-  with open(os.path.join(workdir, LOG_NAME), "w") as log:
-    proc = subprocess.run([sys.executable, "-c", code, spec, workdir], env=env, stdout=log,
-                          stderr=subprocess.STDOUT, check=False)
+  status, _ = child.run_logged([sys.executable, "-c", code, spec, workdir],
+                               os.path.join(workdir, LOG_NAME),
+                               environment=child.env(preallocate=False))
   metrics = os.path.join(workdir, "metrics.json")
-  if proc.returncode or not os.path.exists(metrics):
+  if status or not os.path.exists(metrics):
     with open(os.path.join(workdir, LOG_NAME)) as f:
       lines = [l.strip() for l in f if l.strip()]
-    return {"error": f"exit status {proc.returncode}: {lines[-1] if lines else 'no output'}"}
+    return {"error": f"exit status {status}: {lines[-1] if lines else 'no output'}"}
   with open(metrics) as f:
     return json.load(f)
 
@@ -344,8 +333,8 @@ def regret(values, spec, argv):
   """Run (or, with --dry_run, list) the runs the parsed flags ask for. Returns (records,
   regret); ([], None) for a dry run."""
   del spec
-  config, user = command_config(values["config"].value, values.scene, values.data_path,
-                                values.seconds, cli.override_names(argv))
+  config, user = scene_config(values["config"].value, values.scene, values.data_path,
+                              values.seconds, cli.override_names(argv))
   if not config.auto:
     raise ValueError("regret measures auto's decisions: leave --config=auto")
   result, train_ds, _ = experiment.load_decided(config)
@@ -368,7 +357,9 @@ def regret(values, spec, argv):
 def regret_main(argv=None):
   """`python -m nerf_jax.bench.regret`."""
   given = list(sys.argv if argv is None else argv)
-  os.environ.update(NO_PREALLOCATION)  # before JAX starts its backend
+  # Every process takes the device memory it uses, not 75% of it at start: the command's own
+  # process (which decided auto's config) holds some while each run trains in its own.
+  os.environ.update(child.NO_PREALLOCATION)  # before JAX starts its backend
   command_line.run_command(define_regret_flags, regret, standard.normalised_argv(given),
                            with_config=True)
 

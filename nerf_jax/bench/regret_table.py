@@ -20,13 +20,12 @@ gain against its step-cost ratio (matplotlib: the [bench] extra).
 
 import json
 import os
-import subprocess
 import sys
 import threading
 
 from absl import flags
 
-from nerf_jax.bench import command_line, regret, regret_plan, report, standard
+from nerf_jax.bench import child, command_line, regret, regret_plan, report, standard
 
 # The built-in scenes of the table (docs/regret.md), the slowest first: landmark's runs carve a
 # hull and fit zooms before training; the collections fit held-out codes after it.
@@ -72,9 +71,8 @@ def run_scenes(commands, out, workers):
         scene = queue.pop(0)
       print(f"{scene}: {' '.join(commands[scene][1:])}", flush=True)
       pin = None if core is None else (lambda: os.sched_setaffinity(0, core))
-      with open(os.path.join(out, f"{scene}.log"), "w") as log:
-        code = subprocess.call(commands[scene], stdout=log, stderr=subprocess.STDOUT,
-                               preexec_fn=pin)
+      code, _ = child.run_logged(commands[scene], os.path.join(out, f"{scene}.log"),
+                                 preexec_fn=pin)
       print(f"{scene}: done (exit {code}), {os.path.join(out, scene, 'table.md')}", flush=True)
       status[scene] = code
 

@@ -12,23 +12,18 @@ import tempfile
 
 from nerf_jax.run import machine as machine_lib
 from nerf_jax.train import progress
-from nerf_jax.bench import measure, report, sweeps, timed_run
-
-# The directory holding the nerf_jax package: the subprocess imports the same code as its parent.
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from nerf_jax.bench import child, measure, report, sweeps, timed_run
 
 
 def run_isolated(config, options):
-  """`timed_run.run_config` in a fresh Python process; the record, or {'error': ...}."""
+  """`timed_run.train_and_measure` in a fresh Python process; the record, or {'error': ...}."""
   with tempfile.TemporaryDirectory() as tmp:
     spec_path, record_path = os.path.join(tmp, "spec.json"), os.path.join(tmp, "record.json")
     with open(spec_path, "w") as f:
       json.dump({"config": config.to_json(), "options": dataclasses.asdict(options),
                  "record_path": record_path}, f)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
-        p for p in (ROOT, os.environ.get("PYTHONPATH")) if p)}
     proc = subprocess.run([sys.executable, "-m", "nerf_jax.bench.timed_run", spec_path],
-                          env=env, check=False)
+                          env=child.env(), check=False)  # its output is the sweep's
     if not os.path.exists(record_path):
       return {"error": f"worker exited with status {proc.returncode} without a record"}
     with open(record_path) as f:
@@ -56,7 +51,7 @@ def run_sweep(request, options, out, command, in_process=False, dry_run=False):
   dtypes = sorted({"float32"} | {c.model.dtype for *_, c in runs})
   machine["matmul_gflops"] = {d: measure.matmul_gflops(d, repeats=options.matmul_repeats)
                               for d in dtypes}
-  run = timed_run.run_config if in_process else run_isolated
+  run = timed_run.train_and_measure if in_process else run_isolated
   results = os.path.join(out, "results.jsonl")
   open(results, "w").close()
   records = []

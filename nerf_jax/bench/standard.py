@@ -34,7 +34,6 @@ import time
 
 import imageio.v3 as iio
 import jax
-import ml_collections
 import numpy as np
 from absl import flags
 
@@ -291,22 +290,17 @@ def blender_view_folder(scene, folder, test_every):
   return folder
 
 
-def run_config(base, scene, data_path, seconds, half, overrides=()):
+def protocol_config(base, scene, data_path, seconds, half, overrides=()):
   """A copy of the ConfigDict `base` that trains `scene` by its protocol from `data_path` for
-  `seconds`. The fields set here and `overrides` (the dotted fields the command line set) go
-  into config.auto_flags, so that auto keeps them."""
-  config = ml_collections.ConfigDict(base.to_dict())
+  `seconds` (command_line.command_config: the fields set here and `overrides`, the dotted
+  fields the command line set, go into config.auto_flags, so that auto keeps them)."""
   fields = {"data.path": data_path, "data.holdout_from": -1, "train.max_seconds": float(seconds),
             "render.after_training": False}
   if scene.family == "blender":
     fields.update({"data.background": "white", "data.half_res": bool(half)})
   else:
     fields["data.factor"] = _factor(scene.family)
-  for name, value in fields.items():
-    section, _, key = name.rpartition(".")
-    config[section][key] = value
-  config.auto_flags = tuple(dict.fromkeys((*config.auto_flags, *overrides, *fields)))
-  return config
+  return command_line.command_config(base, fields, overrides)[0]
 
 
 def device():
@@ -407,8 +401,8 @@ def run_benchmark(base, config_name, scenes, out, seconds, half, test_every, com
       data_path = blender_view_folder(scene, os.path.join(out, "views", scene.name), test_every)
     print(f"{scene.family}/{scene.name}: training {seconds:g} s into {workdir}", flush=True)
     start = time.perf_counter()
-    train_lib.train_and_evaluate(run_config(base, scene, data_path, seconds, half, overrides),
-                                 workdir)
+    train_lib.train_and_evaluate(
+        protocol_config(base, scene, data_path, seconds, half, overrides), workdir)
     with open(os.path.join(workdir, "metrics.json")) as f:
       metrics = json.load(f)
     with open(os.path.join(workdir, "config.json")) as f:

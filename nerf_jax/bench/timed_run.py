@@ -105,7 +105,7 @@ def frame_seconds(exp, variables, repeats):
   return measure.sample_seconds(lambda: draw(exp.rays(pose, camera), bg), repeats), camera[:2]
 
 
-def run_config(config, options):
+def train_and_measure(config, options):
   """Train `config` under its budget in this process and measure it. Returns the record; its
   'machine' is the machine and its load while training (machine.Sampler's record)."""
   start = time.perf_counter()
@@ -196,7 +196,7 @@ def worker(spec_path):
   with open(spec_path) as f:
     spec = json.load(f)
   try:
-    record = run_config(sweeps.as_config(spec["config"]), Options(**spec["options"]))
+    record = train_and_measure(sweeps.as_config(spec["config"]), Options(**spec["options"]))
   except Exception as e:  # any failure of one run is reported in its record, the sweep goes on
     traceback.print_exc()
     record = {"error": f"{type(e).__name__}: {e}"}

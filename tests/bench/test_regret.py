@@ -395,9 +395,9 @@ def test_two_tiny_runs_end_to_end(tmp_path):
 
 def test_a_data_folder_replaces_the_scene_and_must_exist(tmp_path):
   base = config_lib.load("auto")
-  config, user = regret.command_config(base, "mine", str(tmp_path), 5.0)
+  config, user = regret.scene_config(base, "mine", str(tmp_path), 5.0)
   assert config.data.path == str(tmp_path) and config.data.scene == base.data.scene
   assert user == {"data.path": str(tmp_path), "train.max_seconds": 5.0,
                   "render.after_training": False}
   with pytest.raises(FileNotFoundError, match="--data_path=.*nowhere: not found"):
-    regret.command_config(base, "mine", str(tmp_path / "nowhere"), 5.0)
+    regret.scene_config(base, "mine", str(tmp_path / "nowhere"), 5.0)

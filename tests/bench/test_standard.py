@@ -151,8 +151,8 @@ def test_dry_run_lists_the_runs_and_trains_nothing(archives, tmp_path, capsys):
   assert ("fox/fox: instant-ngp fox as shipped: factor 4, 12x6, views 0, 8, 16, ... held out "
           "(2 of 10)") in printed
   fox_scene = standard.find_scene("fox", str(tmp_path), "fox")
-  assert standard.run_config(small_config(base="capture"), fox_scene, fox_scene.path, 7.0,
-                             False).data.factor == standard.FOX_FACTOR == 4
+  assert standard.protocol_config(small_config(base="capture"), fox_scene, fox_scene.path,
+                                  7.0, False).data.factor == standard.FOX_FACTOR == 4
   assert "min" in printed
 
 
@@ -193,10 +193,10 @@ def test_published_figures_agree_with_the_papers_means():
       np.testing.assert_allclose(column.mean(), mean, atol=0.5 * digit + 1e-9)
 
 
-def test_run_config_sets_the_protocol_and_auto_keeps_it():
+def test_protocol_config_sets_the_protocol_and_auto_keeps_it():
   base = small_config({"data.background": "black", "data.holdout_from": 10})
   scene = standard.Scene("blender", "lego", "/data/nerf_synthetic/lego", 400, 400, 200, [0])
-  config = standard.run_config(base, scene, "/data/view", 7.0, True, ("train.batch_rays",))
+  config = standard.protocol_config(base, scene, "/data/view", 7.0, True, ("train.batch_rays",))
   assert (config.data.path, config.data.background, config.data.half_res) == (
       "/data/view", "white", True)
   assert config.data.holdout_from == -1 and config.train.max_seconds == 7.0
@@ -204,7 +204,7 @@ def test_run_config_sets_the_protocol_and_auto_keeps_it():
           "train.max_seconds"} <= set(config.auto_flags)
   assert base.data.background == "black" and base.data.path == ""  # the base is untouched
   fern = standard.Scene("llff", "fern", "/data/nerf_llff_data/fern", 378, 504, 20, [0, 8, 16])
-  assert standard.run_config(base, fern, fern.path, 7.0, False).data.factor == 8
+  assert standard.protocol_config(base, fern, fern.path, 7.0, False).data.factor == 8
 
 
 def test_a_run_with_appearance_codes_says_how_its_views_were_scored():
