@@ -109,8 +109,8 @@ def test_a_time_budget_decides_on_its_fitted_steps_and_resumes_so(tmp_path, monk
 
 @pytest.mark.parametrize("seconds", [0.0, 3.0], ids=["steps", "seconds"])
 def test_the_benchmarks_run_decides_as_training_does(monkeypatch, seconds):
-  # python -m nerf_jax.bench's run (timed_run.train_and_measure) on auto's config: the effect the rule
-  # leaves off is not in the trained model (the view-dependent head's parameters).
+  # python -m nerf_jax.bench's run (timed_run.train_and_measure) on auto's config: the effect
+  # the rule leaves off is not in the trained model (the view-dependent head's parameters).
   from nerf_jax.bench import timed_run  # pylint: disable=import-outside-toplevel
   options = timed_run.Options(eval_times=(), render_repeats=1, matmul_repeats=1)
   params = {}
