@@ -3,8 +3,9 @@ the Pareto fronts of quality against cost.
 
 A record is one run's dict (see timed_run.train_and_measure) with 'scene', 'sweep', 'label',
 'machine', 'mode' and 'command' added by runner.run_sweep; a failed run has an 'error' instead
-of numbers. Plots have one panel per scene. matplotlib is imported only here, through its object-oriented
-API (no pyplot, no global backend), so it stays an optional dependency: the `bench` extra.
+of numbers. Plots have one panel per scene. matplotlib is imported only here, through its
+object-oriented API (no pyplot, no global backend), so it stays an optional dependency: the
+`bench` extra.
 """
 
 import math
