@@ -23,7 +23,7 @@ from nerf_jax.run import auto, config_lib
 EFFECT_FIELDS = ("data.background", "train.random_background", "data.ndc", "data.lindisp",
                  "data.contraction", "data.focus", "model.appearance_dims", "eval.appearance",
                  "model.view_dependent", "data.subject", "data.photo_bounds",
-                 "data.visual_hull", "data.photo_zoom", "loss.robust.weight",
+                 "data.visual_hull", "data.photo_zoom", "loss.robust.weight", "loss.depth.weight",
                  "train.pose_refinement",
                  "data.factor")
 # The representations auto chooses from (auto.auto_config) and configs/hash.py, the lattice
@@ -132,6 +132,13 @@ def _transients(result, base, context):
   return {"loss.robust.weight": 1.0, "train.patch_size": patch}, ""
 
 
+def _depth(result, base, context):
+  """DS-NeRF's depth from the tracks off where auto turned it on (auto.depth_effects)."""
+  if result.loss.depth.weight > 0:
+    return {"loss.depth.weight": 0.0}, ""
+  return None, "auto left the depth from the tracks off (no tracks, or more views than measured)"
+
+
 def _step_rule(result, base, context):
   """Auto's step rule off (auto.by_steps): the effects it waits to decide stay on at any
   budget."""
@@ -156,6 +163,7 @@ FLIPS = {
     "visual_hull": _on_subject("data.visual_hull"),
     "photo_zoom": _on_subject("data.photo_zoom"),
     "transients": _transients,
+    "depth": _depth,
     "pose_refinement": _switch("train.pose_refinement"),
     "step_rule": _step_rule,
 }

@@ -33,6 +33,12 @@ SUBJECT_SHARE = 0.25
 # 85 steps and 1.3 at 124, gains 0.5 at 180; the trimmed loss on crowd (its patch batches)
 # loses 1.5 dB at 69 steps and gains 1.9 at 99. The thresholds: where the lines between cross.
 MIN_STEPS = {"model.view_dependent": (False, 165), "loss.robust.weight": (0.0, 80)}
+# Depth from the sparse points' tracks (DS-NeRF's loss, config.loss.depth): on with this weight
+# where the training views have tracks (a COLMAP model) and number at most DEPTH_MAX_VIEWS.
+# Measured side by side at equal steps (docs/photo_collections.md, depth from the tracks): fern
+# (17 training views, llff.py, 1000 steps) +0.68 dB; more views than measured: off, unmeasured.
+DEPTH_WEIGHT = 0.1
+DEPTH_MAX_VIEWS = 100
 _OWN = ("auto", "auto_decisions", "auto_flags", "auto_by_steps")  # auto's own fields
 # On a GPU backend, the config that takes each CPU choice's place: the configs/gpu/ one where it
 # won on an H200 (docs/gpu.md, 2026-11-28: gpu/lego 32.63 dB on lego in 60 s against detail.py's
@@ -96,6 +102,25 @@ def transient_effects(dataset, collection, patch_size):
   return (effects,
           f"transients left out: RobustNeRF's trimmed loss on {patch} x {patch} patches "
           f"(loss.robust): {reason}")
+
+
+def depth_effects(dataset):
+  """({field: value}, [line]): DS-NeRF's depth from the sparse points' tracks
+  (loss.depth.weight=DEPTH_WEIGHT) where the training views `dataset` carry tracks
+  (Dataset.observations) and number at most DEPTH_MAX_VIEWS (the fog of few views: DS-NeRF);
+  ({}, []) without tracks, so the data of every other format prints nothing more."""
+  if dataset.observations is None or not len(dataset.observations):
+    return {}, []
+  views, seen = len(dataset), len(dataset.observations)
+  points = len(set(dataset.observations[:, 1].tolist()))
+  measured = (f"{seen} keypoints of {points} sparse points in {views} training views "
+              f"({'<=' if views <= DEPTH_MAX_VIEWS else '>'} {DEPTH_MAX_VIEWS})")
+  if views > DEPTH_MAX_VIEWS:
+    return {}, [f"no depth from the tracks (loss.depth off: more views than measured): "
+                f"{measured}"]
+  return ({"loss.depth.weight": DEPTH_WEIGHT},
+          [f"depth from the sparse points' tracks (DS-NeRF, loss.depth.weight="
+           f"{DEPTH_WEIGHT:g}): {measured}"])
 
 
 def subject_effects(dataset, collection, contraction="", stored_camera=True):
@@ -231,6 +256,7 @@ def auto_config(config, dataset, backend=None, before_loading=({}, [])):
   user = {k: v for k, v in given.items()
           if (base.get(k) != v or k in config.auto_flags) and k not in _OWN}
   stored_camera = dataset.image_cameras is None  # one camera stored for every photo
+  depth, depth_lines = depth_effects(dataset)
   decisions = characterise.decide(dataset)  # scales from every camera, the rest from image 0's
   photos, dataset = dataset, dataset.one_camera()  # the subject: each photo through its camera
   effects, lines = dict(before_loading[0]), list(before_loading[1])
@@ -294,6 +320,8 @@ def auto_config(config, dataset, backend=None, before_loading=({}, [])):
         user.get("train.patch_size", result.train.patch_size))
     effects.update(transient)
     lines.append(transient_line)
+    effects.update(depth)
+    lines += depth_lines
     lines.append("pose refinement: off (nothing in the photos measures a pose error; "
                  "train.pose_refinement=True switches it on)")
   pending = tuple(f for f, (off, _) in MIN_STEPS.items()

@@ -1,0 +1,51 @@
+"""auto's depth rule (auto.depth_effects): DS-NeRF's loss on where the training views carry the
+sparse points' tracks and are at most DEPTH_MAX_VIEWS; nothing decided (and nothing printed)
+without tracks; the regret benchmark flips it off."""
+
+import numpy as np
+
+from nerf_jax.bench import regret_plan
+from nerf_jax.data.dataset import Dataset
+from nerf_jax.run import auto, config_lib
+
+
+def views(count, tracks=True):
+  """`count` tiny views; with `tracks`, point p seen in views p and p + 1 (mod count)."""
+  poses = np.tile(np.eye(4, dtype=np.float32), (count, 1, 1))
+  observations = None
+  if tracks:
+    observations = np.array([(i, p) for p in range(count) for i in (p, (p + 1) % count)],
+                            np.int32)
+  return Dataset(np.zeros((count, 4, 4, 3), np.float32), poses, (4.0, 4.0, 2.0, 2.0),
+                 points=np.zeros((count, 3), np.float32) if tracks else None,
+                 point_errors=np.ones(count, np.float32) if tracks else None,
+                 observations=observations)
+
+
+def test_no_tracks_no_decision_and_no_line():
+  assert auto.depth_effects(views(5, tracks=False)) == ({}, [])
+
+
+def test_few_views_with_tracks_turn_the_depth_on():
+  effects, lines = auto.depth_effects(views(5))
+  assert effects == {"loss.depth.weight": auto.DEPTH_WEIGHT}
+  assert len(lines) == 1 and lines[0].startswith("depth from the sparse points' tracks")
+  assert "10 keypoints of 5 sparse points in 5 training views" in lines[0]
+
+
+def test_more_views_than_measured_leave_it_off():
+  count = auto.DEPTH_MAX_VIEWS + 1
+  effects, lines = auto.depth_effects(views(count))
+  assert effects == {}
+  assert lines[0].startswith("no depth from the tracks") and f"> {auto.DEPTH_MAX_VIEWS}" in lines[0]
+  # The limit itself still counts as few.
+  assert auto.depth_effects(views(auto.DEPTH_MAX_VIEWS))[0]
+
+
+def test_the_regret_plan_flips_it_off_only_where_auto_turned_it_on():
+  on = config_lib.load("capture")
+  on.loss.depth.weight = auto.DEPTH_WEIGHT
+  assert regret_plan.FLIPS["depth"](on, None, {}) == ({"loss.depth.weight": 0.0}, "")
+  off = config_lib.load("capture")
+  overrides, why = regret_plan.FLIPS["depth"](off, None, {})
+  assert overrides is None and "off" in why
