@@ -194,3 +194,34 @@ def test_multisamples_are_deterministic_without_a_key_and_random_with_one():
   q1, _ = cones.multisamples(*args[:3], args[3][0], args[4][0], jax.random.PRNGKey(0))
   q2, _ = cones.multisamples(*args[:3], args[3][0], args[4][0], jax.random.PRNGKey(1))
   assert not np.allclose(q1, q2)
+
+
+def test_the_jitters_mirror_and_turn_are_drawn_apart():
+  """With a key, each hexagon's mirroring and its turn are independent draws: the share
+  mirrored is 1/2 among the hexagons turned by less than pi and among the others (5 standard
+  errors of a share of n: 5·sqrt(1/4n)); one draw for both would mirror exactly those turned
+  by less than pi. Each frustum's mirroring and turn are read back from its points' angles
+  about the ray (cones.perpendicular_basis, tested above)."""
+  num = 4096
+  t0 = jnp.linspace(1.0, 5.0, num, dtype=jnp.float32)
+  origin, direction = jnp.float32([0.1, -0.2, 0.3]), jnp.float32([0.3, -0.4, -1.0])
+  points, _ = cones.multisamples(origin, direction, jnp.float32(0.05), t0, t0 + 0.01,
+                                 jax.random.PRNGKey(4))
+  d = np.asarray(direction, np.float64) / np.linalg.norm(direction)
+  rel = np.asarray(points, np.float64) - np.asarray(origin, np.float64)  # [S, 6, 3]
+  off = rel - (rel @ d)[..., None] * d
+  a, b = (np.asarray(v, np.float64) for v in cones.perpendicular_basis(direction))
+  phi = np.arctan2(off @ b, off @ a)  # [S, 6]: HEXAGON (or its reverse) + turn
+  wrap = lambda x: np.angle(np.exp(1j * x))  # to (-pi, pi]
+  spread = lambda order: np.max(np.abs(wrap(phi - order - (phi[:, :1] - order[0]))), axis=-1)
+  mirrored = spread(cones.HEXAGON[::-1]) < 1e-3
+  assert np.all(mirrored != (spread(cones.HEXAGON) < 1e-3))  # each one or the other
+  first = np.where(mirrored, cones.HEXAGON[::-1][0], cones.HEXAGON[0])
+  turn = np.mod(phi[:, 0] - first, 2 * np.pi)
+  low = turn < np.pi
+  for given in (low, ~low, np.ones(num, bool)):
+    n = np.sum(given)
+    assert n > num // 3
+    assert abs(np.mean(mirrored[given]) - 0.5) < 5 * np.sqrt(0.25 / n), (n, np.mean(
+        mirrored[given]))
+  assert abs(np.mean(low) - 0.5) < 5 * np.sqrt(0.25 / num)  # the turn uniform on [0, 2 pi)

@@ -398,6 +398,47 @@ def test_multisamples_turn_at_random_while_training_and_not_at_evaluation():
     assert np.all(err <= 0.65 * hw_over_mu + 1e-3), np.max(err / hw_over_mu)
 
 
+def test_the_renderer_hands_its_key_to_the_multisamples(monkeypatch):
+  """RayRenderer.render's key reaches Field.cone_inputs (fold_in(pass key, MULTISAMPLE_KEY)):
+  while training (a key) each pass's multisamples are turned off the deterministic hexagons of
+  the same intervals, by a key of their own for each render key (another key turns them
+  otherwise, the same key alike); at evaluation (no key) they are the deterministic ones."""
+  config = small_config({**TINY_LATTICE, "model.grid.antialias": True}, base="fast")
+  renderer = builders.make_ray_renderer(config)
+  field = renderer.field
+  assert field.cones == "multisamples"
+  calls, original = [], type(field).cone_inputs
+
+  def recording(self, rays, t0, t1, key=None):
+    out = original(self, rays, t0, t1, key)
+    calls.append((t0, t1, key, out[1]["multisamples"][0]))
+    return out
+
+  monkeypatch.setattr(type(field), "cone_inputs", recording)
+  variables = renderer.init(jax.random.PRNGKey(0))
+  rays = _rays(radius=0.1)
+  passes = {}
+  for name, key in (("one", jax.random.PRNGKey(1)), ("again", jax.random.PRNGKey(1)),
+                    ("other", jax.random.PRNGKey(2)), ("evaluation", None)):
+    calls.clear()
+    renderer.render(variables, rays, key)  # op by op: the calls see arrays, not tracers
+    passes[name] = list(calls)
+  assert len(passes["one"]) >= 1
+  rays_hex = lambda t0, t1, key: original(field, rays, t0, t1, key)[1]["multisamples"][0]
+  moved = lambda a, b: np.mean(np.linalg.norm(np.asarray(a) - np.asarray(b), axis=-1) > 1e-4)
+  for (t0, t1, key, points), (_, _, again_key, again) in zip(passes["one"], passes["again"]):
+    assert key is not None
+    np.testing.assert_array_equal(key, again_key)
+    np.testing.assert_array_equal(points, again)
+    assert moved(points, rays_hex(t0, t1, None)) > 0.9  # turned at random, nearly every point
+  for (t0, t1, key, points), (_, _, other_key, _) in zip(passes["one"], passes["other"]):
+    assert not np.array_equal(key, other_key)
+    assert moved(points, rays_hex(t0, t1, other_key)) > 0.9  # the other key turns otherwise
+  for t0, t1, key, points in passes["evaluation"]:
+    assert key is None
+    np.testing.assert_array_equal(points, rays_hex(t0, t1, None))
+
+
 def test_image_renderer_compiles_and_draws_rays_with_radii():
   # Its compile step draws a probe ray of the kind it will draw: with a radius for cones.
   config = small_config(SMALL, base="mipnerf")

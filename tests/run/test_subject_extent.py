@@ -229,6 +229,32 @@ def test_llff_keeps_each_views_bounds(tmp_path):
   np.testing.assert_allclose(loaded.subset([1, 3]).bounds, bounds[[1, 3]])
 
 
+def test_the_subject_move_scales_llffs_bounds_with_the_world(tmp_path):
+  # An LLFF folder's per-view bounds (poses_bounds.npy: z-depths a little beyond the box's)
+  # move with the world: without data.photo_bounds the held-out views keep theirs, and in the
+  # moved world they are the z-depths the moved cameras measure to the moved box, times the same
+  # margins; near and far scale alike.
+  from nerf_jax.data import llff  # pylint: disable=import-outside-toplevel
+  poses = _sphere_cameras(num=10)
+  corners = _corners(BOX_LO, BOX_HI)
+  depths = lambda poses, corners: -np.einsum("nmi,ni->nm", corners[None] - poses[:, None, :3, 3],
+                                             poses[:, :3, 2])
+  z = depths(poses, corners)
+  bounds = np.stack([0.8 * z.min(1), 1.25 * z.max(1)], -1).astype(np.float32)
+  llff.export_llff(dataclasses.replace(_dataset(poses), bounds=bounds), str(tmp_path))
+  loaded = llff.load_llff(str(tmp_path))
+  train, test = loaded.subset(range(12)), loaded.subset(range(12, len(loaded)))
+  box = tuple(CENTRE) + tuple(HALF)
+  _, _, moved_test = subject.with_subject(_config("box", 2.0, box), train, test)
+  scale = 2.0 / (subject.MARGIN * HALF.max())
+  z = depths(moved_test.poses, scale * (corners - CENTRE))
+  np.testing.assert_allclose(moved_test.bounds, np.stack([0.8 * z.min(1), 1.25 * z.max(1)], -1),
+                             rtol=1e-5)
+  np.testing.assert_allclose(moved_test.bounds, scale * test.bounds, rtol=1e-6)
+  assert moved_test.near == pytest.approx(scale * test.near)
+  assert moved_test.far == pytest.approx(scale * test.far)
+
+
 # A collection with a camera per photo (nerf-process --nosingle_camera): each photo its own size,
 # focal and principal point, and (with far=True) every sixth photo taken from 4x as far through
 # a 4x longer lens, so that the cameras' region is ±32 and its first carving grid's cells

@@ -76,3 +76,42 @@ def test_a_clocked_run_waits_for_all_but_its_newest_steps_before_it_reads_the_cl
   waited.clear()
   loop.run(0, step_fn, [], 0, 5)
   assert waited == []  # a step budget: no wait, the device's queue stays full
+
+
+def test_a_time_budget_keeps_one_step_in_flight_in_training(monkeypatch, tmp_path):
+  # train_lib.train_and_evaluate with a time budget (configs/debug.py, max_seconds > 0; its
+  # max_steps ends it here, in seconds): each time the run reads its clock, every step but the
+  # newest has been waited for by the loop (its stats handed to jax.block_until_ready).
+  # pylint: disable-next=import-outside-toplevel
+  from nerf_jax.run import train_lib
+  from tests.helpers import small_config  # pylint: disable=import-outside-toplevel
+  seen = {"in_flight": [], "queued": []}
+  dispatched, waited = [], set()
+  real_wait, real_run = loop.jax.block_until_ready, loop.run
+
+  def wait(x):
+    waited.add(id(x))
+    return real_wait(x)
+
+  def recording_run(state, step_fn, hooks_, start, last, out_of_time=lambda: False,
+                    in_flight=None):
+    def step(state):
+      state, stats = step_fn(state)
+      dispatched.append(stats)
+      return state, stats
+
+    def clock():
+      seen["queued"].append(sum(id(s) not in waited for s in dispatched))
+      return out_of_time()
+
+    seen["in_flight"].append(in_flight)
+    return real_run(state, step, hooks_, start, last, clock, in_flight)
+
+  monkeypatch.setattr(loop.jax, "block_until_ready", wait)
+  monkeypatch.setattr(train_lib.loop, "run", recording_run)
+  config = small_config({"train.max_steps": 6, "train.max_seconds": 600.0,
+                         "train.log_every": 0, "train.checkpoint_every": 0,
+                         "render.video_frames": 0})
+  train_lib.train_and_evaluate(config, str(tmp_path))
+  assert seen["in_flight"] == [1]
+  assert len(seen["queued"]) >= 4 and set(seen["queued"]) == {1}
