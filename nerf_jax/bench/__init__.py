@@ -43,6 +43,6 @@ check.py         a machine end to end: the main job, a short run per standard sc
 gpu_frontier.py  one script for a GPU box: configs/gpu/ on lego, fox, fern, a profile, scatter-add
 fingerprint.py   one hash per shipped config: a refactor that changes none changes no behaviour
 
-docs/benchmark.md explains every number; docs/benchmarks.md the standard benchmarks;
+docs/measuring.md explains every number; docs/standard_benchmark.md the standard benchmarks;
 docs/regret.md auto's regret.
 """

@@ -1,5 +1,5 @@
 """python -m nerf_jax.bench: train sweeps of NeRF configurations under equal budgets and measure
-quality, speed and memory (docs/benchmark.md explains every number; the flags: bench/cli.py).
+quality, speed and memory (docs/measuring.md explains every number; the flags: bench/cli.py).
 
   python -m nerf_jax.bench --quick --out=bench_out/quick
   python -m nerf_jax.bench --sweep=samples,width --config=mlp64 --budget_seconds=60

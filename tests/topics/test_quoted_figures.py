@@ -28,7 +28,7 @@ def source(path, key, decimals, **where):
 
 DEFAULT_RUN = "default_run/metrics.json"
 SUITE = "suite/suite.jsonl"
-STANDARD = "standard/cpu_2026-11-28.jsonl"  # python -m nerf_jax.bench.standard (docs/benchmarks.md)
+STANDARD = "standard/cpu_2026-11-28.jsonl"  # nerf_jax.bench.standard (docs/standard_benchmark.md)
 CI_RUN = (("tests", 0), ("minutes", 1))  # the suite as .ci/run measures it
 FIGURES = [
     ("README.md", r"test PSNR ([\d.]+) dB after (\d+) steps",
@@ -60,13 +60,13 @@ FIGURES = [
      [source("detail/ten_minutes/detail_py.jsonl", "test_psnr", 2, scene="detail")]),
     ("README.md", r"lego ([\d.]+) dB at 400 px, fern ([\d.]+), fox ([\d.]+)",
      [source(STANDARD, "psnr", 2, scene=s) for s in ("lego", "fern", "fox")]),
-    ("docs/benchmarks.md", r"\| lego \|.*?\| (\d+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \|",
+    ("docs/standard_benchmark.md", r"\| lego \|.*?\| (\d+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \|",
      [source(STANDARD, k, d, scene="lego") for k, d in
       (("steps", 0), ("psnr", 2), ("ssim", 3), ("lpips", 3))]),
-    ("docs/benchmarks.md", r"\| fern \|.*?\| (\d+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \|",
+    ("docs/standard_benchmark.md", r"\| fern \|.*?\| (\d+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \|",
      [source(STANDARD, k, d, scene="fern") for k, d in
       (("steps", 0), ("psnr", 2), ("ssim", 3), ("lpips", 3))]),
-    ("docs/benchmarks.md", r"\| fox \|.*?\| (\d+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \|",
+    ("docs/standard_benchmark.md", r"\| fox \|.*?\| (\d+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \|",
      [source(STANDARD, k, d, scene="fox") for k, d in
       (("steps", 0), ("psnr", 2), ("ssim", 3), ("lpips", 3))]),
 ]
