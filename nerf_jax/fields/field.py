@@ -30,6 +30,7 @@ from nerf_jax.backend import draws
 from nerf_jax.cameras import cones
 from nerf_jax.fields import activations, contraction
 from nerf_jax.fields.encodings import posenc
+from nerf_jax.fields.protocol import NetworkSettings
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,12 +59,13 @@ class Field:
   """
   network: Any
   directions: Any = posenc.Frequency(4)
-  view_dependent: bool = False
-  density_activation: str = "relu"
-  density_noise: float = 0.0
+  # Defaults: the settings' (declared once); '' contraction: none.
+  view_dependent: bool = NetworkSettings.view_dependent
+  density_activation: str = NetworkSettings.density_activation
+  density_noise: float = Settings.density_noise
   contraction: str = ""
   inner_radius: float = 1.0
-  appearance_dims: int = 0
+  appearance_dims: int = NetworkSettings.appearance_dims
   cones: str = ""
 
   @property

@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 
 from nerf_jax.fields import activations
+from nerf_jax.fields.networks import transient_head
 
 
 @dataclasses.dataclass(frozen=True)
@@ -27,8 +28,8 @@ class TransientField:
   """network: the TransientHead (networks/transient_head.py). beta_min: the floor added to the
   rendered uncertainty. density_shift: added to the raw density before the softplus."""
   network: Any
-  beta_min: float = 0.03
-  density_shift: float = -4.0
+  beta_min: float = transient_head.Settings.beta_min  # defaults: the settings' (declared once)
+  density_shift: float = transient_head.Settings.density_shift
 
   def init(self, key):
     """The head's parameters (its embedding table and MLP), from PRNG key `key`."""

@@ -78,15 +78,15 @@ def disparity(depth):
   return 1.0 / jnp.maximum(depth, 1e-10)
 
 
-def composite_with_transient(rgb, sigma, rgb_t, sigma_t, beta, t, background=None,
-                             beta_min=0.03):
+def composite_with_transient(rgb, sigma, rgb_t, sigma_t, beta, t, background=None, *,
+                             beta_min):
   """`composite` of a static and a transient field together (NeRF-W, eq. 10), with the
   transient field's uncertainty rendered by its own weights.
 
   rgb, sigma: the static field's float [..., S, 3] and [..., S] (densities >= 0). rgb_t,
   sigma_t, beta: the transient field's colour float [..., S, 3], density float [..., S] >= 0 and
   uncertainty float [..., S] >= 0. t: float32 [..., S + 1]. background: as in `composite`.
-  beta_min: float > 0, added to the rendered uncertainty.
+  beta_min: float > 0 (the head's, TransientField.beta_min), added to the rendered uncertainty.
   Returns `composite`'s dict, where rgb is sum_i T_i·(alpha_i·c_i + alpha_t_i·c_t_i) (+ the
   background by the transmittance left, exp(-sum of both optical depths)), acc is 1 minus that
   transmittance, depth is that of both weights and weights the static ones; and besides them

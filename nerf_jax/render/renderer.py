@@ -76,10 +76,10 @@ class RayRenderer:
   """
   field: Field
   sampler: Sampler
-  num_fine_samples: int = 0
-  shared_fine: bool = False
-  colour_fraction: float = 0.0
-  sample_budget: int = 0
+  num_fine_samples: int = FineSettings.num_fine_samples  # defaults: the settings' (declared once)
+  shared_fine: bool = Settings.shared_fine
+  colour_fraction: float = Settings.colour_fraction
+  sample_budget: int = 0  # none
   transient: Any = None
 
   @property
@@ -178,7 +178,7 @@ class RayRenderer:
                                         placement.per_unit_t(sigma_t, rays))
     out = compositing.composite_with_transient(rgb, sigma, both[..., :3], sigma_t_e,
                                                both[..., 3], samples.t, background,
-                                               self.transient.beta_min)
+                                               beta_min=self.transient.beta_min)
     out["t"] = samples.t
     out["transient_density"] = jnp.where(samples.valid, sigma_t, 0.0)
     return out

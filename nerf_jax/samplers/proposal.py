@@ -296,7 +296,7 @@ class Interlevel:
   edges and weights are under stop_gradient: only the proposals learn from it.
   Stats (logged as 'interlevel/<stat>'): 'unweighted', the sum before the weight."""
   name: ClassVar[str] = "interlevel"  # the namespace of its stats (train/losses.total)
-  weight: float = 1.0
+  weight: float = Settings.loss_weight
 
   def __call__(self, inputs):
     outs = inputs.outputs

@@ -74,9 +74,9 @@ class Colour:
   masked pixels: 0 with random rays, drawn from the kept pixels alone).
   A pass with the transient head (its output has 'beta') is left to losses/transient.py."""
   name: ClassVar[str] = "colour"
-  coarse_weight: float = 1.0
-  huber_delta: float = 0.0
-  weight: float = 1.0
+  coarse_weight: float = Settings.coarse_weight  # defaults: the settings' (declared once)
+  huber_delta: float = Settings.huber_delta
+  weight: float = Settings.weight
 
   def _pass_loss(self, rgb, target, complete, weight):
     if self.huber_delta <= 0:

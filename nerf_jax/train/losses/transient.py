@@ -53,8 +53,8 @@ class Transient:
   one of training rays). Stats: beta (the mean rendered uncertainty), transient_density (its
   mean) and psnr of the static-plus-transient colour. Nothing without such a pass."""
   name: ClassVar[str] = "transient"
-  weight: float = 1.0
-  density_weight: float = 0.01
+  weight: float = Settings.weight  # defaults: the settings' (declared once)
+  density_weight: float = Settings.density_weight
 
   def __call__(self, inputs):
     passes = [inputs.outputs[n] for n in losses.PASSES
