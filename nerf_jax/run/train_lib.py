@@ -243,6 +243,8 @@ def _finish(exp, config, workdir, state, step, evaluate, writer, mesh, train_sec
   the run's machine.Sampler, stopped here (the load while training) for metrics.json."""
   main = parallel.is_main_process()
   measured = sampler.stop() if sampler else None
+  if measured and train_seconds > 0:  # the run's own rates beside the load it ran under
+    measured.update(machine.rates(step, config.train.batch_rays, train_seconds))
   _check_finite(state, workdir)
   line = outputs.final_render_line(exp, rays_per_second) if main else None
   if line:

@@ -129,3 +129,14 @@ def test_metrics_json_holds_the_machine_beside_its_fields(trained_run):
   _check_record(stored["machine"])
   # The load over the run: sampled from its start to its last step.
   assert stored["machine"]["seconds"] >= 0.8 * stored["train_seconds"]
+
+
+def test_metrics_json_machine_carries_the_runs_rates(trained_run):
+  workdir, _ = trained_run
+  stored = json.loads((workdir / "metrics.json").read_text())
+  config = json.loads((workdir / "config.json").read_text())
+  expected = machine.rates(stored["steps"], config["train"]["batch_rays"],
+                           stored["train_seconds"])
+  # train_seconds is rounded to ms in metrics.json: the rates agree to that.
+  for name, value in expected.items():
+    assert stored["machine"][name] == pytest.approx(value, rel=1e-3)
