@@ -34,9 +34,12 @@ SUBJECT_SHARE = 0.25
 # loses 1.5 dB at 69 steps and gains 1.9 at 99. The thresholds: where the lines between cross.
 MIN_STEPS = {"model.view_dependent": (False, 165), "loss.robust.weight": (0.0, 80)}
 # Depth from the sparse points' tracks (DS-NeRF's loss, config.loss.depth): on with this weight
-# where the training views have tracks (a COLMAP model) and number at most DEPTH_MAX_VIEWS.
-# Measured side by side at equal steps (docs/photo_collections.md, depth from the tracks): fern
-# (17 training views, llff.py, 1000 steps) +0.68 dB; more views than measured: off, unmeasured.
+# where the training views have tracks (a COLMAP model), number at most DEPTH_MAX_VIEWS and the
+# samples lie where the points are: forward-facing (NDC) or a subject the masks mark (photo
+# bounds). Measured side by side at equal steps (docs/photo_collections.md, depth from the
+# tracks): fern (17 views, llff.py, 1000 steps) +0.68 dB; landmark_sfm (masks, 600 steps)
+# +1.04 dB; Sacre-Coeur (16 photos, unbounded, no masks, 600 steps) -0.4 to -1.2 dB (LPIPS
+# better): off there. More views than measured: off, unmeasured.
 DEPTH_WEIGHT = 0.1
 DEPTH_MAX_VIEWS = 100
 _OWN = ("auto", "auto_decisions", "auto_flags", "auto_by_steps")  # auto's own fields
@@ -104,11 +107,13 @@ def transient_effects(dataset, collection, patch_size):
           f"(loss.robust): {reason}")
 
 
-def depth_effects(dataset):
+def depth_effects(dataset, placed):
   """({field: value}, [line]): DS-NeRF's depth from the sparse points' tracks
   (loss.depth.weight=DEPTH_WEIGHT) where the training views `dataset` carry tracks
-  (Dataset.observations) and number at most DEPTH_MAX_VIEWS (the fog of few views: DS-NeRF);
-  ({}, []) without tracks, so the data of every other format prints nothing more."""
+  (Dataset.observations), number at most DEPTH_MAX_VIEWS (the fog of few views: DS-NeRF) and
+  the samples lie where the points are (`placed`: '' if not, else a phrase saying how: NDC
+  rays, or the masked subject's photo bounds); ({}, []) without tracks, so the data of every
+  other format prints nothing more."""
   if dataset.observations is None or not len(dataset.observations):
     return {}, []
   views, seen = len(dataset), len(dataset.observations)
@@ -118,9 +123,12 @@ def depth_effects(dataset):
   if views > DEPTH_MAX_VIEWS:
     return {}, [f"no depth from the tracks (loss.depth off: more views than measured): "
                 f"{measured}"]
+  if not placed:
+    return {}, [f"no depth from the tracks (loss.depth off: an unbounded capture without a "
+                f"subject's masks, where it lost on Sacre-Coeur): {measured}"]
   return ({"loss.depth.weight": DEPTH_WEIGHT},
           [f"depth from the sparse points' tracks (DS-NeRF, loss.depth.weight="
-           f"{DEPTH_WEIGHT:g}): {measured}"])
+           f"{DEPTH_WEIGHT:g}; {placed}): {measured}"])
 
 
 def subject_effects(dataset, collection, contraction="", stored_camera=True):
@@ -256,7 +264,7 @@ def auto_config(config, dataset, backend=None, before_loading=({}, [])):
   user = {k: v for k, v in given.items()
           if (base.get(k) != v or k in config.auto_flags) and k not in _OWN}
   stored_camera = dataset.image_cameras is None  # one camera stored for every photo
-  depth, depth_lines = depth_effects(dataset)
+  tracked = dataset  # every training view with its tracks (the depth rule)
   decisions = characterise.decide(dataset)  # scales from every camera, the rest from image 0's
   photos, dataset = dataset, dataset.one_camera()  # the subject: each photo through its camera
   effects, lines = dict(before_loading[0]), list(before_loading[1])
@@ -320,6 +328,9 @@ def auto_config(config, dataset, backend=None, before_loading=({}, [])):
         user.get("train.patch_size", result.train.patch_size))
     effects.update(transient)
     lines.append(transient_line)
+    placed = ("forward-facing: NDC rays" if found["forward"].found else
+              "the masked subject's photo bounds" if fill.get("data.photo_bounds") else "")
+    depth, depth_lines = depth_effects(tracked, placed)
     effects.update(depth)
     lines += depth_lines
     lines.append("pose refinement: off (nothing in the photos measures a pose error; "

@@ -1,6 +1,7 @@
 """auto's depth rule (auto.depth_effects): DS-NeRF's loss on where the training views carry the
-sparse points' tracks and are at most DEPTH_MAX_VIEWS; nothing decided (and nothing printed)
-without tracks; the regret benchmark flips it off."""
+sparse points' tracks, are at most DEPTH_MAX_VIEWS and the samples lie where the points are
+(NDC, a masked subject's photo bounds); nothing decided (and nothing printed) without tracks;
+the regret benchmark flips it off."""
 
 import numpy as np
 
@@ -23,23 +24,30 @@ def views(count, tracks=True):
 
 
 def test_no_tracks_no_decision_and_no_line():
-  assert auto.depth_effects(views(5, tracks=False)) == ({}, [])
+  assert auto.depth_effects(views(5, tracks=False), "NDC") == ({}, [])
 
 
 def test_few_views_with_tracks_turn_the_depth_on():
-  effects, lines = auto.depth_effects(views(5))
+  effects, lines = auto.depth_effects(views(5), "forward-facing: NDC rays")
   assert effects == {"loss.depth.weight": auto.DEPTH_WEIGHT}
   assert len(lines) == 1 and lines[0].startswith("depth from the sparse points' tracks")
   assert "10 keypoints of 5 sparse points in 5 training views" in lines[0]
+  assert "forward-facing: NDC rays" in lines[0]
+
+
+def test_samples_away_from_the_points_leave_it_off():
+  effects, lines = auto.depth_effects(views(5), "")
+  assert effects == {} and lines[0].startswith("no depth from the tracks")
+  assert "without a subject's masks" in lines[0]
 
 
 def test_more_views_than_measured_leave_it_off():
   count = auto.DEPTH_MAX_VIEWS + 1
-  effects, lines = auto.depth_effects(views(count))
+  effects, lines = auto.depth_effects(views(count), "NDC")
   assert effects == {}
   assert lines[0].startswith("no depth from the tracks") and f"> {auto.DEPTH_MAX_VIEWS}" in lines[0]
   # The limit itself still counts as few.
-  assert auto.depth_effects(views(auto.DEPTH_MAX_VIEWS))[0]
+  assert auto.depth_effects(views(auto.DEPTH_MAX_VIEWS), "NDC")[0]
 
 
 def test_the_regret_plan_flips_it_off_only_where_auto_turned_it_on():
