@@ -24,7 +24,7 @@ EFFECT_FIELDS = ("data.background", "train.random_background", "data.ndc", "data
                  "data.contraction", "data.focus", "model.appearance_dims", "eval.appearance",
                  "model.view_dependent", "data.subject", "data.photo_bounds",
                  "data.visual_hull", "data.photo_zoom", "loss.robust.weight", "loss.depth.weight",
-                 "train.pose_refinement",
+                 "train.pose_refinement", "train.intrinsics_refinement",
                  "data.factor")
 # The representations auto chooses from (auto.auto_config) and configs/hash.py, the lattice
 # it could take instead of fast.py's dense grids; on a GPU, auto.GPU_CONFIGS's counterparts.
@@ -139,6 +139,15 @@ def _depth(result, base, context):
   return None, "auto left the depth from the tracks off (no tracks, or more views than measured)"
 
 
+def _cameras(result, base, context):
+  """The cameras as stored, with the zooms fitted to the masks, where auto refined them with the
+  field (auto.camera_effects)."""
+  if result.train.intrinsics_refinement:
+    return {"train.intrinsics_refinement": False, "train.pose_refinement": False,
+            "data.photo_zoom": True}, ""
+  return None, "auto did not refine the cameras (no tracks that disagree with one stored camera)"
+
+
 def _step_rule(result, base, context):
   """Auto's step rule off (auto.by_steps): the effects it waits to decide stay on at any
   budget."""
@@ -164,6 +173,7 @@ FLIPS = {
     "photo_zoom": _on_subject("data.photo_zoom"),
     "transients": _transients,
     "depth": _depth,
+    "cameras": _cameras,
     "pose_refinement": _switch("train.pose_refinement"),
     "step_rule": _step_rule,
 }

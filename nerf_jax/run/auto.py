@@ -42,6 +42,15 @@ MIN_STEPS = {"model.view_dependent": (False, 165), "loss.robust.weight": (0.0, 8
 # better): off there. More views than measured: off, unmeasured.
 DEPTH_WEIGHT = 0.1
 DEPTH_MAX_VIEWS = 100
+# Cameras that disagree with their points: where one camera is stored for every photo and the
+# sparse points' mean reprojection error exceeds this share of the image diagonal, each photo's
+# focal and pose are refined with the field (train.intrinsics_refinement, train.pose_refinement)
+# in place of the zooms fitted to the masks. landmark_sfm (one focal for a 3x zoom spread): 3.2%
+# (4.5 px at 100 px); COLMAP models of real photos: 0.03-0.05% (fern 1.32 px at 4032 px,
+# Sacre-Coeur 0.57 px at ~1080 px; at most 4x more against images read at data.factor). On
+# landmark_sfm at 600 steps refinement gained 0.59 dB over the fitted zooms without the depth,
+# 0.89 with it (docs/photo_collections.md, the levers on the twin).
+CAMERA_ERROR_SHARE = 0.005
 _OWN = ("auto", "auto_decisions", "auto_flags", "auto_by_steps")  # auto's own fields
 # On a GPU backend, the config that takes each CPU choice's place: the configs/gpu/ one where it
 # won on an H200 (docs/gpu.md, 2026-11-28: gpu/lego 32.63 dB on lego in 60 s against detail.py's
@@ -129,6 +138,29 @@ def depth_effects(dataset, placed):
   return ({"loss.depth.weight": DEPTH_WEIGHT},
           [f"depth from the sparse points' tracks (DS-NeRF, loss.depth.weight="
            f"{DEPTH_WEIGHT:g}; {placed}): {measured}"])
+
+
+def camera_effects(dataset, stored_camera, fitted_zooms):
+  """({field: value}, line or None): each photo's focal and pose refined with the field in place
+  of the zooms fitted to the masks (`fitted_zooms`: the subject rule turned data.photo_zoom on)
+  where one camera is stored for every photo (`stored_camera`) and the sparse points' mean
+  reprojection error (Dataset.point_errors, pixels) exceeds CAMERA_ERROR_SHARE of the image
+  diagonal: the stored camera disagrees with what the photos saw. None where not measured (no
+  tracks, a camera per photo, or no fitted zooms): the caller's line stands."""
+  errors = dataset.point_errors
+  if not (stored_camera and fitted_zooms) or errors is None or not len(errors):
+    return {}, None
+  share = float(np.nanmean(errors)) / float(np.hypot(dataset.height, dataset.width))
+  measured = (f"the sparse points' mean reprojection error is {100 * share:.2g}% of the image "
+              f"diagonal ({'>' if share > CAMERA_ERROR_SHARE else '<='} "
+              f"{100 * CAMERA_ERROR_SHARE:g}%)")
+  if share <= CAMERA_ERROR_SHARE:
+    return {}, f"pose refinement: off (the stored camera fits its points: {measured})"
+  return ({"data.photo_zoom": False, "train.intrinsics_refinement": True,
+           "train.pose_refinement": True},
+          f"cameras refined with the field (train.intrinsics_refinement, "
+          f"train.pose_refinement; in place of data.photo_zoom): the one stored camera "
+          f"disagrees with the photos: {measured}")
 
 
 def subject_effects(dataset, collection, contraction="", stored_camera=True):
@@ -333,8 +365,14 @@ def auto_config(config, dataset, backend=None, before_loading=({}, [])):
     depth, depth_lines = depth_effects(tracked, placed)
     effects.update(depth)
     lines += depth_lines
-    lines.append("pose refinement: off (nothing in the photos measures a pose error; "
-                 "train.pose_refinement=True switches it on)")
+    cameras, camera_line = camera_effects(tracked, stored_camera,
+                                          bool(fill.get("data.photo_zoom")))
+    effects.update(cameras)
+    if camera_line:
+      lines.append(camera_line)
+    else:
+      lines.append("pose refinement: off (nothing in the photos measures a pose error; "
+                   "train.pose_refinement=True switches it on)")
   pending = tuple(f for f, (off, _) in MIN_STEPS.items()
                   if f in effects and f not in user and effects[f] != off)
   if pending:

@@ -57,3 +57,40 @@ def test_the_regret_plan_flips_it_off_only_where_auto_turned_it_on():
   off = config_lib.load("capture")
   overrides, why = regret_plan.FLIPS["depth"](off, None, {})
   assert overrides is None and "off" in why
+
+
+def with_errors(count, error_px, size=100):
+  """`views(count)` of `size` px whose sparse points have reprojection error `error_px`."""
+  ds = views(count)
+  ds.images = np.zeros((count, size, size, 3), np.float32)
+  ds.point_errors = np.full(count, error_px, np.float32)
+  return ds
+
+
+def test_cameras_that_disagree_with_their_points_are_refined():
+  diagonal = np.hypot(100, 100)
+  over = with_errors(5, 1.01 * auto.CAMERA_ERROR_SHARE * diagonal)
+  effects, line = auto.camera_effects(over, stored_camera=True, fitted_zooms=True)
+  assert effects == {"data.photo_zoom": False, "train.intrinsics_refinement": True,
+                     "train.pose_refinement": True}
+  assert line.startswith("cameras refined with the field") and "> 0.5%" in line
+  under = with_errors(5, 0.99 * auto.CAMERA_ERROR_SHARE * diagonal)
+  effects, line = auto.camera_effects(under, stored_camera=True, fitted_zooms=True)
+  assert effects == {} and line.startswith("pose refinement: off") and "<= 0.5%" in line
+
+
+def test_cameras_are_not_measured_without_tracks_one_camera_or_fitted_zooms():
+  disagreeing = with_errors(5, 50.0)
+  assert auto.camera_effects(disagreeing, stored_camera=False, fitted_zooms=True) == ({}, None)
+  assert auto.camera_effects(disagreeing, stored_camera=True, fitted_zooms=False) == ({}, None)
+  assert auto.camera_effects(views(5, tracks=False), True, True) == ({}, None)
+
+
+def test_the_regret_plan_flips_the_refined_cameras_back_to_the_fitted_zooms():
+  refined = config_lib.load("capture")
+  refined.train.intrinsics_refinement = True
+  refined.train.pose_refinement = True
+  assert regret_plan.FLIPS["cameras"](refined, None, {}) == (
+      {"train.intrinsics_refinement": False, "train.pose_refinement": False,
+       "data.photo_zoom": True}, "")
+  assert regret_plan.FLIPS["cameras"](config_lib.load("capture"), None, {})[0] is None

@@ -94,7 +94,8 @@ def test_the_table_has_every_rule_of_the_issue():
   names = " ".join(row["rule"] for row in rules_table())
   for rule in ("photos' size", "background", "forward-facing", "unbounded", "contraction",
                "focus", "appearance codes", "view dependence", "cones", "subject box",
-               "transients", "pose refinement", "backend", "large objects", "too few cameras"):
+               "transients", "pose refinement", "backend", "large objects", "too few cameras",
+               "depth from the tracks", "cameras refined"):
     assert rule in names
 
 
