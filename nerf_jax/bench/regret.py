@@ -101,8 +101,8 @@ def seconds_per_step(log, metrics):
 # What a run's saved config may differ in from auto's and still be auto's config: auto's record
 # and the schedule its time budget fitted. A flip of an effect auto's step rule turned off at
 # this budget trains auto's own config: its gain is the run-to-run noise, not a regret.
-NOT_THE_CONFIG = ("auto_decisions", "auto_by_steps", "auto_flags", "train.max_steps",
-                  "train.warmup_steps")
+NOT_THE_CONFIG = ("auto_decisions", "auto_by_steps", "auto_flags", "auto_representation",
+                  "train.max_steps", "train.warmup_steps")
 
 
 def trained_config(workdir):

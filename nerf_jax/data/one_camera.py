@@ -1,7 +1,7 @@
 """Photos of many cameras seen through one: each image resampled into a shared pinhole camera.
 
 A photo collection gathered from many people has a camera of its own per photo (size, focal,
-principal point), while the measurements `--config=auto` takes (run/characterise.py, the
+principal point), while the measurements `--config=auto` takes (run/auto/characterise.py, the
 warm-up, the subject's box) read images of one camera. Keeping only the photos that share
 image 0's camera leaves one photo of such a collection; instead every photo is resampled, from
 the same camera centre and orientation, into one pinhole: the median focal length, and the

@@ -11,8 +11,8 @@ import dataclasses
 import jax
 
 from nerf_jax.data import loaders
-from nerf_jax.run import (auto, builders, config_lib, experiment_parts, from_data, resolution,
-                          subject)
+from nerf_jax.run import builders, config_lib, experiment_parts, from_data, subject
+from nerf_jax.run.auto import auto, resolution
 from nerf_jax.run.signature import model_signature, state_template
 from nerf_jax.train import checkpoints
 from nerf_jax.train.state import upgrade_state_dict

@@ -12,7 +12,8 @@ import numpy as np
 from nerf_jax.data import loaders
 from nerf_jax.samplers import visual_hull
 from nerf_jax.cameras.rays import pixel_rays, ray_box_bounds
-from nerf_jax.run import characterise, photo_zoom
+from nerf_jax.run import photo_zoom
+from nerf_jax.run.auto import characterise
 
 
 def with_background(config):
@@ -212,7 +213,8 @@ def warn_if_cut(exp):
   """One line when more than CUT_SHARE of the training rays leave the scene box before their
   far bound (`cut_share`): what lies beyond is cut from the model (a bounded box on a real
   capture). --config=auto reads the same share and contracts the space beyond the box instead
-  (auto.box_effects), so it never gets this line on its own choice."""
+  (the contraction rule, run/auto/rules/contraction.py), so it never gets this line on its own
+  choice."""
   sampler = exp.renderer.sampler
   if sampler.scene_bound <= 0 or sampler.contraction or exp.config.data.ndc:
     return

@@ -16,6 +16,7 @@ class RunSettings:
   auto_decisions: Tuple[str, ...] = ()  # what auto decided and why, one line each (filled by auto)
   auto_flags: Tuple[str, ...] = ()  # fields set on the command line (filled by nerf-train): auto keeps them
   auto_by_steps: Tuple[str, ...] = ()  # effects auto turned on that pay only from auto.MIN_STEPS steps: off below (filled by auto)
+  auto_representation: str = ""  # the config auto chose ('fast', 'gpu/lego', ...; filled by auto)
 
 
 @dataclasses.dataclass(frozen=True)

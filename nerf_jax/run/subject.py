@@ -31,7 +31,7 @@ import ml_collections
 import numpy as np
 
 from nerf_jax.data.dataset import DataError
-from nerf_jax.run import characterise
+from nerf_jax.run.auto import characterise
 from nerf_jax.samplers import visual_hull
 
 POINT_PERCENTILE = 1.0  # the points' box: their 1st to 99th percentiles on each axis

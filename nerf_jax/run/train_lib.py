@@ -21,8 +21,9 @@ import ml_collections
 
 from nerf_jax.backend import determinism
 from nerf_jax.evaluate import lpips
-from nerf_jax.run import (auto, builders, config_lib, experiment, experiment_parts,
-                          machine, outputs)
+from nerf_jax.run import (builders, config_lib, experiment, experiment_parts, machine,
+                          outputs)
+from nerf_jax.run.auto import auto
 from nerf_jax.run.experiment import TrainingError
 from nerf_jax.run.signature import init_state, model_signature, state_template
 from nerf_jax.train import (budget, checkpoints, hooks as hooks_lib, loop, optimizer, parallel,

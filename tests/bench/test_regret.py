@@ -17,7 +17,9 @@ from absl import flags
 from nerf_jax import cli
 from nerf_jax.backend import errors
 from nerf_jax.bench import regret, regret_plan
-from nerf_jax.run import auto, config_lib, experiment
+from nerf_jax.run import config_lib, experiment
+from nerf_jax.run.auto import auto
+from nerf_jax.run.auto.rules import cones
 from tests.helpers import ROOT
 
 # auto's choices as on a CPU, also when the suite runs on a GPU (conftest.cpu_decisions).
@@ -54,7 +56,7 @@ def _decided(chosen, effects):
 OBJECT = _decided("fast", {"train.random_background": True, "model.appearance_dims": 8,
                            "eval.appearance": "left_half", "model.view_dependent": False})
 FORWARD = _decided("llff", {"data.ndc": True, "data.lindisp": False})
-CONES = _decided("fast", auto.cone_effects(config_lib.load("fast")))
+CONES = _decided("fast", cones.cone_effects(config_lib.load("fast")))
 COLLECTION = _decided("capture", {
     "data.subject": "auto", "data.contraction": "linf", "data.focus": True,
     "data.photo_bounds": True, "data.visual_hull": True, "data.photo_zoom": True,

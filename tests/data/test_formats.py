@@ -12,7 +12,7 @@ import pytest
 
 from nerf_jax.data import export, formats, loaders
 from nerf_jax.data.dataset import DataError
-from nerf_jax.run import resolution
+from nerf_jax.run.auto import resolution
 from tests import helpers
 
 # What marks each folder format, in the order load_dataset tried them before the registry.

@@ -5,7 +5,7 @@ import numpy as np
 
 from nerf_jax.cameras.cameras import Cameras
 from nerf_jax.data.dataset import Dataset
-from nerf_jax.run import characterise
+from nerf_jax.run.auto import characterise
 
 PIXEL_CENTER = 0.5
 

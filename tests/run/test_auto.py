@@ -6,11 +6,13 @@ both branches run here on the CPU."""
 import jax
 import pytest
 
-from nerf_jax.run import auto, config_lib
+from nerf_jax.run import config_lib
+from nerf_jax.run.auto import auto, transient_share, warm_up
+from nerf_jax.run.auto.rules import backend, transients
 from tests.helpers import load_data
 
 # Today's CPU choice for each built-in scene at 24 px (auto's rules: an object on a background
-# below auto.LARGE_IMAGES (100 px) -> fast.py, forward-facing -> llff.py, a frame-filling scene -> capture.py), and
+# below large_objects.LARGE_IMAGES (100 px) -> fast.py, forward-facing -> llff.py, a frame-filling scene -> capture.py), and
 # the GPU config that takes its place.
 CPU_CHOICE = {"diffuse": "fast", "forward": "llff", "garden": "capture"}
 GPU_CHOICE = {"diffuse": "gpu/lego", "forward": "gpu/llff", "garden": "capture"}
@@ -18,7 +20,8 @@ GPU_CHOICE = {"diffuse": "gpu/lego", "forward": "gpu/llff", "garden": "capture"}
 NOT_THE_CONFIGS = {"data.background", "model.appearance_dims", "model.view_dependent",
                    "data.ndc", "data.lindisp", "train.random_background", "eval.appearance",
                    "data.contraction", "data.focus", "data.scene",
-                   "data.image_size", "data.num_views", "auto", "auto_decisions", "auto_flags"}
+                   "data.image_size", "data.num_views", "auto", "auto_decisions", "auto_flags",
+                   "auto_representation"}
 
 
 def _decide(scene, backend):
@@ -71,10 +74,10 @@ def test_a_gpu_backend_picks_the_gpu_configs(scene, capsys):
 
 
 def test_every_cpu_choice_has_a_gpu_config():
-  assert set(auto.GPU_CONFIGS) == {"fast", "detail", "llff", "capture"}
-  for name in auto.GPU_CONFIGS.values():  # each loads; those of configs/gpu/ size their renders
+  assert set(backend.GPU_CONFIGS) == {"fast", "detail", "llff", "capture"}
+  for name in backend.GPU_CONFIGS.values():  # each loads; those of configs/gpu/ size their renders
     assert config_lib.load(name).render.chunk == 0 or not name.startswith("gpu/")
-  assert auto.GPU_CONFIGS["capture"] == "capture"  # gpu/capture lost on fox (docs/gpu.md)
+  assert backend.GPU_CONFIGS["capture"] == "capture"  # gpu/capture lost on fox (docs/gpu.md)
 
 
 @pytest.mark.parametrize("side,effects", [
@@ -82,11 +85,11 @@ def test_every_cpu_choice_has_a_gpu_config():
     (12, {"loss.robust.weight": 1.0, "train.patch_size": 12}),  # a patch lies in one photo
 ])
 def test_transients_set_the_robust_switch_alone(monkeypatch, side, effects):
-  monkeypatch.setattr(auto.warm_up, "photos_and_renders", lambda dataset: (None, None))
-  monkeypatch.setattr(auto.transient_share, "transient_share", lambda photos, renders: (0.05, None))
+  monkeypatch.setattr(warm_up, "photos_and_renders", lambda dataset: (None, None))
+  monkeypatch.setattr(transient_share, "transient_share", lambda photos, renders: (0.05, None))
   dataset = type("Photos", (), {"height": side, "width": side + 4})()
-  decided, line = auto.transient_effects(dataset, True, 16)
+  decided, line = transients.transient_effects(dataset, True, 16)
   assert decided == effects
   assert line.startswith(f"transients left out: RobustNeRF's trimmed loss on {min(side, 16)} x")
-  assert auto.transient_effects(dataset, False, 16)[0] == {}
+  assert transients.transient_effects(dataset, False, 16)[0] == {}
 

@@ -1,4 +1,4 @@
-"""auto's depth rule (auto.depth_effects): DS-NeRF's loss on where the training views carry the
+"""auto's depth rule (rules/depth.py): DS-NeRF's loss on where the training views carry the
 sparse points' tracks, are at most DEPTH_MAX_VIEWS and the samples lie where the points are
 (NDC, a masked subject's photo bounds); nothing decided (and nothing printed) without tracks;
 the regret benchmark flips it off."""
@@ -7,7 +7,8 @@ import numpy as np
 
 from nerf_jax.bench import regret_plan
 from nerf_jax.data.dataset import Dataset
-from nerf_jax.run import auto, config_lib
+from nerf_jax.run import config_lib
+from nerf_jax.run.auto.rules import depth, pose_refinement
 
 
 def views(count, tracks=True):
@@ -24,35 +25,35 @@ def views(count, tracks=True):
 
 
 def test_no_tracks_no_decision_and_no_line():
-  assert auto.depth_effects(views(5, tracks=False), "NDC") == ({}, [])
+  assert depth.depth_effects(views(5, tracks=False), "NDC") == ({}, [])
 
 
 def test_few_views_with_tracks_turn_the_depth_on():
-  effects, lines = auto.depth_effects(views(5), "forward-facing: NDC rays")
-  assert effects == {"loss.depth.weight": auto.DEPTH_WEIGHT}
+  effects, lines = depth.depth_effects(views(5), "forward-facing: NDC rays")
+  assert effects == {"loss.depth.weight": depth.DEPTH_WEIGHT}
   assert len(lines) == 1 and lines[0].startswith("depth from the sparse points' tracks")
   assert "10 keypoints of 5 sparse points in 5 training views" in lines[0]
   assert "forward-facing: NDC rays" in lines[0]
 
 
 def test_samples_away_from_the_points_leave_it_off():
-  effects, lines = auto.depth_effects(views(5), "")
+  effects, lines = depth.depth_effects(views(5), "")
   assert effects == {} and lines[0].startswith("no depth from the tracks")
   assert "without a subject's masks" in lines[0]
 
 
 def test_more_views_than_measured_leave_it_off():
-  count = auto.DEPTH_MAX_VIEWS + 1
-  effects, lines = auto.depth_effects(views(count), "NDC")
+  count = depth.DEPTH_MAX_VIEWS + 1
+  effects, lines = depth.depth_effects(views(count), "NDC")
   assert effects == {}
-  assert lines[0].startswith("no depth from the tracks") and f"> {auto.DEPTH_MAX_VIEWS}" in lines[0]
+  assert lines[0].startswith("no depth from the tracks") and f"> {depth.DEPTH_MAX_VIEWS}" in lines[0]
   # The limit itself still counts as few.
-  assert auto.depth_effects(views(auto.DEPTH_MAX_VIEWS), "NDC")[0]
+  assert depth.depth_effects(views(depth.DEPTH_MAX_VIEWS), "NDC")[0]
 
 
 def test_the_regret_plan_flips_it_off_only_where_auto_turned_it_on():
   on = config_lib.load("capture")
-  on.loss.depth.weight = auto.DEPTH_WEIGHT
+  on.loss.depth.weight = depth.DEPTH_WEIGHT
   assert regret_plan.FLIPS["depth"](on, None, {}) == ({"loss.depth.weight": 0.0}, "")
   off = config_lib.load("capture")
   overrides, why = regret_plan.FLIPS["depth"](off, None, {})
@@ -69,21 +70,21 @@ def with_errors(count, error_px, size=100):
 
 def test_cameras_that_disagree_with_their_points_are_refined():
   diagonal = np.hypot(100, 100)
-  over = with_errors(5, 1.01 * auto.CAMERA_ERROR_SHARE * diagonal)
-  effects, line = auto.camera_effects(over, stored_camera=True, fitted_zooms=True)
+  over = with_errors(5, 1.01 * pose_refinement.CAMERA_ERROR_SHARE * diagonal)
+  effects, line = pose_refinement.camera_effects(over, stored_camera=True, fitted_zooms=True)
   assert effects == {"data.photo_zoom": False, "train.intrinsics_refinement": True,
                      "train.pose_refinement": True}
   assert line.startswith("cameras refined with the field") and "> 0.5%" in line
-  under = with_errors(5, 0.99 * auto.CAMERA_ERROR_SHARE * diagonal)
-  effects, line = auto.camera_effects(under, stored_camera=True, fitted_zooms=True)
+  under = with_errors(5, 0.99 * pose_refinement.CAMERA_ERROR_SHARE * diagonal)
+  effects, line = pose_refinement.camera_effects(under, stored_camera=True, fitted_zooms=True)
   assert effects == {} and line.startswith("pose refinement: off") and "<= 0.5%" in line
 
 
 def test_cameras_are_not_measured_without_tracks_one_camera_or_fitted_zooms():
   disagreeing = with_errors(5, 50.0)
-  assert auto.camera_effects(disagreeing, stored_camera=False, fitted_zooms=True) == ({}, None)
-  assert auto.camera_effects(disagreeing, stored_camera=True, fitted_zooms=False) == ({}, None)
-  assert auto.camera_effects(views(5, tracks=False), True, True) == ({}, None)
+  assert pose_refinement.camera_effects(disagreeing, stored_camera=False, fitted_zooms=True) == ({}, None)
+  assert pose_refinement.camera_effects(disagreeing, stored_camera=True, fitted_zooms=False) == ({}, None)
+  assert pose_refinement.camera_effects(views(5, tracks=False), True, True) == ({}, None)
 
 
 def test_the_regret_plan_flips_the_refined_cameras_back_to_the_fitted_zooms():

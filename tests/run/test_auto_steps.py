@@ -8,7 +8,8 @@ import os
 
 import pytest
 
-from nerf_jax.run import auto, config_lib, train_lib
+from nerf_jax.run import config_lib, train_lib
+from nerf_jax.run.auto import auto
 from tests.helpers import load_data, small_config
 
 VD = "model.view_dependent"

@@ -9,7 +9,9 @@ import pytest
 from nerf_jax import cli
 from nerf_jax.cameras import rays
 from nerf_jax.data import loaders, scenes
-from nerf_jax.run import auto, builders, characterise, config_lib
+from nerf_jax.run import builders, config_lib
+from nerf_jax.run.auto import auto, characterise
+from nerf_jax.run.auto.rules import cones, transients
 from nerf_jax.cameras.cameras import Cameras
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.data.scenes import photos
@@ -113,7 +115,7 @@ def test_cameras_at_several_distances_and_resolutions_call_for_cones():
 def test_auto_turns_cones_on_for_the_multiscale_scene_and_off_for_one_scale(capsys):
   multi = _auto("multiscale")
   assert multi.model.encoding == "grid" and multi.model.grid.antialias
-  assert multi.model.grid.multisample == auto.ANTIALIAS_MULTISAMPLE
+  assert multi.model.grid.multisample == cones.ANTIALIAS_MULTISAMPLE
   assert multi.render.march == config_lib.load("fast").render.march  # marching reads cones
   out = capsys.readouterr().out
   assert "auto: cameras at several scales: cones" in out
@@ -124,12 +126,12 @@ def test_auto_turns_cones_on_for_the_multiscale_scene_and_off_for_one_scale(caps
 
 def test_cone_effects_follow_the_encoding():
   config = config_lib.load("default")
-  assert auto.cone_effects(config) == {"model.encoding": "ipe"}
+  assert cones.cone_effects(config) == {"model.encoding": "ipe"}
   config.model.encoding = "hash"
-  assert auto.cone_effects(config)["model.hash.antialias"]
+  assert cones.cone_effects(config)["model.hash.antialias"]
   config.model.encoding = "tensorf"
-  assert auto.cone_effects(config) == {}
-  assert "no anti-aliased form" in auto.cone_summary(config)
+  assert cones.cone_effects(config) == {}
+  assert "no anti-aliased form" in cones.cone_summary(config)
 
 
 def test_per_photo_gains_call_for_appearance_codes():
@@ -243,12 +245,12 @@ def test_large_images_at_several_scales_keep_detail_py_with_its_levels_weighted(
   assert "representation: configs/detail.py" in decided.auto_decisions
   assert decided.model.appearance_dims == 0
   assert (decided.model.grid.antialias, decided.model.grid.multisample,
-          decided.render.march) == (True, auto.ANTIALIAS_MULTISAMPLE,
+          decided.render.march) == (True, cones.ANTIALIAS_MULTISAMPLE,
                                     config_lib.load("detail").render.march)
   assert decided.model.grid.density_resolutions == config_lib.load(
       "detail").model.grid.density_resolutions
   assert builders.make_ray_renderer(decided).field.cones == (
-      "multisamples" if auto.ANTIALIAS_MULTISAMPLE else "scales")
+      "multisamples" if cones.ANTIALIAS_MULTISAMPLE else "scales")
   assert "auto: cameras at several scales: cones" in capsys.readouterr().out
 
 
@@ -317,7 +319,7 @@ def test_auto_leaves_the_passers_by_of_crowd_out(capsys):
   line = next(l for l in capsys.readouterr().out.splitlines() if "transients" in l)
   assert line.startswith("auto: transients left out: RobustNeRF's trimmed loss on 16 x 16")
   share = float(line.split(": ")[-1].split("%")[0]) / 100
-  assert share > auto.TRANSIENT_SHARE
+  assert share > transients.TRANSIENT_SHARE
 
 
 def test_the_command_line_names_the_fields_it_sets():

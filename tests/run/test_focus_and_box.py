@@ -8,7 +8,9 @@ import re
 import numpy as np
 import pytest
 
-from nerf_jax.run import auto, characterise, config_lib, experiment, from_data
+from nerf_jax.run import config_lib, experiment, from_data
+from nerf_jax.run.auto import characterise
+from nerf_jax.run.auto.rules import contraction
 
 # auto's choices as on a CPU, also when the suite runs on a GPU (conftest.cpu_decisions).
 pytestmark = pytest.mark.usefixtures("cpu_decisions")
@@ -98,7 +100,7 @@ def test_auto_contracts_where_the_rays_leave_the_box_and_centres_on_the_focus(tm
   cameras' distances from it; the run's warning about rays leaving the box does not come."""
   exp = experiment.setup(_auto(_capture(tmp_path, far=100.0)))
   out = capsys.readouterr().out
-  assert exp.config.data.contraction == auto.CONTRACTION and exp.config.data.focus
+  assert exp.config.data.contraction == contraction.CONTRACTION and exp.config.data.focus
   assert "leave the scene box" not in out  # the warning (from_data.warn_if_cut)
   decided = "\n".join(exp.config.auto_decisions)
   assert "the space beyond the box contracted (data.contraction='linf')" in decided

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from nerf_jax.data.llff import export_llff
-from nerf_jax.run import config_lib, experiment, resolution
+from nerf_jax.run import config_lib, experiment
+from nerf_jax.run.auto import resolution
 from tests.helpers import load_data
 
 

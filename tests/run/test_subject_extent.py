@@ -11,7 +11,9 @@ import pytest
 
 from nerf_jax.cameras.cameras import Cameras
 from nerf_jax.data.dataset import DataError, Dataset
-from nerf_jax.run import auto, config_lib, from_data, subject
+from nerf_jax.run import config_lib, from_data, subject
+from nerf_jax.run.auto import auto
+from nerf_jax.run.auto.rules import contraction, subject_box
 from nerf_jax.samplers import occupancy, visual_hull
 from tests.helpers import small_config
 
@@ -169,25 +171,25 @@ def test_off_leaves_the_datasets_as_they_are():
 def test_auto_fills_a_small_subject_of_a_collection_only():
   poses = _sphere_cameras(distance=8.0)  # half-extent 0.6 < 0.25 * 8
   masked = _dataset(poses, masks=_box_masks(poses))
-  assert auto.subject_effects(masked, True)[0] == {"data.subject": "auto",
-                                                   "data.contraction": auto.CONTRACTION,
+  assert subject_box.subject_effects(masked, True)[0] == {"data.subject": "auto",
+                                                   "data.contraction": contraction.CONTRACTION,
                                                    "data.photo_bounds": True,
                                                    "data.visual_hull": True,
                                                    "data.photo_zoom": True}
-  assert auto.subject_effects(masked, True, "l2")[0] == {"data.subject": "auto",
+  assert subject_box.subject_effects(masked, True, "l2")[0] == {"data.subject": "auto",
                                                          "data.photo_bounds": True,
                                                          "data.visual_hull": True,
                                                          "data.photo_zoom": True}
   # a camera per photo (structure from motion fitted each focal): no zoom fitted again
-  assert "data.photo_zoom" not in auto.subject_effects(masked, True, "l2", False)[0]
+  assert "data.photo_zoom" not in subject_box.subject_effects(masked, True, "l2", False)[0]
   rng = np.random.default_rng(2)  # sparse points mark it, no masks: the background trains
   points = rng.uniform(BOX_LO, BOX_HI, (2000, 3)).astype(np.float32)
-  assert auto.subject_effects(_dataset(poses, points=points), True)[0] == {
-      "data.subject": "auto", "data.contraction": auto.CONTRACTION}
-  assert auto.subject_effects(masked, False) == ({}, [])
+  assert subject_box.subject_effects(_dataset(poses, points=points), True)[0] == {
+      "data.subject": "auto", "data.contraction": contraction.CONTRACTION}
+  assert subject_box.subject_effects(masked, False) == ({}, [])
   near = _sphere_cameras(distance=2.0)  # 0.6 >= 0.25 * 2: the subject fills the photos
-  assert auto.subject_effects(_dataset(near, masks=_box_masks(near)), True)[0] == {}
-  assert auto.subject_effects(_dataset(poses), True)[0] == {}  # nothing marks a subject
+  assert subject_box.subject_effects(_dataset(near, masks=_box_masks(near)), True)[0] == {}
+  assert subject_box.subject_effects(_dataset(poses), True)[0] == {}  # nothing marks a subject
 
 
 def test_a_box_by_hand_fills_the_inner_region_and_bounds_the_held_out_views():
@@ -342,8 +344,8 @@ def test_masks_come_before_points_that_cover_the_square_too():
   assert subject.from_points(dataset.points).half.max() > 4.0  # the square's, not the subject's
   box = subject.subject_box(dataset)
   assert box.source == "masks" and np.all(box.half <= HALF + 0.2)
-  effects, lines = auto.subject_effects(dataset, True, "", stored_camera=False)
-  assert effects == {"data.subject": "auto", "data.contraction": auto.CONTRACTION,
+  effects, lines = subject_box.subject_effects(dataset, True, "", stored_camera=False)
+  assert effects == {"data.subject": "auto", "data.contraction": contraction.CONTRACTION,
                      "data.photo_bounds": True, "data.visual_hull": True}
   assert "the masks mark a subject" in lines[0]
   # Masks of passers-by mark no subject: the points come next.

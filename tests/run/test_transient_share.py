@@ -1,10 +1,10 @@
-"""Tests of run/transient_share.py's statistic: the box shares against a loop, each photo's look
+"""Tests of run/auto/transient_share.py's statistic: the box shares against a loop, each photo's look
 taken out exactly, and the statistic on made-up photos: near 0 for a static scene with edges,
 specks and looks, about the passers-by's share with them."""
 
 import numpy as np
 
-from nerf_jax.run import transient_share
+from nerf_jax.run.auto import transient_share
 
 
 def test_box_share_counts_each_box_with_zeros_beyond_the_edge():

@@ -1,9 +1,9 @@
-"""The warm-up's shrunk photos against a box mean written here (run/warm_up.py)."""
+"""The warm-up's shrunk photos against a box mean written here (run/auto/warm_up.py)."""
 
 import numpy as np
 
 from nerf_jax.data.dataset import Dataset
-from nerf_jax.run import warm_up
+from nerf_jax.run.auto import warm_up
 
 
 def test_box_shrunk_is_the_box_mean_of_the_cropped_photos():

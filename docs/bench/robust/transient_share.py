@@ -1,5 +1,5 @@
 """Warm up a built-in scene briefly (no transient handling, no codes; 48 px, 50 views, 1024
-rays a step), render its training views and print run/transient_share.transient_share (appended to
+rays a step), render its training views and print run/auto/transient_share.transient_share (appended to
 transient_share.jsonl). docs/photo_collections.md has the numbers.
 
   PYTHONPATH=$PWD python docs/bench/robust/transient_share.py crowd fast 300
@@ -10,7 +10,8 @@ import sys
 import numpy as np
 
 from nerf_jax.render import background, image_renderer
-from nerf_jax.run import config_lib, experiment, train_lib, transient_share
+from nerf_jax.run import config_lib, experiment, train_lib
+from nerf_jax.run.auto import transient_share
 
 scene, base, steps = sys.argv[1], sys.argv[2], int(sys.argv[3])
 config = config_lib.load(base)

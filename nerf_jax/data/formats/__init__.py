@@ -6,7 +6,7 @@ A format is one module defining `FORMAT = formats.Format(...)`: how to recognise
 (`detect`), how to read it into (train, test) Datasets (`load`), what data.background='auto'
 means for it (`background`) and which photos data.factor downscales (`photo_paths`, what
 --config=auto sizes). Everything that asks what the data at a path is asks here:
-loaders.load_dataset, loaders.auto_background, run/resolution.py. A new format is its module
+loaders.load_dataset, loaders.auto_background, run/auto/resolution.py. A new format is its module
 plus its line in FORMATS, at the place it must be tried (docs/extending.md, "Adding a data
 format"); `register` adds one from outside the tree for the process that calls it.
 """
@@ -47,7 +47,7 @@ class Format:
     format's data ('white' and why, for Blender's RGBA images); None (or a rule returning None)
     means `BLACK`.
   photo_paths: path -> [str] or None: the full-size photo files that data.factor downscales
-    (--config=auto sizes data.factor from them, run/resolution.py); None: it downscales none.
+    (--config=auto sizes data.factor from them, run/auto/resolution.py); None: it downscales none.
   expected: how the one line for data of no known format names it: what a folder of it holds
     ('poses_bounds.npy') or, with `file`, the file it is ('a .npz file'); '' = not named.
   file: whether `expected` names a file rather than what a folder holds.
