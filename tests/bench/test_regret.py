@@ -43,13 +43,14 @@ USER = {"data.scene": "diffuse", "data.image_size": 16, "train.max_seconds": 2.0
 
 def _decided(chosen, effects):
   """A hand-made auto result: configs/<chosen>.py with `effects` and USER set, auto's lines
-  ending in the representation line."""
+  ending in the representation line, the choice recorded (auto_representation)."""
   config = config_lib.load(chosen)
   for name, value in {**USER, **effects}.items():
     config_lib.set_field(config, name, value)
   config.auto = False
   config.auto_decisions = ("an object on a background: ...", f"representation: configs/"
                            f"{chosen}.py")
+  config.auto_representation = chosen
   return config
 
 
@@ -160,7 +161,7 @@ def test_representations_that_apply_keep_autos_effects():
       for field in (*regret_plan.EFFECT_FIELDS, *USER):
         assert (config_lib.get_field(run.config, field) ==
                 config_lib.get_field(result, field)), (run.name, field)
-      assert regret_plan.has_cones(run.config) == regret_plan.has_cones(result)
+      assert cones.has_cones(run.config) == cones.has_cones(result)
       assert not _diff(run.config, regret_plan.with_fields(
           config_lib.load(run.base), run.overrides))
 

@@ -1,25 +1,39 @@
-"""docs/auto.md's table of auto's rules cannot drift from the code: each threshold it quotes
-(`module.NAME = value`) is the constant's value in nerf_jax/run/<module>.py; every constant of
-run/auto.py and run/resolution.py is quoted; every line auto can print (the strings that
-run/auto.py and run/resolution.py make into `auto:` lines, read from their source) appears in
-the table; and each link in it reaches a page and one of its headings."""
+"""docs/auto.md's table of auto's rules cannot drift from the code: its rows are the rules'
+(`Rule.row`, in the order of rules.RULES); each threshold it quotes (`module.NAME = value`) is the
+constant's value in its module (MODULES); every constant of the rules' modules, of
+run/auto/auto.py and of run/auto/resolution.py is quoted; every line auto can print (the strings
+those modules make into `auto:` lines, read from their source) appears in the table; and each
+link in it reaches a page and one of its headings."""
 
 import ast
 import importlib
 import pathlib
+import pkgutil
 import re
 
 import pytest
 
-from nerf_jax.run import characterise
+from nerf_jax.run.auto import characterise
+from nerf_jax.run.auto import rules as rules_package
+from nerf_jax.run.auto.rules import RULES
 from tests.helpers import ROOT
 
 ROOT = pathlib.Path(ROOT)
 PAGE = ROOT / "docs" / "auto.md"
-SOURCES = [ROOT / "nerf_jax" / "run" / "auto.py", ROOT / "nerf_jax" / "run" / "resolution.py"]
+RULE_MODULES = [m.name for m in pkgutil.iter_modules(rules_package.__path__)]
+# The module each quoted `module.NAME` names.
+MODULES = {"auto": "nerf_jax.run.auto.auto", "characterise": "nerf_jax.run.auto.characterise",
+           "resolution": "nerf_jax.run.auto.resolution", "warm_up": "nerf_jax.run.auto.warm_up",
+           "from_data": "nerf_jax.run.from_data",
+           **{name: f"nerf_jax.run.auto.rules.{name}" for name in RULE_MODULES}}
+AUTO = ROOT / "nerf_jax" / "run" / "auto"
+SOURCES = {"auto": AUTO / "auto.py", "resolution": AUTO / "resolution.py",
+           **{name: AUTO / "rules" / f"{name}.py" for name in RULE_MODULES}}
 QUOTED = re.compile(r"`(\w+)\.([A-Z][A-Z0-9_]*) = ([^`]+)`")
-# Functions of run/auto.py that return a phrase or a value, not a line.
-NOT_LINES = {"cone_summary", "cone_effects", "_flat"}
+# Functions that return a phrase or a value, not a line; and the regret benchmark's flips
+# (functions named flip_*, _flip_*), whose reasons are not auto's lines.
+NOT_LINES = {"cone_summary", "cone_effects", "has_cones", "_flat", "context_of"}
+RECORDS = {"RULE", "RULES"}  # the records, not constants
 
 
 def rules_table():
@@ -65,14 +79,14 @@ def _strings(node):
 
 
 def printed_openings():
-  """The opening words of every line run/auto.py and run/resolution.py can print: the strings
-  given to `lines.append`, the lines (all but the first element) of the tuples their functions
-  return, the rule settings' phrases (`settings`) and their absences ('no <rule>', `absent`)."""
+  """The opening words of every line the SOURCES can print: the strings given to
+  `lines.append` and the lines (all but the first element) of the tuples their functions
+  return."""
   openings = set()
-  for path in SOURCES:
+  for path in SOURCES.values():
     tree = ast.parse(path.read_text())
     for function in (n for n in tree.body if isinstance(n, ast.FunctionDef)):
-      if function.name in NOT_LINES:
+      if function.name in NOT_LINES or function.name.lstrip("_").startswith("flip"):
         continue
       for node in ast.walk(function):
         found = []
@@ -81,13 +95,16 @@ def printed_openings():
           found = _strings(node.args[0])
         elif isinstance(node, ast.Return) and isinstance(node.value, ast.Tuple):
           found = [s for e in node.value.elts[1:] for s in _strings(e)]
-        elif isinstance(node, ast.Assign) and getattr(node.targets[0], "id", "") == "settings":
-          keys = [k.value for k in node.value.keys]
-          found = [s for v in node.value.values for s in _strings(v)]
-          openings.update("one scale" if k == "scales" else "no " + k.replace("_", " ")
-                          for k in keys)  # `absent` in auto_config
         openings.update(o for o in map(_literal_opening, found) if o)
   return openings
+
+
+def test_the_rows_are_the_rules_in_their_order():
+  assert [row["rule"] for row in rules_table()] == [rule.row for rule in RULES]
+  assert len({rule.name for rule in RULES}) == len(RULES)
+  # every rule module is in RULES, once
+  assert sorted(rule.decide.__module__.rsplit(".", 1)[1] for rule in RULES) == sorted(
+      RULE_MODULES)
 
 
 def test_the_table_has_every_rule_of_the_issue():
@@ -103,7 +120,7 @@ def test_every_quoted_threshold_is_the_codes():
   quoted = [m.groups() for row in rules_table() for m in QUOTED.finditer(row["threshold"])]
   assert len(quoted) >= 20
   for module, name, value in quoted:
-    actual = getattr(importlib.import_module(f"nerf_jax.run.{module}"), name)
+    actual = getattr(importlib.import_module(MODULES[module]), name)
     assert ast.literal_eval(value) == actual, f"docs/auto.md: {module}.{name} = {value}"
 
 
@@ -113,16 +130,25 @@ def test_a_row_without_a_threshold_says_so():
     assert row["override"], row["rule"]
 
 
-@pytest.mark.parametrize("path", SOURCES, ids=lambda p: p.name)
-def test_every_constant_of_the_rules_is_quoted(path):
+def _constants(path):
+  """The upper-case names a module assigns at its top level (not the records, not private)."""
+  tree = ast.parse(path.read_text())
+  return {t.id for node in tree.body if isinstance(node, ast.Assign)
+          for t in node.targets if isinstance(t, ast.Name) and t.id.isupper()
+          and not t.id.startswith("_") and t.id not in RECORDS}
+
+
+@pytest.mark.parametrize("module", sorted(SOURCES))
+def test_every_constant_of_the_rules_is_quoted(module):
   quoted = {(m.group(1), m.group(2)) for row in rules_table()
             for m in QUOTED.finditer(row["threshold"])}
-  tree = ast.parse(path.read_text())
-  constants = {t.id for node in tree.body if isinstance(node, ast.Assign)
-               for t in node.targets if isinstance(t, ast.Name) and t.id.isupper()
-               and not t.id.startswith("_")}
-  assert constants
-  assert {(path.stem, c) for c in constants} <= quoted
+  assert {(module, c) for c in _constants(SOURCES[module])} <= quoted
+
+
+def test_the_reader_finds_the_constants():
+  constants = {m: _constants(path) for m, path in SOURCES.items()}
+  assert {"MIN_STEPS"} <= constants["auto"] and {"MAX_SIDE"} <= constants["resolution"]
+  assert {"DEPTH_WEIGHT", "DEPTH_MAX_VIEWS"} <= constants["depth"]
 
 
 def test_every_line_auto_can_print_is_in_the_table():
