@@ -11,7 +11,7 @@ from nerf_jax.cameras import rays
 from nerf_jax.data import loaders, scenes
 from nerf_jax.run import builders, config_lib
 from nerf_jax.run.auto import auto, characterise
-from nerf_jax.run.auto.rules import cones, transients
+from nerf_jax.run.auto.rules import cones, large_objects, transients
 from nerf_jax.cameras.cameras import Cameras
 from nerf_jax.data.dataset import Dataset
 from nerf_jax.data.scenes import photos
@@ -231,9 +231,9 @@ def test_nanmedian_matches_numpys():
 
 def test_large_images_at_several_scales_keep_detail_py_with_its_levels_weighted(monkeypatch,
                                                                                   capsys):
-  monkeypatch.setattr(auto, "LARGE_IMAGES", 16)  # the 24 px scene counts as large
+  monkeypatch.setattr(large_objects, "LARGE_IMAGES", 16)  # the 24 px scene counts as large
   # Not what this test asks: the transients' warm-up (half a minute a call) is left out.
-  monkeypatch.setattr(auto, "transient_effects", lambda *a: ({}, "no transients: not asked"))
+  monkeypatch.setattr(transients, "transient_effects", lambda *a: ({}, "no transients: not asked"))
   # Its sparse views differ in mean colour (the appearance rule fires): detail.py, whose density
   # grids take appearance codes too; with the codes turned off, detail.py without them.
   with_codes = _auto("multiscale")

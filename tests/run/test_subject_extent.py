@@ -13,7 +13,7 @@ from nerf_jax.cameras.cameras import Cameras
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.run import config_lib, from_data, subject
 from nerf_jax.run.auto import auto
-from nerf_jax.run.auto.rules import contraction, subject_box
+from nerf_jax.run.auto.rules import contraction, subject_box, transients
 from nerf_jax.samplers import occupancy, visual_hull
 from tests.helpers import small_config
 
@@ -408,9 +408,9 @@ def test_auto_measures_the_subject_on_the_photos_not_their_resampled_view(monkey
   # narrowest field of view); the subject is measured on the photos themselves.
   dataset, _ = _own_dataset()
   given = []
-  monkeypatch.setattr(auto, "subject_effects",
+  monkeypatch.setattr(subject_box, "subject_effects",
                       lambda photos, *args: given.append(photos) or ({}, []))
-  monkeypatch.setattr(auto, "transient_effects", lambda *args: ({}, "no transients: not here"))
+  monkeypatch.setattr(transients, "transient_effects", lambda *args: ({}, "no transients: not here"))
   auto.auto_config(config_lib.load("auto"), dataset, backend="cpu")
   assert dataset.one_camera().image_cameras is None  # what the other rules read
   assert len(given) == 1 and given[0] is dataset

@@ -38,16 +38,6 @@ class Context:
     """The measured reason line of characterise's rule `name`."""
     return self.decisions[name].reason
 
-  def field(self, name):
-    """The value `name` (dotted) will have before the user's flags: the effects decided so far,
-    else the chosen config's."""
-    node = self.result
-    if name in self.effects:
-      return self.effects[name]
-    for key in name.split("."):
-      node = node[key]
-    return node
-
 
 # flip(result, base, context) -> ({field: value} or None, why none): the regret benchmark's
 # run of auto's config with the decision turned the other way (bench/regret_plan.py). result:

@@ -3,7 +3,7 @@ points mark one (subject.subject_box)."""
 
 import numpy as np
 
-from nerf_jax.run import subject
+from nerf_jax.run import config_lib, subject
 from nerf_jax.run.auto.rule import Rule
 from nerf_jax.run.auto.rules.contraction import CONTRACTION
 
@@ -81,7 +81,7 @@ def _flip_on_subject(field):
   def flip(result, base, context):
     if not result.data.subject:
       return None, "decided only with a subject (data.subject)"
-    return {field: not bool(result.data[field.split(".")[1]])}, ""
+    return {field: not bool(config_lib.get_field(result, field))}, ""
   return flip
 
 
