@@ -9,8 +9,8 @@ Names used throughout:
             command's fields on top of another representation's config
 
 A flip is read from `result` itself: a switch auto left on is turned off and one it left off
-is turned on (FLIPS: each rule's flips, Rule.flips, in the rules' order). A flip that would not make sense for the data
-(NDC rays on cameras that do not face one way) is left out with one line saying why.
+is turned on (FLIPS: each rule's flips, Rule.flips, in the rules' order). A flip that would
+not make sense for the data (NDC rays on cameras that do not face one way) is left out with one line saying why.
 """
 
 import dataclasses

@@ -12,8 +12,8 @@ from nerf_jax.run.auto.rules import backend, transients
 from tests.helpers import load_data
 
 # Today's CPU choice for each built-in scene at 24 px (auto's rules: an object on a background
-# below large_objects.LARGE_IMAGES (100 px) -> fast.py, forward-facing -> llff.py, a frame-filling scene -> capture.py), and
-# the GPU config that takes its place.
+# below large_objects.LARGE_IMAGES (100 px) -> fast.py, forward-facing -> llff.py, a
+# frame-filling scene -> capture.py), and the GPU config that takes its place.
 CPU_CHOICE = {"diffuse": "fast", "forward": "llff", "garden": "capture"}
 GPU_CHOICE = {"diffuse": "gpu/lego", "forward": "gpu/llff", "garden": "capture"}
 # What auto sets from the data (its effects) and what _decide sets as the user: not the config's.

@@ -46,7 +46,8 @@ def test_more_views_than_measured_leave_it_off():
   count = depth.DEPTH_MAX_VIEWS + 1
   effects, lines = depth.depth_effects(views(count), "NDC")
   assert effects == {}
-  assert lines[0].startswith("no depth from the tracks") and f"> {depth.DEPTH_MAX_VIEWS}" in lines[0]
+  assert lines[0].startswith("no depth from the tracks")
+  assert f"> {depth.DEPTH_MAX_VIEWS}" in lines[0]
   # The limit itself still counts as few.
   assert depth.depth_effects(views(depth.DEPTH_MAX_VIEWS), "NDC")[0]
 

@@ -410,7 +410,8 @@ def test_auto_measures_the_subject_on_the_photos_not_their_resampled_view(monkey
   given = []
   monkeypatch.setattr(subject_box, "subject_effects",
                       lambda photos, *args: given.append(photos) or ({}, []))
-  monkeypatch.setattr(transients, "transient_effects", lambda *args: ({}, "no transients: not here"))
+  monkeypatch.setattr(transients, "transient_effects",
+                      lambda *args: ({}, "no transients: not here"))
   auto.auto_config(config_lib.load("auto"), dataset, backend="cpu")
   assert dataset.one_camera().image_cameras is None  # what the other rules read
   assert len(given) == 1 and given[0] is dataset
