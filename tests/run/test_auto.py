@@ -46,6 +46,7 @@ def test_the_cpu_backend_keeps_todays_choice(scene, capsys):
   decided = _decide(scene, "cpu")
   assert _same_fields(decided, CPU_CHOICE[scene]) == []
   assert decided.auto_decisions[-1] == f"representation: configs/{CPU_CHOICE[scene]}.py"
+  assert decided.auto_representation == CPU_CHOICE[scene]  # recorded, not read from the line
   backend_lines = [l for l in capsys.readouterr().out.splitlines() if "backend" in l]
   assert backend_lines == [f"auto: backend cpu: configs/{CPU_CHOICE[scene]}.py, the configs "
                            "measured on a CPU (a GPU backend takes configs/gpu/)"]
@@ -60,6 +61,7 @@ def test_the_default_backend_here_is_the_cpus_branch():
 def test_a_gpu_backend_picks_the_gpu_configs(scene, capsys):
   decided = _decide(scene, "gpu")
   assert _same_fields(decided, GPU_CHOICE[scene]) == []
+  assert decided.auto_representation == GPU_CHOICE[scene]
   assert decided.auto_decisions[-1] == f"representation: configs/{GPU_CHOICE[scene]}.py"
   out = capsys.readouterr().out.splitlines()
   why = (f"in place of the CPU's configs/{CPU_CHOICE[scene]}.py" if GPU_CHOICE[scene] !=
