@@ -329,8 +329,12 @@ def beside(path, poses, names=None, where=""):
   folder = model_dir(path)
   if folder is None:
     return None
-  _, images_file, points_file = model_files(folder)
-  images = read_images(images_file)
+  try:  # the loader's poses come from its own file: a broken model only costs the tracks
+    _, images_file, points_file = model_files(folder)
+    images = read_images(images_file)
+  except DataError as e:
+    print(f"{where or path}: {e}; its tracks are not used", flush=True)
+    return None
   ids = sorted(images, key=lambda i: images[i][3])
   if names is None:
     matched = ids if len(ids) == len(poses) else []

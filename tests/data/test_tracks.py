@@ -371,3 +371,17 @@ def test_no_keypoints_are_built_unless_asked():
       _toy(), (8, 10, (10.0, 10.0, 5.0, 4.0), 1.0, 10.0, 0.5, False), np.zeros(3, np.float32))
   assert data.keypoints is None
   assert jnp.asarray(data.rgb).shape == (3, 80, 3)
+
+
+def test_an_llff_folder_with_a_broken_model_still_loads_without_tracks(tmp_path, capsys):
+  truth, points, errors, model = tracked_scene()
+  folder = str(tmp_path / "llff")
+  llff.export_llff(truth, folder)
+  sparse = os.path.join(folder, "sparse", "0")
+  _write(model, sparse, binary=True)
+  os.remove(os.path.join(sparse, "images.bin"))  # as an archive that lost its largest file
+  dataset = llff.load_llff(folder)
+  assert dataset.observations is None and dataset.point_errors is None
+  np.testing.assert_allclose(dataset.poses, llff.load_llff(folder).poses)
+  line = capsys.readouterr().out
+  assert "images" in line and "its tracks are not used" in line
