@@ -53,7 +53,8 @@ def flip_depth(result, base, context):
   """DS-NeRF's depth from the tracks off where auto turned it on."""
   if result.loss.depth.weight > 0:
     return {"loss.depth.weight": 0.0}, ""
-  return None, "auto left the depth from the tracks off (no tracks, or more views than measured)"
+  return None, ("auto left the depth from the tracks off (no tracks, more views than measured, "
+                "or samples away from the points)")
 
 
 RULE = Rule("depth", decide, row="depth from the tracks", fields=("loss.depth.weight",),
