@@ -1,6 +1,7 @@
 """Every measured figure README.md quotes comes from a results file in docs/bench/ and agrees
 with it, as do the pages that repeat them (the default run's transcript in docs/performance.md,
-the suite's time in docs/usage.md and pyproject.toml).
+the suite's time in docs/usage.md and pyproject.toml, the throughput check's rates in
+docs/standard_benchmark.md).
 
 FIGURES says where each figure is quoted (a pattern of the text around it, one group per
 figure) and where it comes from (a results file, the record's selecting fields, the key, the
@@ -29,6 +30,11 @@ def source(path, key, decimals, **where):
 DEFAULT_RUN = "default_run/metrics.json"
 SUITE = "suite/suite.jsonl"
 STANDARD = "standard/cpu_2026-11-28.jsonl"  # nerf_jax.bench.standard (docs/standard_benchmark.md)
+THROUGHPUT = "throughput/cpu.jsonl"  # nerf_jax.bench.throughput: the first idle 2-core records
+THROUGHPUT_RUNS = {"default": "2026-11-29 04:02 UTC", "fast": "2026-11-29 04:03 UTC",
+                   "detail": "2026-11-29 04:04 UTC", "capture": "2026-11-29 04:04 UTC",
+                   "llff": "2026-11-29 04:05 UTC", "hash": "2026-11-29 04:06 UTC",
+                   "mipnerf": "2026-11-29 04:07 UTC"}  # config: the date of its quoted record
 CI_RUN = (("tests", 0), ("minutes", 1))  # the suite as .ci/run measures it
 FIGURES = [
     ("README.md", r"test PSNR ([\d.]+) dB after (\d+) steps",
@@ -73,7 +79,11 @@ FIGURES = [
     ("README.md", rf"\| {scene} \|.*?\| (\d+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \|",
      [source(STANDARD, k, d, scene=scene) for k, d in
       (("steps", 0), ("psnr", 2), ("ssim", 3), ("lpips", 3))])
-    for scene in ("lego", "fern", "fox")]
+    for scene in ("lego", "fern", "fox")] + [  # the throughput check's rates, config by config
+    ("docs/standard_benchmark.md", rf"\| `{config}` \| \w+ \| (\d+) \| ([\d.]+) \| (\d+) \|",
+     [source(THROUGHPUT, k, d, config=config, date=date) for k, d in
+      (("rays_per_step", 0), ("steps_per_second", 2), ("rays_per_second", 0))])
+    for config, date in THROUGHPUT_RUNS.items()]
 
 
 def record(path, where):
