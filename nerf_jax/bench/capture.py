@@ -20,7 +20,8 @@
    render held-out photos at the poses SfM found for them), and the `sfm` model again at the
    true held-out poses of `true_poses` (same images), which charges it with the pose errors of
    the held-out views too. Then `render.py --mode=video` on the `sfm` run; writes everything to
-   `--out`, a JSON record and summary.txt.
+   `--out`, a JSON record (record.json, stamped as every benchmark record: records.py) and
+   summary.txt.
 """
 
 import dataclasses
@@ -31,7 +32,7 @@ import sys
 import imageio.v3 as iio
 import numpy as np
 
-from nerf_jax.bench import child
+from nerf_jax.bench import child, records
 from nerf_jax.data import nerfstudio, orient, pointcloud
 from nerf_jax.data.scenes import capture
 
@@ -233,6 +234,16 @@ def compare(root, processed, true, focal, size, seconds, extra=()):
           "psnr_sfm_minus_true_poses": runs["sfm"]["psnr"] - runs["true_poses"]["psnr"]}
 
 
+def _run_machine(root):
+  """The machine record the sfm run measured while it trained (its metrics.json's), or None
+  where nothing trained (records.stamp then describes the machine: no child follows)."""
+  path = os.path.join(root, "train_sfm", "metrics.json")
+  if not os.path.isfile(path):
+    return None
+  with open(path) as f:
+    return json.load(f).get("machine")
+
+
 def _write_record(root, record):
   """record.json, and summary.txt with the comparison when there is one; prints both."""
   with open(os.path.join(root, "record.json"), "w") as f:
@@ -285,6 +296,7 @@ def main():
                f"--config.render.orbit_phi={meta['orbit_phi']:.0f}"]
       record.update(compare(root, processed, true, focal, size.value, train_seconds.value,
                             orbit))
+    record = records.stamp(record, _run_machine(root))
     _write_record(root, record)
     if train_seconds.value > 0 and video.value:
       record["video_seconds"], _ = _run(

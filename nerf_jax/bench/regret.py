@@ -26,6 +26,7 @@ from absl import flags
 
 from nerf_jax import cli
 from nerf_jax.bench import child, command_line, regret_plan, report, standard
+from nerf_jax.bench import records as records_lib
 from nerf_jax.data.scenes import builtin
 from nerf_jax.run import config_lib, experiment, train_lib
 from nerf_jax.run import machine as machine_lib
@@ -122,13 +123,14 @@ def trained_config(workdir):
   return hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def make_record(run, metrics, scene, machine, log=()):
+def make_record(run, metrics, scene, log=()):
   """One results.jsonl record of `run` (a regret_plan.Run) from its metrics.json `metrics`
-  (or {'error': ...}) and metrics.jsonl `log` ([dict]); the step-cost ratio and gain come
-  later (`with_regret`). machine: the record's 'machine' where metrics.json has none (a failed
-  run); metrics.json's own, measured while the run trained (run/machine.py), comes first."""
+  (or {'error': ...}) and metrics.jsonl `log` ([dict]), with metrics.json's 'machine' (measured
+  while the run trained, run/machine.py) where it has one; the step-cost ratio and gain come
+  later (`with_regret`), the stamp (records.py) in `run_plan`."""
   record = {"scene": scene, "run": run.name, "flipped": run.flipped, "base": run.base,
-            "overrides": run.overrides, "machine": metrics.get("machine", machine)}
+            "overrides": run.overrides,
+            **({"machine": metrics["machine"]} if "machine" in metrics else {})}
   if "error" in metrics:
     return {**record, "error": metrics["error"]}
   record.update(psnr=metrics["psnr"], ssim=metrics.get("ssim"), lpips=metrics.get("lpips"),
@@ -199,17 +201,10 @@ def table(records, regret, command):
 def write_results(records, regret, out, command):
   """OUT/results.jsonl (one record a line, the regret on each) and OUT/table.md."""
   os.makedirs(out, exist_ok=True)
-  with open(os.path.join(out, "results.jsonl"), "w") as f:
-    for record in records:
-      f.write(json.dumps({**record, "regret": regret}) + "\n")
+  records_lib.write(os.path.join(out, "results.jsonl"),
+                    [{**record, "regret": regret} for record in records])
   with open(os.path.join(out, "table.md"), "w") as f:
     f.write(table(records, regret, command))
-
-
-def read_results(path):
-  """The records of a JSON-lines file (results.jsonl, a run's metrics.jsonl)."""
-  with open(path) as f:
-    return [json.loads(line) for line in f if line.strip()]
 
 
 def picture(records, regret, path):
@@ -287,17 +282,18 @@ def run_plan(runs, scene, out, command):
   """Train every Run of `runs` (auto's first) into OUT/<run name>; records and results written
   after each. Returns (records, regret)."""
   check_fresh(runs, out)
-  machine = machine_lib.describe()  # a failed run's: what the machine is, not its load
   records = []
   for i, run in enumerate(runs):
     workdir = workdir_of(run, out)
     print(f"[{i + 1}/{len(runs)}] {run.name}: training into {workdir}", flush=True)
     start = time.perf_counter()
     metrics = train_isolated(run.config, workdir)
-    record = make_record(run, metrics, scene, machine, read_results(
+    record = make_record(run, metrics, scene, records_lib.read(
         os.path.join(workdir, "metrics.jsonl")) if "error" not in metrics else ())
     record.update(workdir=workdir, wall_seconds=round(time.perf_counter() - start, 1),
                   trained=trained_config(workdir))
+    # The machine the run measured; a failed run's: what the machine is, not its load.
+    record = records_lib.stamp(record)
     records.append(record)
     scored, regret = with_regret(records)
     write_results(scored, regret, out, command)

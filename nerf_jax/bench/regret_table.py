@@ -18,7 +18,6 @@ representation's gain over auto; and OUT/regret_table.png, one panel per scene o
 gain against its step-cost ratio (matplotlib: the [bench] extra).
 """
 
-import json
 import os
 import sys
 import threading
@@ -26,6 +25,7 @@ import threading
 from absl import flags
 
 from nerf_jax.bench import child, command_line, regret, regret_plan, report, standard
+from nerf_jax.bench import records as records_lib
 
 # The built-in scenes of the table (docs/regret.md), the slowest first: landmark's runs carve a
 # hull and fit zooms before training; the collections fit held-out codes after it.
@@ -198,14 +198,12 @@ def summarize(out, scenes=None):
     path = os.path.join(out, scene, "results.jsonl")
     if (scenes and scene not in scenes) or not os.path.isfile(path):
       continue
-    records = regret.read_results(path)
-    if records:
-      rows.append(scene_summary(records))
+    scene_records = records_lib.read(path)
+    if scene_records:  # stamped with the machine of auto's run, where it measured one
+      rows.append(records_lib.stamp(scene_summary(scene_records)))
   if not rows:
     raise FileNotFoundError(f"--out={out}: no <scene>/results.jsonl to summarise")
-  with open(os.path.join(out, "summary.jsonl"), "w") as f:
-    for row in rows:
-      f.write(json.dumps(row) + "\n")
+  records_lib.write(os.path.join(out, "summary.jsonl"), rows)
   with open(os.path.join(out, "table.md"), "w") as f:
     f.write(summary_table(rows))
   problem = picture(rows, os.path.join(out, "regret_table.png"))

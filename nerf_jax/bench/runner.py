@@ -12,7 +12,7 @@ import tempfile
 
 from nerf_jax.run import machine as machine_lib
 from nerf_jax.train import progress
-from nerf_jax.bench import child, measure, report, sweeps, timed_run
+from nerf_jax.bench import child, measure, records as records_lib, report, sweeps, timed_run
 
 
 def run_isolated(config, options):
@@ -53,7 +53,7 @@ def run_sweep(request, options, out, command, in_process=False, dry_run=False):
                               for d in dtypes}
   run = timed_run.train_and_measure if in_process else run_isolated
   results = os.path.join(out, "results.jsonl")
-  open(results, "w").close()
+  records_lib.write(results, [])
   records = []
   bar = progress.Progress(len(runs), "sweep")  # ETA from the runs done so far
   bar.update(0)  # the rate counts from now: every run, the first too, is a full run
@@ -61,14 +61,13 @@ def run_sweep(request, options, out, command, in_process=False, dry_run=False):
     bar.write(f"[{i + 1}/{len(runs)}] {sweep}/{entry.label} on {scene}")
     slug = "".join(c if c.isalnum() else "_" for c in f"{sweeps.scene_label(scene)}-{entry.label}")
     record = run(config, dataclasses.replace(options, eval_dir=os.path.join(out, "eval", slug)))
-    # The sweep's machine and matmul peaks, with the run's own load while it trained.
     record.update(sweep=sweep, label=entry.label, base=entry.base, overrides=entry.overrides,
-                  scene=sweeps.scene_label(scene), mode=sweeps.mode(request),
-                  machine={**machine, **record.get("machine", {})}, command=command,
+                  scene=sweeps.scene_label(scene), mode=sweeps.mode(request), command=command,
                   eval_times=list(options.eval_times))
+    # The sweep's machine and matmul peaks, with the run's own load while it trained.
+    record = records_lib.stamp(record, {**machine, **record.get("machine", {})})
     records.append(record)
-    with open(results, "a") as f:
-      f.write(json.dumps(record) + "\n")
+    records_lib.append(results, record)
     report.write_report(records, out)
     bar.write(summary(record))
     bar.update(i + 1, force=True)

@@ -10,7 +10,8 @@ built-in scene of their kind, as bench/fingerprint.py does) of --num_views views
 the train step is compiled, --warmup steps run, then --steps steps are timed between two host
 syncs while run/machine.py samples the machine's load. One JSON line per config goes to --out
 (default docs/bench/throughput/<backend>.jsonl): the config's identity (IDENTITY: name, scene,
-image size, rays per step), steps/s and rays/s, and the machine record.
+image size, rays per step), steps/s and rays/s, stamped (records.py: date, git, the machine
+record of the timed steps).
 
 Each config's printed line compares its rate with the last recorded rate of the same identity
 on the same kind of machine (KIND: CPU model, CPU count, the CPUs the run may use, backend and
@@ -20,8 +21,6 @@ by more, 'ok' between, 'first' with no earlier idle record, and 'busy' (not judg
 run's machine was busy. --check exits with status 1 when a config is 'slower'.
 """
 
-import datetime
-import json
 import os
 import shlex
 import sys
@@ -30,7 +29,7 @@ import time
 import jax
 from absl import flags
 
-from nerf_jax.bench import command_line, fingerprint, measure
+from nerf_jax.bench import command_line, fingerprint, measure, records
 from nerf_jax.run import builders, config_lib, experiment, machine, train_lib
 from nerf_jax.run.signature import init_state
 
@@ -124,28 +123,17 @@ def line(record, before, ratio, verdict):
   return f"{now}, {then}: {verdict}{machine.busy_note(record['machine'])}"
 
 
-def read_history(path):
-  """The records of the JSON-lines file `path` ([] where it does not exist)."""
-  if not os.path.exists(path):
-    return []
-  with open(path) as f:
-    return [json.loads(text) for text in f if text.strip()]
-
-
 def check(names, out, steps, warmup, image_size, num_views, tolerance, command):
   """Measure each config of `names`, append its record to `out`, print its line. Returns the
   verdicts {name: verdict}."""
-  history, verdicts = read_history(out), {}
-  os.makedirs(os.path.dirname(out) or ".", exist_ok=True)
+  history, verdicts = records.read(out), {}
   for name in names:
     print(f"{name}: compiling, {warmup} warm-up steps, {steps} timed steps", flush=True)
     record = measure_config(name, throughput_config(name, image_size, num_views), steps, warmup)
-    record.update(date=datetime.datetime.now(datetime.timezone.utc).strftime(
-        "%Y-%m-%d %H:%M UTC"), command=command)
+    record = records.stamp({**record, "command": command})  # its machine: measured while timed
     before = baseline(record, history)
     ratio, verdicts[name] = judge(record, before, tolerance)
-    with open(out, "a") as f:
-      f.write(json.dumps(record) + "\n")
+    records.append(out, record)
     history.append(record)
     print(line(record, before, ratio, verdicts[name]), flush=True)
   return verdicts

@@ -16,8 +16,9 @@ from absl import flags
 
 from nerf_jax import cli
 from nerf_jax.backend import errors
+from nerf_jax.bench import records as records_lib
 from nerf_jax.bench import regret, regret_plan
-from nerf_jax.run import config_lib, experiment
+from nerf_jax.run import config_lib, experiment, machine
 from nerf_jax.run.auto import auto
 from nerf_jax.run.auto.rules import cones
 from tests.helpers import ROOT
@@ -196,22 +197,23 @@ def test_record_reads_the_scores_the_data_calls_for():
   multiscale = {"psnr": 24.0, "ssim": 0.8, "steps": 100, "train_seconds": 10.0,
                 "by_scale": {"0": {"psnr": 26.0, "views": 2}, "1": {"psnr": 22.0, "views": 2}},
                 "mean_over_scales": {"psnr": 24.5}}
-  record = regret.make_record(run, multiscale, "multiscale", {"backend": "cpu"})
+  record = regret.make_record(run, multiscale, "multiscale")
   assert record["by_scale_psnr"] == {"0": 26.0, "1": 22.0}
   assert regret.score(record) == 24.5 and record["lpips"] is None
   assert record["seconds_per_step"] == pytest.approx(0.1)
   collection = {"psnr": 20.0, "ssim": 0.7, "lpips": 0.3, "steps": 10, "train_seconds": 5.0,
                 "appearance": "left half: ...", "masks": "masked pixels not scored: ..."}
-  record = regret.make_record(run, collection, "crowd", {"backend": "cpu"})
+  record = regret.make_record(run, collection, "crowd")
   assert (record["scored_appearance"], record["scored_masks"]) == (
       "left half: ...", "masked pixels not scored: ...")
   assert regret.score(record) == 20.0 and "by_scale_psnr" not in record
-  failed = regret.make_record(run, {"error": "exit status 1: boom"}, "crowd", {})
+  failed = regret.make_record(run, {"error": "exit status 1: boom"}, "crowd")
   assert failed["error"] == "exit status 1: boom" and regret.score(failed) is None
-  # The machine the run measured (its metrics.json's) comes before the one passed in.
+  # The machine the run measured (its metrics.json's) is the record's; a failed run has none
+  # until run_plan stamps it (records.stamp: what the machine is).
   measured = {"cpu_count": 2, "busy": True, "busy_why": "load 3.1 on 2 CPUs"}
-  record = regret.make_record(run, {**collection, "machine": measured}, "crowd", {"cpu": 1})
-  assert record["machine"] == measured and failed["machine"] == {}
+  record = regret.make_record(run, {**collection, "machine": measured}, "crowd")
+  assert record["machine"] == measured and "machine" not in failed
   assert "flip/cones (busy: load 3.1 on 2 CPUs) |" in regret.table([record], None, "test")
 
 
@@ -271,7 +273,7 @@ def test_results_and_table_round_trip(tmp_path):
       {"scene": "s", "run": "config/c", "flipped": "representation", "overrides": {},
        "error": "ValueError: boom"}])
   regret.write_results(records, value, str(tmp_path), "python -m nerf_jax.bench.regret")
-  back = regret.read_results(str(tmp_path / "results.jsonl"))
+  back = records_lib.read(str(tmp_path / "results.jsonl"))
   assert back == [{**r, "regret": value} for r in records]
   table = (tmp_path / "table.md").read_text().splitlines()
   assert "Auto's regret: 1.00 dB (best: flip/a)." in table
@@ -384,14 +386,15 @@ def test_two_tiny_runs_end_to_end(tmp_path):
   saved = json.loads((tmp_path / "flip_background" / "config.json").read_text())
   assert saved["train"]["random_background"] is False
   assert records[0]["step_cost_ratio"] == 1.0
-  log = regret.read_results(str(tmp_path / "auto" / "metrics.jsonl"))
+  log = records_lib.read(str(tmp_path / "auto" / "metrics.jsonl"))
   assert records[0]["seconds_per_step"] == pytest.approx(
       (log[2]["wall_seconds"] - log[0]["wall_seconds"]) / 2)  # steps 1 to 3: no compile
   assert value == max(0.0, records[1]["psnr"] - records[0]["psnr"])
-  assert len(regret.read_results(str(tmp_path / "results.jsonl"))) == 2
+  assert len(records_lib.read(str(tmp_path / "results.jsonl"))) == 2
   for record, name in zip(records, ("auto", "flip_background")):  # measured in the run's process
     metrics = json.loads((tmp_path / name / "metrics.json").read_text())
     assert record["machine"] == metrics["machine"] and metrics["machine"]["cpu_count"] >= 1
+    assert record["date"].endswith(" UTC") and record["git"] == machine.git_revision()
   with pytest.raises(ValueError, match="auto holds an earlier run"):  # it would resume
     regret.run_plan(runs, "diffuse", str(tmp_path), "test")
 

@@ -27,6 +27,7 @@ from nerf_jax.bench import cli as bench_cli
 from nerf_jax.bench import render as bench_render
 from nerf_jax.bench import measure, profile, report, runner, sweeps, timed_run
 
+from tests.bench import test_records
 from tests.helpers import ROOT
 RECORD_FIELDS = {
     "sweep", "label", "scene", "test_psnr", "test_ssim", "test_views", "psnr_at", "probes",
@@ -75,6 +76,8 @@ def test_tiny_sweep_writes_one_well_formed_record_per_configuration(tiny_sweep):
     assert "error" not in r, r.get("error")
     assert RECORD_FIELDS <= set(r), RECORD_FIELDS - set(r)
     assert MACHINE_FIELDS <= set(r["machine"])
+    test_records.assert_stamped(r, r["machine"])  # the sweep's machine, the run's load in it
+    assert r["machine"]["load"] and r["machine"]["matmul_gflops"]
     assert r["steps"] == 3 and r["config"]["train"]["max_steps"] == 3
     # --config=debug is the base, --config.FIELD applies to every run, --image_size to the data.
     assert r["config"]["pos_encode_dims"] == 4 and r["config"]["model"]["width"] == 16

@@ -10,6 +10,7 @@ from absl import flags
 from nerf_jax.backend import errors
 from nerf_jax.bench import throughput
 from nerf_jax.run import machine
+from tests.bench import test_records
 
 IDLE = {"cpu_model": "AMD EPYC", "cpu_count": 2, "cpus_used": 2, "backend": "cpu",
         "device_kind": "cpu", "busy": False, "git": "a" * 40}
@@ -87,7 +88,9 @@ def test_a_tiny_run_records_and_flags_a_slowdown(tmp_path, monkeypatch, capsys):
   assert record["steps_per_second"] == pytest.approx(3 / record["seconds"], rel=0.02)
   assert record["rays_per_second"] == pytest.approx(256 * record["steps_per_second"])
   assert record["machine"]["busy"] is False and record["machine"]["cpu_count"] >= 1
-  assert record["command"].endswith(f"--out={out} --check") and record["date"]
+  assert record["command"].endswith(f"--out={out} --check")
+  test_records.assert_stamped(record, record["machine"])  # date, git, the timed steps' machine
+  assert record["machine"]["load"] and "others_cpu" in record["machine"]  # measured while timed
   printed = capsys.readouterr().out
   assert "before (earlier, code bbbbbbbbbbbb), ratio 0.00: slower\n" in printed
   assert "1 configs -> " in printed and "; slower: debug" in printed
