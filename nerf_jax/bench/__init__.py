@@ -19,6 +19,7 @@ Shared by the commands:
 command_line.py  how a command line runs (absl flags, --config and --config.FIELD overrides) and
                  the config a command trains (its fields set, auto keeps them)
 child.py         child processes: this checkout on their path, a run with its output in a log
+records.py       every record's stamp (UTC date, git revision, the machine), JSON-lines files
 
 Speed and cost of one part:
 render.py        frame, video and big-frame memory of a trained workdir
