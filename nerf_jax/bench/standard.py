@@ -18,14 +18,17 @@ Each family is scored by the protocol its paper uses (`PROTOCOLS`):
 Each run is `train_lib.train_and_evaluate` of the --config (default configs/auto.py, with any
 --config.FIELD=VALUE overrides) in OUT/<family>_<scene>, stopped by the clock
 (train.max_seconds = --seconds); its metrics.json gives the scores. Rows go to
-OUT/results.jsonl as the runs finish, and OUT/results.md is rewritten after each, beside the
+OUT/results.jsonl as the runs finish (stamped: records.py; with what scoring took,
+scoring_seconds for scored_pixels), and OUT/results.md is rewritten after each, beside the
 published figures of `PUBLISHED`. A missing folder or scene stops the command before anything
 trains, with one line naming the path and what belongs there; --dry_run checks the folders and
-lists the runs with their estimated time.
+lists the runs with their estimated time, scoring at the rate the latest standard record on
+this backend measured (`scoring_rate`: the scene's own, else the slowest), or at an assumed
+one where none did.
 """
 
 import dataclasses
-import datetime
+import glob
 import json
 import os
 import shlex
@@ -38,7 +41,7 @@ import numpy as np
 from absl import flags
 
 from nerf_jax import cli
-from nerf_jax.bench import command_line
+from nerf_jax.bench import child, command_line, records
 from nerf_jax.run import machine, train_lib
 
 FAMILIES = ("blender", "llff", "m360", "fox")
@@ -83,10 +86,13 @@ PUBLISHED = {
     ("llff", "trex"): (26.80, 0.880, 0.249),
 }
 
-# The dry run's estimate of the time after training (load, compile, scoring the test views):
-# an assumed rate, not a measurement; a run's own log shows what it took.
-EVAL_PIXELS_PER_SECOND = 200_000
-SETUP_SECONDS = 30
+# The dry run's estimate of a run's time besides training: set-up (load, compile) and scoring
+# the test views at the rate the latest standard record on this backend measured (RECORDS and
+# the --out folder's results.jsonl: `scoring_rate`); without one, at an assumed rate.
+EVAL_PIXELS_PER_SECOND = 200_000  # assumed where no record on this backend measured one
+SETUP_SECONDS = 30  # assumed; also taken off an older row's time after training (`row_rate`)
+# The committed standard records (docs/bench/standard/<backend>_<date>.jsonl).
+RECORDS = os.path.join(child.ROOT, "docs", "bench", "standard", "*.jsonl")
 
 
 @dataclasses.dataclass
@@ -264,11 +270,91 @@ def _factor(family):
   return FOX_FACTOR if family == "fox" else FACTORS[family]
 
 
-def estimated_seconds(scene, seconds):
-  """A rough wall time of one run: the budget, set-up and scoring its test views at
-  EVAL_PIXELS_PER_SECOND."""
-  pixels = len(scene.test_views) * scene.height * scene.width
-  return seconds + SETUP_SECONDS + pixels / EVAL_PIXELS_PER_SECOND
+@dataclasses.dataclass
+class Rate:
+  """A scoring rate and where it came from. pixels_per_second: float > 0. source: the row it
+  was measured by ('blender/lego, 2026-11-28 05:34 UTC, docs/bench/standard/cpu_...jsonl'),
+  or None for the assumed EVAL_PIXELS_PER_SECOND."""
+  pixels_per_second: float
+  source: object = None
+
+
+ASSUMED = Rate(EVAL_PIXELS_PER_SECOND)
+
+
+def row_backend(row):
+  """The JAX backend a standard row ran on: its machine record's, else (older rows, whose
+  'machine' is a line of text) the platform its 'device' names ('cpu: cpu (x1)')."""
+  machine_record = row.get("machine")
+  if isinstance(machine_record, dict) and machine_record.get("backend"):
+    return machine_record["backend"]
+  return str(row.get("device", "")).split(":")[0] or None
+
+
+def row_rate(row):
+  """The pixels a second a standard row's scoring took: its scored_pixels over its
+  scoring_seconds; an older row's from its test views x resolution over its time after
+  training (wall_seconds - seconds) less SETUP_SECONDS. None where neither gives a time > 0."""
+  if (row.get("scoring_seconds") or 0) > 0 and row.get("scored_pixels"):
+    return row["scored_pixels"] / row["scoring_seconds"]
+  try:
+    pixels = row["test_views"] * row["resolution"][0] * row["resolution"][1]
+    after = row["wall_seconds"] - row["seconds"] - SETUP_SECONDS
+  except (KeyError, TypeError, IndexError):
+    return None
+  return pixels / after if after > 0 and pixels > 0 else None
+
+
+def _shown(path):
+  """`path` as the checkout's relative path where it lies in it (docs/bench/...)."""
+  inside = os.path.relpath(os.path.abspath(path), child.ROOT)
+  return path if inside.startswith(os.pardir) else inside
+
+
+def measured_rates(paths, backend):
+  """{(family, scene): Rate} of the latest row (by date, then by place) of each scene in the
+  standard records `paths` (JSON-lines files; absent ones skipped) that ran on `backend` and
+  gives a rate (`row_rate`)."""
+  latest = {}
+  for path in paths:
+    for row in records.read(path):
+      rate = row_rate(row)
+      if rate is None or row_backend(row) != backend or "family" not in row:
+        continue
+      key, date = (row["family"], row.get("scene")), str(row.get("date", ""))
+      if key not in latest or date >= latest[key][0]:
+        source = f"{key[0]}/{key[1]}, {date or 'undated'}, {_shown(path)}"
+        latest[key] = (date, Rate(rate, source))
+  return {key: rate for key, (_, rate) in latest.items()}
+
+
+def record_paths(out):
+  """The standard records the dry run reads: RECORDS, then OUT/results.jsonl."""
+  return sorted(glob.glob(RECORDS)) + [os.path.join(out, "results.jsonl")]
+
+
+def scoring_rate(scene, rates):
+  """The Rate `scene` is estimated at: its own in `rates` (`measured_rates`), else the slowest
+  measured, else ASSUMED."""
+  own = rates.get((scene.family, scene.name))
+  return own or min(rates.values(), key=lambda r: r.pixels_per_second, default=ASSUMED)
+
+
+def scored_pixels(scene):
+  """The pixels scoring `scene` renders: its test views x height x width."""
+  return len(scene.test_views) * scene.height * scene.width
+
+
+def estimated_seconds(scene, seconds, rate=ASSUMED):
+  """A rough wall time of one run: the budget, SETUP_SECONDS and scoring its test views at
+  `rate` (a Rate)."""
+  return seconds + SETUP_SECONDS + scored_pixels(scene) / rate.pixels_per_second
+
+
+def rate_words(rate):
+  """'27,800 pixels/s measured by SOURCE', or '200,000 pixels/s assumed' for ASSUMED."""
+  said = f"measured by {rate.source}" if rate.source else "assumed (no record on this backend)"
+  return f"{rate.pixels_per_second:,.0f} pixels/s {said}"
 
 
 def blender_view_folder(scene, folder, test_every):
@@ -384,6 +470,20 @@ def markdown(rows, command):
   return "\n".join(lines) + "\n"
 
 
+class TrainingEnd:
+  """A watcher of train_lib.train_and_evaluate that notes when the last step ended (`at`,
+  time.perf_counter()): what follows, until the call returns, is scoring the test views."""
+
+  def __init__(self):
+    self.at = None
+
+  def after_step(self, step, variables_fn):
+    del step, variables_fn  # every step: nothing to do
+
+  def close(self):
+    self.at = time.perf_counter()
+
+
 def run_benchmark(base, config_name, scenes, out, seconds, half, test_every, command,
                   overrides=()):
   """Train and score each of `scenes` (Scenes of `plan`) in OUT/<family>_<scene> with the
@@ -392,7 +492,7 @@ def run_benchmark(base, config_name, scenes, out, seconds, half, test_every, com
   Returns the rows."""
   os.makedirs(out, exist_ok=True)
   results = os.path.join(out, "results.jsonl")
-  open(results, "w").close()
+  records.write(results, [])
   rows, where = [], device()
   for scene in scenes:
     workdir = os.path.join(out, f"{scene.family}_{scene.name}")
@@ -400,22 +500,25 @@ def run_benchmark(base, config_name, scenes, out, seconds, half, test_every, com
     if scene.family == "blender" and test_every > 1:
       data_path = blender_view_folder(scene, os.path.join(out, "views", scene.name), test_every)
     print(f"{scene.family}/{scene.name}: training {seconds:g} s into {workdir}", flush=True)
-    start = time.perf_counter()
+    start, trained = time.perf_counter(), TrainingEnd()
     train_lib.train_and_evaluate(
-        protocol_config(base, scene, data_path, seconds, half, overrides), workdir)
+        protocol_config(base, scene, data_path, seconds, half, overrides), workdir,
+        watchers=(lambda *_: trained,))
+    end = time.perf_counter()
     with open(os.path.join(workdir, "metrics.json")) as f:
       metrics = json.load(f)
     with open(os.path.join(workdir, "config.json")) as f:
       choices = run_choices(json.load(f))
-    rows.append(make_row(scene, metrics, {**choices,
+    row = make_row(scene, metrics, {**choices,
         "protocol": protocol(scene, half, test_every), "data": data_path,
-        "wall_seconds": round(time.perf_counter() - start, 1), "device": where,
-        "config": config_name, "workdir": workdir,
-        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-        **({"machine": metrics["machine"]} if "machine" in metrics else {})}))
+        "wall_seconds": round(end - start, 1), "device": where, "config": config_name,
+        "workdir": workdir})
+    if trained.at is not None:  # the loop closes its watchers once, after the last step
+      row.update(scoring_seconds=round(end - trained.at, 2),
+                 scored_pixels=row["test_views"] * scene.height * scene.width)
+    rows.append(records.stamp(row, metrics.get("machine")))  # measured while it trained
     print(row_line(rows[-1]), flush=True)
-    with open(results, "a") as f:
-      f.write(json.dumps(rows[-1]) + "\n")
+    records.append(results, rows[-1])
     with open(os.path.join(out, "results.md"), "w") as f:
       f.write(markdown(rows, command))
   print(f"-> {results}, {os.path.join(out, 'results.md')}", flush=True)
@@ -454,15 +557,18 @@ def standard(values, spec, argv):
   dry run)."""
   roots = {f: values[f].value for f in FAMILIES if values[f].value}
   scenes = plan(roots, values.scenes, values.blender_half, values.test_every)
+  rates = measured_rates(record_paths(values.out), jax.default_backend())
   total = 0.0
   print(f"{len(scenes)} runs of {values.seconds:g} s of training each, into {values.out}:")
   for scene in scenes:
-    estimate = estimated_seconds(scene, values.seconds)
+    rate = scoring_rate(scene, rates)
+    estimate = estimated_seconds(scene, values.seconds, rate)
     total += estimate
     line = protocol(scene, values.blender_half, values.test_every)["protocol"]
-    print(f"  {scene.family}/{scene.name}: {line}; about {estimate / 60:.0f} min", flush=True)
-  print(f"about {total / 60:.0f} min in all (scoring at an assumed "
-        f"{EVAL_PIXELS_PER_SECOND:,} pixels/s)", flush=True)
+    print(f"  {scene.family}/{scene.name}: {line}; about {estimate / 60:.0f} min (scoring "
+          f"{scored_pixels(scene):,} pixels at {rate_words(rate)})", flush=True)
+  print(f"about {total / 60:.0f} min in all, {SETUP_SECONDS} s of set-up each assumed",
+        flush=True)
   if values.dry_run:
     return []
   name = os.path.splitext(os.path.basename(spec.split(":")[0]))[0] or "auto"

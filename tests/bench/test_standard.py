@@ -6,10 +6,13 @@ here by block averages). Each run trains a few seconds of configs/debug.py.
 Checked: the rows' protocol fields (white background and test_every for NeRF-synthetic, the
 views every 8th held out for LLFF, the resolution the factor gives), that the runs scored the
 views the protocol names (metrics.json's per-view count), the results.md table with the
-published figures beside, one clear line for a missing folder or scene, and that --dry_run
-trains nothing.
+published figures beside, one clear line for a missing folder or scene, that --dry_run
+trains nothing, that each row is stamped (records.py) and says what scoring took, and that the
+dry run estimates from the latest measured scoring rate on this backend (records written here)
+or says the rate is assumed.
 """
 
+import glob
 import json
 import os
 import subprocess
@@ -26,6 +29,7 @@ from nerf_jax.bench import standard
 from nerf_jax.data import scenes
 from nerf_jax.data.export import export_blender
 from nerf_jax.data.llff import export_llff
+from tests.bench import test_records
 from tests.helpers import ROOT, small_config
 
 BLENDER_VIEWS, BLENDER_TRAIN = 9, 4  # 4 train views, 5 test views (0..4)
@@ -64,7 +68,7 @@ def _command(argv, capsys):
 
 
 @pytest.mark.slow  # trains two tiny runs
-def test_runs_each_protocol_and_records_it(archives, tmp_path, capsys):
+def test_runs_each_protocol_and_records_it(archives, tmp_path, capsys, monkeypatch):
   out = tmp_path / "out"
   rows, printed = _command(
       [f"--blender={archives['blender']}", f"--llff={archives['llff']}", "--seconds=3",
@@ -121,6 +125,20 @@ def test_runs_each_protocol_and_records_it(archives, tmp_path, capsys):
   assert "| blender | lego |" in table and "| 32.54 |" in table and "| 25.17 |" in table
   assert "fern" in printed
 
+  # Each row: the stamp, and what scoring took, within its time after training.
+  for row, pixels in zip(rows, (3 * 16 * 16, 3 * 16 * 16)):
+    test_records.assert_stamped(row, row["machine"])
+    assert row["scored_pixels"] == pixels
+    assert 0 < row["scoring_seconds"] <= row["wall_seconds"] - row["seconds"] + 0.1  # rounding
+    assert standard.row_rate(row) == pytest.approx(pixels / row["scoring_seconds"])
+  # A dry run into the same folder estimates each scene at the rate its row measured.
+  monkeypatch.setattr(standard, "RECORDS", str(tmp_path / "none" / "*.jsonl"))
+  _, printed = _command([f"--blender={archives['blender']}", f"--llff={archives['llff']}",
+                         "--seconds=3", "--test-every=2", "--dry_run", f"--out={out}"], capsys)
+  for row in rows:
+    assert (f"at {standard.row_rate(row):,.0f} pixels/s measured by {row['family']}/"
+            f"{row['scene']}, {row['date']}, {out / 'results.jsonl'})") in printed
+
 
 def test_dry_run_lists_the_runs_and_trains_nothing(archives, tmp_path, capsys):
   # A 360_v2/garden (images_4/) and instant-ngp's fox/transforms.json beside the fixture's two.
@@ -143,7 +161,7 @@ def test_dry_run_lists_the_runs_and_trains_nothing(archives, tmp_path, capsys):
                             f"--m360={tmp_path / '360_v2'}", f"--fox={tmp_path}",
                             "--scenes=fern,garden,fox", "--dry_run", f"--out={out}"], capsys)
   assert rows == [] and not out.exists()
-  assert "blender/lego" not in printed
+  assert "  blender/lego:" not in printed  # not asked for (a rate may come from its row)
   assert "llff/fern: LLFF: factor 8, 16x16, views 0, 8, 16, ... held out (3 of 17)" in printed
   assert ("m360/garden: mip-NeRF 360: factor 4, 32x24, views 0, 8, 16, ... held out (2 of 10)"
           in printed)
@@ -238,3 +256,71 @@ def test_a_row_whose_machine_was_busy_says_so_in_its_line_and_the_table():
   idle = standard.make_row(scene, metrics, {**extra, "machine": {"busy": False}})
   assert standard.row_line(idle).endswith("in 3 s") and "busy" not in standard.markdown(
       [idle], "c")
+
+
+def _row(family, scene, date, backend="cpu", **fields):
+  """A standard row as written on `backend`: stamped, with what scoring took."""
+  return {"family": family, "scene": scene, "date": date, "device": f"{backend}: x (x1)",
+          "machine": {"backend": backend}, "test_views": 2, "resolution": [10, 10],
+          "wall_seconds": 100.0, "seconds": 60.0, **fields}
+
+
+def test_a_rows_scoring_rate_is_measured_or_derived_from_its_times():
+  new = _row("blender", "lego", "d", scored_pixels=4000, scoring_seconds=0.5)
+  assert standard.row_rate(new) == 8000.0
+  # An older row: test views x resolution over the time after training less the set-up.
+  old = {"family": "llff", "scene": "fern", "test_views": 3, "resolution": [378, 504],
+         "wall_seconds": 648.5, "seconds": 609.868, "device": "cpu: cpu (x1)",
+         "machine": "2-core AMD EPYC VM, no GPU, nothing else running"}
+  after = 648.5 - 609.868 - standard.SETUP_SECONDS
+  assert standard.row_rate(old) == pytest.approx(3 * 378 * 504 / after)
+  assert standard.row_backend(old) == "cpu" and standard.row_backend(new) == "cpu"
+  assert standard.row_rate({**old, "wall_seconds": 620.0}) is None  # no time left to score
+  assert standard.row_rate({"family": "llff", "scene": "fern"}) is None
+
+
+def test_the_committed_lego_row_scores_near_28000_pixels_a_second():
+  rates = standard.measured_rates(glob.glob(standard.RECORDS), "cpu")
+  lego = rates[("blender", "lego")]
+  assert 27_000 < lego.pixels_per_second < 29_000  # 25 views of 400 x 400 in 144 s
+  assert lego.source.startswith("blender/lego, 2026-11-28 05:34 UTC, docs/bench/standard/")
+  assert standard.measured_rates(glob.glob(standard.RECORDS), "tpu") == {}
+
+
+def test_the_dry_run_scores_at_the_latest_rate_on_this_backend(archives, tmp_path, capsys,
+                                                               monkeypatch):
+  committed = tmp_path / "standard" / "cpu_then.jsonl"
+  committed.parent.mkdir()
+  rows = [_row("llff", "fern", "2026-01-01 00:00 UTC", scored_pixels=1000, scoring_seconds=1.0),
+          _row("llff", "fern", "2026-02-01 00:00 UTC", scored_pixels=3000, scoring_seconds=1.0),
+          _row("llff", "fern", "2026-03-01 00:00 UTC", "gpu", scored_pixels=9e6,
+               scoring_seconds=1.0),  # another backend
+          _row("fox", "fox", "2026-01-01 00:00 UTC", scored_pixels=500, scoring_seconds=1.0)]
+  committed.write_text("".join(json.dumps(r) + "\n" for r in rows))
+  out = tmp_path / "out"
+  out.mkdir()  # a later run of fox in the --out folder
+  (out / "results.jsonl").write_text(json.dumps(
+      _row("fox", "fox", "2026-04-01 00:00 UTC", scored_pixels=2000, scoring_seconds=1.0)))
+  monkeypatch.setattr(standard, "RECORDS", str(tmp_path / "standard" / "*.jsonl"))
+  rates = standard.measured_rates(standard.record_paths(str(out)), "cpu")
+  assert {k: r.pixels_per_second for k, r in rates.items()} == {
+      ("llff", "fern"): 3000.0, ("fox", "fox"): 2000.0}
+  fern = standard.find_scene("llff", archives["llff"], "fern")
+  lego = standard.find_scene("blender", archives["blender"], "lego")
+  assert standard.scoring_rate(fern, rates) is rates[("llff", "fern")]
+  assert standard.scoring_rate(lego, rates) is rates[("fox", "fox")]  # the slowest measured
+  assert standard.estimated_seconds(fern, 60.0, rates[("llff", "fern")]) == pytest.approx(
+      60.0 + standard.SETUP_SECONDS + 3 * 16 * 16 / 3000.0)
+
+  _, printed = _command([f"--blender={archives['blender']}", f"--llff={archives['llff']}",
+                         "--dry_run", f"--out={out}"], capsys)
+  assert (f"(scoring 768 pixels at 3,000 pixels/s measured by llff/fern, 2026-02-01 00:00 UTC, "
+          f"{committed})") in printed
+  assert (f"(scoring 1,280 pixels at 2,000 pixels/s measured by fox/fox, 2026-04-01 00:00 UTC, "
+          f"{out / 'results.jsonl'})") in printed  # lego: 5 test views of 16 x 16
+  # No record on this backend: the rate is assumed, and says so.
+  monkeypatch.setattr(standard, "RECORDS", str(tmp_path / "nowhere" / "*.jsonl"))
+  _, printed = _command([f"--llff={archives['llff']}", "--dry_run",
+                         f"--out={tmp_path / 'empty'}"], capsys)
+  assert ("at 200,000 pixels/s assumed (no record on this backend))" in printed
+          and "measured" not in printed)
