@@ -33,7 +33,7 @@ import time
 
 from absl import app, flags
 
-from nerf_jax.bench import child
+from nerf_jax.bench import child, records
 
 # The scenes: (config, overrides on a folder, the built-in scene of its kind for --smoke).
 SCENES = {"lego": ("gpu/lego", {"data.background": "white"}, "diffuse"),
@@ -256,10 +256,20 @@ def write_report(out, machine, results, stages):
     lines += ["", f"## {name} ({stage['status']})", "", stage["text"].rstrip()]
   with open(os.path.join(out, "frontier.md"), "w") as f:
     f.write("\n".join(lines) + "\n")
+  report = {"device": machine, "argv": sys.argv[1:], "stages": stages,
+            "scenes": {s: {"config": c, "seconds": t, "record": r}
+                       for s, (c, t, r) in results.items()}}
   with open(os.path.join(out, "frontier.json"), "w") as f:
-    json.dump({"device": machine, "argv": sys.argv[1:], "stages": stages,
-               "scenes": {s: {"config": c, "seconds": t, "record": r}
-                          for s, (c, t, r) in results.items()}}, f, indent=1)
+    json.dump(records.stamp(report, measured=_children_machine(results)), f, indent=1)
+
+
+def _children_machine(results):
+  """The machine record a scene's run measured (its child process), or a bare one naming the
+  device: the parent never starts JAX, which would take the GPU's memory from its children."""
+  for _, _, record in results.values():
+    if isinstance(record, dict) and isinstance(record.get("machine"), dict):
+      return record["machine"]
+  return {"device": "not measured: no scene's run finished"}
 
 
 def _stage_text(log, keep):

@@ -30,7 +30,7 @@ from absl import flags
 
 from nerf_jax.render import background, image_renderer
 from nerf_jax.run import experiment, outputs
-from nerf_jax.bench import command_line, measure
+from nerf_jax.bench import command_line, measure, records
 
 
 def frame_renderer(exp, variables, size, march=None):
@@ -141,6 +141,7 @@ def render_speed(values, spec="", argv=None):
                      "pixels") from None
   record = measure_workdir(values.workdir, values.frame_size, values.repeats, values.frames,
                            sizes)
+  record = records.stamp(record)  # jax runs here already: describe() costs nothing more
   out = values.out or os.path.join(values.workdir, "bench_render.json")
   with open(out, "w") as f:
     json.dump(record, f, indent=2)

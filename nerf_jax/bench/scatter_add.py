@@ -31,7 +31,7 @@ import numpy as np
 from absl import app, flags
 
 from nerf_jax.backend import gpu_atomics
-from nerf_jax.bench import measure
+from nerf_jax.bench import measure, records
 from nerf_jax.fields.encodings import hash as hashgrid
 
 SMOKE = {"levels": 4, "log2_size": 10, "max_resolution": 64, "samples": 1024}  # a CPU's seconds
@@ -131,7 +131,7 @@ def main(argv=None):
       print("\n".join(table_lines(rows, title)), flush=True)
       if out.value:
         with open(out.value, "w") as f:
-          json.dump({"title": title, "rows": rows}, f, indent=1)
+          json.dump(records.stamp({"title": title, "rows": rows}), f, indent=1)
     cli.run_main(body)
 
   app.run(run, argv=argv)

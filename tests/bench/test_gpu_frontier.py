@@ -9,6 +9,7 @@ import pytest
 
 from nerf_jax.bench import gpu_frontier
 
+from tests.bench.test_records import assert_stamped
 from tests.helpers import ROOT
 
 
@@ -95,3 +96,5 @@ def test_the_script_runs_end_to_end_on_the_cpu_when_shrunk(tmp_path):
   assert "- lego: the last step's budget: " in text
   assert "| lego | gpu/lego |" in text and "| train step (all) |" in text
   assert "| one row |" in text and json.load(open(out / "scatter.json"))["rows"]
+  assert_stamped(report, record["machine"])  # the machine the scene's child measured
+  assert_stamped(json.load(open(out / "scatter.json")))

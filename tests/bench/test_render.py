@@ -16,6 +16,7 @@ from nerf_jax.run import experiment
 from nerf_jax.run import train_lib
 from nerf_jax.bench import render
 from nerf_jax.cameras.rays import Rays, get_rays
+from tests.bench.test_records import assert_stamped
 from tests.helpers import PATHS_RTOL, jitted, requires_ffmpeg, small_config
 
 
@@ -47,6 +48,7 @@ def test_render_bench_writes_frame_video_and_big_frame_figures(tmp_path, capsys)
   assert big["size"] == 40 and big["finite"]
   assert big["peak_rss_mb"] >= big["rss_before_mb"] > 0
   assert record["machine"]["cpu_count"] >= 1
+  assert_stamped(record, record["machine"])  # bench/records.py's date and code revision
 
   # At the dataset's own size the timed frame is the first test view, checked against an
   # independent path: rays from rays.get_rays, every ray in one RayRenderer.render call (no
