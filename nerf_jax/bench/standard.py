@@ -559,7 +559,9 @@ def standard(values, spec, argv):
   scenes = plan(roots, values.scenes, values.blender_half, values.test_every)
   rates = measured_rates(record_paths(values.out), jax.default_backend())
   total = 0.0
-  print(f"{len(scenes)} runs of {values.seconds:g} s of training each, into {values.out}:")
+  budget = (f"{values.seconds:g} s of training each" if values.seconds > 0 else
+            "the config's train.max_steps each (training time not in the estimate)")
+  print(f"{len(scenes)} runs of {budget}, into {values.out}:")
   for scene in scenes:
     rate = scoring_rate(scene, rates)
     estimate = estimated_seconds(scene, values.seconds, rate)

@@ -172,6 +172,11 @@ def test_dry_run_lists_the_runs_and_trains_nothing(archives, tmp_path, capsys):
   assert standard.protocol_config(small_config(base="capture"), fox_scene, fox_scene.path,
                                   7.0, False).data.factor == standard.FOX_FACTOR == 4
   assert "min" in printed
+  assert "3 runs of 600 s of training each" in printed  # --seconds' default
+
+  _, printed = _command([f"--llff={archives['llff']}", "--seconds=0", "--dry_run",
+                         f"--out={out}"], capsys)  # trained by steps: no time to add
+  assert "runs of the config's train.max_steps each (training time not in the estimate)" in printed
 
 
 @pytest.mark.slow  # the command in a process of its own
