@@ -3,6 +3,7 @@ points mark one (subject.subject_box)."""
 
 import numpy as np
 
+from nerf_jax.cameras.scene_settings import SceneSettings
 from nerf_jax.run import config_lib, subject
 from nerf_jax.run.auto.rule import Rule, measured
 from nerf_jax.run.auto.rules.contraction import CONTRACTION
@@ -13,7 +14,8 @@ from nerf_jax.run.auto.rules.contraction import CONTRACTION
 SUBJECT_SHARE = 0.25
 
 
-def subject_effects(dataset, collection, contraction="", stored_camera=True):
+def subject_effects(dataset, collection, contraction=SceneSettings.contraction,
+                    stored_camera=True):
   """({field: value}, [line]): for a photo collection (`collection`), data.subject='auto' where
   the masks or the sparse points of `dataset` (the training photos, each through its own camera:
   a resampled view would crop them) mark a subject (subject.subject_box)
