@@ -13,8 +13,9 @@ the dataclasses (under nerf_jax/) that declare their settings:
                      (num_samples, sampler), render/renderer.FineSettings (num_fine_samples),
                      fields/encodings/posenc.Settings (pos_encode_dims, the positions' bands),
                      fields/protocol.DirectionSettings (dir_encode_dims, dir_encoding)
-  config.data        data/loaders.DataSettings (the images and cameras loaded),
-                     run/settings.SceneSettings (how rays see the scene: box, bounds, spacing)
+  config.data        data/data_settings.DataSettings (the images and cameras loaded),
+                     cameras/scene_settings.SceneSettings (how rays see the scene: box,
+                     bounds, spacing)
   config.model       fields/registry.Parts (the parts' names), fields/protocol.NetworkSettings
                      (what every network shares), fields/networks/mlp.Settings (depth, skips),
                      fields/field.Settings (noise), render/renderer.Settings

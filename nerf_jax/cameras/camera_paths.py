@@ -12,8 +12,7 @@ from nerf_jax.cameras.rays import orbit_poses, spiral_poses
 TRAJECTORY_KEYS = 8
 
 
-def video_poses(dataset, frames, ndc=False, orbit_phi=-30.0, orbit_radius=4.0,
-                trajectory=False):
+def video_poses(dataset, frames, ndc, orbit_phi, orbit_radius, trajectory=False):
   """The camera path of the video: float32 [F, 4, 4].
 
   Forward-facing data (NDC): a spiral around the mean camera, focused at a depth between the

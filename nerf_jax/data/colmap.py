@@ -27,6 +27,7 @@ from nerf_jax.data import (lens, masks as masks_lib, nerfstudio, orient, resampl
 # FILES, MODEL_DIRS and model_dir are also read through this module (loaders.py, the tests).
 from nerf_jax.data.colmap_model import (FILES, MODEL_DIRS, model_dir, model_files, observations,
                                         read_cameras, read_images, read_sparse_points, rotation)
+from nerf_jax.data.data_settings import DataSettings
 from nerf_jax.data.dataset import DataError, Dataset
 
 
@@ -63,7 +64,7 @@ def _camera(camera, camera_id, image_size, where):
   return (fx * sx, fy * sy, cx * sx, cy * sy), dist
 
 
-def load(path, background=(0.0, 0.0, 0.0), factor=1):
+def load(path, background=(0.0, 0.0, 0.0), factor=DataSettings.factor):
   """The registered images of the COLMAP model under `path` (module docstring), sorted by name:
   (Dataset, names). factor: int >= 1, downscale the images by it."""
   folder = model_dir(path)
@@ -141,7 +142,8 @@ def _masks(path, names, shapes, factor):
   return out
 
 
-def load_split(path, background=(0.0, 0.0, 0.0), factor=1, holdout_from=-1):
+def load_split(path, background=(0.0, 0.0, 0.0), factor=DataSettings.factor,
+               holdout_from=DataSettings.holdout_from):
   """(train, test) Datasets of `load`: test = every 8th image (0, 8, 16, ... by name: LLFF's
   convention, which nerfstudio's colmap parser follows in its 'interval' eval mode);
   holdout_from >= 1 holds out images [holdout_from:] instead (`Dataset.split`)."""

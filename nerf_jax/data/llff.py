@@ -23,6 +23,7 @@ import imageio.v3 as iio
 import numpy as np
 
 from nerf_jax.data import colmap_model, masks as masks_lib, resampling, validate
+from nerf_jax.data.data_settings import DataSettings
 from nerf_jax.data.dataset import DataError, Dataset
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -106,7 +107,7 @@ def _recenter(c2w):
   return np.concatenate([rotations, centres[:, :, None]], axis=2)
 
 
-def load_llff(path, factor=1, bd_factor=None, recenter=False):
+def load_llff(path, factor=DataSettings.factor, bd_factor=None, recenter=False):
   """An LLFF folder (see the module docstring) as a forward-facing Dataset.
 
   factor: int >= 1, load `images_{factor}/` (or `images/` block-averaged by `factor`); the focal

@@ -1,4 +1,5 @@
-"""Dataset loading: the settings of the images and cameras loaded (`DataSettings`) and
+"""Dataset loading: the settings of the images and cameras loaded (`DataSettings`, declared in
+data/data_settings.py below the format readers, which take their defaults from it) and
 `load_dataset`, which reads data.path in the format it detects (data/formats/: built-in
 scenes, tiny_nerf .npz, nerfstudio's transforms.json, mip-NeRF multiscale, NeRF-synthetic
 (Blender), LLFF and COLMAP folders).
@@ -8,36 +9,16 @@ Every loader fills `Dataset.accs` and `Dataset.background` where the input tells
 images give the opacity (alpha) and are composited on the `background` argument.
 """
 
-import dataclasses
 import os
-from typing import Any
 
 from nerf_jax.data import formats
+# The settings, also read through this module (run/schema.py, the tests).
+from nerf_jax.data.data_settings import DataSettings  # pylint: disable=unused-import
 from nerf_jax.data.dataset import DataError
 # The .npz and Blender readers, also read through this module (nerf_jax.data, the tests).
 from nerf_jax.data.formats.blender import load_blender  # pylint: disable=unused-import
 from nerf_jax.data.formats.npz import load_npz  # pylint: disable=unused-import
 from nerf_jax.data.validate import parse_background
-
-
-@dataclasses.dataclass(frozen=True)
-class DataSettings:
-  """What `load_dataset` loads: config.data's fields of the images and cameras (the rest of
-  config.data, how rays see the scene, is run/settings.SceneSettings)."""
-  path: str = ""  # dataset: .npz, Blender, LLFF, transforms.json or COLMAP folder; '' = built-in
-  scene: str = "diffuse"  # built-in scene name (data/scenes)
-  num_views: int = 100  # built-in scene: number of rendered views
-  image_size: int = 100  # built-in scene: height = width in pixels
-  holdout_from: int = -1  # views[holdout_from:] are test views; -1 = the format's own split
-  held_out_looks: str = "neutral"  # per-photo-look scenes: test views 'neutral' or 'own' looks
-  pixel_center: float = -1.0  # -1 = the data's own (0.5 centres; 0 corners for tiny_nerf .npz)
-  background: Any = "auto"  # 'auto' (white for Blender data, else black), 'black', 'white' or RGB
-  half_res: bool = False  # Blender data: load at half resolution
-  factor: int = 1  # LLFF, transforms.json and COLMAP data: downsample images by this factor
-  bd_factor: float = 0.75  # LLFF data: scale so the nearest bound is 1/bd_factor (0 = keep units)
-  recenter: bool = True  # LLFF data: move the mean camera pose to the origin
-  min_sharpness: float = 0.0  # transforms.json: drop frames < this x neighbours' sharpness (0 = off)
-  without: str = ""  # built-in scene: capture effects left out, e.g. 'zoom,distortion' (the truth)
 
 
 def auto_background(path):

@@ -45,6 +45,7 @@ import numpy as np
 from nerf_jax.cameras.cameras import Cameras
 from nerf_jax.data import (colmap_model, lens, masks as masks_lib, orient, pointcloud,
                            resampling, validate)
+from nerf_jax.data.data_settings import DataSettings
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.data.validate import composite, parse_background
 
@@ -228,7 +229,8 @@ def ngp_box(meta, meta_path, unit=False):
   return (corners - np.broadcast_to(offset, (3,))) / scale
 
 
-def load(path, background=(0.0, 0.0, 0.0), factor=1, min_sharpness=0.0):
+def load(path, background=(0.0, 0.0, 0.0), factor=DataSettings.factor,
+         min_sharpness=DataSettings.min_sharpness):
   """All frames of a transforms.json folder (or the file itself) whose image exists, sorted by
   file_path.
 
@@ -408,7 +410,8 @@ def _test_names(meta, names):
   return None
 
 
-def load_split(path, background=(0.0, 0.0, 0.0), factor=1, holdout_from=-1, min_sharpness=0.0):
+def load_split(path, background=(0.0, 0.0, 0.0), factor=DataSettings.factor,
+               holdout_from=DataSettings.holdout_from, min_sharpness=DataSettings.min_sharpness):
   """(train, test) Datasets of `load`: the file's test_filenames, else every 8th frame (0, 8,
   16, ... of the sorted file paths); holdout_from >= 1 overrides both (`Dataset.split`)."""
   dataset, names, test_names = load(path, background, factor, min_sharpness)

@@ -49,7 +49,7 @@ class EvalSettings:
   """How the test views are rendered and scored (run/builders.eval_settings builds them)."""
   background: tuple  # (r, g, b) in [0, 1]: the colour rendered and scored on (data.background)
   held_out: Settings  # the held-out views' codes (config.eval)
-  photo_bounds: bool = False  # each view's rays within its own near/far (data.photo_bounds)
+  photo_bounds: bool  # each view's rays within its own near/far (data.photo_bounds)
 
 
 def make_evaluator(exp, settings):

@@ -96,7 +96,7 @@ class GridDensity(_DensityOnly):
     return self._density(grid.multires_features(grids, unit))
 
 
-def density_field(network, contraction="", inner_radius=1.0):
+def density_field(network, contraction, inner_radius=1.0):
   """A Field around the density-only `network`: positions taken raw (contracted first with
   `contraction` 'l2' / 'linf' about the box of half-size `inner_radius`), density through the
   truncated exponential of nerfacto's proposal networks (activations.safe_exp)."""

@@ -28,6 +28,7 @@ import jax.numpy as jnp
 
 from nerf_jax.backend import draws
 from nerf_jax.cameras import cones
+from nerf_jax.cameras.scene_settings import SceneSettings
 from nerf_jax.fields import activations, contraction
 from nerf_jax.fields.encodings import posenc
 from nerf_jax.fields.protocol import NetworkSettings
@@ -59,11 +60,11 @@ class Field:
   """
   network: Any
   directions: Any = posenc.Frequency(4)
-  # Defaults: the settings' (declared once); '' contraction: none.
+  # Defaults: the settings' (declared once).
   view_dependent: bool = NetworkSettings.view_dependent
   density_activation: str = NetworkSettings.density_activation
   density_noise: float = Settings.density_noise
-  contraction: str = ""
+  contraction: str = SceneSettings.contraction
   inner_radius: float = 1.0
   appearance_dims: int = NetworkSettings.appearance_dims
   cones: str = ""

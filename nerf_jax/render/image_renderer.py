@@ -57,7 +57,8 @@ def make_chunk_renderer(ray_renderer):
   return render_chunk
 
 
-def render_image(render_chunk, variables, rays, background=(0.0, 0.0, 0.0), chunk=4096):
+def render_image(render_chunk, variables, rays, background=(0.0, 0.0, 0.0),
+                 chunk=ImageSettings.chunk):
   """Render `rays` (Rays [...]) with `render_chunk` (from `make_chunk_renderer`) in chunks of
   `chunk` rays. background: RGB. Returns numpy dict rgb [..., 3], depth [...], acc [...]."""
   num_rays, flat = _padded(rays, chunk)

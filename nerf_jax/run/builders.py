@@ -286,7 +286,7 @@ def loss_terms(config, ray_renderer):
   batch = batch_settings(config)
   patches = batch.patch_size if batch.batching == "patches" else 0
   context = losses.Context(ray_renderer, tuple(encoding_family(config)[0].table_axes.items()),
-                           config.train.pose_refinement, patches)
+                           patch_size=patches, pose_refinement=config.train.pose_refinement)
   terms, seen = [], set()
   for name in names:
     record = losses.REGISTRY.lookup(name)

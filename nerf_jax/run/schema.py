@@ -12,6 +12,7 @@ declares is refused (run/builders.check_config). configs/default.py is `defaults
 import ml_collections
 
 from nerf_jax.backend import components
+from nerf_jax.cameras import scene_settings
 from nerf_jax.data import loaders
 from nerf_jax.evaluate import evaluation
 from nerf_jax.fields import field, protocol, registry
@@ -32,7 +33,7 @@ SECTIONS = {
     "": (settings.RunSettings, samplers.Settings, renderer.FineSettings, posenc.Settings,
          protocol.DirectionSettings),
     # The images and cameras loaded; how rays see the scene (box, bounds, spacing).
-    "data": (loaders.DataSettings, settings.SceneSettings),
+    "data": (loaders.DataSettings, scene_settings.SceneSettings),
     # The parts' names; what every network shares (width, view_*, dtype, appearance, the
     # lattices' box); the MLP's depth and skips; the field's noise; the renderer's use of it.
     "model": (registry.Parts, protocol.NetworkSettings, mlp.Settings, field.Settings,

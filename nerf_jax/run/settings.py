@@ -1,7 +1,7 @@
-"""The settings the entry layer reads itself (run/): the run's seed and auto's record, how rays
-see the scene (config.data's box, bounds and spacing), the training loop, the renders after
-training and the live viewer. Each setting is declared here once, with its default and comment;
-run/schema.py builds its section from these (nothing below run/ reads them).
+"""The settings the entry layer reads itself (run/): the run's seed and auto's record, the
+training loop, the renders after training and the live viewer. Each setting is declared here
+once, with its default and comment; run/schema.py builds its section from these (nothing below
+run/ reads them; how rays see the scene is cameras/scene_settings.SceneSettings).
 """
 
 import dataclasses
@@ -17,24 +17,6 @@ class RunSettings:
   auto_flags: Tuple[str, ...] = ()  # fields set on the command line (filled by nerf-train): auto keeps them
   auto_by_steps: Tuple[str, ...] = ()  # effects auto turned on that pay only from auto.MIN_STEPS steps: off below (filled by auto)
   auto_representation: str = ""  # the config auto chose ('fast', 'gpu/lego', ...; filled by auto)
-
-
-@dataclasses.dataclass(frozen=True)
-class SceneSettings:
-  """config.data's fields of how rays see the scene (the rest: data/loaders.DataSettings)."""
-  lindisp: bool = False  # sample linearly in inverse depth instead of depth
-  ndc: bool = False  # forward-facing scenes: rays in normalized device coordinates, t in [0, 1]
-  near: float = 0.0  # near bound override (0 = the dataset's, 2 for tiny_nerf)
-  far: float = 0.0  # far bound override (0 = the dataset's, 6 for tiny_nerf)
-  scene_bound: float = 0.0  # half-size of the box sampled (0 = none, -1 = found from the data)
-  visual_hull: bool = False  # carve the masks' hull (opacity, a subject's masks): empty outside
-  contraction: str = ""  # unbounded scene: 'linf' or 'l2' contracts the space beyond the box
-  inner_fraction: float = 0.5  # unbounded scene: share of samples inside the box (the rest beyond)
-  focus: bool = False  # move the world so that the point the cameras look at is the origin
-  subject: str = ""  # 'auto': scale, move the world so the subject's box fills ±scene_bound ('' off)
-  photo_bounds: bool = False  # sample each photo's rays within its own near/far (Dataset.bounds)
-  photo_zoom: bool = False  # data.subject's masks: each photo's focal fitted to the masks' hull
-  subject_box: tuple = ()  # data.subject='box': the subject's (x, y, z centre, x, y, z half-extent)
 
 
 @dataclasses.dataclass(frozen=True)

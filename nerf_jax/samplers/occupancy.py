@@ -59,7 +59,7 @@ def probe_offsets(probes):
   return jnp.stack(jnp.meshgrid(j, j, j, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
-def density_grid(density_fn, resolution, bound, probes=2, key=None):
+def density_grid(density_fn, resolution, bound, probes=OccupancySettings.probes, key=None):
   """The occupancy grid of a density field: float32 [R, R, R].
 
   density_fn: points float32 [P, 3] -> σ float32 [P]. probes: int P, probes per cell side: σ is

@@ -26,6 +26,7 @@ from nerf_jax.fields import contraction
 from nerf_jax.samplers import occupancy, registry, spacing
 from nerf_jax.samplers.occupancy import OccupancySettings
 from nerf_jax.cameras.rays import ray_box_bounds
+from nerf_jax.cameras.scene_settings import SceneSettings
 
 
 def points(rays, distances):
@@ -91,11 +92,11 @@ class Sampler:
   max x, y, z) the grid covers, mapped onto its cube (occupancy.to_cube); None elsewhere.
   """
   num_samples: int
-  scene_bound: float = 0.0
-  lindisp: bool = False
+  scene_bound: float = SceneSettings.scene_bound  # defaults: the settings' (declared once)
+  lindisp: bool = SceneSettings.lindisp
   occupancy: Optional[OccupancySettings] = None
-  contraction: str = ""
-  inner_fraction: float = 0.5
+  contraction: str = SceneSettings.contraction
+  inner_fraction: float = SceneSettings.inner_fraction
   occupancy_box: Optional[Tuple[float, ...]] = None
 
   def bounds(self, rays):

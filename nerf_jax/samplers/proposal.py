@@ -103,36 +103,6 @@ def interlevel_loss(t, w, t_env, w_env):
   return jnp.sum(excess * excess / (w + _EPS), axis=-1)
 
 
-def resample(t, w, num_samples, key=None, padding=0.01, method="sorted_uniform"):
-  """The next level's edges, drawn from the step function (t, w): float32 [..., N + 1].
-
-  t: float32 [..., S + 1] sorted edges. w: float32 [..., S] weights >= 0. num_samples: int N >= 1.
-  key: PRNG key, or None for deterministic edges. padding: float, added to every non-empty
-  interval's weight before normalising (`spacing.sample_pdf`; 0.01 as nerfacto's).
-  method: how a key draws the points (RESAMPLE_METHODS; Settings.resample).
-  Returns sorted edges with t_0 and t_S exactly at the ends, gradients stopped.
-
-  N points are drawn with `spacing.sample_pdf` and the interior edges are the midpoints between
-  consecutive points. Key None: the points at the quantiles (k + 1/2)/N, so an edge whose two
-  points lie in one interval of (t, w) is at the quantile k/N. With a key, 'sorted_uniform'
-  (NeRF's): N uniform draws, sorted, whose gaps (and so the new intervals' weights) vary about
-  as much as their mean 1/N; 'jittered_grid' (mip-NeRF 360's, nerfacto's): the quantiles
-  (k + δ)/N with one δ ~ U[0, 1) per ray, so every interior interval holds 1/N of the (padded)
-  weight, as without a key (where its two points share an interval of (t, w); the first holds
-  (1/2 + δ)/N, the last (3/2 - δ)/N). Zero-width intervals get no points (sample_pdf), all-zero
-  weights give points evenly spread over the intervals (padding > 0) or over t (padding = 0).
-  """
-  if method not in RESAMPLE_METHODS:
-    raise ValueError(f"resample method {method!r} is not one of {', '.join(RESAMPLE_METHODS)}")
-  t = jax.lax.stop_gradient(t)
-  points = spacing.sample_pdf(t, w, num_samples, key, padding,
-                              jittered_grid=method == "jittered_grid")  # sorted, in [t_0, t_S]
-  # 0.5·(a + b) lies in [a, b] for floats a <= b (rounding is monotone, halving a normal float is
-  # exact, no overflow for edges <= 1e10), so the edges stay sorted and inside [t_0, t_S].
-  inner = 0.5 * (points[..., 1:] + points[..., :-1])
-  return jnp.concatenate([t[..., :1], inner, t[..., -1:]], axis=-1)
-
-
 # How `resample` draws with a key (Settings.resample): NeRF's sorted uniforms, or mip-NeRF 360's
 # (and nerfacto's) evenly spaced grid shifted by one random offset per ray.
 RESAMPLE_METHODS = ("sorted_uniform", "jittered_grid")
@@ -162,6 +132,37 @@ class Settings:
     problem = _problem(self)
     if problem:
       raise ValueError(f"config.proposal.{problem}")
+
+
+def resample(t, w, num_samples, key=None, padding=Settings.padding,
+             method=Settings.resample):
+  """The next level's edges, drawn from the step function (t, w): float32 [..., N + 1].
+
+  t: float32 [..., S + 1] sorted edges. w: float32 [..., S] weights >= 0. num_samples: int N >= 1.
+  key: PRNG key, or None for deterministic edges. padding: float, added to every non-empty
+  interval's weight before normalising (`spacing.sample_pdf`; Settings.padding).
+  method: how a key draws the points (RESAMPLE_METHODS; Settings.resample).
+  Returns sorted edges with t_0 and t_S exactly at the ends, gradients stopped.
+
+  N points are drawn with `spacing.sample_pdf` and the interior edges are the midpoints between
+  consecutive points. Key None: the points at the quantiles (k + 1/2)/N, so an edge whose two
+  points lie in one interval of (t, w) is at the quantile k/N. With a key, 'sorted_uniform'
+  (NeRF's): N uniform draws, sorted, whose gaps (and so the new intervals' weights) vary about
+  as much as their mean 1/N; 'jittered_grid' (mip-NeRF 360's, nerfacto's): the quantiles
+  (k + δ)/N with one δ ~ U[0, 1) per ray, so every interior interval holds 1/N of the (padded)
+  weight, as without a key (where its two points share an interval of (t, w); the first holds
+  (1/2 + δ)/N, the last (3/2 - δ)/N). Zero-width intervals get no points (sample_pdf), all-zero
+  weights give points evenly spread over the intervals (padding > 0) or over t (padding = 0).
+  """
+  if method not in RESAMPLE_METHODS:
+    raise ValueError(f"resample method {method!r} is not one of {', '.join(RESAMPLE_METHODS)}")
+  t = jax.lax.stop_gradient(t)
+  points = spacing.sample_pdf(t, w, num_samples, key, padding,
+                              jittered_grid=method == "jittered_grid")  # sorted, in [t_0, t_S]
+  # 0.5·(a + b) lies in [a, b] for floats a <= b (rounding is monotone, halving a normal float is
+  # exact, no overflow for edges <= 1e10), so the edges stay sorted and inside [t_0, t_S].
+  inner = 0.5 * (points[..., 1:] + points[..., :-1])
+  return jnp.concatenate([t[..., :1], inner, t[..., -1:]], axis=-1)
 
 
 # The density fields a level may have (Settings.field).

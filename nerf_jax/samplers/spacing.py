@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from nerf_jax.backend import draws
+from nerf_jax.cameras.scene_settings import SceneSettings
 
 # Smallest near bound used by linear-in-disparity sampling: 1/near must stay finite.
 _MIN_NEAR_LINDISP = 1e-3
@@ -90,7 +91,7 @@ def _unbounded_split(near, t_inner, far, inner_fraction, batch_shape):
 
 
 def stratified_unbounded(near, t_inner, far, num_samples, batch_shape, key=None,
-                         inner_fraction=0.5):
+                         inner_fraction=SceneSettings.inner_fraction):
   """Stratified edges for rays into an unbounded scene: linear in t, then linear in disparity.
 
   Inside the contraction's inner region (`nerf_jax.fields.contraction`) space is not squeezed and
@@ -136,7 +137,7 @@ def stratified_unbounded(near, t_inner, far, num_samples, batch_shape, key=None,
   return t.at[..., 0].set(near[..., 0]).at[..., -1].set(far[..., 0])
 
 
-def unbounded_unit(t, near, t_inner, far, inner_fraction=0.5):
+def unbounded_unit(t, near, t_inner, far, inner_fraction=SceneSettings.inner_fraction):
   """The inverse of `stratified_unbounded`'s map s -> t: s float32 [..., K] in [0, 1] at
   distances t float32 [..., K] (clipped to [near, min(far, MAX_FAR)]). near, t_inner, far,
   inner_fraction: as `stratified_unbounded`, broadcastable to t's batch shape [...]. Its edges

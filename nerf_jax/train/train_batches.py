@@ -37,6 +37,7 @@ import numpy as np
 from nerf_jax.render import background
 from nerf_jax.cameras import intrinsics_refinement
 from nerf_jax.cameras.rays import Rays, pixel_rays
+from nerf_jax.cameras.scene_settings import SceneSettings
 
 INTRINSICS_NEED_ONE_CAMERA = (
     "config.train.intrinsics_refinement=True refines the focal of images that share one camera "
@@ -149,8 +150,8 @@ class Keypoints:
 NDC_NEAR = 1.0  # the world plane z = -1 where pixel_rays' NDC rays start (ndc_rays' near there)
 
 
-def make_train_data(ds, camera, rgb_background, with_radii=False, photo_bounds=False,
-                    keypoints=False):
+def make_train_data(ds, camera, rgb_background, with_radii=False,
+                    photo_bounds=SceneSettings.photo_bounds, keypoints=False):
   """TrainData of every pixel of the images of `ds` (a Dataset), targets on `rgb_background`
   (float32 [3], background.parse's); rays are made per step from the poses and `camera`:
   (height, width, intrinsics, near, far, pixel_center, use_ndc), see TrainData.camera

@@ -12,6 +12,7 @@ from absl import app, flags
 from nerf_jax.backend import errors
 from nerf_jax.data import DataError
 from nerf_jax.run import config_lib, experiment
+from nerf_jax.run.settings import ViewerSettings
 from nerf_jax.train import checkpoints
 
 # Exceptions whose message is the whole story for the user: those of restoring a run (as
@@ -42,7 +43,7 @@ def serve(workdir, host, port, fps, still_height, out_dir):
 def main():
   """Define the flags, parse them (one-line errors) and serve."""
   workdir = flags.DEFINE_string("workdir", None, "Training run directory.", required=True)
-  port = flags.DEFINE_integer("port", 7007, "Port to serve the page on.")
+  port = flags.DEFINE_integer("port", ViewerSettings.port, "Port to serve the page on.")
   host = flags.DEFINE_string("host", "127.0.0.1", "Address to listen on (0.0.0.0: all).")
   fps = flags.DEFINE_float("fps", 10.0, "Frames per second to hold while the camera moves.")
   still_height = flags.DEFINE_integer("still_height", 0, "Pixels per column of the still frame "

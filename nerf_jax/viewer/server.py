@@ -21,6 +21,7 @@ import time
 import numpy as np
 
 from nerf_jax.cameras import keyframes
+from nerf_jax.run.settings import ViewerSettings
 from nerf_jax.viewer import camera, policy
 from nerf_jax.viewer.scene import colorize, to_uint8
 
@@ -118,8 +119,9 @@ class Viewer:
   time from the steps; frames then compile what they need when they need it).
   """
 
-  def __init__(self, scene, params, host="127.0.0.1", port=7007, step=None, target_fps=10.0,
-               still_height=None, out_dir=".", scale=1.0, label="nerf_jax", warm_up=True):
+  def __init__(self, scene, params, host="127.0.0.1", port=ViewerSettings.port, step=None,
+               target_fps=10.0, still_height=None, out_dir=".", scale=1.0, label="nerf_jax",
+               warm_up=True):
     viser = import_viser()
     check_port(host, port)
     self.server = viser.ViserServer(host=host, port=port, label=label, verbose=False)

@@ -31,7 +31,7 @@ def test_the_default_config_files_docstring_lists_every_section_and_its_dataclas
   for path in schema.component_sections():
     name = path.rsplit(".", 1)[-1]
     assert re.search(rf"\b{name}\b", text), path  # config.model.grid; loss.<term> (colour, ...)
-  assert _named(schema.SECTIONS["data"][0]) == "data/loaders.DataSettings"
+  assert _named(schema.SECTIONS["data"][0]) == "data/data_settings.DataSettings"
 
 
 def test_the_config_file_holds_no_schema():

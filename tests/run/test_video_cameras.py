@@ -88,7 +88,8 @@ def test_the_default_video_renders_through_the_frame_cameras(monkeypatch, tmp_pa
   monkeypatch.setattr(outputs, "video_writer_missing", lambda: None)
   monkeypatch.setattr(outputs.imageio, "mimwrite", lambda *a, **k: None)
   outputs.render_video(exp, None, str(tmp_path), show_progress=False)
-  poses = outputs.camera_paths.video_poses(exp.train_ds, 3, orbit_phi=-30.0, orbit_radius=4.0)
+  poses = outputs.camera_paths.video_poses(exp.train_ds, 3, False, orbit_phi=-30.0,
+                                           orbit_radius=4.0)
   assert seen[0] == outputs.frame_cameras(exp, poses, 1.0) and seen[0] is not None
   outputs.render_video(exp, None, str(tmp_path), show_progress=False, poses=poses)
   assert seen[1] is None

@@ -122,7 +122,7 @@ def test_a_capture_video_follows_its_own_trajectory():
   poses = np.tile(np.eye(4, dtype=np.float32), (30, 1, 1))
   poses[:, 0, 3], poses[:, 1, 3] = 3 * np.cos(angles), 3 * np.sin(angles)  # an arc, in order
   dataset = type("Captured", (), {"poses": poses})()
-  path = camera_paths.video_poses(dataset, 60, trajectory=True)
+  path = camera_paths.video_poses(dataset, 60, False, -30.0, 4.0, trajectory=True)
   assert 50 <= len(path) <= 61
   np.testing.assert_allclose(path[0], poses[0], atol=1e-6)
   np.testing.assert_allclose(path[-1], poses[-1], atol=1e-6)
@@ -131,7 +131,8 @@ def test_a_capture_video_follows_its_own_trajectory():
   steps = np.linalg.norm(np.diff(path[:, :3, 3], axis=0), axis=-1)
   assert steps.max() < 3.0 * np.median(steps)
   # Not an orbit about the origin at the configured radius.
-  assert not np.allclose(path, camera_paths.video_poses(dataset, 60)[:len(path)], atol=0.1)
+  orbit = camera_paths.video_poses(dataset, 60, False, -30.0, 4.0)  # the configs' orbit
+  assert not np.allclose(path, orbit[:len(path)], atol=0.1)
 
 
 def test_an_automatic_bounded_box_is_the_grids_box_too():

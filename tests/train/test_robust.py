@@ -326,7 +326,7 @@ def test_whole_images_contradict_the_switch():
   assert builders.batch_settings(small_config(**{"train.batching": "images"})).batching == (
       "images")
   with pytest.raises(ValueError, match="config.loss.robust.weight > 0 needs patches"):
-    robust.build(robust.Settings(weight=1.0), losses.Context(None))
+    robust.build(robust.Settings(weight=1.0), losses.Context(None, pose_refinement=False))
 
 
 def test_the_switch_without_its_term_is_one_line():

@@ -7,6 +7,7 @@ import os
 import numpy as np
 
 from nerf_jax.data import formats, masks as masks_lib, resampling, validate
+from nerf_jax.data.data_settings import DataSettings
 from nerf_jax.data.dataset import DataError, Dataset
 from nerf_jax.data.validate import composite, parse_background
 
@@ -60,7 +61,8 @@ def _half_res(rgba):
   return np.concatenate([mean[..., :3] / np.maximum(alpha, 1e-12), alpha], -1)  # 0/0 -> 0
 
 
-def load_blender(path, background=(0.0, 0.0, 0.0), half_res=False, split="train"):
+def load_blender(path, background=(0.0, 0.0, 0.0), half_res=DataSettings.half_res,
+                 split="train"):
   """A NeRF-synthetic folder: `transforms_{split}.json` with `camera_angle_x` and `frames`
   (`file_path` relative to `path`, with or without '.png'; `transform_matrix` 4x4), optional
   `near`/`far` (default 2, 6). RGBA PNGs are composited on `background`; `accs` is their alpha

@@ -6,6 +6,7 @@ keyed by `Rule.row` (tests/topics/test_auto_doc.py checks both ways).
 """
 
 import dataclasses
+import functools
 from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple
 
 import ml_collections
@@ -37,6 +38,18 @@ class Context:
   def reason(self, name):
     """The measured reason line of characterise's rule `name`."""
     return self.decisions[name].reason
+
+
+def measured(decide):
+  """A rule's `decide` that reads characterise's measurements, run only where there are some:
+  ({}, []) where the capture has too few cameras to characterise (Context.decisions None: the
+  too_few rule's line says so)."""
+  @functools.wraps(decide)
+  def where_measured(context):
+    if context.decisions is None:
+      return {}, []
+    return decide(context)
+  return where_measured
 
 
 # flip(result, base, context) -> ({field: value} or None, why none): the regret benchmark's

@@ -81,7 +81,7 @@ class Context:
   """
   ray_renderer: Any
   table_axes: tuple = ()
-  pose_refinement: bool = False
+  pose_refinement: bool = dataclasses.field(kw_only=True)  # the run's: no default
   patch_size: int = 0
 
 

@@ -1,15 +1,14 @@
 """Per-photo looks (characterise's 'appearance'): appearance codes, held-out photos scored the
 NeRF-W way; a photo collection for the subject and transients rules."""
 
-from nerf_jax.run.auto.rule import Rule
+from nerf_jax.run.auto.rule import Rule, measured
 
 APPEARANCE_DIMS = 8  # the appearance codes' length auto switches on (NeRF-W: 48, nerfacto: 32)
 
 
+@measured
 def decide(context):
   """({'model.appearance_dims': APPEARANCE_DIMS or 0, ...}, [line])."""
-  if context.decisions is None:
-    return {}, []
   found, reason = context.found("appearance"), context.reason("appearance")
   effects = {"model.appearance_dims": APPEARANCE_DIMS if found else 0}
   if found:  # held-out photos scored as NeRF-W scores them

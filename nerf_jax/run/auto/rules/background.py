@@ -1,14 +1,13 @@
 """An object on a background (characterise's 'background'): random backgrounds while training,
 configs/fast.py (detail.py from large_objects.LARGE_IMAGES); data.background is the data's."""
 
-from nerf_jax.run.auto.rule import Rule, switch_flip
+from nerf_jax.run.auto.rule import Rule, measured, switch_flip
 
 
+@measured
 def decide(context):
   """({field: value}, [line]): the data's background colour, random backgrounds where an object
   is on one (and the cameras do not face one way: NDC rays take the forward rule's config)."""
-  if context.decisions is None:
-    return {}, []
   bg = tuple(float(c) for c in context.dataset.background)
   effects = {"data.background": ("white" if bg == (1.0, 1.0, 1.0) else
                                  "black" if bg == (0.0, 0.0, 0.0) else bg)}

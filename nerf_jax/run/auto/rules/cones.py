@@ -1,7 +1,7 @@
 """Cameras at several scales (characterise's 'scales'): the chosen representation reads cones
 (docs/multiscale.md)."""
 
-from nerf_jax.run.auto.rule import Rule
+from nerf_jax.run.auto.rule import Rule, measured
 
 # Zip-NeRF's multisampling with its level weights, or the weights alone (multisample False):
 # on the multiscale lego at 10 CPU-minutes the weights alone score best (docs/multiscale.md).
@@ -39,10 +39,9 @@ def has_cones(config):
                                bool(config.model[encoding].antialias))
 
 
+@measured
 def decide(context):
   """(cone_effects of the chosen config where the cameras are at several scales, [line])."""
-  if context.decisions is None:
-    return {}, []
   reason = context.reason("scales")
   if not context.found("scales"):
     return {}, [f"one scale: {reason}"]

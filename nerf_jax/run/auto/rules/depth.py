@@ -1,7 +1,7 @@
 """Depth from the sparse points' tracks (DS-NeRF's loss, config.loss.depth) where the training
 views carry tracks (a COLMAP model)."""
 
-from nerf_jax.run.auto.rule import Rule
+from nerf_jax.run.auto.rule import Rule, measured
 
 # Depth from the sparse points' tracks (DS-NeRF's loss, config.loss.depth): on with this weight
 # where the training views have tracks (a COLMAP model), number at most DEPTH_MAX_VIEWS and the
@@ -38,11 +38,10 @@ def depth_effects(dataset, placed):
            f"{DEPTH_WEIGHT:g}; {placed}): {measured}"])
 
 
+@measured
 def decide(context):
   """depth_effects of every training view (each through its own camera), the samples placed
   by NDC rays (the forward rule) or a masked subject's photo bounds (the subject rule's)."""
-  if context.decisions is None:
-    return {}, []
   placed = ("forward-facing: NDC rays" if context.found("forward") else
             "the masked subject's photo bounds" if context.effects.get("data.photo_bounds")
             else "")

@@ -1,12 +1,11 @@
 """Forward-facing cameras (characterise's 'forward'): configs/llff.py, NDC rays."""
 
-from nerf_jax.run.auto.rule import Rule
+from nerf_jax.run.auto.rule import Rule, measured
 
 
+@measured
 def decide(context):
   """({'data.ndc': True, 'data.lindisp': False}, [line]) where the cameras face one way."""
-  if context.decisions is None:
-    return {}, []
   reason = context.reason("forward")
   if not context.found("forward"):
     return {}, [f"no forward: {reason}"]

@@ -3,7 +3,7 @@ else pose refinement stays off, as nothing in the photos measures a pose error."
 
 import numpy as np
 
-from nerf_jax.run.auto.rule import Rule, switch_flip
+from nerf_jax.run.auto.rule import Rule, measured, switch_flip
 
 # Cameras that disagree with their points: where one camera is stored for every photo and the
 # sparse points' mean reprojection error exceeds this share of the image diagonal, each photo's
@@ -39,11 +39,10 @@ def camera_effects(dataset, stored_camera, fitted_zooms):
           f"disagrees with the photos: {measured}")
 
 
+@measured
 def decide(context):
   """camera_effects of every training view (each through its own camera), the zooms fitted by
   the subject rule; else the user's switch stands (train.pose_refinement)."""
-  if context.decisions is None:
-    return {}, []
   effects, line = camera_effects(context.photos, context.photos.image_cameras is None,
                                  bool(context.effects.get("data.photo_zoom")))
   if line:

@@ -3,8 +3,9 @@ points mark one (subject.subject_box)."""
 
 import numpy as np
 
+from nerf_jax.cameras.scene_settings import SceneSettings
 from nerf_jax.run import config_lib, subject
-from nerf_jax.run.auto.rule import Rule
+from nerf_jax.run.auto.rule import Rule, measured
 from nerf_jax.run.auto.rules.contraction import CONTRACTION
 
 # A photo collection's subject fills the inner region (data.subject) when the masks or the
@@ -13,7 +14,8 @@ from nerf_jax.run.auto.rules.contraction import CONTRACTION
 SUBJECT_SHARE = 0.25
 
 
-def subject_effects(dataset, collection, contraction="", stored_camera=True):
+def subject_effects(dataset, collection, contraction=SceneSettings.contraction,
+                    stored_camera=True):
   """({field: value}, [line]): for a photo collection (`collection`), data.subject='auto' where
   the masks or the sparse points of `dataset` (the training photos, each through its own camera:
   a resampled view would crop them) mark a subject (subject.subject_box)
@@ -57,11 +59,10 @@ def subject_effects(dataset, collection, contraction="", stored_camera=True):
                    f"(data.subject='auto'){beyond}: {measured}"]
 
 
+@measured
 def decide(context):
   """subject_effects of the photos (each through its own camera) of a collection (the
   appearance rule's), the run's contraction as decided so far or the user's."""
-  if context.decisions is None:
-    return {}, []
   return subject_effects(
       context.photos, context.found("appearance"),
       context.user.get("data.contraction", context.effects.get(

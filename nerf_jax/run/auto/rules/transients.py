@@ -2,7 +2,7 @@
 short warm-up (warm_up.py, transient_share.py)."""
 
 from nerf_jax.run.auto import transient_share, warm_up
-from nerf_jax.run.auto.rule import Rule
+from nerf_jax.run.auto.rule import Rule, measured
 
 # Transients (passers-by): RobustNeRF's loss above this share of clustered outliers after the
 # warm-up; crowd 0.027, the clean built-in scenes <= 0.0033 at 48 px (docs/photo_collections.md).
@@ -35,10 +35,9 @@ def transient_effects(dataset, collection, patch_size):
           f"(loss.robust): {reason}")
 
 
+@measured
 def decide(context):
   """transient_effects of the one-camera views of a collection (the appearance rule's)."""
-  if context.decisions is None:
-    return {}, []
   effects, line = transient_effects(
       context.dataset, context.found("appearance"),
       context.user.get("train.patch_size", context.result.train.patch_size))

@@ -1,13 +1,12 @@
 """Highlights that move between views (characterise's 'view_dependence', measured where the
 views have depth): colour from the viewing direction; else the representation's own setting."""
 
-from nerf_jax.run.auto.rule import Rule, switch_flip
+from nerf_jax.run.auto.rule import Rule, measured, switch_flip
 
 
+@measured
 def decide(context):
   """({'model.view_dependent': found}, [line]); ({}, [line]) where not measured."""
-  if context.decisions is None:
-    return {}, []
   found, reason = context.found("view_dependence"), context.reason("view_dependence")
   if found is None:  # the representation's own setting
     return {}, [f"view dependence {'on' if context.result.model.view_dependent else 'off'} as "
