@@ -1,5 +1,5 @@
 """How rays see the scene: config.data's box, bounds and spacing (the rest of config.data:
-data/loaders.DataSettings). Declared here, below the parts that read them (cameras, fields,
+data/data_settings.DataSettings). Declared here, below the parts that read them (cameras, fields,
 samplers, train, evaluate, run/), so each takes its defaults from this one place;
 run/schema.py builds config.data from it.
 """
@@ -9,7 +9,7 @@ import dataclasses
 
 @dataclasses.dataclass(frozen=True)
 class SceneSettings:
-  """config.data's fields of how rays see the scene (the rest: data/loaders.DataSettings)."""
+  """config.data's fields of how rays see the scene (the rest: data/data_settings.DataSettings)."""
   lindisp: bool = False  # sample linearly in inverse depth instead of depth
   ndc: bool = False  # forward-facing scenes: rays in normalized device coordinates, t in [0, 1]
   near: float = 0.0  # near bound override (0 = the dataset's, 2 for tiny_nerf)
