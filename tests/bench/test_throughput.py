@@ -22,13 +22,21 @@ def _record(rate, config="fast", date="d", **machine_fields):
           "machine": {**IDLE, **machine_fields}}
 
 
-def test_the_baseline_is_the_last_idle_record_of_the_same_work_and_kind():
+def test_the_baseline_is_the_median_of_the_last_three_idle_records():
+  history = [_record(50.0, date="0"), _record(10.0, date="1"), _record(30.0, date="2"),
+             _record(20.0, date="3"), _record(99.0, date="4", busy=True)]
+  assert throughput.baseline(_record(9.0), history)["date"] == "3"  # 20 of 10, 30, 20
+  assert throughput.baseline(_record(9.0), history[:2])["date"] == "0"  # of two, the upper
+  assert throughput.baseline(_record(9.0), history[1:2])["date"] == "1"
+
+
+def test_the_baseline_is_an_idle_record_of_the_same_work_and_kind():
   history = [_record(10.0, date="1"), _record(11.0, date="2"), _record(30.0, cpu_count=16),
              _record(40.0, backend="gpu", device_kind="H200"), _record(50.0, config="hash"),
              _record(60.0, rays_per_step=4096), _record(5.0, date="3", busy=True)]
   history[5]["rays_per_step"] = 4096
   now = _record(10.5)
-  assert throughput.baseline(now, history)["date"] == "2"  # the busy one after it is skipped
+  assert throughput.baseline(now, history)["date"] == "2"  # the upper of two; the busy 5.0 skipped
   assert throughput.baseline(_record(9.0, cpu_count=16), history)["steps_per_second"] == 30.0
   assert throughput.baseline(_record(9.0, cpus_used=1), history) is None  # pinned: another kind
   assert throughput.baseline(_record(9.0, config="llff"), history) is None
