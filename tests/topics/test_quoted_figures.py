@@ -23,13 +23,16 @@ BENCH = ROOT / "docs" / "bench"
 
 
 def source(path, key, decimals, **where):
-  """(results file relative to docs/bench, key, decimals, the record's selecting fields)."""
+  """(results file relative to docs/bench, key (dotted for a nested field), decimals (or ','
+  for an integer with thousands separators), the record's selecting fields)."""
   return (path, key, decimals, where)
 
 
 DEFAULT_RUN = "default_run/metrics.json"
 SUITE = "suite/suite.jsonl"
 STANDARD = "standard/cpu_2026-11-28.jsonl"  # nerf_jax.bench.standard (docs/standard_benchmark.md)
+STANDARD_NOW = "standard/cpu_2026-11-29.jsonl"  # fern and fox re-run idle; and at 1000 steps
+STANDARD_NOW_RUNS = {"fern": "2026-11-29 05:02 UTC", "fox": "2026-11-29 05:12 UTC"}  # 10 min
 THROUGHPUT = "throughput/cpu.jsonl"  # nerf_jax.bench.throughput: the first idle 2-core records
 THROUGHPUT_RUNS = {"default": "2026-11-29 04:02 UTC", "fast": "2026-11-29 04:03 UTC",
                    "detail": "2026-11-29 04:04 UTC", "capture": "2026-11-29 04:04 UTC",
@@ -65,22 +68,44 @@ FIGURES = [
       for n in (16, 64)]),
     ("docs/detail_scene.md", r"`detail` ([\d.]+) dB with",
      [source("detail/ten_minutes/detail_py.jsonl", "test_psnr", 2, scene="detail")]),
-    ("docs/standard_benchmark.md", r"lego ([\d.]+) dB at 400 px, fern ([\d.]+), fox ([\d.]+)",
-     [source(STANDARD, "psnr", 2, scene=s) for s in ("lego", "fern", "fox")]),
+    ("docs/standard_benchmark.md", r"fern ([\d.]+) dB, fox ([\d.]+) \(2026-11-29\), lego ([\d.]+)",
+     [source(STANDARD_NOW, "psnr", 2, scene=s, date=STANDARD_NOW_RUNS[s]) for s in ("fern", "fox")]
+     + [source(STANDARD, "psnr", 2, scene="lego")]),
+    ("docs/standard_benchmark.md", r"fern made (\d+) steps in ten minutes on the VM of 2026-11-28 "
+     r"\(([\d.]+) dB\) and (\d+) on that of 2026-11-29 \(([\d.]+) dB\)",
+     [source(STANDARD, "steps", 0, scene="fern"), source(STANDARD, "psnr", 2, scene="fern"),
+      source(STANDARD_NOW, "steps", 0, scene="fern", date=STANDARD_NOW_RUNS["fern"]),
+      source(STANDARD_NOW, "psnr", 2, scene="fern", date=STANDARD_NOW_RUNS["fern"])]),
     ("docs/standard_benchmark.md", r"\| lego \|.*?\| (\d+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \|",
      [source(STANDARD, k, d, scene="lego") for k, d in
       (("steps", 0), ("psnr", 2), ("ssim", 3), ("lpips", 3))]),
-    ("docs/standard_benchmark.md", r"\| fern \|.*?\| (\d+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \|",
-     [source(STANDARD, k, d, scene="fern") for k, d in
-      (("steps", 0), ("psnr", 2), ("ssim", 3), ("lpips", 3))]),
-    ("docs/standard_benchmark.md", r"\| fox \|.*?\| (\d+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \|",
-     [source(STANDARD, k, d, scene="fox") for k, d in
-      (("steps", 0), ("psnr", 2), ("ssim", 3), ("lpips", 3))]),
+    ("docs/standard_benchmark.md", r"\| fern \|.*?\| (\d+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \| "
+     r"[\d.]+ min \| ([\d.]+) \|",
+     [source(STANDARD_NOW, k, d, scene="fern", date=STANDARD_NOW_RUNS["fern"]) for k, d in
+      (("steps", 0), ("psnr", 2), ("ssim", 3), ("lpips", 3))]
+     + [source(STANDARD_NOW, "psnr", 2, scene="fern", steps=1000)]),
+    ("docs/standard_benchmark.md", r"\| fox \|.*?\| (\d+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \| "
+     r"[\d.]+ min \| ([\d.]+) \|",
+     [source(STANDARD_NOW, k, d, scene="fox", date=STANDARD_NOW_RUNS["fox"]) for k, d in
+      (("steps", 0), ("psnr", 2), ("ssim", 3), ("lpips", 3))]
+     + [source(STANDARD_NOW, "psnr", 2, scene="fox", steps=1000)]),
 ] + [  # the README's table of the standard benchmark, row by row
-    ("README.md", rf"\| {scene} \|.*?\| (\d+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \|",
-     [source(STANDARD, k, d, scene=scene) for k, d in
-      (("steps", 0), ("psnr", 2), ("ssim", 3), ("lpips", 3))])
-    for scene in ("lego", "fern", "fox")] + [  # the throughput check's rates, config by config
+    ("README.md", r"\| lego \|.*?\| (\d+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \|",
+     [source(STANDARD, k, d, scene="lego") for k, d in
+      (("steps", 0), ("psnr", 2), ("ssim", 3), ("lpips", 3))])] + [
+    ("README.md", rf"\| {scene} \|.*?\| (\d+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \| "
+     r"idle \(others ([\d.]+) CPU\), ([\d.]+) steps/s \|",
+     [source(STANDARD_NOW, k, d, scene=scene, date=date) for k, d in
+      (("steps", 0), ("psnr", 2), ("ssim", 3), ("lpips", 3))] +
+     [source(STANDARD_NOW, "psnr", 2, scene=scene, steps=1000),
+      source(STANDARD_NOW, "machine.others_cpu.mean", 2, scene=scene, date=date),
+      source(STANDARD_NOW, "machine.steps_per_second", 2, scene=scene, date=date)])
+    for scene, date in STANDARD_NOW_RUNS.items()] + [
+    ("README.md", r"fern run made ([\d,]+) steps on the VM of 2026-11-28 \(([\d.]+) dB\) and "
+     r"([\d,]+) on that of 2026-11-29 \(([\d.]+) dB\)",
+     [source(STANDARD, "steps", ",", scene="fern"), source(STANDARD, "psnr", 2, scene="fern"),
+      source(STANDARD_NOW, "steps", ",", scene="fern", date=STANDARD_NOW_RUNS["fern"]),
+      source(STANDARD_NOW, "psnr", 2, scene="fern", date=STANDARD_NOW_RUNS["fern"])])] + [  # the throughput check's rates, config by config
     ("docs/standard_benchmark.md", rf"\| `{config}` \| \w+ \| (\d+) \| ([\d.]+) \| (\d+) \|",
      [source(THROUGHPUT, k, d, config=config, date=date) for k, d in
       (("rays_per_step", 0), ("steps_per_second", 2), ("rays_per_second", 0))])
@@ -113,7 +138,10 @@ def disagreements(text, pattern, sources):
     return [("missing", pattern, "")]
   out = []
   for quoted, (path, key, decimals, where) in zip(match.groups(), sources):
-    expected = f"{record(path, where)[key]:.{decimals}f}"
+    value = record(path, where)
+    for part in key.split("."):  # a dotted key reads a nested field: machine.steps_per_second
+      value = value[part]
+    expected = f"{value:{decimals}}" if decimals == "," else f"{value:.{decimals}f}"
     if quoted != expected:
       out.append((quoted, expected, f"docs/bench/{path} {where} {key}"))
   return out
