@@ -10,6 +10,7 @@ import importlib.util
 import itertools
 import json
 import os
+import sys
 import re
 
 import imageio.v3 as iio
@@ -274,15 +275,30 @@ def rays_to(point, view_dirs, dist=3.0):
   return point + dist * v, -2.0 * v
 
 
-def doc_block(doc, test, name):
-  """The ```python block of the markdown file `doc` (a path under the checkout, 'docs/x.md')
-  that follows the marker `<!-- test: name -->`: a walk-through `test` runs as written. Fails
-  the calling test if the doc lost it."""
+def doc_block(doc, test, name, language="python"):
+  """The ````language` block of the markdown file `doc` (a path under the checkout,
+  'docs/x.md') that follows the marker `<!-- test: name -->`: a walk-through `test` runs as
+  written. Fails the calling test if the doc lost it."""
   marker = re.escape(f"<!-- {test}: {name} -->")
   with open(os.path.join(ROOT, doc)) as f:
-    found = re.search(marker + r"\s*```python\n(.*?)```", f.read(), re.S)
+    found = re.search(marker + rf"\s*```{language}\n(.*?)```", f.read(), re.S)
   assert found, f"{doc} lost its {name} block"
   return found.group(1)
+
+
+def import_doc_module(tmp_path, monkeypatch, test, name, package):
+  """docs/extending.md's 'module' block for `test`, written into tmp_path and imported as the
+  module `name` ('nerf_jax.bench.startup') of `package` (the package object), as if its file
+  stood there: in sys.modules and as the package's attribute, both undone after the test.
+  Returns (the module, its file)."""
+  path = tmp_path / (name.rsplit(".", 1)[-1] + ".py")
+  path.write_text(doc_block("docs/extending.md", test, "module"))
+  spec = importlib.util.spec_from_file_location(name, path)
+  module = importlib.util.module_from_spec(spec)
+  monkeypatch.setitem(sys.modules, name, module)
+  spec.loader.exec_module(module)
+  monkeypatch.setattr(package, name.rsplit(".", 1)[-1], module, raising=False)
+  return module, path
 
 
 def write_walkthrough(tmp_path, test, module_path):

@@ -5,10 +5,6 @@ checked against the module as tests/topics/test_auto_doc.py checks docs/auto.md'
 of the tree is touched."""
 
 import ast
-import importlib.util
-import os
-import re
-import sys
 
 import pytest
 
@@ -25,23 +21,13 @@ NAME = "nerf_jax.run.auto.rules.orbit"
 
 def _row_block():
   """The doc's ```markdown block marked 'row': one table row."""
-  with open(os.path.join(helpers.ROOT, "docs/extending.md")) as f:
-    found = re.search(re.escape(f"<!-- {THIS}: row -->") + r"\s*```markdown\n(.*?)```",
-                      f.read(), re.S)
-  assert found, "docs/extending.md lost its row block"
-  return found.group(1).strip()
+  return helpers.doc_block("docs/extending.md", THIS, "row", "markdown").strip()
 
 
 @pytest.fixture
 def orbit(tmp_path, monkeypatch):
   """The doc's module, imported as rules/orbit.py, its RULE in RULES before the step rule's."""
-  path = tmp_path / "orbit.py"
-  path.write_text(helpers.doc_block("docs/extending.md", THIS, "module"))
-  spec = importlib.util.spec_from_file_location(NAME, path)
-  module = importlib.util.module_from_spec(spec)
-  monkeypatch.setitem(sys.modules, NAME, module)
-  spec.loader.exec_module(module)
-  monkeypatch.setattr(rules_package, "orbit", module, raising=False)
+  module, path = helpers.import_doc_module(tmp_path, monkeypatch, THIS, NAME, rules_package)
   rules = list(rules_package.RULES)
   rules.insert(rules.index(step_rule.RULE), module.RULE)
   monkeypatch.setattr(rules_package, "RULES", tuple(rules))

@@ -5,7 +5,6 @@ doc's line added names every module of the folder once, the new one too (as
 tests/bench/test_index.py checks the index); a new benchmark is two new files and that one
 edit. No file of the tree is touched."""
 
-import importlib.util
 import inspect
 import json
 import os
@@ -32,23 +31,13 @@ def _section():
 
 def _index_line():
   """The doc's ```text block marked 'index': the module's line in the index."""
-  found = re.search(re.escape(f"<!-- {THIS}: index -->") + r"\s*```text\n(.*?)```",
-                    _section(), re.S)
-  assert found, "docs/extending.md lost its index block"
-  return found.group(1).rstrip("\n")
+  return helpers.doc_block("docs/extending.md", THIS, "index", "text").rstrip("\n")
 
 
 @pytest.fixture
 def startup(tmp_path, monkeypatch):
   """(the doc's module imported as nerf_jax.bench.startup, its file)."""
-  path = tmp_path / "startup.py"
-  path.write_text(helpers.doc_block("docs/extending.md", THIS, "module"))
-  spec = importlib.util.spec_from_file_location(NAME, path)
-  module = importlib.util.module_from_spec(spec)
-  monkeypatch.setitem(sys.modules, NAME, module)
-  spec.loader.exec_module(module)
-  monkeypatch.setattr(bench, "startup", module, raising=False)
-  return module, path
+  return helpers.import_doc_module(tmp_path, monkeypatch, THIS, NAME, bench)
 
 
 def test_a_benchmark_is_two_new_files_and_one_edit():
