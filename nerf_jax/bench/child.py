@@ -1,10 +1,12 @@
 """The benchmark's child processes: their environment (this checkout first on the path, so a
-child imports the parent's code) and a run with its output into a log.
+child imports the parent's code), a run with its output into a log, and a run that prints a
+JSON line.
 
 Nothing here starts a JAX backend: a parent that runs its stages in children holds no device
 memory while they run.
 """
 
+import json
 import os
 import subprocess
 import sys
@@ -49,3 +51,13 @@ def python_line(code, environment=None):
   out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                        env=environment, check=False)
   return out.stdout.strip() or f"unknown ({out.stderr.strip().splitlines()[-1:]})"
+
+
+def json_line(args, environment=None):
+  """The JSON object the child `args` prints on its last stdout line; a one-line RuntimeError
+  naming the child and its last error line where it fails."""
+  out = subprocess.run(args, capture_output=True, text=True, env=environment, check=False)
+  if out.returncode != 0:
+    last = (out.stderr.strip().splitlines() or ["no error output"])[-1]
+    raise RuntimeError(f"{' '.join(args)} exited with status {out.returncode}: {last}")
+  return json.loads(out.stdout.strip().splitlines()[-1])

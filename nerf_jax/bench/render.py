@@ -20,7 +20,6 @@ are at the end of this module (define_render_flags).
 import dataclasses
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -30,7 +29,7 @@ from absl import flags
 
 from nerf_jax.render import background, image_renderer
 from nerf_jax.run import experiment, outputs
-from nerf_jax.bench import command_line, measure, records
+from nerf_jax.bench import child, command_line, measure, records
 
 
 def frame_renderer(exp, variables, size, march=None):
@@ -86,8 +85,7 @@ def measure_workdir(workdir, frame_size=100, repeats=10, frames=120, sizes=(800,
 def _subprocess_frame(workdir, size):
   command = [sys.executable, "-m", "nerf_jax.bench.render", f"--workdir={workdir}",
              f"--worker_size={size}"]
-  result = subprocess.run(command, capture_output=True, text=True, check=True)
-  return json.loads(result.stdout.strip().splitlines()[-1])
+  return child.json_line(command)
 
 
 def summary_lines(record, repeats):
