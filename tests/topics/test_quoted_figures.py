@@ -8,9 +8,9 @@ figure) and where it comes from (a results file, the record's selecting fields, 
 decimals it is quoted with). A few records live beside docs/bench (docs/regret/, docs/gpu_runs/):
 their paths start with `../`. A gain or a distance to a goal ("+2.77 dB", "short by 2.37") is a
 difference(first, second, decimals): first minus second, each a source or a number (a goal);
-the page's sign stays in the pattern, outside the group. A figure re-measured is changed in its results file first; this
-test then names every page that still quotes the old one. A quote rephrased so that its
-pattern no longer matches fails too: change the pattern with it.
+the page's sign stays in the pattern, outside the group. A figure re-measured is changed in its
+results file first; this test then names every page that still quotes the old one. A quote
+rephrased so that its pattern no longer matches fails too: change the pattern with it.
 """
 
 import json
