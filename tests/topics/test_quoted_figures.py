@@ -188,6 +188,9 @@ FIGURES += [  # the other pages' headline figures
     ("docs/photo_collections.md", pattern,
      [source("collections/sacre_coeur_2026-11-29.jsonl", "psnr", 2, run="Sacre-Coeur, depth off")])
     for pattern in (r"photos of Sacré-Cœur: ([\d.]+) dB", r"scored \*\*([\d.]+) dB\*\*")] + [
+    ("docs/photo_collections.md", r"without masks; with it on, ([\d.]+)\)",
+     [source("collections/sacre_coeur_2026-11-29.jsonl", "psnr", 2,
+             run="Sacre-Coeur (nerf-process --nosingle_camera), auto (depth on, kl)")])] + [
     ("docs/quality_per_second.md", r"lego at 400 px: ([\d.]+) dB and SSIM ([\d.]+) in ten minutes "
      r"\((\d+) steps, 2026-11-25.*?: ([\d.]+) in (\d+)\), ([\d.]+) dB and ([\d.]+) short",
      [source(LEGO_400, "test_psnr", 2, scene="lego400"),
