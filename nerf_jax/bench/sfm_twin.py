@@ -28,7 +28,7 @@ import numpy as np
 from absl import app, flags
 
 from nerf_jax.cameras import rays as rays_lib
-from nerf_jax.data import loaders, scenes
+from nerf_jax.data import data_settings, loaders, scenes
 from nerf_jax.data.scenes import landmark, landmark_sfm
 from nerf_jax.run import from_data, photo_zoom, subject
 from nerf_jax.samplers import visual_hull
@@ -185,7 +185,7 @@ def colmap_agreement(size=ARC_SIZE, num_views=ARC_VIEWS, seed=0):
 def training_views(scene, num_views, image_size):
   """The training Dataset of built-in `scene` as training loads it (data.num_views,
   data.image_size)."""
-  settings = loaders.DataSettings(scene=scene, num_views=num_views, image_size=image_size)
+  settings = data_settings.DataSettings(scene=scene, num_views=num_views, image_size=image_size)
   return loaders.load_dataset(settings)[0]
 
 

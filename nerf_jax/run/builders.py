@@ -19,7 +19,7 @@ from nerf_jax.samplers import registry as sampler_registry
 from nerf_jax.render import background, renderer
 from nerf_jax.train import losses, optimizer, train_batches, train_step
 from nerf_jax.train.losses import colour, robust
-from nerf_jax.data import loaders
+from nerf_jax.data.data_settings import DataSettings
 from nerf_jax.evaluate import evaluation
 from nerf_jax.fields.field import Field
 from nerf_jax.fields.protocol import NetworkSettings
@@ -29,11 +29,11 @@ from nerf_jax.samplers.placement import Sampler
 
 
 def data_settings(data):
-  """loaders.DataSettings of a `data` section (config.data: a ConfigDict or dict; the fields it
-  lacks take their defaults, old spellings are moved: config_lib.complete)."""
+  """The DataSettings of a `data` section (config.data: a ConfigDict or dict; the fields it lacks
+  take their defaults, old spellings are moved: config_lib.complete)."""
   saved = data.to_dict() if hasattr(data, "to_dict") else dict(data)
   data = config_lib.complete({"data": saved}).data
-  return components.settings_from(loaders.DataSettings, data.to_dict(), "data", strict=False)
+  return components.settings_from(DataSettings, data.to_dict(), "data", strict=False)
 
 
 def shared_settings(settings_class, config, path, **derived):

@@ -13,7 +13,7 @@ import ml_collections
 
 from nerf_jax.backend import components
 from nerf_jax.cameras import scene_settings
-from nerf_jax.data import loaders
+from nerf_jax.data import data_settings
 from nerf_jax.evaluate import evaluation
 from nerf_jax.fields import field, protocol, registry
 from nerf_jax.fields.encodings import posenc
@@ -33,7 +33,7 @@ SECTIONS = {
     "": (settings.RunSettings, samplers.Settings, renderer.FineSettings, posenc.Settings,
          protocol.DirectionSettings),
     # The images and cameras loaded; how rays see the scene (box, bounds, spacing).
-    "data": (loaders.DataSettings, scene_settings.SceneSettings),
+    "data": (data_settings.DataSettings, scene_settings.SceneSettings),
     # The parts' names; what every network shares (width, view_*, dtype, appearance, the
     # lattices' box); the MLP's depth and skips; the field's noise; the renderer's use of it.
     "model": (registry.Parts, protocol.NetworkSettings, mlp.Settings, field.Settings,

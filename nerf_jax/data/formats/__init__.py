@@ -41,7 +41,7 @@ class Format:
   name: its registered name (FORMATS).
   detect: path (str: data.path, which exists, or '' for the built-in scenes) -> bool, whether
     the data at `path` is this format's. Only the first format whose detect holds reads it.
-  load: (path, background float64 [3], settings loaders.DataSettings) -> (train, test)
+  load: (path, background float64 [3], settings data_settings.DataSettings) -> (train, test)
     Datasets; DataError with one line naming the file and field for malformed data.
   background: path -> (name, why) or None: what data.background='auto' means for this
     format's data ('white' and why, for Blender's RGBA images); None (or a rule returning None)

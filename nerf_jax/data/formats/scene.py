@@ -10,7 +10,7 @@ def detect(path):
 
 
 def load(path, background, settings):
-  """(train, test) of the built-in scene settings.scene (loaders.DataSettings): image_size,
+  """(train, test) of the built-in scene settings.scene (data_settings.DataSettings): image_size,
   num_views and pixel_center apply (-1 = 0.5); focal keeps tiny_nerf's field of view;
   holdout_from -1 is the reference's 80/20 split; held_out_looks 'own' gives the test views of
   a scene with per-photo looks their own (scenes/photos.py); `without` leaves capture effects
